@@ -1,0 +1,26 @@
+# The README's two commands: `make demo` and `make test`. Both build/reuse .venv first.
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+DEMO_DIR ?= demo-out
+
+.PHONY: setup demo test clean
+
+setup: $(STAMP)
+
+# torch==2.13.0 first: on these machines it is the CPU build that lies on disk.
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q torch==2.13.0
+	$(PY) -m pip install -q -e '.[train,test]'
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/edgepick demo --workdir $(DEMO_DIR)
+
+test: $(STAMP)
+	$(PY) -m pytest -q -p no:cacheprovider
+
+clean:
+	rm -rf $(VENV) $(DEMO_DIR) build *.egg-info

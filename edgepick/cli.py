@@ -1,0 +1,186 @@
+"""The `edgepick` command line: a thin click layer over the package's public functions.
+
+Heavy modules (torch, the trainer) are imported inside the commands, so `edgepick --help`
+and the runtime commands start fast and work on the torch-free base install.
+A user's error (EdgepickError) prints one line on stderr and exits 2; anything else exits 1.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+
+from edgepick import __version__
+from edgepick.errors import ConfigError, EdgepickError
+
+
+def parse_hxw(text: str) -> tuple[int, int]:
+    """'480x640' -> (480, 640) as height, width."""
+    try:
+        h, w = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ConfigError(f"--size must be HEIGHTxWIDTH like 480x640, got {text!r}") from None
+    if h < 32 or w < 32 or h % 8 or w % 8:
+        raise ConfigError(f"--size {text!r}: both sides must be multiples of 8 and at least 32")
+    return h, w
+
+
+def _emit(result: dict) -> None:
+    click.echo(json.dumps(result, indent=1))
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(__version__, prog_name="edgepick")
+def cli() -> None:
+    """edgepick: train DeepLabV3, quantize it to int8, and run robot picking on a CPU.
+
+    \b
+    The path: data synth -> train -> eval (-> quantize -> export -> grasp/pick -> bench).
+    `edgepick demo` runs the main job end to end on synthetic data.
+    """
+
+
+# ---------------------------------------------------------------------------- data
+@cli.group()
+def data() -> None:
+    """Make and inspect data sets (native layout, contract 3.1)."""
+
+
+@data.command("synth")
+@click.argument("out", type=click.Path(file_okay=False))
+@click.option("--scenes", default=510, show_default=True, help="Total scenes, split 40:10:1 like the thesis's 4000/1000/100.")
+@click.option("--splits", default=None, metavar="TRAIN,VAL,TEST", help="Explicit scene counts per split (overrides --scenes).")
+@click.option("--size", default="640x480", show_default=True, help="Image WIDTHxHEIGHT (camera convention).")
+@click.option("--seed", default=0, show_default=True, help="Same seed -> identical files.")
+@click.option("--workers", default=0, show_default=True, help="Parallel processes; 0 = one per core.")
+def data_synth(out: str, scenes: int, splits: str | None, size: str, seed: int, workers: int) -> None:
+    """Render synthetic RGB-D tabletop scenes of the thesis's four objects into OUT.
+
+    Bearings, brake disks, plug adapters and cardboard boxes, 1-4 per scene, touching and
+    occluding each other, on wood/laminate/mat/steel tables under the four lighting
+    conditions of thesis Table 5.3; D415-like depth with noise and holes; grasp truth.
+    """
+    from edgepick.data.synth import SynthConfig, parse_size_wxh, synthesize
+
+    width, height = parse_size_wxh(size)
+    split_counts = None
+    if splits:
+        try:
+            split_counts = tuple(int(v) for v in splits.split(","))
+        except ValueError:
+            raise ConfigError(f"--splits must be three integers TRAIN,VAL,TEST, got {splits!r}") from None
+        if len(split_counts) != 3 or min(split_counts) < 1:
+            raise ConfigError("--splits needs three counts, each at least 1")
+        scenes = sum(split_counts)
+    if scenes < 3:
+        raise ConfigError("--scenes must be at least 3 (one per split)")
+    cfg = SynthConfig(scenes=scenes, width=width, height=height, seed=seed, splits=split_counts, workers=workers)
+    _emit(synthesize(out, cfg))
+
+
+@data.command("preview")
+@click.argument("data_dir", metavar="DATA", type=click.Path())
+@click.option("--out", required=True, type=click.Path(dir_okay=False), help="PNG contact sheet to write.")
+@click.option("--split", default="train", show_default=True)
+@click.option("--count", default=12, show_default=True, help="Scenes to draw.")
+def data_preview(data_dir: str, out: str, split: str, count: int) -> None:
+    """Draw a contact sheet: RGB with mask overlays and grasp truth, and the depth map."""
+    from edgepick.data.preview import contact_sheet
+
+    n = contact_sheet(data_dir, out, split=split, count=count)
+    _emit({"out": out, "scenes": n})
+
+
+# --------------------------------------------------------------------------- train
+@cli.command()
+@click.argument("data_dir", metavar="DATA", type=click.Path())
+@click.option("--out", required=True, type=click.Path(file_okay=False), help="RUN folder for checkpoints and metrics.")
+@click.option("--arch", default="mobilenetv3", show_default=True, type=click.Choice(["mobilenetv3", "resnet50", "resnet101"]))
+@click.option("--epochs", default=None, type=int, help="Epoch budget [default: 100; on --resume: the run's own].")
+@click.option("--batch-size", default=8, show_default=True)
+@click.option("--lr", default=1e-3, show_default=True, help="AdamW learning rate (poly decay, short warm-up).")
+@click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
+@click.option("--size", default="480x640", show_default=True, help="Training input HEIGHTxWIDTH.")
+@click.option("--colorspace", default="rgb", show_default=True, type=click.Choice(["rgb", "hsv", "gray"]))
+@click.option("--output-stride", default=16, show_default=True, type=click.Choice(["8", "16"]))
+@click.option("--aux-loss/--no-aux-loss", default=False, show_default=True, help="FCN auxiliary head (weight 0.4).")
+@click.option("--keep-epochs", default="", help="Comma-separated epochs whose checkpoints are kept (hybrid-QaT switch points).")
+@click.option("--backbone-weights", default=None, type=click.Path(dir_okay=False), help="Backbone state dict to start from.")
+@click.option("--workers", default=-1, show_default=True, help="Data loader workers; -1 = 0 on CPU (cached), 4 on GPU.")
+@click.option("--seed", default=0, show_default=True)
+@click.option("--resume", is_flag=True, help="Continue RUN from its last.pt (losing at most one epoch).")
+def train(data_dir: str, out: str, arch: str, epochs: int | None, batch_size: int, lr: float, device: str, size: str,
+          colorspace: str, output_stride: str, aux_loss: bool, keep_epochs: str, backbone_weights: str | None,
+          workers: int, seed: int, resume: bool) -> None:
+    """Train a float DeepLabV3 on DATA (CPU, one GPU with bf16 AMP, or DDP under torchrun).
+
+    Keeps best.pt (by validation mIoU), last.pt and epoch_NNN.pt for --keep-epochs, and
+    metrics.json with per-epoch loss, pixel accuracy, mIoU, per-class IoU and timings.
+    Multi-GPU: torchrun --nproc_per_node N -m edgepick train DATA --out RUN ...
+    """
+    from edgepick.train.loop import TrainConfig
+    from edgepick.train.loop import train as run_train
+
+    try:
+        keep = sorted({int(v) for v in keep_epochs.split(",") if v.strip()})
+    except ValueError:
+        raise ConfigError(f"--keep-epochs must be comma-separated integers, got {keep_epochs!r}") from None
+    cfg = TrainConfig(data=data_dir, out=out, arch=arch, epochs=epochs if epochs is not None else (0 if resume else 100),
+                      batch_size=batch_size, lr=lr, size=parse_hxw(size), colorspace=colorspace,
+                      output_stride=int(output_stride), aux_loss=aux_loss, device=device, keep_epochs=keep,
+                      backbone_weights=backbone_weights, workers=workers, seed=seed)
+    result = run_train(cfg, resume=resume)
+    if result is not None:
+        _emit({k: v for k, v in result.items()})
+
+
+@cli.command("eval")
+@click.argument("model", type=click.Path())
+@click.argument("data_dir", metavar="DATA", type=click.Path())
+@click.option("--split", default="test", show_default=True, type=click.Choice(["train", "val", "test"]))
+@click.option("--out", default=None, type=click.Path(dir_okay=False), help="Also write the JSON here.")
+def eval_cmd(model: str, data_dir: str, split: str, out: str | None) -> None:
+    """Pixel accuracy, per-class IoU, mIoU and confusion matrix of MODEL (checkpoint or RUN) as JSON."""
+    from edgepick.evaluation import evaluate
+
+    result = evaluate(model, data_dir, split)
+    if out:
+        Path(out).write_text(json.dumps(result, indent=1))
+    _emit(result)
+
+
+# ---------------------------------------------------------------------------- demo
+@cli.command()
+@click.option("--workdir", default="demo-out", show_default=True, type=click.Path(file_okay=False))
+@click.option("--scenes", default=204, show_default=True, help="Synthetic scenes to make.")
+@click.option("--epochs", default=12, show_default=True, help="CPU training epochs.")
+def demo(workdir: str, scenes: int, epochs: int) -> None:
+    """The main job on an embedded default: synth data, train a small model on CPU, evaluate."""
+    from edgepick.demo import run_demo
+
+    run_demo(Path(workdir), scenes=scenes, epochs=epochs)
+
+
+def main() -> None:
+    """Console entry point: user errors -> one line and exit 2."""
+    try:
+        cli.main(standalone_mode=False)
+    except EdgepickError as exc:
+        click.echo(f"edgepick: error: {exc}", err=True)
+        sys.exit(2)
+    except click.exceptions.Abort:
+        click.echo("edgepick: aborted", err=True)
+        sys.exit(130)
+    except click.ClickException as exc:
+        exc.show()
+        sys.exit(exc.exit_code)
+    except KeyboardInterrupt:
+        click.echo("edgepick: interrupted", err=True)
+        sys.exit(130)
+
+
+if __name__ == "__main__":
+    main()

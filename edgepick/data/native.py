@@ -1,0 +1,86 @@
+"""Read and validate the native data set layout (contract 3.1). numpy + OpenCV, no torch."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from edgepick.errors import DatasetError
+from edgepick.runtime.geometry import Intrinsics
+
+SPLITS = ("train", "val", "test")
+
+
+@dataclass
+class NativeDataset:
+    """One split of a native data set: sorted scene ids and readers for their files."""
+
+    root: Path
+    split: str
+    classes: list[str]
+    ids: list[str]
+    intrinsics: Intrinsics | None
+
+    @classmethod
+    def open(cls, root: str | Path, split: str) -> "NativeDataset":
+        root = Path(root)
+        meta_path = root / "meta.json"
+        if not meta_path.is_file():
+            raise DatasetError(f"{root} is not an edgepick data set (no meta.json)")
+        try:
+            meta = json.loads(meta_path.read_text())
+            classes = [str(c) for c in meta["classes"]]
+        except (json.JSONDecodeError, KeyError, TypeError) as exc:
+            raise DatasetError(f"{meta_path} is unreadable or has no class list: {exc}") from None
+        if len(classes) < 2:
+            raise DatasetError(f"{meta_path} must list at least 2 classes")
+        if split not in SPLITS:
+            raise DatasetError(f"unknown split {split!r}; choose one of {', '.join(SPLITS)}")
+        rgb_dir, mask_dir = root / split / "rgb", root / split / "mask"
+        if not rgb_dir.is_dir() or not mask_dir.is_dir():
+            raise DatasetError(f"{root} has no {split}/rgb and {split}/mask folders")
+        ids = sorted(p.stem for p in rgb_dir.glob("*.png"))
+        masks = {p.stem for p in mask_dir.glob("*.png")}
+        missing = [i for i in ids if i not in masks]
+        if missing:
+            raise DatasetError(f"{split} has {len(missing)} images without a mask (first: {missing[0]}); "
+                               "the data set looks half-written")
+        if not ids:
+            raise DatasetError(f"{root}/{split} holds no images")
+        intr = Intrinsics.from_dict(meta["intrinsics"]) if "intrinsics" in meta else None
+        return cls(root, split, classes, ids, intr)
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def _path(self, kind: str, sid: str) -> Path:
+        return self.root / self.split / kind / f"{sid}.png"
+
+    def rgb(self, sid: str) -> np.ndarray:
+        img = cv2.imread(str(self._path("rgb", sid)), cv2.IMREAD_COLOR)
+        if img is None:
+            raise DatasetError(f"cannot read image {self._path('rgb', sid)}")
+        return np.ascontiguousarray(img[..., ::-1])
+
+    def mask(self, sid: str) -> np.ndarray:
+        m = cv2.imread(str(self._path("mask", sid)), cv2.IMREAD_UNCHANGED)
+        if m is None or m.ndim != 2:
+            raise DatasetError(f"cannot read mask {self._path('mask', sid)} as a single-channel label image")
+        if int(m.max()) >= len(self.classes):
+            raise DatasetError(f"mask {self._path('mask', sid)} has class id {int(m.max())} but the data set "
+                               f"has {len(self.classes)} classes")
+        return m
+
+    def depth(self, sid: str) -> np.ndarray:
+        d = cv2.imread(str(self._path("depth", sid)), cv2.IMREAD_UNCHANGED)
+        if d is None:
+            raise DatasetError(f"cannot read depth {self._path('depth', sid)}")
+        return d
+
+    def grasps(self) -> dict:
+        path = self.root / self.split / "grasps.json"
+        return json.loads(path.read_text()) if path.is_file() else {}

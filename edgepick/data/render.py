@@ -1,0 +1,423 @@
+"""Render one synthetic RGB-D tabletop scene: z-buffered solids, lights, shadows, sensor noise.
+
+A scene is a tilted table plane seen by a D415-like camera, 1-4 objects from `shapes.py`
+(touching, sometimes resting on each other), one of the thesis's lighting conditions
+(Table 5.3), and a depth map with the D415's failure modes (noise growing with distance,
+holes on shiny metal, at depth edges and in the left invalid band).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from edgepick.data.shapes import MAKERS, Noise, ObjectModel
+from edgepick.runtime.geometry import Intrinsics
+
+CLASSES = ("background", "bearing", "disk", "adapter", "box")
+LIGHTINGS = ("ceiling", "ceiling+white", "single", "hazard")
+TABLES = ("wood", "laminate", "mat", "steel")
+OBJECT_WEIGHTS = {"bearing": 0.28, "disk": 0.16, "adapter": 0.28, "box": 0.28}
+
+
+@dataclass
+class Placed:
+    model: ObjectModel
+    ground: np.ndarray  # point on the table plane under the object's centre (camera frame, m)
+    base_elev: float  # elevation of the object's base above the table (stacked objects)
+    a1: np.ndarray  # local x axis (major axis) in the table plane
+    a2: np.ndarray
+
+
+@dataclass
+class Scene:
+    rgb: np.ndarray  # uint8 [H, W, 3] RGB
+    depth: np.ndarray  # uint16 [H, W] millimetres, 0 = no reading
+    mask: np.ndarray  # uint8 [H, W] class ids
+    grasps: list[dict]
+    info: dict
+
+
+def _plane_frame(n: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
+    x = np.array([1.0, 0.0, 0.0]) - n[0] * n
+    x /= np.linalg.norm(x)
+    y = np.cross(n, x)
+    a1 = np.cos(yaw) * x + np.sin(yaw) * y
+    return a1, np.cross(n, a1)
+
+
+def _table_albedo(rng: np.random.Generator, kind: str, h: int, w: int) -> tuple[np.ndarray, float, float]:
+    """Linear-RGB albedo of the table surface, with its specular strength and shininess."""
+    def noise(cells: int) -> np.ndarray:
+        g = rng.standard_normal((cells, max(2, cells * w // h))).astype(np.float32)
+        return cv2.resize(g, (w, h), interpolation=cv2.INTER_CUBIC)
+
+    fine = noise(96) * 0.5 + noise(24) * 0.5
+    if kind == "wood":  # planks: grain streaks along the plank, ring figure, seams, per-plank tint
+        base = np.power(np.array([rng.uniform(0.55, 0.75), rng.uniform(0.38, 0.5), rng.uniform(0.22, 0.3)],
+                                 np.float32), 2.2)
+        along_x = rng.random() < 0.5
+        L, A = (w, h) if along_x else (h, w)  # length along the grain, extent across it
+        streak = cv2.resize(rng.standard_normal((A // 2, 4)).astype(np.float32), (L, A),
+                            interpolation=cv2.INTER_LINEAR)
+        warp = cv2.resize(rng.standard_normal((6, 5)).astype(np.float32), (L, A), interpolation=cv2.INTER_CUBIC)
+        across = np.arange(A, dtype=np.float32)[:, None]
+        rings = 0.5 + 0.5 * np.sin(across * rng.uniform(0.15, 0.3) + warp * 6.0)
+        plank_w = int(rng.uniform(0.18, 0.35) * A) + 1
+        plank = (across // plank_w).astype(int)[:, 0]
+        tint = 1.0 + 0.1 * rng.standard_normal(plank.max() + 1).astype(np.float32)
+        seam = (np.mod(across, plank_w) < 2).astype(np.float32)
+        shade = (0.82 + 0.08 * streak + 0.12 * rings ** 4) * tint[plank][:, None] * (1 - 0.6 * seam)
+        if not along_x:
+            shade = shade.T
+        shade = np.ascontiguousarray(shade) + 0.03 * fine
+        return base * shade[..., None], 0.08, 12.0
+    if kind == "laminate":
+        g = rng.uniform(0.35, 0.75)
+        base = np.power(np.array([g, g * rng.uniform(0.96, 1.02), g * rng.uniform(0.95, 1.05)], np.float32), 2.2)
+        shade = 1.0 + 0.06 * fine + 0.05 * noise(8)
+        return base * shade[..., None], 0.1, 10.0
+    if kind == "mat":
+        palette = [(0.12, 0.3, 0.2), (0.12, 0.18, 0.32), (0.2, 0.2, 0.22)]
+        base = np.power(np.array(palette[rng.integers(len(palette))], np.float32), 2.2)
+        step = rng.uniform(10, 18)
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+        grid = ((np.mod(xx, step) < 0.8) | (np.mod(yy, step) < 0.8)).astype(np.float32)
+        col = base * (1.0 + 0.05 * fine)[..., None]
+        return col * (1 - grid[..., None] * 0.3) + grid[..., None] * 0.1, 0.03, 8.0
+    # brushed steel workbench
+    g = rng.uniform(0.35, 0.5)
+    streaks = cv2.resize(rng.standard_normal((h, 8)).astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
+    if rng.random() < 0.5:
+        streaks = cv2.resize(rng.standard_normal((8, w)).astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
+    shade = 1.0 + 0.05 * streaks + 0.04 * fine
+    return np.power(np.float32(g), 2.2) * np.repeat(shade[..., None], 3, axis=2), 0.35, 18.0
+
+
+def _lights(rng: np.random.Generator, kind: str, centre: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, list[dict]]:
+    """Ambient colour and point lights (position, colour, intensity, softness) for a lighting condition."""
+    up = -n
+
+    def lateral(lo: float, hi: float) -> np.ndarray:
+        a = rng.uniform(0, 2 * np.pi)
+        d = np.array([np.cos(a), np.sin(a), 0.0])
+        d -= (d @ n) * n
+        return d / np.linalg.norm(d) * rng.uniform(lo, hi)
+
+    warm = np.array([1.0, rng.uniform(0.92, 1.0), rng.uniform(0.8, 0.95)], np.float32)
+    ceiling = dict(pos=centre + up * rng.uniform(1.8, 2.6) + lateral(0.0, 0.8), colour=warm,
+                   power=rng.uniform(0.75, 0.95), soft=15)
+    white = dict(pos=centre + up * rng.uniform(0.25, 0.55) + lateral(0.3, 0.6),
+                 colour=np.array([1.0, 1.0, 1.0], np.float32), power=rng.uniform(1.1, 1.6), soft=3)
+    if kind == "ceiling":
+        return warm * rng.uniform(0.3, 0.4), [ceiling]
+    if kind == "ceiling+white":
+        return warm * rng.uniform(0.25, 0.35), [ceiling, white]
+    if kind == "single":
+        white["power"] = rng.uniform(1.3, 1.9)
+        return np.full(3, rng.uniform(0.02, 0.06), np.float32), [white]
+    hazard = dict(pos=centre + up * rng.uniform(0.2, 0.5) + lateral(0.2, 0.5),
+                  colour=np.array([1.0, rng.uniform(0.25, 0.5), rng.uniform(0.0, 0.08)], np.float32),
+                  power=rng.uniform(1.4, 2.2), soft=4)
+    ceiling["power"] *= rng.uniform(0.4, 0.7)
+    return warm * rng.uniform(0.12, 0.2), [ceiling, hazard]
+
+
+def _shade(points: np.ndarray, normals: np.ndarray, ks, shin, lights: list[dict],
+           centre: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lambert diffuse and Blinn-Phong specular per point and light: two [N, n_lights] arrays."""
+    view = -points / np.sqrt(np.einsum("ij,ij->i", points, points))[:, None]
+    diff = np.empty((len(points), len(lights)), np.float32)
+    spec = np.empty_like(diff)
+    for i, light in enumerate(lights):
+        to_l = light["pos"].astype(np.float32) - points
+        dist2 = np.einsum("ij,ij->i", to_l, to_l)
+        ldir = to_l / np.sqrt(dist2)[:, None]
+        fall = float(np.sum((light["pos"] - centre) ** 2)) / dist2 * light["power"]
+        half = ldir + view
+        half /= np.sqrt(np.einsum("ij,ij->i", half, half))[:, None] + 1e-9
+        diff[:, i] = np.clip(np.einsum("ij,ij->i", normals, ldir), 0, None) * fall
+        nh = np.clip(np.einsum("ij,ij->i", normals, half), 1e-6, None)
+        spec[:, i] = np.exp(np.log(nh) * shin) * ks * fall * 2.5
+    return diff, spec
+
+
+class SceneRenderer:
+    """Renders scenes for one image size; reuses the per-pixel ray table."""
+
+    def __init__(self, intr: Intrinsics):
+        self.intr = intr
+        self.rays = intr.rays()
+        # Noise pools drawn once (fixed seed) and cropped at per-scene random offsets: a full
+        # frame of fresh normal samples per scene costs more than the rest of the sensor model.
+        pool = np.random.default_rng(20231)
+        h, w = intr.height, intr.width
+        self._gauss = pool.standard_normal((h + 64, w + 64, 3), dtype=np.float32)
+        self._unif = pool.random((h + 64, w + 64), dtype=np.float32)
+        self._gamma = (np.power(np.linspace(0, 1, 4096, dtype=np.float32), 1 / 2.2) * 255).astype(np.float32)
+
+    def _crop(self, pool: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        oy, ox = rng.integers(0, 64, 2)
+        return pool[oy:oy + self.intr.height, ox:ox + self.intr.width]
+
+    # ------------------------------------------------------------------ sampling
+    def sample_objects(self, rng: np.random.Generator, n: np.ndarray, d: float) -> list[Placed]:
+        intr = self.intr
+        classes = list(OBJECT_WEIGHTS)
+        probs = np.array(list(OBJECT_WEIGHTS.values()))
+        placed: list[Placed] = []
+        for _ in range(int(rng.integers(1, 5))):
+            cls = str(rng.choice(classes, p=probs / probs.sum()))
+            if cls == "disk" and any(p.model.cls == "disk" for p in placed):
+                cls = "bearing"
+            model = MAKERS[cls](rng)
+            ground = None
+            for _try in range(20):
+                if placed and rng.random() < 0.45:  # touch or lean on a neighbour
+                    other = placed[int(rng.integers(len(placed)))]
+                    a = rng.uniform(0, 2 * np.pi)
+                    dist = (other.model.radius + model.radius) * rng.uniform(0.55, 1.0)
+                    cand = other.ground + _plane_frame(n, a)[0] * dist
+                else:
+                    m = 0.08
+                    u = rng.uniform(m, 1 - m) * intr.width
+                    v = rng.uniform(m, 1 - m) * intr.height
+                    ray = np.array([(u - intr.cx) / intr.fx, (v - intr.cy) / intr.fy, 1.0])
+                    cand = d / (n @ ray) * ray
+                uv = cand[:2] / cand[2] * [intr.fx, intr.fy] + [intr.cx, intr.cy]
+                inside = (0.04 * intr.width < uv[0] < 0.96 * intr.width) and (0.04 * intr.height < uv[1] < 0.96 * intr.height)
+                if inside:
+                    ground = cand
+                    break
+            if ground is None:
+                continue
+            base = 0.0
+            for p in placed:  # rest on an object whose centre is well under this one's footprint
+                if np.linalg.norm(p.ground - ground) < 0.5 * (p.model.radius + model.radius) and \
+                        model.radius < 1.2 * p.model.radius:
+                    base = max(base, p.base_elev + p.model.height)
+            a1, a2 = _plane_frame(n, rng.uniform(-np.pi, np.pi))
+            placed.append(Placed(model, ground, base, a1, a2))
+        return placed
+
+    # ----------------------------------------------------------------- rendering
+    def _bbox(self, p: Placed, n: np.ndarray) -> tuple[int, int, int, int] | None:
+        intr = self.intr
+        pts = []
+        for elev in (p.base_elev, p.base_elev + p.model.height):
+            c = p.ground - n * elev
+            r = p.model.radius * intr.fx / c[2] * 1.05 + 3
+            u, v = c[0] / c[2] * intr.fx + intr.cx, c[1] / c[2] * intr.fy + intr.cy
+            pts += [(u - r, v - r), (u + r, v + r)]
+        pts = np.array(pts)
+        x0, y0 = np.floor(pts.min(0)).astype(int)
+        x1, y1 = np.ceil(pts.max(0)).astype(int)
+        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, intr.width), min(y1, intr.height)
+        return (x0, y0, x1, y1) if x1 > x0 and y1 > y0 else None
+
+    def render(self, rng: np.random.Generator) -> Scene:
+        intr = self.intr
+        h, w = intr.height, intr.width
+        cam_h = rng.uniform(0.55, 0.8)
+        tilt = np.deg2rad(rng.uniform(0, 10))
+        tdir = rng.uniform(0, 2 * np.pi)
+        n = np.array([np.sin(tilt) * np.cos(tdir), np.sin(tilt) * np.sin(tdir), np.cos(tilt)])
+        d = cam_h  # table plane: n . X = d
+        lighting = LIGHTINGS[int(rng.integers(len(LIGHTINGS)))]
+        table = TABLES[int(rng.integers(len(TABLES)))]
+
+        ndotr = (self.rays @ n.astype(np.float32)).astype(np.float32)
+        zbuf = (d / ndotr).astype(np.float32)
+        albedo, t_ks, t_shin = _table_albedo(rng, table, h // 2, w // 2)  # sensor blur hides the upsampling
+        albedo = cv2.resize(albedo.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
+        normal = np.zeros((h, w, 3), np.float32)  # per-pixel materials: read on object pixels only
+        ks = np.zeros((h, w), np.float32)
+        shin = np.zeros((h, w), np.float32)
+        metal = np.zeros((h, w), bool)
+        label = np.zeros((h, w), np.uint8)
+        inst = np.zeros((h, w), np.uint8)
+
+        placed = self.sample_objects(rng, n, d)
+        footprints = []
+        for k, p in enumerate(placed, start=1):
+            box = self._bbox(p, n)
+            if box is None:
+                footprints.append(None)
+                continue
+            x0, y0, x1, y1 = box
+            rays = self.rays[y0:y1, x0:x1]
+            nr = ndotr[y0:y1, x0:x1]
+            full = np.zeros((y1 - y0, x1 - x0), bool)
+            for part in p.model.parts:
+                done = np.zeros_like(full)
+                levels = np.linspace(1.0, 0.0, 4)
+                for li, t in enumerate(levels):
+                    elev = p.base_elev + part.z0 + t * (part.z1 - part.z0)
+                    z = (d - elev) / nr
+                    rel = rays * z[..., None] - (p.ground - n * elev).astype(np.float32)
+                    lx, ly = rel @ p.a1.astype(np.float32), rel @ p.a2.astype(np.float32)
+                    inside = (part.sdf(lx, ly) < 0) & ~done
+                    if not inside.any():
+                        continue
+                    done |= inside
+                    sub_z = zbuf[y0:y1, x0:x1]
+                    win = inside & (z < sub_z)
+                    if not win.any():
+                        continue
+                    sub_z[win] = z[win]
+                    ax, ay = lx[win], ly[win]
+                    col = part.albedo(ax, ay)
+                    if li == 0:  # top face: up, with the part's curvature tilt
+                        tx, ty = part.tilt(ax, ay) if part.tilt else (0.0 * ax, 0.0 * ay)
+                        nn = -n[None, :] + tx[:, None] * p.a1[None, :] + ty[:, None] * p.a2[None, :]
+                    else:  # side wall: outward gradient of the footprint
+                        eps = 5e-4
+                        gx = part.sdf(ax + eps, ay) - part.sdf(ax - eps, ay)
+                        gy = part.sdf(ax, ay + eps) - part.sdf(ax, ay - eps)
+                        nn = gx[:, None] * p.a1[None, :] + gy[:, None] * p.a2[None, :] - 0.15 * n[None, :]
+                        col = col * 0.85
+                    nn /= np.linalg.norm(nn, axis=1, keepdims=True) + 1e-9
+                    albedo[y0:y1, x0:x1][win] = col
+                    normal[y0:y1, x0:x1][win] = nn
+                    ks[y0:y1, x0:x1][win] = part.ks
+                    shin[y0:y1, x0:x1][win] = part.shininess
+                    metal[y0:y1, x0:x1][win] = part.metal
+                    label[y0:y1, x0:x1][win] = CLASSES.index(p.model.cls)
+                    inst[y0:y1, x0:x1][win] = k
+                full |= done
+            footprints.append((box, full))
+
+        centre = (d / ndotr[h // 2, w // 2]) * self.rays[h // 2, w // 2]
+        ambient, lights = _lights(rng, lighting, centre, n)
+        on_table = label == 0
+        shadows = [self._shadow(light, placed, footprints, n, d, on_table) for light in lights]
+        # The table is flat: shade it at 1/4 resolution. Objects: per pixel.
+        q = 4
+        small = self.rays[q // 2::q, q // 2::q]
+        pts_t = (small * (d / (small @ n.astype(np.float32)))[..., None]).reshape(-1, 3)
+        nrm_t = np.broadcast_to((-n).astype(np.float32), pts_t.shape)
+        ys, xs = np.nonzero(~on_table)
+        pts_o = self.rays[ys, xs] * zbuf[ys, xs, None]
+        objects = (~on_table).astype(np.float32)
+        occ = cv2.resize(cv2.GaussianBlur(cv2.resize(objects, (w // q, h // q), interpolation=cv2.INTER_AREA),
+                                          (0, 0), 1.5), (w, h))  # contact shadow around bases
+        amb = 1 - 0.5 * occ * on_table
+        dif_t, spc_t = _shade(pts_t, nrm_t, t_ks, t_shin, lights, centre)
+        dif_o, spc_o = _shade(pts_o, normal[ys, xs], ks[ys, xs], shin[ys, xs], lights, centre)
+        grid = (small.shape[1], small.shape[0])
+        light_c = [amb * float(ambient[c]) for c in range(3)]  # planar per-channel sums
+        spec_c = [np.zeros((h, w), np.float32) for _ in range(3)]
+        spec_lum = np.zeros((h, w), np.float32)
+        for li, light in enumerate(lights):
+            dt = cv2.resize(dif_t[:, li].reshape(grid[1], grid[0]), (w, h), interpolation=cv2.INTER_LINEAR)
+            st = cv2.resize(spc_t[:, li].reshape(grid[1], grid[0]), (w, h), interpolation=cv2.INTER_LINEAR)
+            dt[ys, xs] = dif_o[:, li]
+            st[ys, xs] = spc_o[:, li]
+            dt *= shadows[li]
+            st *= shadows[li]
+            spec_lum += st
+            for c in range(3):
+                light_c[c] += dt * float(light["colour"][c])
+                spec_c[c] += st * float(light["colour"][c])
+        mys, mxs = np.nonzero(metal)
+        tint = albedo[mys, mxs]
+        tint = tint / (tint.mean(1, keepdims=True) + 1e-3)  # metal tints its highlights
+        alb = cv2.split(albedo)
+        for c in range(3):
+            spec_c[c][mys, mxs] *= tint[:, c]
+        linear = cv2.merge([alb[c] * light_c[c] + spec_c[c] for c in range(3)])
+        mean_lin = float(np.mean(cv2.mean(linear)[:3]))
+        gain = float(np.clip((0.2 / (mean_lin + 1e-4)) ** 0.7, 0.5, 4.0)) * rng.uniform(0.85, 1.15)
+        idx = np.clip(linear * (gain * 4095), 0, 4095).astype(np.int16)
+        img = self._gamma[idx]
+        img = cv2.GaussianBlur(img, (0, 0), rng.uniform(0.5, 0.9))
+        img = cv2.scaleAdd(self._crop(self._gauss, rng), float(2.0 * np.sqrt(gain)), img)
+        rgb = cv2.convertScaleAbs(np.maximum(img, 0))  # rounds and saturates to uint8
+        dark = np.zeros((h, w), bool)
+        dark[ys, xs] = albedo[ys, xs].mean(1) < 0.01
+        depth = self._depth(rng, zbuf, metal, spec_lum * gain, dark)
+        grasps = self._grasps(placed, footprints, inst, n)
+        info = {"lighting": lighting, "table": table, "camera_height_m": round(cam_h, 4),
+                "tilt_deg": round(float(np.rad2deg(tilt)), 2), "exposure_gain": round(gain, 3),
+                "objects": [f"{p.model.cls}:{p.model.variant}" for p in placed]}
+        return Scene(rgb, depth, label, grasps, info)
+
+    def _shadow(self, light: dict, placed: list[Placed], footprints: list, n: np.ndarray, d: float,
+                on_table: np.ndarray) -> np.ndarray:
+        """Light visibility on the table: each object's footprint pushed away from the light."""
+        h, w = on_table.shape
+        q = 4  # shadows are soft: work at quarter resolution
+        hq, wq = h // q, w // q
+        occl = np.zeros((hq, wq), np.float32)
+        for p, fp in zip(placed, footprints):
+            if fp is None:
+                continue
+            (x0, y0, x1, y1), full = fp
+            top = p.ground - n * (p.base_elev + p.model.height)
+            lvec = top - light["pos"]
+            t = (d - top @ n) / (lvec @ n)  # where the light ray through the top hits the table
+            hit = top + t * lvec
+            du = (hit[0] / hit[2] - top[0] / top[2]) * self.intr.fx / q
+            dv = (hit[1] / hit[2] - top[1] / top[2]) * self.intr.fy / q
+            m = np.zeros((h, w), np.float32)
+            m[y0:y1, x0:x1] = full
+            m = cv2.resize(m, (wq, hq), interpolation=cv2.INTER_AREA)
+            steps = 4
+            for s in range(1, steps + 1):
+                shift = np.float32([[1, 0, du * s / steps], [0, 1, dv * s / steps]])
+                occl = np.maximum(occl, cv2.warpAffine(m, shift, (wq, hq)))
+        occl = cv2.GaussianBlur(occl, (0, 0), max(0.7, light["soft"] / q))
+        occl = cv2.resize(occl, (w, h), interpolation=cv2.INTER_LINEAR)
+        return 1.0 - 0.85 * occl * on_table
+
+    def _depth(self, rng: np.random.Generator, z: np.ndarray, metal: np.ndarray, spec: np.ndarray,
+               dark: np.ndarray) -> np.ndarray:
+        """D415-like depth: noise ~ z^2, smooth error blobs, holes on shiny metal, edges, left band."""
+        h, w = z.shape
+        sigma = 0.0008 + 0.003 * z ** 2
+        blob = cv2.resize(rng.standard_normal((h // 16, w // 16)).astype(np.float32), (w, h),
+                          interpolation=cv2.INTER_CUBIC)
+        zn = z + sigma * (0.6 * self._crop(self._gauss, rng)[..., 0] + 0.8 * blob)
+        valid = np.ones((h, w), bool)
+        valid &= ~(metal & (spec > rng.uniform(0.35, 0.6)))  # saturated highlights break the stereo match
+        drop = cv2.resize(rng.random((h // 12, w // 12)).astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
+        valid &= ~(metal & (drop < rng.uniform(0.15, 0.3)))
+        valid &= ~(dark & (drop < 0.4))  # black plastic absorbs the IR pattern
+        gx = np.abs(cv2.Sobel(z, cv2.CV_32F, 1, 0, ksize=3))
+        gy = np.abs(cv2.Sobel(z, cv2.CV_32F, 0, 1, ksize=3))
+        edge = cv2.dilate(((gx + gy) > 0.02).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+        valid &= ~(edge & (self._crop(self._unif, rng) < 0.7))
+        band = int(round(rng.uniform(0.012, 0.035) * w))
+        valid[:, :band] = False
+        mm = np.clip(np.round(zn * 1000.0), 0, 65535).astype(np.uint16)
+        mm[~valid] = 0
+        return mm
+
+    def _grasps(self, placed: list[Placed], footprints: list, inst: np.ndarray, n: np.ndarray) -> list[dict]:
+        intr = self.intr
+        out = []
+        for k, (p, fp) in enumerate(zip(placed, footprints), start=1):
+            if fp is None:
+                continue
+            visible = int((inst == k).sum())
+            if visible == 0:
+                continue
+            top = p.ground - n * (p.base_elev + p.model.height)
+            uv = top[:2] / top[2] * [intr.fx, intr.fy] + [intr.cx, intr.cy]
+            angle = 0.0
+            if p.model.major_axis:
+                tip = top + p.a1 * p.model.length / 2
+                tuv = tip[:2] / tip[2] * [intr.fx, intr.fy] + [intr.cx, intr.cy]
+                angle = float(np.rad2deg(np.arctan2(tuv[1] - uv[1], tuv[0] - uv[0])))
+                angle = angle - 180.0 if angle > 90.0 else (angle + 180.0 if angle <= -90.0 else angle)
+            (x0, y0, x1, y1), full = fp
+            out.append({
+                "class": p.model.cls, "variant": p.model.variant,
+                "pixel": [round(float(uv[0]), 2), round(float(uv[1]), 2)],
+                "angle_deg": round(angle, 2), "orientation_defined": bool(p.model.major_axis),
+                "point_camera_m": [round(float(c), 5) for c in top],
+                "visible_fraction": round(visible / max(1, int(full.sum())), 3),
+            })
+        return out

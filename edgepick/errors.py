@@ -1,0 +1,17 @@
+"""Errors a user can cause. The CLI prints their one-sentence message and exits 2."""
+
+
+class EdgepickError(Exception):
+    """Base class: a user's error, reported as one line without a traceback."""
+
+
+class DatasetError(EdgepickError):
+    """A dataset is missing, half-written or does not follow the native layout."""
+
+
+class ConfigError(EdgepickError):
+    """An option value or combination of options is invalid."""
+
+
+class CheckpointError(EdgepickError):
+    """A checkpoint or model file is missing, unreadable or incompatible."""

@@ -1,0 +1,44 @@
+"""`edgepick eval`: segmentation metrics of a checkpoint on a split, at the data's own resolution."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from edgepick.data.native import NativeDataset
+from edgepick.errors import CheckpointError, ConfigError
+from edgepick.metrics import confusion_matrix, segmentation_metrics
+
+
+def evaluate(model_path: str | Path, data: str | Path, split: str = "test", progress: bool = True) -> dict:
+    """Pixel accuracy, per-class IoU, mIoU and confusion matrix of MODEL on DATA/<split>.
+
+    Frames are resized to the model's input size and the labels back to the frame
+    (nearest), as the runtime does (contract 3.2).
+    """
+    model_path = Path(model_path)
+    if model_path.suffix == ".onnx":
+        raise ConfigError("evaluating ONNX files needs the export issue; pass a checkpoint or RUN folder")
+    import torch
+
+    from edgepick.train.checkpoint import load_model
+
+    ds = NativeDataset.open(data, split)
+    model, ckpt = load_model(model_path)
+    classes = ckpt["classes"]
+    if classes != ds.classes:
+        raise CheckpointError(f"the model's classes {classes} differ from the data set's {ds.classes}")
+    h, w = ckpt["input_size"]
+    cm = np.zeros((len(classes), len(classes)), np.int64)
+    with torch.inference_mode():
+        for sid in tqdm(ds.ids, desc=f"eval {split}", unit="img", disable=not progress or None):
+            rgb, mask = ds.rgb(sid), ds.mask(sid)
+            x = torch.from_numpy(cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA)).permute(2, 0, 1)[None].float()
+            labels = model(x)["out"].argmax(1)[0].numpy().astype(np.uint8)
+            labels = cv2.resize(labels, (mask.shape[1], mask.shape[0]), interpolation=cv2.INTER_NEAREST)
+            cm += confusion_matrix(mask, labels, len(classes))
+    result = segmentation_metrics(cm, classes)
+    return {"model": str(model_path), "data": str(data), "split": split, "images": len(ds), **result}

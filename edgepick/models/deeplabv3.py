@@ -1,0 +1,220 @@
+"""DeepLabV3 (ASPP head) on MobileNetV3-Large or ResNet-50/101, torchvision-compatible.
+
+State dict keys and shapes match torchvision's `deeplabv3_*` builders, so their
+checkpoints load with strict=True. The model takes float RGB in [0, 255], NCHW, and does
+its own colour-space conversion and normalisation (`Preprocess`, no state), so the ONNX
+export carries them in the graph (contract 3.2).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from edgepick.errors import ConfigError
+from edgepick.models.mobilenetv3 import mobilenet_v3_large_features
+from edgepick.models.resnet import ResNetFeatures
+
+ARCHS = ("mobilenetv3", "resnet50", "resnet101")
+COLORSPACES = ("rgb", "hsv", "gray")
+_NORM = {"rgb": ((0.485, 0.456, 0.406), (0.229, 0.224, 0.225)),
+         "hsv": ((0.5, 0.5, 0.5), (0.29, 0.29, 0.29)),
+         "gray": ((0.449, 0.449, 0.449), (0.226, 0.226, 0.226))}
+
+
+@dataclass
+class ModelConfig:
+    arch: str = "mobilenetv3"
+    num_classes: int = 5
+    output_stride: int = 16
+    colorspace: str = "rgb"
+    aux_loss: bool = False
+    bn_momentum: float = 0.1
+
+    def validate(self) -> "ModelConfig":
+        if self.arch not in ARCHS:
+            raise ConfigError(f"unknown arch {self.arch!r}; choose one of {', '.join(ARCHS)}")
+        if self.colorspace not in COLORSPACES:
+            raise ConfigError(f"unknown colour space {self.colorspace!r}; choose one of {', '.join(COLORSPACES)}")
+        if self.output_stride not in (8, 16):
+            raise ConfigError("output stride must be 8 or 16")
+        if self.num_classes < 2:
+            raise ConfigError("need at least 2 classes")
+        return self
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def rgb_to_hsv(x: Tensor) -> Tensor:
+    """RGB in [0, 1] -> HSV in [0, 1], with ops that export to ONNX."""
+    r, g, b = x[:, 0:1], x[:, 1:2], x[:, 2:3]
+    v = torch.amax(x, dim=1, keepdim=True)
+    delta = v - torch.amin(x, dim=1, keepdim=True)
+    s = delta / (v + 1e-6)
+    safe = delta + 1e-6
+    h = torch.where(v == r, (g - b) / safe, torch.where(v == g, 2.0 + (b - r) / safe, 4.0 + (r - g) / safe))
+    h = torch.remainder(h / 6.0, 1.0) * (delta > 0)
+    return torch.cat([h, s, v], dim=1)
+
+
+class Preprocess(nn.Module):
+    """[0, 255] RGB -> colour space -> normalised; buffers are not part of the state dict."""
+
+    def __init__(self, colorspace: str = "rgb"):
+        super().__init__()
+        self.colorspace = colorspace
+        mean, std = _NORM[colorspace]
+        self.register_buffer("mean", torch.tensor(mean).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer("std", torch.tensor(std).view(1, 3, 1, 1), persistent=False)
+
+    def forward(self, x: Tensor) -> Tensor:
+        x = x / 255.0
+        if self.colorspace == "hsv":
+            x = rgb_to_hsv(x)
+        elif self.colorspace == "gray":
+            y = 0.299 * x[:, 0:1] + 0.587 * x[:, 1:2] + 0.114 * x[:, 2:3]
+            x = y.expand(-1, 3, -1, -1)
+        return (x - self.mean) / self.std
+
+
+class ASPPConv(nn.Sequential):
+    def __init__(self, cin: int, cout: int, dilation: int):
+        super().__init__(nn.Conv2d(cin, cout, 3, padding=dilation, dilation=dilation, bias=False),
+                         nn.BatchNorm2d(cout), nn.ReLU())
+
+
+class ASPPPooling(nn.Sequential):
+    def __init__(self, cin: int, cout: int):
+        super().__init__(nn.AdaptiveAvgPool2d(1), nn.Conv2d(cin, cout, 1, bias=False), nn.BatchNorm2d(cout), nn.ReLU())
+
+    def forward(self, x: Tensor) -> Tensor:
+        size = x.shape[-2:]
+        for mod in self:
+            x = mod(x)
+        return F.interpolate(x, size=size, mode="bilinear", align_corners=False)
+
+
+class ASPP(nn.Module):
+    """Atrous spatial pyramid pooling: 1x1, three dilated 3x3, image pooling, then project."""
+
+    def __init__(self, cin: int, rates: tuple[int, int, int], cout: int = 256):
+        super().__init__()
+        branches: list[nn.Module] = [nn.Sequential(nn.Conv2d(cin, cout, 1, bias=False), nn.BatchNorm2d(cout), nn.ReLU())]
+        branches += [ASPPConv(cin, cout, r) for r in rates]
+        branches.append(ASPPPooling(cin, cout))
+        self.convs = nn.ModuleList(branches)
+        self.project = nn.Sequential(nn.Conv2d(len(branches) * cout, cout, 1, bias=False), nn.BatchNorm2d(cout),
+                                     nn.ReLU(), nn.Dropout(0.5))
+
+    def forward(self, x: Tensor) -> Tensor:
+        return self.project(torch.cat([conv(x) for conv in self.convs], dim=1))
+
+
+class DeepLabHead(nn.Sequential):
+    def __init__(self, cin: int, num_classes: int, rates: tuple[int, int, int] = (12, 24, 36)):
+        super().__init__(ASPP(cin, rates), nn.Conv2d(256, 256, 3, padding=1, bias=False), nn.BatchNorm2d(256),
+                         nn.ReLU(), nn.Conv2d(256, num_classes, 1))
+
+
+class FCNHead(nn.Sequential):
+    def __init__(self, cin: int, num_classes: int):
+        mid = cin // 4
+        super().__init__(nn.Conv2d(cin, mid, 3, padding=1, bias=False), nn.BatchNorm2d(mid), nn.ReLU(),
+                         nn.Dropout(0.1), nn.Conv2d(mid, num_classes, 1))
+
+
+class MobileNetBackbone(nn.Sequential):
+    """features[0..16] returning the stride-8 'aux' tap (index 4) and the last output."""
+
+    AUX_INDEX = 4
+
+    def forward(self, x: Tensor) -> dict[str, Tensor]:  # type: ignore[override]
+        aux = x
+        for i, mod in enumerate(self):
+            x = mod(x)
+            if i == self.AUX_INDEX:
+                aux = x
+        return {"aux": aux, "out": x}
+
+
+class DeepLabV3(nn.Module):
+    """backbone -> DeepLabHead (+ optional FCN aux head); logits upsampled to the input size."""
+
+    def __init__(self, config: ModelConfig, backbone: nn.Module, out_ch: int, aux_ch: int):
+        super().__init__()
+        self.config = config
+        self.preprocess = Preprocess(config.colorspace)
+        self.backbone = backbone
+        rates = (12, 24, 36) if config.output_stride == 8 else (6, 12, 18)
+        if config.arch == "mobilenetv3":
+            rates = (12, 24, 36)  # torchvision's setting for its output-stride-16 MobileNet head
+        self.classifier = DeepLabHead(out_ch, config.num_classes, rates)
+        self.aux_classifier = FCNHead(aux_ch, config.num_classes) if config.aux_loss else None
+
+    def forward(self, x: Tensor) -> dict[str, Tensor]:
+        size = x.shape[-2:]
+        feats = self.backbone(self.preprocess(x))
+        out = {"out": F.interpolate(self.classifier(feats["out"]), size=size, mode="bilinear", align_corners=False)}
+        if self.aux_classifier is not None and self.training:
+            out["aux"] = F.interpolate(self.aux_classifier(feats["aux"]), size=size, mode="bilinear",
+                                       align_corners=False)
+        return out
+
+
+def build_model(config: ModelConfig) -> DeepLabV3:
+    """DeepLabV3 for a config; the keys match torchvision's builder for the same arch."""
+    config.validate()
+    if config.arch == "mobilenetv3":
+        backbone = MobileNetBackbone(*mobilenet_v3_large_features(config.output_stride, config.bn_momentum))
+        return DeepLabV3(config, backbone, 960, 40)
+    blocks = (3, 4, 6, 3) if config.arch == "resnet50" else (3, 4, 23, 3)
+    return DeepLabV3(config, ResNetFeatures(blocks, config.output_stride), 2048, 1024)
+
+
+def deeplabv3_mobilenet_v3_large(num_classes: int = 21, aux_loss: bool = False, **kw) -> DeepLabV3:
+    return build_model(ModelConfig("mobilenetv3", num_classes, aux_loss=aux_loss, **kw))
+
+
+def deeplabv3_resnet50(num_classes: int = 21, aux_loss: bool = False, **kw) -> DeepLabV3:
+    return build_model(ModelConfig("resnet50", num_classes, output_stride=kw.pop("output_stride", 8),
+                                   aux_loss=aux_loss, **kw))
+
+
+def deeplabv3_resnet101(num_classes: int = 21, aux_loss: bool = False, **kw) -> DeepLabV3:
+    return build_model(ModelConfig("resnet101", num_classes, output_stride=kw.pop("output_stride", 8),
+                                   aux_loss=aux_loss, **kw))
+
+
+def load_backbone_weights(model: DeepLabV3, path: str) -> int:
+    """Load backbone weights from a file: a torchvision classification or segmentation state dict.
+
+    Accepts keys prefixed `backbone.` (segmentation), `features.` (MobileNetV3 classifier) or
+    bare ResNet keys; returns the number of tensors loaded. Shape mismatches are an error.
+    """
+    from edgepick.errors import CheckpointError
+
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - any unreadable file is the user's
+        raise CheckpointError(f"cannot read backbone weights {path}: {exc}") from None
+    state = state.get("model", state) if isinstance(state, dict) else state
+    target = model.backbone.state_dict()
+    picked = {}
+    for key, val in state.items():
+        for prefix in ("backbone.", "features.", ""):
+            if key.startswith(prefix) and key[len(prefix):] in target:
+                k = key[len(prefix):]
+                if target[k].shape != val.shape:
+                    raise CheckpointError(f"backbone weight {key} has shape {tuple(val.shape)}, "
+                                          f"expected {tuple(target[k].shape)}")
+                picked[k] = val
+                break
+    if len(picked) < len(target) // 2:
+        raise CheckpointError(f"{path} does not hold {model.config.arch} backbone weights "
+                              f"({len(picked)} of {len(target)} tensors matched)")
+    model.backbone.load_state_dict(picked, strict=False)
+    return len(picked)

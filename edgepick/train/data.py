@@ -1,0 +1,91 @@
+"""Torch data pipeline: native-layout samples resized to the training size, GPU/CPU batch augmentation."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch.utils.data import Dataset
+
+from edgepick.data.native import NativeDataset
+
+IGNORE = 255
+
+
+class SegmentationSet(Dataset):
+    """(uint8 HWC RGB, uint8 HW mask) at a fixed size; optionally kept in memory after first read."""
+
+    def __init__(self, ds: NativeDataset, size: tuple[int, int], cache: bool = False):
+        self.ds, self.size, self.cache = ds, size, cache
+        self._mem: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    def __len__(self) -> int:
+        return len(self.ds)
+
+    def __getitem__(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
+        if i in self._mem:
+            img, mask = self._mem[i]
+        else:
+            sid = self.ds.ids[i]
+            h, w = self.size
+            img = cv2.resize(self.ds.rgb(sid), (w, h), interpolation=cv2.INTER_AREA)
+            mask = cv2.resize(self.ds.mask(sid), (w, h), interpolation=cv2.INTER_NEAREST)
+            if self.cache:
+                self._mem[i] = (img, mask)
+        return torch.from_numpy(img), torch.from_numpy(mask)
+
+
+def class_weights(ds: NativeDataset, num_classes: int, max_images: int = 200) -> torch.Tensor:
+    """1/sqrt(frequency) weights from up to max_images masks, normalised to mean 1."""
+    counts = np.ones(num_classes)
+    step = max(1, len(ds) // max_images)
+    for sid in ds.ids[::step]:
+        counts += np.bincount(ds.mask(sid).ravel(), minlength=num_classes)[:num_classes]
+    w = 1.0 / np.sqrt(counts / counts.sum())
+    return torch.tensor(w / w.mean(), dtype=torch.float32)
+
+
+def augment(img: torch.Tensor, mask: torch.Tensor, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    """Batch augmentation for the thesis's lighting conditions: photometric jitter, colour casts
+    (a hazard light turns metal red/orange), flips and a random scale with crop/pad.
+
+    img: float [N, 3, H, W] in [0, 255]; mask: long [N, H, W].
+    """
+    n, _, h, w = img.shape
+    dev = img.device
+
+    def rand(*shape: int) -> torch.Tensor:
+        return torch.rand(*shape, generator=gen).to(dev)
+
+    gray = img.mean(1, keepdim=True)
+    sat = 0.5 + rand(n, 1, 1, 1)  # saturation 0.5..1.5
+    img = gray + (img - gray) * sat
+    mean = img.mean((1, 2, 3), keepdim=True)
+    img = mean + (img - mean) * (0.7 + 0.6 * rand(n, 1, 1, 1))  # contrast
+    img = img * (0.55 + 0.9 * rand(n, 1, 1, 1))  # brightness
+    cast = 1.0 + 0.25 * (rand(n, 3, 1, 1) - 0.5)  # white balance drift
+    red = (rand(n, 1, 1, 1) < 0.15).float()  # occasional strong warm cast
+    cast = cast * (1 - red) + red * torch.tensor([1.3, 0.8, 0.55], device=dev).view(1, 3, 1, 1)
+    img = (img * cast).clamp(0, 255)
+    flip_x = rand(n) < 0.5
+    flip_y = rand(n) < 0.5
+    img = torch.where(flip_x.view(n, 1, 1, 1), img.flip(3), img)
+    mask = torch.where(flip_x.view(n, 1, 1), mask.flip(2), mask)
+    img = torch.where(flip_y.view(n, 1, 1, 1), img.flip(2), img)
+    mask = torch.where(flip_y.view(n, 1, 1), mask.flip(1), mask)
+    scale = float(0.75 + 0.5 * torch.rand(1, generator=gen))
+    if abs(scale - 1.0) > 0.02:
+        sh, sw = max(8, math.ceil(h * scale)), max(8, math.ceil(w * scale))
+        img = F.interpolate(img, size=(sh, sw), mode="bilinear", align_corners=False)
+        mask = F.interpolate(mask[:, None].float(), size=(sh, sw), mode="nearest")[:, 0].long()
+        if scale > 1:
+            y0 = int(torch.randint(0, sh - h + 1, (1,), generator=gen))
+            x0 = int(torch.randint(0, sw - w + 1, (1,), generator=gen))
+            img, mask = img[:, :, y0:y0 + h, x0:x0 + w], mask[:, y0:y0 + h, x0:x0 + w]
+        else:
+            img = F.pad(img, (0, w - sw, 0, h - sh), value=0.0)
+            mask = F.pad(mask, (0, w - sw, 0, h - sh), value=IGNORE)
+    return img.contiguous(), mask.contiguous()

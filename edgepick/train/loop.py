@@ -1,0 +1,226 @@
+"""`edgepick train`: float training of DeepLabV3, one loop for CPU, one GPU or DDP (torchrun).
+
+Per epoch: train with augmentation, validate (mIoU), append to metrics.json, write last.pt
+(atomically), best.pt when validation mIoU improves, epoch_NNN.pt at --keep-epochs (the
+hybrid-QaT switch points). --resume continues from last.pt, losing at most one epoch.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.distributed as dist
+import torch.nn.functional as F
+from torch.utils.data import DataLoader, DistributedSampler, Subset
+from tqdm import tqdm
+
+from edgepick.data.native import NativeDataset
+from edgepick.errors import ConfigError
+from edgepick.metrics import confusion_matrix, segmentation_metrics
+from edgepick.models.deeplabv3 import ModelConfig, build_model, load_backbone_weights
+from edgepick.train.checkpoint import model_meta, read_checkpoint, save_atomic
+from edgepick.train.data import IGNORE, SegmentationSet, augment, class_weights
+
+
+@dataclass
+class TrainConfig:
+    data: str
+    out: str
+    arch: str = "mobilenetv3"
+    epochs: int = 100
+    batch_size: int = 8
+    lr: float = 1e-3
+    weight_decay: float = 1e-4
+    size: tuple[int, int] = (480, 640)  # H, W
+    colorspace: str = "rgb"
+    output_stride: int = 16
+    aux_loss: bool = False
+    device: str = "auto"
+    keep_epochs: list[int] = field(default_factory=list)
+    backbone_weights: str | None = None
+    workers: int = -1  # -1: 0 on CPU (in-memory cache), 4 on GPU
+    seed: int = 0
+    class_weighting: bool = True
+
+
+def _dist() -> tuple[int, int, int]:
+    if int(os.environ.get("WORLD_SIZE", "1")) > 1:
+        return int(os.environ["RANK"]), int(os.environ["WORLD_SIZE"]), int(os.environ.get("LOCAL_RANK", 0))
+    return 0, 1, 0
+
+
+def _device(name: str, local_rank: int) -> torch.device:
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    if name == "cuda":
+        if not torch.cuda.is_available():
+            raise ConfigError("--device cuda asked for, but no CUDA device is available")
+        return torch.device("cuda", local_rank)
+    if name != "cpu":
+        raise ConfigError(f"unknown device {name!r}; choose auto, cpu or cuda")
+    return torch.device("cpu")
+
+
+def _log(msg: str, rank: int) -> None:
+    if rank == 0:
+        print(msg, file=sys.stderr, flush=True)
+
+
+@torch.no_grad()
+def validate(model: torch.nn.Module, loader: DataLoader, num_classes: int, device: torch.device,
+             amp: bool) -> np.ndarray:
+    """Confusion matrix of the model on a loader (eval mode, argmax labels)."""
+    model.eval()
+    cm = np.zeros((num_classes, num_classes), np.int64)
+    for img, mask in loader:
+        x = img.to(device).permute(0, 3, 1, 2).float()
+        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
+            pred = model(x)["out"].argmax(1)
+        cm += confusion_matrix(mask.numpy(), pred.cpu().numpy(), num_classes)
+    return cm
+
+
+def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict:
+    """Train a float DeepLabV3 on a native data set; returns the final summary."""
+    rank, world, local_rank = _dist()
+    device = _device(cfg.device, local_rank)
+    out = Path(cfg.out)
+    last_path = out / "last.pt"
+    if resume:
+        if not last_path.is_file():
+            raise ConfigError(f"nothing to resume: {last_path} does not exist")
+        ckpt = read_checkpoint(last_path)
+        epochs = cfg.epochs  # 0: keep the run's own epoch budget
+        cfg = TrainConfig(**{**ckpt["train_config"], "size": tuple(ckpt["train_config"]["size"])})
+        cfg.epochs = max(epochs or cfg.epochs, ckpt["epoch"])
+    elif last_path.exists():
+        raise ConfigError(f"{out} already holds a training run; pass --resume or choose a new --out")
+    model_cfg = ModelConfig(cfg.arch, 0, cfg.output_stride, cfg.colorspace, cfg.aux_loss)
+    train_ds = NativeDataset.open(cfg.data, "train")  # validates the layout before anything is written
+    val_ds = NativeDataset.open(cfg.data, "val")
+    classes = train_ds.classes
+    model_cfg.num_classes = len(classes)
+    model_cfg.validate()
+    if cfg.epochs < 1 or cfg.batch_size < 1:
+        raise ConfigError("--epochs and --batch-size must be at least 1")
+    model = build_model(model_cfg)
+    if cfg.backbone_weights:
+        load_backbone_weights(model, cfg.backbone_weights)
+
+    torch.manual_seed(cfg.seed)
+    cuda = device.type == "cuda"
+    amp = cuda  # bf16 autocast on GPU; CPU stays fp32
+    if world > 1 and not dist.is_initialized():
+        dist.init_process_group("nccl" if cuda else "gloo")
+    if cuda:
+        torch.cuda.set_device(device)
+        model = model.to(device, memory_format=torch.channels_last)
+    workers = (4 if cuda else 0) if cfg.workers < 0 else cfg.workers
+    train_set = SegmentationSet(train_ds, cfg.size, cache=workers == 0)
+    val_set = SegmentationSet(val_ds, cfg.size, cache=workers == 0)
+    sampler = DistributedSampler(train_set, world, rank, shuffle=True, seed=cfg.seed) if world > 1 else None
+    train_loader = DataLoader(train_set, cfg.batch_size, shuffle=sampler is None, sampler=sampler, drop_last=True
+                              if len(train_set) // world > cfg.batch_size else False, num_workers=workers,
+                              pin_memory=cuda, persistent_workers=workers > 0,
+                              generator=torch.Generator().manual_seed(cfg.seed))
+    val_loader = DataLoader(Subset(val_set, range(rank, len(val_set), world)), cfg.batch_size,
+                            num_workers=workers, pin_memory=cuda)
+    weights = class_weights(train_ds, len(classes)).to(device) if cfg.class_weighting else None
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    steps_per_epoch = max(1, len(train_loader))
+    total_steps = cfg.epochs * steps_per_epoch
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: min(1.0, (s + 1) / 50) *
+                                              (1 - min(s, total_steps - 1) / total_steps) ** 0.9)
+    state = {"epoch": 0, "history": [], "best_miou": -1.0, "train_time_s": 0.0}
+    if resume:
+        model.load_state_dict(ckpt["model"])
+        opt.load_state_dict(ckpt["optimizer"])
+        sched.load_state_dict(ckpt["scheduler"])
+        state = {k: ckpt[k] for k in state}
+        _log(f"resuming {out} after epoch {state['epoch']}", rank)
+    ddp = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
+    if rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+    meta = model_meta(model_cfg, classes, cfg.size)
+    gen = torch.Generator().manual_seed(cfg.seed * 1000 + state["epoch"] + rank)
+
+    for epoch in range(state["epoch"] + 1, cfg.epochs + 1):
+        if sampler is not None:
+            sampler.set_epoch(epoch)
+        ddp.train()
+        t0 = time.perf_counter()
+        loss_sum, seen = 0.0, 0
+        bar = tqdm(train_loader, desc=f"epoch {epoch}/{cfg.epochs}", unit="batch", leave=False,
+                   disable=(not progress or rank != 0) or None)
+        for img, mask in bar:
+            x = img.to(device, non_blocking=True).permute(0, 3, 1, 2).float()
+            y = mask.to(device, non_blocking=True).long()
+            x, y = augment(x, y, gen)
+            if cuda:
+                x = x.contiguous(memory_format=torch.channels_last)
+            with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
+                outputs = ddp(x)
+                loss = F.cross_entropy(outputs["out"].float(), y, weight=weights, ignore_index=IGNORE)
+                if "aux" in outputs:
+                    loss = loss + 0.4 * F.cross_entropy(outputs["aux"].float(), y, weight=weights,
+                                                        ignore_index=IGNORE)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            sched.step()
+            loss_sum += float(loss.detach()) * len(x)
+            seen += len(x)
+            bar.set_postfix(loss=f"{loss_sum / seen:.3f}")
+        train_s = time.perf_counter() - t0
+        cm = validate(model, val_loader, len(classes), device, amp)
+        if world > 1:
+            t = torch.tensor(cm, device=device)
+            dist.all_reduce(t)
+            cm = t.cpu().numpy()
+            stats = torch.tensor([loss_sum, seen], dtype=torch.float64, device=device)
+            dist.all_reduce(stats)
+            loss_sum, seen = float(stats[0]), int(stats[1])
+        epoch_s = time.perf_counter() - t0
+        m = segmentation_metrics(cm, classes)
+        state["train_time_s"] += epoch_s
+        record = {"epoch": epoch, "loss": round(loss_sum / max(seen, 1), 5), "pixel_acc": m["pixel_acc"],
+                  "miou": m["miou"], "per_class_iou": {c: v["iou"] for c, v in m["per_class"].items()},
+                  "epoch_s": round(epoch_s, 2), "train_s": round(train_s, 2),
+                  "images_per_s": round(seen / train_s, 2)}
+        state["history"].append(record)
+        state["epoch"] = epoch
+        _log(f"epoch {epoch}/{cfg.epochs}: loss {record['loss']:.4f}  val pixel acc {m['pixel_acc']:.4f}  "
+             f"mIoU {m['miou']:.4f}  {epoch_s:.1f}s", rank)
+        if rank == 0:
+            improved = (m["miou"] or 0.0) > state["best_miou"]
+            if improved:
+                state["best_miou"] = m["miou"] or 0.0
+            ckpt_out = {"model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
+                        "train_config": asdict(cfg), **meta, **state, "world_size": world}
+            save_atomic(ckpt_out, last_path)
+            if improved:
+                shutil.copyfile(last_path, out / ".best.tmp")
+                os.replace(out / ".best.tmp", out / "best.pt")
+            if epoch in cfg.keep_epochs:
+                shutil.copyfile(last_path, out / f".epoch_{epoch:03d}.tmp")
+                os.replace(out / f".epoch_{epoch:03d}.tmp", out / f"epoch_{epoch:03d}.pt")
+            summary = {"epochs": epoch, "best_miou": state["best_miou"], "train_time_s": round(state["train_time_s"], 2),
+                       "device": str(device), "world_size": world, "arch": cfg.arch, "size": list(cfg.size),
+                       "history": state["history"]}
+            tmp = out / ".metrics.json.tmp"
+            tmp.write_text(json.dumps(summary, indent=1))
+            os.replace(tmp, out / "metrics.json")
+        if world > 1:
+            dist.barrier()
+    if world > 1:
+        dist.destroy_process_group()
+    return {"out": str(out), "epochs": state["epoch"], "best_miou": state["best_miou"],
+            "train_time_s": round(state["train_time_s"], 2), "last": state["history"][-1] if state["history"] else None}

@@ -1,0 +1,140 @@
+"""Float training: quality after a short CPU run, resume after a kill, DDP with gloo, bad input."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from edgepick.train.checkpoint import load_model, read_checkpoint
+from tests.conftest import REPO, run_cli
+
+
+def test_short_cpu_training_beats_chance_and_is_not_degenerate(trained_run, small_data):
+    from edgepick.data.native import NativeDataset
+    from edgepick.metrics import confusion_matrix, segmentation_metrics
+    from tests.conftest import EPOCHS
+
+    metrics = json.loads((trained_run / "metrics.json").read_text())
+    assert len(metrics["history"]) == EPOCHS
+    first, best = metrics["history"][0], max(h["miou"] for h in metrics["history"])
+    ds = NativeDataset.open(small_data, "val")
+    cm = sum(confusion_matrix(m, np.zeros_like(m), 5) for m in (ds.mask(s) for s in ds.ids))
+    chance = segmentation_metrics(cm)["miou"]  # predicting background everywhere
+    assert best > chance + 0.05, (chance, metrics["history"])
+    assert best > first["miou"]
+    assert metrics["history"][-1]["loss"] < first["loss"]
+    for key in ("loss", "pixel_acc", "miou", "per_class_iou", "epoch_s", "images_per_s"):
+        assert key in metrics["history"][-1]
+    assert metrics["train_time_s"] > 0
+    # eval-mode predictions use several classes, not all background
+    import cv2
+
+    model, ckpt = load_model(trained_run)
+    ds = NativeDataset.open(small_data, "val")
+    h, w = ckpt["input_size"]
+    seen = set()
+    with torch.no_grad():
+        for sid in ds.ids:
+            x = torch.from_numpy(cv2.resize(ds.rgb(sid), (w, h))).permute(2, 0, 1)[None].float()
+            seen |= set(model(x)["out"].argmax(1).unique().tolist())
+    assert 0 in seen and len(seen) >= 3
+
+
+def test_checkpoints_carry_their_config(trained_run):
+    ckpt = read_checkpoint(trained_run / "best.pt")
+    assert ckpt["classes"] == ["background", "bearing", "disk", "adapter", "box"]
+    assert ckpt["input_size"] == [96, 128]
+    assert ckpt["colorspace"] == "rgb" and ckpt["model_config"]["arch"] == "mobilenetv3"
+    assert ckpt["normalisation"]["mean"] == (0.485, 0.456, 0.406)
+    assert (trained_run / "last.pt").is_file() and (trained_run / "epoch_002.pt").is_file()
+    assert read_checkpoint(trained_run / "epoch_002.pt")["epoch"] == 2
+    assert not list(trained_run.glob(".*tmp"))
+
+
+def test_eval_cli_reports_metrics(trained_run, small_data, tmp_path):
+    proc = run_cli("eval", str(trained_run / "best.pt"), str(small_data), "--split", "test",
+                   "--out", str(tmp_path / "m.json"), check=True)
+    result = json.loads(proc.stdout)
+    assert result["images"] == 4 and 0 <= result["miou"] <= 1 and 0 <= result["pixel_acc"] <= 1
+    assert np.array(result["confusion_matrix"]).shape == (5, 5)
+    assert np.array(result["confusion_matrix"]).sum() == 4 * 240 * 320  # at the data's own resolution
+    assert json.loads((tmp_path / "m.json").read_text())["miou"] == result["miou"]
+
+
+def test_resume_after_kill_loses_at_most_one_epoch(small_data, tmp_path):
+    run = tmp_path / "run"
+    args = [sys.executable, "-m", "edgepick", "train", str(small_data), "--out", str(run), "--epochs", "4",
+            "--size", "64x96", "--batch-size", "6", "--device", "cpu"]
+    proc = subprocess.Popen(args, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 300
+    while time.time() < deadline and not (run / "last.pt").exists():
+        time.sleep(0.1)
+    proc.send_signal(signal.SIGKILL)  # no chance to clean up: atomic writes must hold
+    proc.wait()
+    done = read_checkpoint(run / "last.pt")["epoch"]
+    assert 1 <= done < 4
+    resumed = run_cli("train", str(small_data), "--out", str(run), "--resume", check=True)
+    assert f"resuming {run} after epoch {done}" in resumed.stderr
+    history = json.loads((run / "metrics.json").read_text())["history"]
+    assert [h["epoch"] for h in history] == [1, 2, 3, 4]
+    assert read_checkpoint(run / "last.pt")["epoch"] == 4
+
+
+def test_ddp_two_cpu_processes_with_gloo(small_data, tmp_path):
+    run = tmp_path / "ddp"
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    proc = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2",
+                           "--master_port", "29517", "-m", "edgepick", "train", str(small_data), "--out", str(run),
+                           "--epochs", "1", "--size", "64x96", "--batch-size", "4", "--device", "cpu"],
+                          cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    ckpt = read_checkpoint(run / "last.pt")
+    assert ckpt["world_size"] == 2 and ckpt["epoch"] == 1
+    hist = json.loads((run / "metrics.json").read_text())["history"]
+    # each rank saw half of the 36 training images; the loss/metrics are all-reduced over both
+    assert hist[0]["miou"] is not None
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["train", "{missing}", "--out", "{out}"], "not an edgepick data set"),
+    (["train", "{data}", "--out", "{out}", "--arch", "vgg"], "Invalid value for '--arch'"),
+    (["train", "{data}", "--out", "{out}", "--size", "480"], "HEIGHTxWIDTH"),
+    (["train", "{data}", "--out", "{out}", "--resume"], "nothing to resume"),
+    (["eval", "{out}/none.pt", "{data}"], "no checkpoint"),
+])
+def test_bad_input_is_one_line_and_exit_2(args, needle, small_data, tmp_path):
+    fill = {"missing": str(tmp_path / "nope"), "out": str(tmp_path / "run"), "data": str(small_data)}
+    proc = run_cli(*[a.format(**fill) for a in args])
+    assert proc.returncode == 2, proc.stderr
+    assert needle in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "run").exists()
+
+
+def test_half_written_dataset_refused(small_data, tmp_path):
+    import shutil
+
+    broken = tmp_path / "broken"
+    shutil.copytree(small_data, broken)
+    (broken / "train" / "mask" / "000003.png").unlink()
+    proc = run_cli("train", str(broken), "--out", str(tmp_path / "run"), "--epochs", "1")
+    assert proc.returncode == 2 and "half-written" in proc.stderr
+    assert not (tmp_path / "run").exists()
+
+
+def test_eval_refuses_checkpoint_with_other_classes(trained_run, small_data, tmp_path):
+    import shutil
+
+    other = tmp_path / "other"
+    shutil.copytree(small_data, other)
+    meta = json.loads((other / "meta.json").read_text())
+    meta["classes"] = ["background", "a", "b", "c", "d"]
+    (other / "meta.json").write_text(json.dumps(meta))
+    proc = run_cli("eval", str(trained_run), str(other))
+    assert proc.returncode == 2 and "classes" in proc.stderr
