@@ -147,8 +147,6 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
         state = {k: ckpt[k] for k in state}
         _log(f"resuming {out} after epoch {state['epoch']}", rank)
     ddp = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
-    if rank == 0:
-        out.mkdir(parents=True, exist_ok=True)
     meta = model_meta(model_cfg, classes, cfg.size)
     gen = torch.Generator().manual_seed(cfg.seed * 1000 + state["epoch"] + rank)
 
@@ -203,6 +201,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
             improved = (m["miou"] or 0.0) > state["best_miou"]
             if improved:
                 state["best_miou"] = m["miou"] or 0.0
+            out.mkdir(parents=True, exist_ok=True)  # only now: a failed first epoch leaves no RUN behind
             ckpt_out = {"model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
                         "train_config": asdict(cfg), **meta, **state, "world_size": world}
             save_atomic(ckpt_out, last_path)

@@ -138,3 +138,14 @@ def test_eval_refuses_checkpoint_with_other_classes(trained_run, small_data, tmp
     (other / "meta.json").write_text(json.dumps(meta))
     proc = run_cli("eval", str(trained_run), str(other))
     assert proc.returncode == 2 and "classes" in proc.stderr
+
+
+def test_unreadable_image_mid_run_leaves_no_run_folder(small_data, tmp_path):
+    import shutil
+
+    broken = tmp_path / "broken"
+    shutil.copytree(small_data, broken)
+    (broken / "train" / "rgb" / "000005.png").write_bytes(b"not a png")
+    proc = run_cli("train", str(broken), "--out", str(tmp_path / "run"), "--epochs", "1", "--size", "64x96")
+    assert proc.returncode == 2 and "cannot read image" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "run").exists()

@@ -1,0 +1,123 @@
+"""Camera-to-robot calibration (contract 3.4): a Kabsch rigid fit, robot = R @ camera + t.
+
+numpy only. Degenerate inputs (fewer than 4 pairs, coincident or collinear points, NaN)
+are refused with one clear sentence, since a fit through them would be silently wrong.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from edgepick.errors import EdgepickError
+
+HEADER = ["cam_x", "cam_y", "cam_z", "robot_x", "robot_y", "robot_z"]
+MIN_PAIRS = 4
+
+
+class CalibrationError(EdgepickError):
+    """Calibration pairs or a calibration file that cannot give a valid rigid transform."""
+
+
+@dataclass
+class Calibration:
+    R: np.ndarray  # 3x3 proper rotation
+    t: np.ndarray  # 3
+    rmse_m: float
+    n_pairs: int
+
+    def apply(self, camera_points: np.ndarray) -> np.ndarray:
+        """Camera-frame point(s) [..., 3] -> robot base frame."""
+        return np.asarray(camera_points) @ self.R.T + self.t
+
+    def to_dict(self) -> dict:
+        return {"R": self.R.tolist(), "t": self.t.tolist(), "rmse_m": self.rmse_m, "n_pairs": self.n_pairs}
+
+    def save(self, path: str | Path) -> None:
+        path = Path(path)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.resolve().parent)
+        with os.fdopen(fd, "w") as f:
+            json.dump(self.to_dict(), f, indent=1)
+        os.replace(tmp, path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Calibration":
+        try:
+            d = json.loads(Path(path).read_text())
+            R = np.asarray(d["R"], dtype=np.float64)
+            t = np.asarray(d["t"], dtype=np.float64)
+        except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+            raise CalibrationError(f"cannot read calibration {path}: {exc}") from None
+        if R.shape != (3, 3) or t.shape != (3,) or not (np.isfinite(R).all() and np.isfinite(t).all()):
+            raise CalibrationError(f"calibration {path} needs a finite 3x3 R and a 3-vector t")
+        if np.abs(R @ R.T - np.eye(3)).max() > 1e-4 or abs(np.linalg.det(R) - 1) > 1e-4:
+            raise CalibrationError(f"calibration {path}: R is not a proper rotation (R R^T != I or det != +1)")
+        return cls(R, t, float(d.get("rmse_m", float("nan"))), int(d.get("n_pairs", 0)))
+
+
+def read_pairs(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """pairs.csv -> (camera points [N, 3], robot points [N, 3]), in metres."""
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.reader(f))
+    except OSError as exc:
+        raise CalibrationError(f"cannot read {path}: {exc.strerror}") from None
+    if not rows or [c.strip() for c in rows[0]] != HEADER:
+        raise CalibrationError(f"{path} must start with the header {','.join(HEADER)}")
+    values = []
+    for i, row in enumerate(rows[1:], start=2):
+        if not any(c.strip() for c in row):
+            continue
+        try:
+            vals = [float(c) for c in row]
+        except ValueError:
+            raise CalibrationError(f"{path} line {i}: not six numbers") from None
+        if len(vals) != 6:
+            raise CalibrationError(f"{path} line {i}: expected 6 values, got {len(vals)}")
+        if not all(math.isfinite(v) for v in vals):
+            raise CalibrationError(f"{path} line {i}: NaN or infinite value")
+        values.append(vals)
+    arr = np.array(values, dtype=np.float64).reshape(-1, 6)
+    return arr[:, :3], arr[:, 3:]
+
+
+def _check_spread(points: np.ndarray, name: str) -> None:
+    rounded = {tuple(np.round(p, 6)) for p in points}
+    if len(rounded) < len(points):
+        raise CalibrationError(f"two {name} points coincide; every pair must be a distinct position")
+    s = np.linalg.svd(points - points.mean(0), compute_uv=False)
+    if s[0] < 1e-6 or s[1] / s[0] < 1e-3:
+        raise CalibrationError(f"the {name} points are collinear; spread them over the workspace")
+
+
+def kabsch(camera: np.ndarray, robot: np.ndarray) -> Calibration:
+    """Least-squares rigid transform (rotation with det = +1, translation) from camera to robot points."""
+    camera, robot = np.asarray(camera, np.float64), np.asarray(robot, np.float64)
+    if camera.shape != robot.shape or camera.ndim != 2 or camera.shape[1] != 3:
+        raise CalibrationError("camera and robot points must be two [N, 3] arrays of the same length")
+    if len(camera) < MIN_PAIRS:
+        raise CalibrationError(f"need at least {MIN_PAIRS} point pairs, got {len(camera)}")
+    if not (np.isfinite(camera).all() and np.isfinite(robot).all()):
+        raise CalibrationError("point pairs contain NaN or infinite values")
+    _check_spread(camera, "camera")
+    _check_spread(robot, "robot")
+    cc, cr = camera.mean(0), robot.mean(0)
+    H = (camera - cc).T @ (robot - cr)
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
+    R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+    t = cr - R @ cc
+    residuals = np.linalg.norm(camera @ R.T + t - robot, axis=1)
+    return Calibration(R, t, float(np.sqrt(np.mean(residuals ** 2))), len(camera))
+
+
+def residuals(cal: Calibration, camera: np.ndarray, robot: np.ndarray) -> np.ndarray:
+    """Per-pair Euclidean error (m) of a calibration."""
+    return np.linalg.norm(cal.apply(camera) - robot, axis=1)
