@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from edgepick.data.shapes import MAKERS, Noise, ObjectModel
+from edgepick.data.shapes import MAKERS, ObjectModel
 from edgepick.runtime.geometry import Intrinsics
 
 CLASSES = ("background", "bearing", "disk", "adapter", "box")

@@ -1,0 +1,143 @@
+"""Grasp records from a label image (contract 3.3): filters, moments, robust depth, robot pose.
+
+Thesis 5.1 filters each class mask with a 3x3 median then a 5x5 dilation; each connected
+region is one object. Its centroid and major-axis angle come from image moments (eq. 5.1,
+5.2), its depth from its own valid depth pixels (a bearing's centroid falls in its hole,
+shiny metal leaves depth holes), and with a calibration its pose in the robot base frame.
+numpy + OpenCV only.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from edgepick.errors import EdgepickError
+from edgepick.runtime.calibration import Calibration
+from edgepick.runtime.geometry import Intrinsics, deproject
+
+DEFAULT_CLASSES = ("background", "bearing", "disk", "adapter", "box")
+
+
+@dataclass
+class GraspConfig:
+    median_ksize: int = 3
+    dilate_ksize: int = 5
+    min_area_px: int = 120  # regions smaller than this are noise, not objects
+    round_ratio: float = 0.8  # minor/major variance ratio above which there is no stable major axis
+    min_depth_px: int = 10  # valid depth pixels needed for a depth estimate
+
+
+def filter_class_masks(labels: np.ndarray, num_classes: int, cfg: GraspConfig) -> dict[int, np.ndarray]:
+    """Per class present: median blur then dilation of its binary mask (uint8 0/1)."""
+    out = {}
+    kernel = np.ones((cfg.dilate_ksize, cfg.dilate_ksize), np.uint8)
+    for c in np.unique(labels):
+        if c == 0 or c >= num_classes:
+            continue
+        m = (labels == c).astype(np.uint8)
+        m = cv2.medianBlur(m, cfg.median_ksize)
+        out[int(c)] = cv2.dilate(m, kernel)
+    return out
+
+
+def moments_pose(region: np.ndarray, round_ratio: float) -> tuple[float, float, float, bool, int]:
+    """(cx, cy, angle_deg, orientation_defined, area) of a binary region from its moments."""
+    m = cv2.moments(region, binaryImage=True)
+    area = int(m["m00"])
+    cx, cy = m["m10"] / m["m00"], m["m01"] / m["m00"]
+    mu20, mu02, mu11 = m["mu20"], m["mu02"], m["mu11"]
+    common = math.sqrt(4 * mu11 ** 2 + (mu20 - mu02) ** 2)
+    major, minor = (mu20 + mu02 + common) / 2, (mu20 + mu02 - common) / 2
+    defined = major > 0 and minor / major < round_ratio
+    angle = round(math.degrees(0.5 * math.atan2(2 * mu11, mu20 - mu02)), 2) if defined else 0.0
+    if angle <= -90.0:  # after rounding: -89.999 -> -90.0 must become 90.0
+        angle += 180.0
+    return cx, cy, angle, defined, area
+
+
+def object_depth(depth: np.ndarray, region: np.ndarray, depth_scale: float, min_px: int) -> float | None:
+    """Median of the object's own valid depth pixels (metres), or None when too few are valid."""
+    vals = depth[(region > 0) & (depth > 0)]
+    if vals.size < min_px:
+        return None
+    return float(np.median(vals)) * depth_scale
+
+
+def top_down_pose(cal: Calibration, intr: Intrinsics, cx: float, cy: float, z: float, angle_deg: float,
+                  defined: bool) -> list[float]:
+    """[x, y, z, rx, ry, rz] in the robot base frame: tool z straight down, tool x (finger closing)
+    across the object, i.e. along its minor axis, measured in the robot frame."""
+    p_cam = deproject(intr, cx, cy, z)
+    p_rob = cal.apply(p_cam)
+    if defined:
+        a = math.radians(angle_deg)
+        step = 5.0  # pixels along the minor axis, at the object's depth
+        q_cam = deproject(intr, cx - step * math.sin(a), cy + step * math.cos(a), z)
+        d = cal.R @ (q_cam - p_cam)
+        phi = math.atan2(d[1], d[0])
+    else:
+        phi = 0.0  # round object: yaw is free
+    phi = (phi + math.pi / 2) % math.pi - math.pi / 2  # a two-finger grasp is symmetric under 180 deg
+    # Rotation [x, y, z] with x = (cos phi, sin phi, 0), z = (0, 0, -1): a half turn about
+    # the horizontal axis at phi/2, so its rotation vector is pi * (cos phi/2, sin phi/2, 0).
+    rot = [math.pi * math.cos(phi / 2), math.pi * math.sin(phi / 2), 0.0]
+    return [round(float(v), 6) for v in (*p_rob, *rot)]
+
+
+def grasp_records(labels: np.ndarray, depth: np.ndarray, intr: Intrinsics, classes: list[str] | tuple[str, ...] =
+                  DEFAULT_CLASSES, calib: Calibration | None = None, cfg: GraspConfig | None = None) -> list[dict]:
+    """One record per object region (contract 3.3), largest first."""
+    cfg = cfg or GraspConfig()
+    if labels.shape != depth.shape:
+        raise EdgepickError(f"label image {labels.shape[::-1]} and depth {depth.shape[::-1]} differ in size")
+    if (labels.shape[1], labels.shape[0]) != (intr.width, intr.height):
+        raise EdgepickError(f"image size {labels.shape[1]}x{labels.shape[0]} differs from the intrinsics "
+                            f"{intr.width}x{intr.height}")
+    records = []
+    for c, mask in filter_class_masks(labels, len(classes), cfg).items():
+        n, comp = cv2.connectedComponents(mask, connectivity=8)
+        for k in range(1, n):
+            region = (comp == k).astype(np.uint8)
+            if int(region.sum()) < cfg.min_area_px:
+                continue
+            cx, cy, angle, defined, area = moments_pose(region, cfg.round_ratio)
+            rec: dict = {"class": classes[c], "pixel": [round(cx, 2), round(cy, 2)], "angle_deg": angle,
+                         "orientation_defined": defined, "area_px": area}
+            z = object_depth(depth, (labels == c) & (region > 0), intr.depth_scale, cfg.min_depth_px)
+            if z is None:
+                rec.update(depth_m=None, point_camera_m=None, reason="no valid depth under the object")
+            else:
+                rec.update(depth_m=round(z, 5), point_camera_m=[round(float(v), 5) for v in deproject(intr, cx, cy, z)])
+                if calib is not None:
+                    rec["pose_robot"] = top_down_pose(calib, intr, cx, cy, z, angle, defined)
+            records.append(rec)
+    records.sort(key=lambda r: -r["area_px"])
+    return records
+
+
+def draw_overlay(rgb_or_labels: np.ndarray, records: list[dict], finger_px: float = 30.0) -> np.ndarray:
+    """BGR picture with each record's centroid, major axis and finger positions."""
+    img = rgb_or_labels
+    if img.ndim == 2:
+        img = cv2.applyColorMap((img.astype(np.uint16) * 50 % 256).astype(np.uint8), cv2.COLORMAP_JET)
+    else:
+        img = img[..., ::-1].copy()
+    for r in records:
+        cx, cy = r["pixel"]
+        c = (int(round(cx)), int(round(cy)))
+        cv2.drawMarker(img, c, (255, 255, 255), cv2.MARKER_CROSS, 14, 2)
+        a = math.radians(r["angle_deg"])
+        if r["orientation_defined"]:
+            d = (math.cos(a) * 40, math.sin(a) * 40)
+            cv2.line(img, (int(cx - d[0]), int(cy - d[1])), (int(cx + d[0]), int(cy + d[1])), (0, 255, 255), 1,
+                     cv2.LINE_AA)
+        f = (-math.sin(a) * finger_px, math.cos(a) * finger_px)  # fingers close along the minor axis
+        for s in (-1, 1):
+            cv2.circle(img, (int(cx + s * f[0]), int(cy + s * f[1])), 4, (0, 0, 255), -1)
+        cv2.putText(img, r["class"], (c[0] + 8, c[1] - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1,
+                    cv2.LINE_AA)
+    return img

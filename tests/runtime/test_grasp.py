@@ -1,0 +1,150 @@
+"""Moments grasps on analytic shapes with known centroid, angle and depth; bad input; random masks."""
+
+import json
+import math
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from edgepick.runtime.calibration import Calibration
+from edgepick.runtime.geometry import Intrinsics, deproject
+from edgepick.runtime.grasp import grasp_records
+from tests.conftest import run_cli
+
+INTR = Intrinsics.d415(640, 480)
+BOX, BEARING, ADAPTER = 4, 1, 3
+
+
+def rect(labels, cls, centre, size, angle_deg):
+    pts = cv2.boxPoints((centre, size, angle_deg)).astype(np.float32)
+    cv2.fillPoly(labels, [np.round(pts * 16).astype(np.int32)], cls, cv2.LINE_8, shift=4)
+
+
+def flat_depth(mm=600):
+    return np.full((480, 640), mm, np.uint16)
+
+
+@pytest.mark.parametrize("angle", [0.0, 30.0, 60.0, 89.0, -45.0, -80.0])
+def test_rotated_rectangle_centroid_and_angle(angle):
+    labels = np.zeros((480, 640), np.uint8)
+    rect(labels, BOX, (300.0, 250.0), (160, 70), angle)
+    (r,) = grasp_records(labels, flat_depth(), INTR)
+    assert r["class"] == "box" and r["orientation_defined"]
+    assert r["pixel"] == pytest.approx([300.0, 250.0], abs=0.6)
+    diff = (r["angle_deg"] - angle + 90) % 180 - 90
+    assert abs(diff) < 1.0 and -90 < r["angle_deg"] <= 90
+    assert r["depth_m"] == pytest.approx(0.6) and r["point_camera_m"][2] == pytest.approx(0.6)
+
+
+def test_ellipse_angle_and_two_boxes_give_two_records():
+    labels = np.zeros((480, 640), np.uint8)
+    cv2.ellipse(labels, (200, 200), (80, 30), 25, 0, 360, ADAPTER, -1)
+    rect(labels, BOX, (480.0, 300.0), (100, 50), -20)
+    rect(labels, BOX, (480.0, 120.0), (90, 40), 70)
+    records = grasp_records(labels, flat_depth(), INTR)
+    assert sorted(r["class"] for r in records) == ["adapter", "box", "box"]
+    ell = next(r for r in records if r["class"] == "adapter")
+    assert ell["angle_deg"] == pytest.approx(25.0, abs=1.0) and ell["pixel"] == pytest.approx([200, 200], abs=0.6)
+
+
+def test_ring_depth_comes_from_the_ring_not_the_hole():
+    labels = np.zeros((480, 640), np.uint8)
+    cv2.circle(labels, (320, 240), 40, BEARING, -1)
+    cv2.circle(labels, (320, 240), 20, 0, -1)
+    depth = flat_depth(700)  # the table, seen through the hole
+    ring = labels == BEARING
+    depth[ring] = 665
+    depth[ring & (np.random.default_rng(0).random(depth.shape) < 0.4)] = 0  # shiny metal: holes
+    (r,) = grasp_records(labels, depth, INTR)
+    assert labels[240, 320] == 0  # the centroid lies in the hole
+    assert r["pixel"] == pytest.approx([320, 240], abs=0.6)
+    assert r["depth_m"] == pytest.approx(0.665)
+    assert not r["orientation_defined"] and r["angle_deg"] == 0.0
+
+
+def test_all_zero_depth_under_object_gives_a_reason_not_nan():
+    labels = np.zeros((480, 640), np.uint8)
+    rect(labels, BOX, (300.0, 250.0), (120, 60), 10)
+    depth = flat_depth()
+    depth[labels > 0] = 0
+    (r,) = grasp_records(labels, depth, INTR, calib=Calibration(np.eye(3), np.zeros(3), 0.0, 4))
+    assert r["depth_m"] is None and r["point_camera_m"] is None and "depth" in r["reason"]
+    assert "pose_robot" not in r
+
+
+def test_empty_mask_and_size_mismatch():
+    assert grasp_records(np.zeros((480, 640), np.uint8), flat_depth(), INTR) == []
+    with pytest.raises(Exception, match="intrinsics"):
+        grasp_records(np.zeros((240, 320), np.uint8), np.zeros((240, 320), np.uint16), INTR)
+
+
+@pytest.mark.parametrize("yaw_deg", [0.0, 35.0, 90.0, -120.0])
+def test_robot_pose_with_camera_rotated_about_vertical(yaw_deg):
+    """Camera looks straight down, rotated by yaw about the vertical: the finger direction must be
+    the object's minor axis expressed in the ROBOT frame, not the image angle."""
+    y = math.radians(yaw_deg)
+    flip = np.diag([1.0, -1.0, -1.0])  # camera z down onto the table, camera y opposite robot y
+    rz = np.array([[math.cos(y), -math.sin(y), 0], [math.sin(y), math.cos(y), 0], [0, 0, 1]])
+    R = rz @ flip
+    cal = Calibration(R, np.array([0.3, -0.1, 0.8]), 0.0, 4)
+    labels = np.zeros((480, 640), np.uint8)
+    image_angle = 30.0
+    rect(labels, BOX, (340.0, 220.0), (160, 60), image_angle)
+    (r,) = grasp_records(labels, flat_depth(600), INTR, calib=cal)
+    x, yy, z, rx, ry, rz_ = r["pose_robot"]
+    assert np.allclose([x, yy, z], cal.apply(deproject(INTR, *r["pixel"], 0.6)), atol=1e-4)
+    rotvec = np.array([rx, ry, rz_])
+    tool, _ = cv2.Rodrigues(rotvec)
+    assert np.allclose(tool[:, 2], [0, 0, -1], atol=1e-6)  # tool z straight down
+    a = math.radians(image_angle)
+    minor_cam = np.array([-math.sin(a), math.cos(a), 0.0])  # minor axis direction in the camera frame
+    minor_robot = R @ minor_cam
+    assert abs(abs(tool[:, 0] @ minor_robot) - 1.0) < 1e-3  # fingers close across the object
+
+
+@given(st.integers(0, 2**31 - 1), st.floats(0.0, 1.0))
+@settings(max_examples=60, deadline=None)
+def test_random_masks_and_depth_never_raise_or_give_nan(seed, hole_fraction):
+    rng = np.random.default_rng(seed)
+    small = rng.integers(0, 5, (12, 16)).astype(np.uint8)
+    labels = cv2.resize(small, (640, 480), interpolation=cv2.INTER_NEAREST)
+    labels[rng.random(labels.shape) < 0.02] = rng.integers(0, 5)
+    depth = rng.integers(300, 1200, (480, 640)).astype(np.uint16)
+    depth[rng.random(depth.shape) < hole_fraction] = 0
+    cal = Calibration(np.eye(3), np.zeros(3), 0.0, 4)
+    records = grasp_records(labels, depth, INTR, calib=cal)
+    text = json.dumps(records)
+    assert "NaN" not in text and "Infinity" not in text
+    for r in records:
+        assert -90 < r["angle_deg"] <= 90
+
+
+def test_cli_mask_mode_with_calibration_and_overlay(tmp_path):
+    labels = np.zeros((480, 640), np.uint8)
+    rect(labels, BOX, (300.0, 250.0), (160, 70), 20)
+    cv2.imwrite(str(tmp_path / "mask.png"), labels)
+    cv2.imwrite(str(tmp_path / "depth.png"), flat_depth())
+    (tmp_path / "intr.json").write_text(json.dumps(INTR.to_dict()))
+    (tmp_path / "calib.json").write_text(json.dumps({"R": np.eye(3).tolist(), "t": [0, 0, 0], "rmse_m": 0, "n_pairs": 4}))
+    proc = run_cli("grasp", "--mask", str(tmp_path / "mask.png"), "--depth", str(tmp_path / "depth.png"),
+                   "--intrinsics", str(tmp_path / "intr.json"), "--calib", str(tmp_path / "calib.json"),
+                   "--overlay", str(tmp_path / "o.png"), check=True)
+    (r,) = json.loads(proc.stdout)
+    assert r["class"] == "box" and len(r["pose_robot"]) == 6
+    assert cv2.imread(str(tmp_path / "o.png")).shape == (480, 640, 3)
+
+
+def test_cli_refuses_size_mismatch_and_bad_rotation(tmp_path):
+    cv2.imwrite(str(tmp_path / "mask.png"), np.zeros((240, 320), np.uint8))
+    cv2.imwrite(str(tmp_path / "depth.png"), np.zeros((240, 320), np.uint16))
+    (tmp_path / "intr.json").write_text(json.dumps(INTR.to_dict()))
+    proc = run_cli("grasp", "--mask", str(tmp_path / "mask.png"), "--depth", str(tmp_path / "depth.png"),
+                   "--intrinsics", str(tmp_path / "intr.json"))
+    assert proc.returncode == 2 and "differs from the intrinsics" in proc.stderr
+    (tmp_path / "bad.json").write_text(json.dumps({"R": [[2, 0, 0], [0, 1, 0], [0, 0, 1]], "t": [0, 0, 0]}))
+    proc = run_cli("grasp", "--mask", str(tmp_path / "mask.png"), "--depth", str(tmp_path / "depth.png"),
+                   "--intrinsics", str(tmp_path / "intr.json"), "--calib", str(tmp_path / "bad.json"))
+    assert proc.returncode == 2 and "rotation" in proc.stderr
