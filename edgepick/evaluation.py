@@ -21,7 +21,7 @@ def evaluate(model_path: str | Path, data: str | Path, split: str = "test", prog
     """
     model_path = Path(model_path)
     if model_path.suffix == ".onnx":
-        raise ConfigError("evaluating ONNX files needs the export issue; pass a checkpoint or RUN folder")
+        raise ConfigError("evaluating ONNX files is not supported yet; pass a checkpoint or RUN folder")
     import torch
 
     from edgepick.train.checkpoint import load_model

@@ -99,6 +99,7 @@ def grasp_records(labels: np.ndarray, depth: np.ndarray, intr: Intrinsics, class
                             f"{intr.width}x{intr.height}")
     records = []
     for c, mask in filter_class_masks(labels, len(classes), cfg).items():
+        own = labels == c  # the unfiltered class pixels: depth comes from these, not the dilated rim
         n, comp = cv2.connectedComponents(mask, connectivity=8)
         for k in range(1, n):
             region = (comp == k).astype(np.uint8)
@@ -107,7 +108,7 @@ def grasp_records(labels: np.ndarray, depth: np.ndarray, intr: Intrinsics, class
             cx, cy, angle, defined, area = moments_pose(region, cfg.round_ratio)
             rec: dict = {"class": classes[c], "pixel": [round(cx, 2), round(cy, 2)], "angle_deg": angle,
                          "orientation_defined": defined, "area_px": area}
-            z = object_depth(depth, (labels == c) & (region > 0), intr.depth_scale, cfg.min_depth_px)
+            z = object_depth(depth, own & (region > 0), intr.depth_scale, cfg.min_depth_px)
             if z is None:
                 rec.update(depth_m=None, point_camera_m=None, reason="no valid depth under the object")
             else:
