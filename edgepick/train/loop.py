@@ -111,11 +111,10 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     model_cfg.validate()
     if cfg.epochs < 1 or cfg.batch_size < 1:
         raise ConfigError("--epochs and --batch-size must be at least 1")
+    torch.manual_seed(cfg.seed)  # before the model: same seed, same initial weights
     model = build_model(model_cfg)
     if cfg.backbone_weights:
         load_backbone_weights(model, cfg.backbone_weights)
-
-    torch.manual_seed(cfg.seed)
     cuda = device.type == "cuda"
     amp = cuda  # bf16 autocast on GPU; CPU stays fp32
     if world > 1 and not dist.is_initialized():
