@@ -202,8 +202,8 @@ def grasp(mask_path: str, depth_path: str, intrinsics: str, calib: str | None, c
     if labels is None or labels.ndim != 2 or labels.dtype != "uint8":
         raise ConfigError(f"cannot read {mask_path} as a single-channel uint8 label image")
     depth = cv2.imread(depth_path, cv2.IMREAD_UNCHANGED)
-    if depth is None or depth.ndim != 2:
-        raise ConfigError(f"cannot read {depth_path} as a single-channel depth image")
+    if depth is None or depth.ndim != 2 or depth.dtype != "uint16":
+        raise ConfigError(f"cannot read {depth_path} as a single-channel uint16 depth image")
     intr = Intrinsics.load(intrinsics)
     cal = Calibration.load(calib) if calib else None
     records = grasp_records(labels, depth, intr, [c.strip() for c in classes.split(",")], cal)

@@ -43,9 +43,13 @@ class Calibration:
     def save(self, path: str | Path) -> None:
         path = Path(path)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.resolve().parent)
-        with os.fdopen(fd, "w") as f:
-            json.dump(self.to_dict(), f, indent=1)
-        os.replace(tmp, path)
+        try:
+            with os.fdopen(fd, "w") as f:
+                json.dump(self.to_dict(), f, indent=1)
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
 
     @classmethod
     def load(cls, path: str | Path) -> "Calibration":
@@ -113,9 +117,9 @@ def kabsch(camera: np.ndarray, robot: np.ndarray) -> Calibration:
     U, _, Vt = np.linalg.svd(H)
     d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
     R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
-    t = cr - R @ cc
-    residuals = np.linalg.norm(camera @ R.T + t - robot, axis=1)
-    return Calibration(R, t, float(np.sqrt(np.mean(residuals ** 2))), len(camera))
+    cal = Calibration(R, cr - R @ cc, 0.0, len(camera))
+    cal.rmse_m = float(np.sqrt(np.mean(residuals(cal, camera, robot) ** 2)))
+    return cal
 
 
 def residuals(cal: Calibration, camera: np.ndarray, robot: np.ndarray) -> np.ndarray:

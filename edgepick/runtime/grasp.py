@@ -99,16 +99,19 @@ def grasp_records(labels: np.ndarray, depth: np.ndarray, intr: Intrinsics, class
                             f"{intr.width}x{intr.height}")
     records = []
     for c, mask in filter_class_masks(labels, len(classes), cfg).items():
-        own = labels == c  # the unfiltered class pixels: depth comes from these, not the dilated rim
-        n, comp = cv2.connectedComponents(mask, connectivity=8)
+        n, comp, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
         for k in range(1, n):
-            region = (comp == k).astype(np.uint8)
-            if int(region.sum()) < cfg.min_area_px:
+            x, y, w, h, area = (int(v) for v in stats[k])
+            if area < cfg.min_area_px:
                 continue
+            # work on the region's bounding box, not the whole frame (this runs every frame)
+            region = (comp[y:y + h, x:x + w] == k).astype(np.uint8)
             cx, cy, angle, defined, area = moments_pose(region, cfg.round_ratio)
+            cx, cy = cx + x, cy + y
             rec: dict = {"class": classes[c], "pixel": [round(cx, 2), round(cy, 2)], "angle_deg": angle,
                          "orientation_defined": defined, "area_px": area}
-            z = object_depth(depth, own & (region > 0), intr.depth_scale, cfg.min_depth_px)
+            own = (labels[y:y + h, x:x + w] == c) & (region > 0)  # unfiltered pixels: not the dilated rim
+            z = object_depth(depth[y:y + h, x:x + w], own, intr.depth_scale, cfg.min_depth_px)
             if z is None:
                 rec.update(depth_m=None, point_camera_m=None, reason="no valid depth under the object")
             else:

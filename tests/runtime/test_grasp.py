@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from edgepick.errors import EdgepickError
 from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.geometry import Intrinsics, deproject
 from edgepick.runtime.grasp import grasp_records
@@ -77,7 +78,7 @@ def test_all_zero_depth_under_object_gives_a_reason_not_nan():
 
 def test_empty_mask_and_size_mismatch():
     assert grasp_records(np.zeros((480, 640), np.uint8), flat_depth(), INTR) == []
-    with pytest.raises(Exception, match="intrinsics"):
+    with pytest.raises(EdgepickError, match="intrinsics"):
         grasp_records(np.zeros((240, 320), np.uint8), np.zeros((240, 320), np.uint16), INTR)
 
 
@@ -137,14 +138,20 @@ def test_cli_mask_mode_with_calibration_and_overlay(tmp_path):
     assert cv2.imread(str(tmp_path / "o.png")).shape == (480, 640, 3)
 
 
-def test_cli_refuses_size_mismatch_and_bad_rotation(tmp_path):
-    cv2.imwrite(str(tmp_path / "mask.png"), np.zeros((240, 320), np.uint8))
-    cv2.imwrite(str(tmp_path / "depth.png"), np.zeros((240, 320), np.uint16))
+def _grasp_cli(tmp_path, mask, depth, *extra):
+    cv2.imwrite(str(tmp_path / "mask.png"), mask)
+    cv2.imwrite(str(tmp_path / "depth.png"), depth)
     (tmp_path / "intr.json").write_text(json.dumps(INTR.to_dict()))
-    proc = run_cli("grasp", "--mask", str(tmp_path / "mask.png"), "--depth", str(tmp_path / "depth.png"),
-                   "--intrinsics", str(tmp_path / "intr.json"))
+    return run_cli("grasp", "--mask", str(tmp_path / "mask.png"), "--depth", str(tmp_path / "depth.png"),
+                   "--intrinsics", str(tmp_path / "intr.json"), *extra)
+
+
+def test_cli_refuses_size_mismatch_bad_rotation_and_8bit_depth(tmp_path):
+    proc = _grasp_cli(tmp_path, np.zeros((240, 320), np.uint8), np.zeros((240, 320), np.uint16))
     assert proc.returncode == 2 and "differs from the intrinsics" in proc.stderr
     (tmp_path / "bad.json").write_text(json.dumps({"R": [[2, 0, 0], [0, 1, 0], [0, 0, 1]], "t": [0, 0, 0]}))
-    proc = run_cli("grasp", "--mask", str(tmp_path / "mask.png"), "--depth", str(tmp_path / "depth.png"),
-                   "--intrinsics", str(tmp_path / "intr.json"), "--calib", str(tmp_path / "bad.json"))
+    proc = _grasp_cli(tmp_path, np.zeros((480, 640), np.uint8), np.zeros((480, 640), np.uint16),
+                      "--calib", str(tmp_path / "bad.json"))
     assert proc.returncode == 2 and "rotation" in proc.stderr
+    proc = _grasp_cli(tmp_path, np.zeros((480, 640), np.uint8), np.zeros((480, 640), np.uint8))
+    assert proc.returncode == 2 and "uint16" in proc.stderr and "Traceback" not in proc.stderr
