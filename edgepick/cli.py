@@ -143,7 +143,7 @@ def train(data_dir: str, out: str, arch: str, epochs: int | None, batch_size: in
 @click.option("--split", default="test", show_default=True, type=click.Choice(["train", "val", "test"]))
 @click.option("--out", default=None, type=click.Path(dir_okay=False), help="Also write the JSON here.")
 def eval_cmd(model: str, data_dir: str, split: str, out: str | None) -> None:
-    """Pixel accuracy, per-class IoU, mIoU and confusion matrix of MODEL (checkpoint or RUN) as JSON."""
+    """Pixel accuracy, per-class IoU, mIoU and confusion matrix of MODEL (checkpoint, RUN or ONNX) as JSON."""
     from edgepick.evaluation import evaluate
 
     result = evaluate(model, data_dir, split)
@@ -223,6 +223,12 @@ def demo(workdir: str, scenes: int, epochs: int) -> None:
     from edgepick.demo import run_demo
 
     run_demo(Path(workdir), scenes=scenes, epochs=epochs)
+
+
+from edgepick.cli_quant import export_cmd, quantize  # noqa: E402 - click-only module, no torch
+
+cli.add_command(export_cmd)
+cli.add_command(quantize)
 
 
 def main() -> None:

@@ -9,7 +9,7 @@ import numpy as np
 from tqdm import tqdm
 
 from edgepick.data.native import NativeDataset
-from edgepick.errors import CheckpointError, ConfigError
+from edgepick.errors import CheckpointError
 from edgepick.metrics import confusion_matrix, segmentation_metrics
 
 
@@ -20,25 +20,37 @@ def evaluate(model_path: str | Path, data: str | Path, split: str = "test", prog
     (nearest), as the runtime does (contract 3.2).
     """
     model_path = Path(model_path)
+    ds = NativeDataset.open(data, split)
     if model_path.suffix == ".onnx":
-        raise ConfigError("evaluating ONNX files is not supported yet; pass a checkpoint or RUN folder")
+        from edgepick.runtime.session import Segmenter
+
+        seg = Segmenter(model_path)
+        classes, predict = seg.info.classes, seg.labels
+    else:
+        classes, predict = _torch_predictor(model_path)
+    if classes != ds.classes:
+        raise CheckpointError(f"the model's classes {classes} differ from the data set's {ds.classes}")
+    cm = np.zeros((len(classes), len(classes)), np.int64)
+    for sid in tqdm(ds.ids, desc=f"eval {split}", unit="img", disable=not progress or None):
+        mask = ds.mask(sid)
+        cm += confusion_matrix(mask, predict(ds.rgb(sid)), len(classes))
+    result = segmentation_metrics(cm, classes)
+    return {"model": str(model_path), "data": str(data), "split": split, "images": len(ds), **result}
+
+
+def _torch_predictor(model_path: Path):
+    """(classes, rgb -> labels at the frame's size) for a checkpoint, resizing like the runtime."""
     import torch
 
     from edgepick.train.checkpoint import load_model
 
-    ds = NativeDataset.open(data, split)
     model, ckpt = load_model(model_path)
-    classes = ckpt["classes"]
-    if classes != ds.classes:
-        raise CheckpointError(f"the model's classes {classes} differ from the data set's {ds.classes}")
     h, w = ckpt["input_size"]
-    cm = np.zeros((len(classes), len(classes)), np.int64)
-    with torch.inference_mode():
-        for sid in tqdm(ds.ids, desc=f"eval {split}", unit="img", disable=not progress or None):
-            rgb, mask = ds.rgb(sid), ds.mask(sid)
-            x = torch.from_numpy(cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA)).permute(2, 0, 1)[None].float()
-            labels = model(x)["out"].argmax(1)[0].numpy().astype(np.uint8)
-            labels = cv2.resize(labels, (mask.shape[1], mask.shape[0]), interpolation=cv2.INTER_NEAREST)
-            cm += confusion_matrix(mask, labels, len(classes))
-    result = segmentation_metrics(cm, classes)
-    return {"model": str(model_path), "data": str(data), "split": split, "images": len(ds), **result}
+
+    @torch.inference_mode()
+    def predict(rgb: np.ndarray) -> np.ndarray:
+        x = torch.from_numpy(cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA)).permute(2, 0, 1)[None].float()
+        labels = model(x)["out"].argmax(1)[0].numpy().astype(np.uint8)
+        return cv2.resize(labels, (rgb.shape[1], rgb.shape[0]), interpolation=cv2.INTER_NEAREST)
+
+    return ckpt["classes"], predict

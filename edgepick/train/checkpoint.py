@@ -51,6 +51,8 @@ def read_checkpoint(path: str | Path) -> dict:
 def load_model(path: str | Path) -> tuple[DeepLabV3, dict]:
     """Rebuild the model of a checkpoint (or RUN folder) in eval mode; returns (model, checkpoint)."""
     ckpt = read_checkpoint(path)
+    if ckpt.get("train_config", {}).get("qat"):
+        raise CheckpointError(f"{ckpt['path']} is a QaT checkpoint; use the int8 ONNX its quantize command wrote")
     cfg = ModelConfig(**ckpt["model_config"])
     model = build_model(cfg)
     missing, unexpected = model.load_state_dict(ckpt["model"], strict=False)

@@ -12,6 +12,7 @@ import os
 import shutil
 import sys
 import time
+import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -49,6 +50,11 @@ class TrainConfig:
     workers: int = -1  # -1: 0 on CPU (in-memory cache), 4 on GPU
     seed: int = 0
     class_weighting: bool = True
+    # QaT (edgepick quantize qat|hybrid): the whole run trains with fake-quant
+    qat: bool = False
+    quant: dict | None = None  # QuantConfig as a dict
+    init_from: str | None = None  # float checkpoint to continue from (hybrid: epoch_NNN.pt), epochs counted on
+    freeze_at: float = 0.7  # share of the QaT steps after which observers and BN statistics are frozen
 
 
 def _dist() -> tuple[int, int, int]:
@@ -83,9 +89,24 @@ def validate(model: torch.nn.Module, loader: DataLoader, num_classes: int, devic
     for img, mask in loader:
         x = img.to(device).permute(0, 3, 1, 2).float()
         with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
-            pred = model(x)["out"].argmax(1)
+            pred = logits(model, x)["out"].argmax(1)
         cm += confusion_matrix(mask.numpy(), pred.cpu().numpy(), num_classes)
     return cm
+
+
+def logits(model: torch.nn.Module, x: torch.Tensor) -> dict[str, torch.Tensor]:
+    """The model's outputs as a dict (a QaT graph returns the logits tensor alone)."""
+    out = model(x)
+    return out if isinstance(out, dict) else {"out": out}
+
+
+def freeze_qat(model: torch.nn.Module) -> bool:
+    """End of QaT: stop the observers and use BN running statistics (standard practice)."""
+    from torchao.quantization.pt2e import disable_observer, move_exported_model_to_eval
+
+    model.apply(disable_observer)
+    move_exported_model_to_eval(model)
+    return True
 
 
 def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict:
@@ -115,8 +136,21 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     model = build_model(model_cfg)
     if cfg.backbone_weights:
         load_backbone_weights(model, cfg.backbone_weights)
+    start = read_checkpoint(cfg.init_from) if cfg.init_from and not resume else None
+    if start is not None:
+        if start["classes"] != classes:
+            raise ConfigError(f"{cfg.init_from} was trained on classes {start['classes']}, the data has {classes}")
+        if start["epoch"] >= cfg.epochs:
+            raise ConfigError(f"{cfg.init_from} is at epoch {start['epoch']}, the budget is {cfg.epochs} epochs")
+        weights = {k: v for k, v in start["model"].items() if cfg.aux_loss or not k.startswith("aux_classifier.")}
+        model.load_state_dict(weights)
+    if cfg.qat:
+        from edgepick.quant.passes import prepare
+        from edgepick.quant.quantizer import QuantConfig
+
+        model = prepare(model, QuantConfig(**(cfg.quant or {})), cfg.size, qat=True)
     cuda = device.type == "cuda"
-    amp = cuda  # bf16 autocast on GPU; CPU stays fp32
+    amp = cuda and not cfg.qat  # bf16 autocast on GPU (fake-quant ops reject bf16: QaT runs fp32); CPU fp32
     if world > 1 and not dist.is_initialized():
         dist.init_process_group("nccl" if cuda else "gloo")
     if cuda:
@@ -138,21 +172,33 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     total_steps = cfg.epochs * steps_per_epoch
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: min(1.0, (s + 1) / 50) *
                                               (1 - min(s, total_steps - 1) / total_steps) ** 0.9)
-    state = {"epoch": 0, "history": [], "best_miou": -1.0, "train_time_s": 0.0}
+    state = {"epoch": 0, "history": [], "best_miou": -1.0, "train_time_s": 0.0, "phase_start": 0,
+             "init_train_time_s": 0.0}
+    if start is not None:  # continue the float run's schedule; the optimizer starts afresh (new parameters)
+        state.update(epoch=start["epoch"], history=list(start["history"]), phase_start=start["epoch"],
+                     init_train_time_s=start["train_time_s"])
+        with warnings.catch_warnings():  # fast-forwarding the LR schedule before any optimizer step
+            warnings.simplefilter("ignore")
+            for _ in range(start["epoch"] * steps_per_epoch):
+                sched.step()
     if resume:
         model.load_state_dict(ckpt["model"])
         opt.load_state_dict(ckpt["optimizer"])
         sched.load_state_dict(ckpt["scheduler"])
-        state = {k: ckpt[k] for k in state}
+        state = {k: ckpt[k] for k in state if k in ckpt}
         _log(f"resuming {out} after epoch {state['epoch']}", rank)
     ddp = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
     meta = model_meta(model_cfg, classes, cfg.size)
     gen = torch.Generator().manual_seed(cfg.seed * 1000 + state["epoch"] + rank)
+    first = state["phase_start"]
+    freeze_step = round(((cfg.epochs - first) * cfg.freeze_at + first) * steps_per_epoch)
+    frozen = False
 
     for epoch in range(state["epoch"] + 1, cfg.epochs + 1):
         if sampler is not None:
             sampler.set_epoch(epoch)
-        ddp.train()
+        if not frozen:
+            ddp.train()
         t0 = time.perf_counter()
         loss_sum, seen = 0.0, 0
         bar = tqdm(train_loader, desc=f"epoch {epoch}/{cfg.epochs}", unit="batch", leave=False,
@@ -164,7 +210,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
             if cuda:
                 x = x.contiguous(memory_format=torch.channels_last)
             with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
-                outputs = ddp(x)
+                outputs = logits(ddp, x)
                 loss = F.cross_entropy(outputs["out"].float(), y, weight=weights, ignore_index=IGNORE)
                 if "aux" in outputs:
                     loss = loss + 0.4 * F.cross_entropy(outputs["aux"].float(), y, weight=weights,
@@ -173,6 +219,8 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
             loss.backward()
             opt.step()
             sched.step()
+            if cfg.qat and not frozen and sched.last_epoch >= freeze_step:
+                frozen = freeze_qat(model)
             loss_sum += float(loss.detach()) * len(x)
             seen += len(x)
             bar.set_postfix(loss=f"{loss_sum / seen:.3f}")

@@ -1,0 +1,136 @@
+"""`edgepick export` and `edgepick quantize static|qat|hybrid`: thin click shells over edgepick.quant."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+from edgepick.errors import ConfigError
+
+
+def _emit(result: dict) -> None:
+    click.echo(json.dumps(result, indent=1))
+
+
+def _quant_config(calib_method: str = "minmax", percentile: float = 99.99, reduce_range: bool = True,
+                  keep_float: str = ""):
+    from edgepick.quant.quantizer import QuantConfig
+
+    return QuantConfig(calib_method=calib_method, percentile=percentile, reduce_range=reduce_range,
+                       keep_float=[k.strip() for k in keep_float.split(",") if k.strip()])
+
+
+def _refuse_existing(out: str) -> None:
+    if Path(out).suffix != ".onnx":
+        raise ConfigError(f"--out must name an .onnx file, got {out}")
+
+
+common = [
+    click.option("--out", required=True, type=click.Path(dir_okay=False), help="int8 ONNX to write (contract 3.2)."),
+    click.option("--reduce-range/--full-range", default=True, show_default=True,
+                 help="7-bit weights, for CPUs without VNNI (AVX2 only: onnxruntime's U8S8 kernels saturate "
+                      "with 8-bit weights). --full-range for AVX512-VNNI/AVX-VNNI targets."),
+    click.option("--keep-float", default="", metavar="NAMES",
+                 help="Comma-separated module names left in float, e.g. classifier.4,backbone.0."),
+]
+
+
+def _with(options):
+    def wrap(f):
+        for opt in reversed(options):
+            f = opt(f)
+        return f
+    return wrap
+
+
+@click.command("export")
+@click.argument("checkpoint", metavar="RUN_OR_CKPT", type=click.Path())
+@click.option("--out", required=True, type=click.Path(dir_okay=False), help="fp32 ONNX to write (contract 3.2).")
+def export_cmd(checkpoint: str, out: str) -> None:
+    """Export a float checkpoint (or RUN's best.pt) as an fp32 ONNX: uint8 NHWC `image` in,
+    uint8 `labels` out, normalisation and colour space in the graph, edgepick.* metadata."""
+    from edgepick.export.onnx_export import export_checkpoint
+
+    _refuse_existing(out)
+    _emit(export_checkpoint(checkpoint, out))
+
+
+@click.group()
+def quantize() -> None:
+    """Int8 passes (torchao pt2e -> QDQ ONNX for onnxruntime): static PTQ, QaT, hybrid-QaT.
+
+    \b
+    Activations uint8 (per tensor), weights int8 per channel, symmetric (U8S8: every conv
+    fuses to QLinearConv in onnxruntime). Each pass checks that observers were inserted and
+    that every conv (but --keep-float ones) has int8 weights in the file, and reports how
+    often onnxruntime's labels agree with torch's simulation of the same int8 model.
+    """
+
+
+@quantize.command("static")
+@click.argument("checkpoint", metavar="RUN_OR_CKPT", type=click.Path())
+@click.option("--data", "data_dir", required=True, type=click.Path(), help="Data set; calibration uses its train split.")
+@click.option("--calib-images", default=64, show_default=True, help="Train images for calibration.")
+@click.option("--calib-method", default="minmax", show_default=True,
+              type=click.Choice(["minmax", "percentile", "entropy", "mse"]),
+              help="Activation ranges: min/max, a percentile, KL divergence (entropy) or L2 error (mse).")
+@click.option("--percentile", default=99.99, show_default=True, help="For --calib-method percentile.")
+@click.option("--seed", default=0, show_default=True, help="Which calibration images are drawn.")
+@_with(common)
+def quantize_static_cmd(checkpoint: str, data_dir: str, calib_images: int, calib_method: str, percentile: float,
+                        seed: int, out: str, reduce_range: bool, keep_float: str) -> None:
+    """Static post-training quantization of a float checkpoint (BN folded, ranges calibrated)."""
+    from edgepick.quant.passes import quantize_static
+
+    _refuse_existing(out)
+    cfg = _quant_config(calib_method, percentile, reduce_range, keep_float)
+    _emit(quantize_static(checkpoint, data_dir, out, cfg, calib_images=calib_images, seed=seed))
+
+
+@quantize.command("qat")
+@click.option("--data", "data_dir", required=True, type=click.Path())
+@click.option("--run", "run_dir", default=None, type=click.Path(file_okay=False),
+              help="Folder for the QaT run's checkpoints [default: OUT with .run].")
+@click.option("--arch", default="mobilenetv3", show_default=True, type=click.Choice(["mobilenetv3", "resnet50", "resnet101"]))
+@click.option("--epochs", default=100, show_default=True)
+@click.option("--batch-size", default=8, show_default=True)
+@click.option("--lr", default=1e-3, show_default=True)
+@click.option("--size", default="480x640", show_default=True, help="Training input HEIGHTxWIDTH.")
+@click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
+@click.option("--seed", default=0, show_default=True)
+@_with(common)
+def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int, batch_size: int, lr: float,
+                     size: str, device: str, seed: int, out: str, reduce_range: bool, keep_float: str) -> None:
+    """QaT from scratch: train with fake-quant for all epochs (GPU if there is one; fp32, no AMP),
+    observers and BN statistics frozen for the last 30% of the steps, then export int8."""
+    from edgepick.cli import parse_hxw
+    from edgepick.quant.passes import quantize_qat
+    from edgepick.train.loop import TrainConfig
+
+    _refuse_existing(out)
+    run = run_dir or str(Path(out).with_suffix(".run"))
+    cfg = TrainConfig(data=data_dir, out=run, arch=arch, epochs=epochs, batch_size=batch_size, lr=lr,
+                      size=parse_hxw(size), device=device, seed=seed)
+    _emit(quantize_qat(cfg, out, _quant_config(reduce_range=reduce_range, keep_float=keep_float)))
+
+
+@quantize.command("hybrid")
+@click.argument("run", metavar="RUN", type=click.Path(file_okay=False))
+@click.option("--data", "data_dir", required=True, type=click.Path())
+@click.option("--qat-fraction", required=True, type=float,
+              help="p in (0, 1): the last p of RUN's epoch budget is trained with QaT.")
+@click.option("--run", "qat_run", default=None, type=click.Path(file_okay=False),
+              help="Folder for the QaT phase's checkpoints [default: OUT with .run].")
+@_with(common)
+def quantize_hybrid_cmd(run: str, data_dir: str, qat_fraction: float, qat_run: str | None, out: str,
+                        reduce_range: bool, keep_float: str) -> None:
+    """Hybrid-QaT: continue float RUN from its epoch_NNN.pt at (1 - p) of its budget E and train
+    the last pE epochs with QaT (train RUN with --keep-epochs at the switch points, e.g. 90,95,99
+    for p = 10%, 5%, 1% of 100 epochs). Reports the wall time of each phase."""
+    from edgepick.quant.passes import quantize_hybrid
+
+    _refuse_existing(out)
+    cfg = _quant_config(reduce_range=reduce_range, keep_float=keep_float)
+    _emit(quantize_hybrid(run, data_dir, out, qat_fraction, cfg, qat_run=qat_run))

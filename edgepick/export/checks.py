@@ -1,0 +1,50 @@
+"""Checks on exported files: int8 conv weights in the ONNX graph, and label agreement (parity)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from edgepick.runtime.session import Segmenter
+
+
+def conv_weight_report(path: str | Path) -> dict:
+    """Which Conv nodes take int8 weights (initializer -> DequantizeLinear) and which stay float."""
+    import onnx
+    from onnx import numpy_helper
+
+    model = onnx.load(str(path))
+    inits = {i.name: i for i in model.graph.initializer}
+    producers = {out: n for n in model.graph.node for out in n.output}
+    int8, float_ = [], []
+    for node in model.graph.node:
+        if node.op_type != "Conv":
+            continue
+        dq = producers.get(node.input[1])
+        src = inits.get(dq.input[0]) if dq is not None and dq.op_type == "DequantizeLinear" else None
+        if src is not None and numpy_helper.to_array(src).dtype == np.int8:
+            int8.append(node.name)
+        else:
+            float_.append(node.name)
+    return {"convs": len(int8) + len(float_), "int8": len(int8), "float": float_}
+
+
+@torch.no_grad()
+def label_agreement(onnx_path: str | Path, net: torch.nn.Module, images: Iterable[np.ndarray]) -> float:
+    """Share of pixels where onnxruntime's labels equal NET's argmax, NET fed [0, 255] NCHW float.
+
+    For an int8 file NET is the converted pt2e graph (torch's simulation of the same
+    quantized model); for fp32 it is the float model. Images are already at the model size.
+    """
+    seg = Segmenter(onnx_path, threads=2)
+    same = total = 0
+    for rgb in images:
+        ours = seg.infer(seg.prepare(rgb))
+        out = net(torch.from_numpy(rgb).permute(2, 0, 1)[None].float())
+        ref = (out["out"] if isinstance(out, dict) else out).argmax(1)[0].numpy().astype(np.uint8)
+        same += int((ours == ref).sum())
+        total += ref.size
+    return same / max(total, 1)

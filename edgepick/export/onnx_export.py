@@ -1,0 +1,115 @@
+"""ONNX export per contract 3.2: uint8 NHWC `image` in, uint8 `labels` out, metadata_props filled.
+
+Works for the float model and for a converted pt2e (int8) graph alike: `DeployNet` puts
+the uint8 -> float cast and the ArgMax around whatever maps [0, 255] NCHW to logits, and
+`torch.onnx.export(dynamo=True)` turns pt2e's quantize/dequantize into QDQ nodes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import warnings
+from pathlib import Path
+
+import torch
+from torch import Tensor, nn
+
+from edgepick.errors import ConfigError
+
+OPSET = 21
+
+
+class LogitsNet(nn.Module):
+    """DeepLabV3 -> a plain logits tensor (what torch.export and pt2e want)."""
+
+    def __init__(self, model: nn.Module):
+        super().__init__()
+        self.model = model
+
+    def forward(self, x: Tensor) -> Tensor:
+        return self.model(x)["out"]
+
+
+class DeployNet(nn.Module):
+    """uint8 [1, H, W, 3] RGB -> uint8 [1, H, W] class ids (contract 3.2)."""
+
+    def __init__(self, net: nn.Module):
+        super().__init__()
+        self.net = net
+
+    def forward(self, image: Tensor) -> Tensor:
+        x = image.permute(0, 3, 1, 2).to(torch.float32)
+        out = self.net(x)
+        logits = out["out"] if isinstance(out, dict) else out
+        return logits.argmax(1).to(torch.uint8)
+
+
+def sha256_of(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def contract_metadata(ckpt: dict, precision: str, quant: dict | None, train_time_s: float | None = None) -> dict:
+    """The edgepick.* metadata_props of contract 3.2, from a checkpoint's own description."""
+    return {"edgepick.classes": json.dumps(ckpt["classes"]),
+            "edgepick.input_size": json.dumps(list(ckpt["input_size"])),
+            "edgepick.colorspace": ckpt["colorspace"],
+            "edgepick.precision": precision,
+            "edgepick.quant": json.dumps(quant or {"mode": "none"}),
+            "edgepick.source_sha256": sha256_of(ckpt["path"]) if ckpt.get("path") else "",
+            "edgepick.train_time_s": f"{float(train_time_s if train_time_s is not None else ckpt.get('train_time_s', 0.0)):.1f}",
+            "edgepick.arch": ckpt["model_config"]["arch"]}
+
+
+def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: tuple[int, int]) -> Path:
+    """Export NET ([0, 255] NCHW float -> logits, float or pt2e-converted) as a contract-3.2 ONNX.
+
+    Written to a temporary file first and checked with onnx.checker; PATH appears only
+    when the whole file is good.
+    """
+    import onnx
+
+    path = Path(path)
+    if path.suffix != ".onnx":
+        raise ConfigError(f"--out must name an .onnx file, got {path}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    h, w = input_size
+    example = (torch.zeros(1, h, w, 3, dtype=torch.uint8),)
+    if not isinstance(net, torch.fx.GraphModule):  # exported graphs are already in eval form
+        net.eval()
+    deploy = DeployNet(net)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        with warnings.catch_warnings(), torch.no_grad():
+            warnings.simplefilter("ignore")
+            program = torch.onnx.export(deploy, example, dynamo=True, opset_version=OPSET, input_names=["image"],
+                                        output_names=["labels"], verbose=False, optimize=True)
+        model = program.model_proto
+        for key, value in metadata.items():
+            entry = model.metadata_props.add()
+            entry.key, entry.value = key, str(value)
+        model.producer_name = "edgepick"
+        onnx.save(model, tmp)
+        onnx.checker.check_model(tmp, full_check=True)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def export_checkpoint(checkpoint: str | Path, out: str | Path) -> dict:
+    """`edgepick export`: the float model of a checkpoint (or RUN) as an fp32 contract-3.2 ONNX."""
+    from edgepick.train.checkpoint import load_model
+
+    model, ckpt = load_model(checkpoint)
+    size = tuple(ckpt["input_size"])
+    path = export_onnx(LogitsNet(model), out, contract_metadata(ckpt, "fp32", None), size)
+    return {"out": str(path), "size_bytes": path.stat().st_size, "input_size": list(size), "classes": ckpt["classes"]}

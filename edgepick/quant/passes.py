@@ -1,0 +1,226 @@
+"""The int8 passes: static PTQ, QaT from scratch, hybrid-QaT; each ends in a contract-3.2 ONNX.
+
+One public function per pass (`quantize_static`, `quantize_qat`, `quantize_hybrid`), like
+onnxruntime's quantize.py; the CLI is a thin layer over them. All go through torchao's
+pt2e flow: torch.export -> prepare(_qat)_pt2e with `EdgeQuantizer` -> convert_pt2e ->
+torch.onnx.export(dynamo=True), and all assert that quantization really happened.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from edgepick.data.native import NativeDataset
+from edgepick.errors import CheckpointError, ConfigError, EdgepickError
+from edgepick.export.checks import conv_weight_report, label_agreement
+from edgepick.export.onnx_export import LogitsNet, contract_metadata, export_onnx
+from edgepick.quant.quantizer import EdgeQuantizer, QuantConfig, count_quant_nodes, module_path, under
+
+PREFIX = "model."  # LogitsNet's attribute in front of every module name
+
+
+class QuantizationError(EdgepickError):
+    """A pass that would silently produce an unquantized model."""
+
+
+def model_images(data: str | Path, split: str, count: int, size: tuple[int, int], seed: int = 0) -> list[np.ndarray]:
+    """COUNT images of DATA/<split>, chosen with SEED, area-resized to the model's (H, W)."""
+    ds = NativeDataset.open(data, split)
+    if count < 1:
+        raise ConfigError("the number of calibration images must be at least 1")
+    if len(ds) < count:
+        raise ConfigError(f"asked for {count} calibration images, but {data}/{split} has only {len(ds)}")
+    ids = [ds.ids[i] for i in sorted(np.random.default_rng(seed).choice(len(ds), count, replace=False))]
+    h, w = size
+    return [cv2.resize(ds.rgb(i), (w, h), interpolation=cv2.INTER_AREA) for i in ids]
+
+
+def _as_input(rgb: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(rgb).permute(2, 0, 1)[None].float()
+
+
+def check_keep_float(model: torch.nn.Module, names: list[str]) -> None:
+    known = {n for n, _ in model.named_modules()}
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise ConfigError(f"--keep-float names no module of the model: {', '.join(unknown)} "
+                          f"(see 'edgepick quantize inspect' for layer names)")
+
+
+def check_classes(ckpt: dict, data: str | Path) -> None:
+    classes = NativeDataset.open(data, "train").classes
+    if classes != ckpt["classes"]:
+        raise CheckpointError(f"the checkpoint's classes {ckpt['classes']} differ from the data set's {classes}")
+
+
+def prepare(model: torch.nn.Module, config: QuantConfig, size: tuple[int, int], qat: bool) -> torch.fx.GraphModule:
+    """torch.export + pt2e prepare; raises if no observer/fake-quant was inserted (the silent-float trap)."""
+    from torchao.quantization.pt2e import allow_exported_model_train_eval
+    from torchao.quantization.pt2e.quantize_pt2e import prepare_pt2e, prepare_qat_pt2e
+
+    check_keep_float(model, config.keep_float)
+    net = LogitsNet(model).train(qat)
+    example = (torch.rand(2 if qat else 1, 3, *size) * 255,)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        batch = torch.export.Dim("batch", min=1, max=4096)  # QaT trains on batches
+        graph = torch.export.export(net, example, dynamic_shapes=({0: batch},) if qat else None).module()
+        quantizer = EdgeQuantizer(config, qat=qat, prefix=PREFIX)
+        prepared = prepare_qat_pt2e(graph, quantizer) if qat else prepare_pt2e(graph, quantizer)
+    # drop fake-quants nobody reads (left by the QaT conv-BN rewrite); train()/eval() would drop them
+    # later anyway, and a checkpoint must load into a freshly prepared graph
+    prepared.graph.eliminate_dead_code()
+    prepared.delete_all_unused_submodules()
+    prepared.recompile()
+    if count_quant_nodes(prepared) == 0:
+        raise QuantizationError("pt2e inserted no observers: the model would stay float")
+    allow_exported_model_train_eval(prepared)
+    return prepared
+
+
+def convert(prepared: torch.fx.GraphModule) -> torch.fx.GraphModule:
+    from torchao.quantization.pt2e import move_exported_model_to_eval
+    from torchao.quantization.pt2e.quantize_pt2e import convert_pt2e
+
+    move_exported_model_to_eval(prepared)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return convert_pt2e(prepared)
+
+
+def expected_int8_convs(prepared: torch.fx.GraphModule, config: QuantConfig) -> int:
+    """Convs the quantizer was asked to quantize (all but those under --keep-float)."""
+    paths = [module_path(n).removeprefix(PREFIX) for n in prepared.graph.nodes
+             if n.op == "call_function" and n.target == torch.ops.aten.conv2d.default]
+    return sum(not under(p, config.keep_float) for p in paths)
+
+
+def export_int8(converted: torch.fx.GraphModule, out: str | Path, metadata: dict, size: tuple[int, int],
+                expected_convs: int, check_images: list[np.ndarray]) -> dict:
+    """Export, then check int8 conv weights and onnxruntime-vs-torch label agreement; no file on failure."""
+    path = export_onnx(converted, out, metadata, size)
+    report = conv_weight_report(path)
+    if report["int8"] < expected_convs:
+        path.unlink()
+        raise QuantizationError(f"only {report['int8']} of {expected_convs} convs got int8 weights in the ONNX")
+    agreement = label_agreement(path, converted, check_images)
+    return {"out": str(path), "size_bytes": path.stat().st_size, "convs": report["convs"],
+            "int8_convs": report["int8"], "float_convs": report["float"], "agreement_vs_torch": round(agreement, 5)}
+
+
+def quantize_static(checkpoint: str | Path, data: str | Path, out: str | Path, config: QuantConfig | None = None,
+                    calib_images: int = 64, seed: int = 0, progress: bool = True) -> dict:
+    """Static post-training quantization: BN folded, per-channel int8 weights, activation ranges
+    calibrated on CALIB_IMAGES train images with config.calib_method; writes an int8 ONNX."""
+    from edgepick.train.checkpoint import load_model
+
+    config = (config or QuantConfig()).validate()
+    model, ckpt = load_model(checkpoint)
+    check_classes(ckpt, data)
+    size = tuple(ckpt["input_size"])
+    images = model_images(data, "train", calib_images, size, seed)
+    check_images = model_images(data, "val", min(8, len(NativeDataset.open(data, "val"))), size, seed)
+    t0 = time.perf_counter()
+    prepared = prepare(model, config, size, qat=False)
+    with torch.no_grad():
+        for rgb in tqdm(images, desc="calibrate", unit="img", disable=not progress or None):
+            prepared(_as_input(rgb))
+    converted = convert(prepared)
+    calib_s = time.perf_counter() - t0
+    quant = {"mode": "static", "qat_fraction": None, "calib_method": config.calib_method,
+             "calib_images": calib_images, **{k: v for k, v in config.to_dict().items() if k != "calib_method"}}
+    meta = contract_metadata(ckpt, "int8", quant)
+    result = export_int8(converted, out, meta, size, expected_int8_convs(prepared, config), check_images)
+    return {"mode": "static", **result, "observers": count_quant_nodes(prepared), "calib_s": round(calib_s, 2),
+            "quant": quant}
+
+
+def load_qat(checkpoint: dict) -> torch.fx.GraphModule:
+    """Rebuild a QaT run's fake-quant graph from its checkpoint."""
+    from edgepick.models.deeplabv3 import ModelConfig, build_model
+
+    tc = checkpoint["train_config"]
+    prepared = prepare(build_model(ModelConfig(**checkpoint["model_config"])), QuantConfig(**(tc["quant"] or {})),
+                       tuple(tc["size"]), qat=True)
+    prepared.load_state_dict(checkpoint["model"])
+    return prepared
+
+
+def _finish_qat(run: Path, data: str | Path, out: str | Path, quant: dict) -> dict:
+    """Convert the QaT run's last (frozen) state and export it; phase wall times in the result."""
+    from edgepick.train.checkpoint import read_checkpoint
+
+    ckpt = read_checkpoint(run / "last.pt")
+    prepared = load_qat(ckpt)
+    converted = convert(prepared)
+    size = tuple(ckpt["input_size"])
+    float_s, qat_s = float(ckpt.get("init_train_time_s", 0.0)), float(ckpt["train_time_s"])
+    meta = contract_metadata(ckpt, "int8", quant, train_time_s=float_s + qat_s)
+    check_images = model_images(data, "val", min(8, len(NativeDataset.open(data, "val"))), size)
+    result = export_int8(converted, out, meta, size, expected_int8_convs(prepared, QuantConfig(**ckpt["train_config"]["quant"])),
+                         check_images)
+    return {"mode": quant["mode"], **result, "run": str(run), "observers": count_quant_nodes(prepared),
+            "float_phase_s": round(float_s, 2), "qat_phase_s": round(qat_s, 2), "val_miou_qat": ckpt["history"][-1]["miou"],
+            "quant": quant}
+
+
+def _qat_quant(mode: str, fraction: float, config: QuantConfig) -> dict:
+    return {"mode": mode, "qat_fraction": fraction, "calib_method": "qat", "calib_images": None,
+            **{k: v for k, v in config.to_dict().items() if k not in ("calib_method", "percentile")}}
+
+
+def quantize_qat(train_config, out: str | Path, config: QuantConfig | None = None, progress: bool = True) -> dict:
+    """QaT from scratch: a whole training run (train_config: TrainConfig, its .out the RUN folder) with
+    fake-quant on every epoch, then an int8 ONNX at OUT."""
+    from dataclasses import replace
+
+    from edgepick.train.loop import train
+
+    config = (config or QuantConfig()).validate()
+    _check_out(out)
+    cfg = replace(train_config, qat=True, quant=config.to_dict(), aux_loss=False)
+    train(cfg, progress=progress)
+    return _finish_qat(Path(cfg.out), cfg.data, out, _qat_quant("qat", 1.0, config))
+
+
+def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_fraction: float,
+                    config: QuantConfig | None = None, qat_run: str | Path | None = None, progress: bool = True) -> dict:
+    """Hybrid-QaT: of the float RUN's epoch budget E, continue from its epoch_NNN.pt at (1 - p)E
+    and train the last pE epochs with fake-quant (into QAT_RUN), then export the int8 ONNX."""
+    from edgepick.train.checkpoint import read_checkpoint
+    from edgepick.train.loop import TrainConfig, train
+
+    if not 0.0 < qat_fraction < 1.0:
+        raise ConfigError(f"--qat-fraction must be inside (0, 1), got {qat_fraction}")
+    config = (config or QuantConfig()).validate()
+    _check_out(out)
+    run = Path(run)
+    last = read_checkpoint(run / "last.pt" if run.is_dir() else run)
+    if last.get("train_config", {}).get("qat"):
+        raise CheckpointError(f"{run} is a QaT run; hybrid-QaT starts from a float run")
+    check_classes(last, data)
+    tc = {**last["train_config"], "size": tuple(last["train_config"]["size"])}
+    budget = tc["epochs"]
+    switch = round((1.0 - qat_fraction) * budget)
+    if switch >= budget:
+        raise ConfigError(f"--qat-fraction {qat_fraction} of {budget} epochs is less than one epoch")
+    init = Path(last["path"]).parent / f"epoch_{switch:03d}.pt"
+    if not init.is_file():
+        raise ConfigError(f"{init} does not exist: train the float run with --keep-epochs {switch}")
+    qat_run = Path(qat_run) if qat_run else Path(out).with_suffix(".run")
+    cfg = TrainConfig(**{**tc, "data": str(data), "out": str(qat_run), "keep_epochs": [], "qat": True,
+                         "quant": config.to_dict(), "init_from": str(init), "aux_loss": False})
+    train(cfg, progress=progress)
+    return _finish_qat(qat_run, data, out, _qat_quant("hybrid", qat_fraction, config))
+
+
+def _check_out(out: str | Path) -> None:
+    if Path(out).suffix != ".onnx":
+        raise ConfigError(f"--out must name an .onnx file, got {out}")

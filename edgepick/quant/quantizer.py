@@ -1,0 +1,208 @@
+"""A pt2e quantizer shaped for onnxruntime's QDQ fusions, and the calibration observers.
+
+torchao's X86InductorQuantizer leaves conv outputs float (Inductor fuses them), which in
+onnxruntime leaves every Conv unfused. This quantizer puts Q/DQ where onnxruntime's
+QDQ transformer turns them into QLinear* kernels: on every conv input and output (after
+a fused BN and ReLU), around elementwise add/mul, pooling, concat and activations, with
+uint8 affine activations and int8 per-channel symmetric weights (U8S8). Resize shares its
+input's quantization, so onnxruntime runs it on uint8 without Q/DQ around it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import torch
+from torch.fx import GraphModule, Node
+from torchao.quantization.pt2e import (FusedMovingAvgObsFakeQuantize, HistogramObserver, MinMaxObserver,
+                                       MovingAveragePerChannelMinMaxObserver, PerChannelMinMaxObserver)
+from torchao.quantization.pt2e.quantizer import (QuantizationAnnotation, QuantizationSpec, Quantizer,
+                                                 SharedQuantizationSpec)
+
+from edgepick.errors import ConfigError
+
+aten = torch.ops.aten
+CALIB_METHODS = ("minmax", "percentile", "entropy", "mse")
+CONV_OPS = {aten.conv2d.default}
+BN_OPS = {aten.batch_norm.default, aten._native_batch_norm_legit_no_training.default}
+FUSED_ACT_OPS = {aten.relu.default, aten.relu_.default, aten.hardtanh.default, aten.hardtanh_.default}
+# ops whose tensor inputs and output are quantized with their own parameters
+QUANT_OPS = {aten.hardswish.default, aten.hardswish_.default, aten.hardsigmoid.default, aten.hardsigmoid_.default,
+             aten.relu.default, aten.relu_.default, aten.add.Tensor, aten.add_.Tensor, aten.mul.Tensor,
+             aten.mul_.Tensor, aten.adaptive_avg_pool2d.default, aten.mean.dim, aten.avg_pool2d.default,
+             aten.cat.default}
+# ops that keep their input's quantization (onnxruntime runs them on uint8 directly)
+SHARED_OPS = {aten.upsample_bilinear2d.vec, aten.upsample_nearest2d.vec, aten.max_pool2d.default}
+
+
+@dataclass
+class QuantConfig:
+    """How a model is quantized; written into the ONNX metadata (`edgepick.quant`)."""
+
+    calib_method: str = "minmax"  # minmax | percentile | entropy | mse (activation ranges, static PTQ)
+    percentile: float = 99.99
+    # 7-bit weights: onnxruntime's U8S8 kernels on AVX2 CPUs without VNNI (the thesis laptop) add pairs of
+    # u8*s8 products in int16, which saturates with 8-bit weights; measured here (no VNNI) it cost 3 pp of
+    # onnxruntime-vs-torch agreement. Turn off for VNNI/AVX512 targets.
+    reduce_range: bool = True
+    keep_float: list[str] = field(default_factory=list)  # module names (prefixes) left in float
+    skip: list[str] = field(default_factory=lambda: ["preprocess"])  # never quantized
+
+    def validate(self) -> "QuantConfig":
+        if self.calib_method not in CALIB_METHODS:
+            raise ConfigError(f"unknown calibration method {self.calib_method!r}; choose one of "
+                              f"{', '.join(CALIB_METHODS)}")
+        if not 50.0 < self.percentile <= 100.0:
+            raise ConfigError("--percentile must be in (50, 100]")
+        return self
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+class PercentileObserver(HistogramObserver):
+    """Activation range from the histogram's lower/upper percentiles (clips rare outliers)."""
+
+    def __init__(self, percentile: float = 99.99, **kwargs):
+        super().__init__(**kwargs)
+        self.percentile = percentile
+
+    def _non_linear_param_search(self) -> tuple[torch.Tensor, torch.Tensor]:
+        hist = self.histogram.double().cpu().numpy()
+        cdf = np.cumsum(hist) / max(hist.sum(), 1.0)
+        tail = (100.0 - self.percentile) / 100.0
+        lo, hi = int(np.searchsorted(cdf, tail)), int(np.searchsorted(cdf, 1.0 - tail))
+        width = (self.max_val - self.min_val) / self.bins
+        return self.min_val + width * lo, self.min_val + width * min(hi + 1, self.bins)
+
+
+class EntropyObserver(HistogramObserver):
+    """Upper range by KL-divergence minimisation (TensorRT's entropy calibration) over 256 levels.
+
+    The lower end stays at the observed minimum (0 after ReLU); only the upper tail is clipped.
+    """
+
+    def _non_linear_param_search(self) -> tuple[torch.Tensor, torch.Tensor]:
+        hist = self.histogram.double().cpu().numpy()
+        levels = 256
+        best, best_kl = self.bins, np.inf
+        for stop in range(levels, self.bins + 1, 16):
+            p = hist[:stop].copy()
+            p[-1] += hist[stop:].sum()
+            if p.sum() == 0:
+                continue
+            chunks = np.array_split(hist[:stop], levels)
+            q = np.concatenate([np.where(c > 0, c.sum() / max((c > 0).sum(), 1), 0.0) for c in chunks])
+            mask = (p > 0)
+            pn, qn = p / p.sum(), q / max(q.sum(), 1e-12)
+            kl = float(np.sum(pn[mask] * np.log(pn[mask] / np.maximum(qn[mask], 1e-12))))
+            if kl < best_kl:
+                best, best_kl = stop, kl
+        width = (self.max_val - self.min_val) / self.bins
+        return self.min_val, self.min_val + width * best
+
+
+def activation_spec(config: QuantConfig, qat: bool) -> QuantizationSpec:
+    if qat:
+        ctr = FusedMovingAvgObsFakeQuantize.with_args(eps=2 ** -12)
+    elif config.calib_method == "minmax":
+        ctr = MinMaxObserver.with_args(eps=2 ** -12)
+    elif config.calib_method == "percentile":
+        ctr = PercentileObserver.with_args(percentile=config.percentile, eps=2 ** -12)
+    elif config.calib_method == "entropy":
+        ctr = EntropyObserver.with_args(eps=2 ** -12)
+    else:
+        ctr = HistogramObserver.with_args(eps=2 ** -12)  # L2-error (MSE) search
+    return QuantizationSpec(torch.uint8, ctr, 0, 255, torch.per_tensor_affine)
+
+
+def weight_spec(config: QuantConfig, qat: bool) -> QuantizationSpec:
+    qmin, qmax = (-64, 63) if config.reduce_range else (-127, 127)
+    if qat:
+        ctr = FusedMovingAvgObsFakeQuantize.with_args(observer=MovingAveragePerChannelMinMaxObserver, eps=2 ** -12)
+    else:
+        ctr = PerChannelMinMaxObserver.with_args(eps=2 ** -12)
+    return QuantizationSpec(torch.int8, ctr, qmin, qmax, torch.per_channel_symmetric, ch_axis=0)
+
+
+def module_path(node: Node) -> str:
+    """Dotted name of the innermost module a node came from ('' for the top level)."""
+    stack = node.meta.get("nn_module_stack") or {}
+    if not stack:
+        return ""
+    path = list(stack.values())[-1][0]
+    return path.removeprefix("L['self'].").removeprefix("L__self__.")
+
+
+def under(path: str, prefixes: list[str]) -> bool:
+    return any(path == p or path.startswith(p + ".") for p in prefixes)
+
+
+def _feeds_output(node: Node) -> bool:
+    """True for the logits' final upsample: logits stay float, uint8 logits would tie in the ArgMax."""
+    return any(u.op == "output" for u in node.users)
+
+
+def _single_user(node: Node) -> Node | None:
+    users = list(node.users)
+    return users[0] if len(users) == 1 else None
+
+
+class EdgeQuantizer(Quantizer):
+    """Annotates an exported DeepLabV3 for onnxruntime's QDQ kernels (see the module doc)."""
+
+    def __init__(self, config: QuantConfig, qat: bool = False, prefix: str = ""):
+        super().__init__()
+        self.config = config.validate()
+        self.qat = qat
+        self.prefix = prefix  # the wrapper attribute in front of module names (e.g. 'model.')
+        self.act = activation_spec(config, qat)
+        self.weight = weight_spec(config, qat)
+
+    def _skipped(self, node: Node) -> bool:
+        path = module_path(node).removeprefix(self.prefix)
+        return under(path, self.config.skip) or under(path, self.config.keep_float)
+
+    def annotate(self, model: GraphModule) -> GraphModule:
+        for node in model.graph.nodes:
+            if node.op != "call_function" or "quantization_annotation" in node.meta or self._skipped(node):
+                continue
+            if node.target in CONV_OPS:
+                self._annotate_conv(node)
+            elif node.target in QUANT_OPS:
+                inputs = {a: self.act for a in node.args[:2] if isinstance(a, Node)}
+                if node.target == aten.cat.default:
+                    inputs = {a: self.act for a in node.args[0]}
+                node.meta["quantization_annotation"] = QuantizationAnnotation(inputs, self.act, _annotated=True)
+            elif node.target in SHARED_OPS and isinstance(node.args[0], Node) and not _feeds_output(node):
+                src = node.args[0]
+                node.meta["quantization_annotation"] = QuantizationAnnotation(
+                    {src: self.act}, SharedQuantizationSpec((src, node)), _annotated=True)
+        return model
+
+    def _annotate_conv(self, conv: Node) -> None:
+        x, w = conv.args[0], conv.args[1]
+        chain = [conv]
+        nxt = _single_user(conv)
+        if nxt is not None and nxt.target in BN_OPS:
+            chain.append(nxt)
+            nxt = _single_user(nxt)
+        if nxt is not None and nxt.target in FUSED_ACT_OPS and not self._skipped(nxt):
+            chain.append(nxt)
+        conv.meta["quantization_annotation"] = QuantizationAnnotation({x: self.act, w: self.weight},
+                                                                      None, _annotated=True)
+        for node in chain[1:]:
+            node.meta["quantization_annotation"] = QuantizationAnnotation({}, None, _annotated=True)
+        if not any(_feeds_output(u) or u.op == "output" for u in chain[-1].users):  # logits stay float
+            chain[-1].meta["quantization_annotation"].output_qspec = self.act
+
+    def validate(self, model: GraphModule) -> None:
+        pass
+
+
+def count_quant_nodes(model: GraphModule) -> int:
+    """Observers / fake-quant modules inserted by prepare (0 means nothing will be quantized)."""
+    from torchao.quantization.pt2e import FakeQuantizeBase, ObserverBase
+
+    return sum(isinstance(m, (ObserverBase, FakeQuantizeBase)) for m in model.modules())

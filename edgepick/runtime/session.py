@@ -1,0 +1,102 @@
+"""The runtime's segmentation session: one onnxruntime CPU session per model (contract 3.2).
+
+Reads the model's metadata (classes, input size, colour space, precision), checks the
+graph's input/output against the contract, resizes a camera frame to the model's input
+and the labels back to the frame.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import onnxruntime as ort
+
+from edgepick.errors import EdgepickError
+
+
+class ModelError(EdgepickError):
+    """An ONNX file that is not an edgepick model (contract 3.2)."""
+
+
+REQUIRED_KEYS = ("edgepick.classes", "edgepick.input_size", "edgepick.colorspace", "edgepick.precision")
+
+
+@dataclass
+class ModelInfo:
+    classes: list[str]
+    input_size: tuple[int, int]  # H, W
+    colorspace: str
+    precision: str
+    metadata: dict[str, str]
+
+
+def _session(path: Path, threads: int) -> ort.InferenceSession:
+    opts = ort.SessionOptions()
+    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    opts.intra_op_num_threads = threads
+    opts.inter_op_num_threads = 1
+    opts.log_severity_level = 3
+    try:
+        return ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # noqa: BLE001 - onnxruntime raises several types for a bad file
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ModelError(f"onnxruntime cannot load {path}: {first}") from None
+
+
+def read_info(session: ort.InferenceSession, path: Path) -> ModelInfo:
+    """Contract 3.2 checks: uint8 [1,H,W,3] `image` in, uint8 [1,H,W] `labels` out, edgepick metadata."""
+    meta = session.get_modelmeta().custom_metadata_map
+    missing = [k for k in REQUIRED_KEYS if k not in meta]
+    if missing:
+        raise ModelError(f"{path} is not an edgepick model: metadata {', '.join(missing)} missing")
+    try:
+        classes = json.loads(meta["edgepick.classes"])
+        h, w = (int(v) for v in json.loads(meta["edgepick.input_size"]))
+    except (ValueError, TypeError):
+        raise ModelError(f"{path} has unreadable edgepick metadata") from None
+    inputs, outputs = session.get_inputs(), {o.name: o for o in session.get_outputs()}
+    if len(inputs) != 1 or inputs[0].name != "image" or inputs[0].type != "tensor(uint8)" \
+            or list(inputs[0].shape) != [1, h, w, 3]:
+        got = [(i.name, i.type, i.shape) for i in inputs]
+        raise ModelError(f"{path} must take one uint8 input 'image' of shape [1, {h}, {w}, 3], has {got}")
+    out = outputs.get("labels")
+    if out is None or out.type != "tensor(uint8)" or list(out.shape) != [1, h, w]:
+        raise ModelError(f"{path} must give a uint8 output 'labels' of shape [1, {h}, {w}]")
+    return ModelInfo(list(classes), (h, w), meta["edgepick.colorspace"], meta["edgepick.precision"], dict(meta))
+
+
+class Segmenter:
+    """Created once per model; `labels(rgb)` gives class ids at the frame's own resolution."""
+
+    def __init__(self, path: str | Path, threads: int = 2):
+        path = Path(path)
+        if not path.is_file():
+            raise ModelError(f"no model file at {path}")
+        self.path = path
+        self.session = _session(path, threads)
+        self.info = read_info(self.session, path)
+
+    def prepare(self, rgb: np.ndarray) -> np.ndarray:
+        """HxWx3 uint8 RGB -> the model's [1, h, w, 3] input (area resize when the size differs)."""
+        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+            raise ModelError(f"expected an HxWx3 uint8 RGB frame, got {rgb.dtype} {rgb.shape}")
+        h, w = self.info.input_size
+        if rgb.shape[:2] != (h, w):
+            rgb = cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA)
+        return np.ascontiguousarray(rgb)[None]
+
+    def infer(self, image: np.ndarray) -> np.ndarray:
+        """The model's own [h, w] labels for a prepared input."""
+        return self.session.run(["labels"], {"image": image})[0][0]
+
+    def restore(self, labels: np.ndarray, frame_hw: tuple[int, int]) -> np.ndarray:
+        if labels.shape != tuple(frame_hw):
+            labels = cv2.resize(labels, (frame_hw[1], frame_hw[0]), interpolation=cv2.INTER_NEAREST)
+        return labels
+
+    def labels(self, rgb: np.ndarray) -> np.ndarray:
+        return self.restore(self.infer(self.prepare(rgb)), rgb.shape[:2])
