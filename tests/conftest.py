@@ -40,5 +40,5 @@ def trained_run(small_data: Path, tmp_path_factory: pytest.TempPathFactory) -> P
 
     out = tmp_path_factory.mktemp("runs") / "run"
     train(TrainConfig(data=str(small_data), out=str(out), epochs=EPOCHS, batch_size=4, size=(96, 128), device="cpu",
-                      lr=2e-3, keep_epochs=[2]), progress=False)
+                      lr=2e-3, keep_epochs=[2, EPOCHS - 1]), progress=False)
     return out

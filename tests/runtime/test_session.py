@@ -1,0 +1,61 @@
+"""The runtime session: contract-3.2 checks and frame resizing, on small ONNX files built with onnx.helper."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+onnx = pytest.importorskip("onnx")
+from onnx import TensorProto, helper  # noqa: E402
+
+from edgepick.runtime.session import ModelError, Segmenter  # noqa: E402
+
+
+def red_channel_model(path: Path, h: int = 8, w: int = 12, in_type=TensorProto.UINT8, meta: dict | None = None) -> Path:
+    """A contract model whose labels are the image's red channel (so the expected output is known)."""
+    starts = helper.make_tensor("s", TensorProto.INT64, [1], [0])
+    ends = helper.make_tensor("e", TensorProto.INT64, [1], [1])
+    axes = helper.make_tensor("a", TensorProto.INT64, [1], [3])
+    nodes = [helper.make_node("Slice", ["image", "s", "e", "a"], ["red"]),
+             helper.make_node("Squeeze", ["red", "a"], ["labels0"]),
+             helper.make_node("Cast", ["labels0"], ["labels"], to=TensorProto.UINT8)]
+    graph = helper.make_graph(nodes, "red", [helper.make_tensor_value_info("image", in_type, [1, h, w, 3])],
+                              [helper.make_tensor_value_info("labels", TensorProto.UINT8, [1, h, w])],
+                              initializer=[starts, ends, axes])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    props = {"edgepick.classes": json.dumps(["background", "a", "b"]), "edgepick.input_size": json.dumps([h, w]),
+             "edgepick.colorspace": "rgb", "edgepick.precision": "fp32"} if meta is None else meta
+    for k, v in props.items():
+        entry = model.metadata_props.add()
+        entry.key, entry.value = k, v
+    onnx.save(model, path)
+    return path
+
+
+def test_labels_come_back_at_the_frame_size(tmp_path):
+    seg = Segmenter(red_channel_model(tmp_path / "m.onnx"), threads=1)
+    assert seg.info.classes == ["background", "a", "b"] and seg.info.input_size == (8, 12)
+    frame = np.zeros((16, 24, 3), np.uint8)
+    frame[:8, :12, 0] = 2  # top-left quarter is class 2
+    labels = seg.labels(frame)
+    assert labels.shape == (16, 24) and labels.dtype == np.uint8
+    assert (labels[:8, :12] == 2).all() and (labels[8:, :] == 0).all() and (labels[:, 12:] == 0).all()
+
+
+@pytest.mark.parametrize("case", ["no_meta", "float_input", "missing_file", "not_onnx"])
+def test_models_outside_the_contract_are_refused(tmp_path, case):
+    path = tmp_path / "m.onnx"
+    if case == "no_meta":
+        red_channel_model(path, meta={})
+    elif case == "float_input":
+        red_channel_model(path, in_type=TensorProto.FLOAT)
+    elif case == "not_onnx":
+        path.write_bytes(b"not a model")
+    with pytest.raises(ModelError) as err:
+        Segmenter(path)
+    assert "\n" not in str(err.value)
+
