@@ -1,7 +1,8 @@
 """`edgepick demo` / `make demo`: the main job end to end on an embedded default.
 
-Synthetic scenes -> a small CPU training run -> evaluation on the test split. Later stages
-(int8 passes, the runtime, the sim robot, the bench table) join as they land.
+Synthetic scenes -> a small CPU training run -> evaluation on the test split -> fp32 export,
+static int8 and hybrid-QaT int8 ONNX files, evaluated with the runtime. Later stages (the
+sim robot, the bench table) join as they land.
 """
 
 from __future__ import annotations
@@ -29,23 +30,51 @@ def run_demo(workdir: Path, scenes: int = 204, epochs: int = 12, size: tuple[int
         shutil.rmtree(workdir)
     workdir.mkdir(parents=True)
     t0 = time.perf_counter()
-    _step(f"1/3 synthesize {scenes} RGB-D scenes (640x480)")
+    _step(f"1/5 synthesize {scenes} RGB-D scenes (640x480)")
     synth = synthesize(workdir / "data", SynthConfig(scenes=scenes, seed=0))
     click.echo(f"{synth['scenes']} scenes in {synth['seconds']} s ({synth['scenes_per_s']} scenes/s), "
                f"splits {synth['splits']}", err=True)
     contact_sheet(workdir / "data", workdir / "preview.png", count=9)
-    _step(f"2/3 train DeepLabV3-MobileNetV3 on CPU, {epochs} epochs at {size[0]}x{size[1]}")
+    _step(f"2/5 train DeepLabV3-MobileNetV3 on CPU, {epochs} epochs at {size[0]}x{size[1]}")
     run = train(TrainConfig(data=str(workdir / "data"), out=str(workdir / "run"), epochs=epochs, batch_size=8,
                             size=size, device="cpu", keep_epochs=[max(1, epochs - 1)]))
-    _step("3/3 evaluate the best checkpoint on the test split")
+    _step("3/5 evaluate the best checkpoint on the test split")
     test = evaluate(workdir / "run", workdir / "data", "test")
+    int8 = quantize_demo(workdir, epochs)
     summary = {
         "data": str(workdir / "data"), "preview": str(workdir / "preview.png"), "run": run["out"],
         "train_time_s": run["train_time_s"], "best_val_miou": run["best_miou"],
         "test": {"pixel_acc": test["pixel_acc"], "miou": test["miou"],
                  "per_class_iou": {c: v["iou"] for c, v in test["per_class"].items()}},
-        "total_s": round(time.perf_counter() - t0, 1),
+        "onnx": int8, "total_s": round(time.perf_counter() - t0, 1),
     }
     (workdir / "summary.json").write_text(json.dumps(summary, indent=1))
     click.echo(json.dumps(summary, indent=1))
     return summary
+
+
+def quantize_demo(workdir: Path, epochs: int) -> dict:
+    """fp32 export, static int8 and hybrid-QaT int8 (last epoch with QaT); runtime eval of each."""
+    from edgepick.evaluation import evaluate
+    from edgepick.export.onnx_export import export_checkpoint
+    from edgepick.quant.passes import quantize_hybrid, quantize_static
+
+    _step("4/5 export fp32, quantize static int8 and hybrid-QaT int8 (onnxruntime QDQ)")
+    models = workdir / "models"
+    files = {"fp32": export_checkpoint(workdir / "run", models / "fp32.onnx"),
+             "static": quantize_static(workdir / "run", workdir / "data", models / "static.onnx", calib_images=32),
+             "hybrid": quantize_hybrid(workdir / "run", workdir / "data", models / "hybrid.onnx", 1 / epochs,
+                                       qat_run=workdir / "hybrid.run")}
+    _step("5/5 evaluate the ONNX files with the runtime (onnxruntime, CPU) on the test split")
+    fp32_size = files["fp32"]["size_bytes"]
+    out = {}
+    for name, f in files.items():
+        res = evaluate(f["out"], workdir / "data", "test", progress=False)
+        out[name] = {"file": f["out"], "size_mb": round(f["size_bytes"] / 1e6, 2),
+                     "smaller_than_fp32": round(fp32_size / f["size_bytes"], 2),
+                     "agreement_vs_torch": f.get("agreement_vs_torch"), "test_miou": res["miou"],
+                     "test_pixel_acc": res["pixel_acc"]}
+        click.echo(f"{name:7s} {out[name]['size_mb']:6.2f} MB ({out[name]['smaller_than_fp32']}x smaller)  "
+                   f"test mIoU {res['miou']:.3f}  onnxruntime-vs-torch agreement {f.get('agreement_vs_torch', '-')}",
+                   err=True)
+    return out

@@ -116,9 +116,11 @@ def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: tu
 
 def export_checkpoint(checkpoint: str | Path, out: str | Path) -> dict:
     """`edgepick export`: the float model of a checkpoint (or RUN) as an fp32 contract-3.2 ONNX."""
+    from edgepick.models.deeplabv3 import trim_dilated_convs
     from edgepick.train.checkpoint import load_model
 
     model, ckpt = load_model(checkpoint)
     size = tuple(ckpt["input_size"])
+    trim_dilated_convs(model, size)
     path = export_onnx(LogitsNet(model), out, contract_metadata(ckpt, "fp32", None), size)
     return {"out": str(path), "size_bytes": path.stat().st_size, "input_size": list(size), "classes": ckpt["classes"]}

@@ -67,18 +67,19 @@ class Preprocess(nn.Module):
     def __init__(self, colorspace: str = "rgb"):
         super().__init__()
         self.colorspace = colorspace
-        mean, std = _NORM[colorspace]
-        self.register_buffer("mean", torch.tensor(mean).view(1, 3, 1, 1), persistent=False)
-        self.register_buffer("std", torch.tensor(std).view(1, 3, 1, 1), persistent=False)
+        mean, std = (torch.tensor(v).view(1, 3, 1, 1) for v in _NORM[colorspace])
+        # (x / 255 - mean) / std as one multiply-add: x * scale + shift (scale folds 1/255 unless HSV needs [0, 1])
+        first = 1.0 if colorspace == "hsv" else 255.0
+        self.register_buffer("scale", 1.0 / (first * std), persistent=False)
+        self.register_buffer("shift", -mean / std, persistent=False)
 
     def forward(self, x: Tensor) -> Tensor:
-        x = x / 255.0
         if self.colorspace == "hsv":
-            x = rgb_to_hsv(x)
+            x = rgb_to_hsv(x / 255.0)
         elif self.colorspace == "gray":
             y = 0.299 * x[:, 0:1] + 0.587 * x[:, 1:2] + 0.114 * x[:, 2:3]
             x = y.expand(-1, 3, -1, -1)
-        return (x - self.mean) / self.std
+        return x * self.scale + self.shift
 
 
 class ASPPConv(nn.Sequential):
@@ -173,6 +174,44 @@ def build_model(config: ModelConfig) -> DeepLabV3:
         return DeepLabV3(config, backbone, 960, 40)
     blocks = (3, 4, 6, 3) if config.arch == "resnet50" else (3, 4, 23, 3)
     return DeepLabV3(config, ResNetFeatures(blocks, config.output_stride), 2048, 1024)
+
+
+@torch.no_grad()
+def trim_dilated_convs(model: DeepLabV3, input_size: tuple[int, int]) -> int:
+    """Shrink ASPP 3x3 kernels whose dilation reaches past the feature map; returns how many changed.
+
+    With rate 36 on a 30x40 map (480x640 at stride 16) the outer rows of taps only ever see
+    zero padding: a 1x3 kernel gives the identical result. onnxruntime's fp32 kernels skip
+    such taps themselves, its int8 kernels do not (3x more work). Applied to a copy at export
+    and quantization time; training keeps torchvision's shapes.
+    """
+    seen: dict[str, tuple[int, int]] = {}
+
+    def record(module: nn.Module, args: tuple) -> None:
+        seen["hw"] = tuple(args[0].shape[-2:])
+
+    hook = model.classifier[0].register_forward_pre_hook(record)
+    was_training = model.training
+    model.eval()(torch.zeros(1, 3, *input_size))
+    model.train(was_training)
+    hook.remove()
+    h, w = seen["hw"]
+    changed = 0
+    for branch in model.classifier[0].convs:
+        if not isinstance(branch, ASPPConv):
+            continue
+        conv = branch[0]
+        d = conv.dilation[0]
+        drop_rows, drop_cols = d >= h, d >= w
+        if not (drop_rows or drop_cols):
+            continue
+        rows, cols = slice(1, 2) if drop_rows else slice(0, 3), slice(1, 2) if drop_cols else slice(0, 3)
+        small = nn.Conv2d(conv.in_channels, conv.out_channels, (rows.stop - rows.start, cols.stop - cols.start),
+                          padding=(0 if drop_rows else d, 0 if drop_cols else d), dilation=d, bias=False)
+        small.weight.copy_(conv.weight[:, :, rows, cols])
+        branch[0] = small.to(conv.weight.device)
+        changed += 1
+    return changed
 
 
 def deeplabv3_mobilenet_v3_large(num_classes: int = 21, aux_loss: bool = False, **kw) -> DeepLabV3:

@@ -21,7 +21,14 @@ from edgepick.data.native import NativeDataset
 from edgepick.errors import CheckpointError, ConfigError, EdgepickError
 from edgepick.export.checks import conv_weight_report, label_agreement
 from edgepick.export.onnx_export import LogitsNet, contract_metadata, export_onnx
-from edgepick.quant.quantizer import EdgeQuantizer, QuantConfig, count_quant_nodes, module_path, under
+from edgepick.models.deeplabv3 import trim_dilated_convs
+from edgepick.quant.quantizer import (
+    EdgeQuantizer,
+    QuantConfig,
+    count_quant_nodes,
+    module_path,
+    under,
+)
 
 PREFIX = "model."  # LogitsNet's attribute in front of every module name
 
@@ -61,11 +68,13 @@ def check_classes(ckpt: dict, data: str | Path) -> None:
 
 
 def prepare(model: torch.nn.Module, config: QuantConfig, size: tuple[int, int], qat: bool) -> torch.fx.GraphModule:
-    """torch.export + pt2e prepare; raises if no observer/fake-quant was inserted (the silent-float trap)."""
+    """torch.export + pt2e prepare of MODEL (changed in place); raises if no observer/fake-quant was
+    inserted (the silent-float trap)."""
     from torchao.quantization.pt2e import allow_exported_model_train_eval
     from torchao.quantization.pt2e.quantize_pt2e import prepare_pt2e, prepare_qat_pt2e
 
     check_keep_float(model, config.keep_float)
+    trim_dilated_convs(model, size)  # exact; int8 kernels do not skip taps that only see padding
     net = LogitsNet(model).train(qat)
     example = (torch.rand(2 if qat else 1, 3, *size) * 255,)
     with warnings.catch_warnings():

@@ -15,10 +15,19 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import torch
 from torch.fx import GraphModule, Node
-from torchao.quantization.pt2e import (FusedMovingAvgObsFakeQuantize, HistogramObserver, MinMaxObserver,
-                                       MovingAveragePerChannelMinMaxObserver, PerChannelMinMaxObserver)
-from torchao.quantization.pt2e.quantizer import (QuantizationAnnotation, QuantizationSpec, Quantizer,
-                                                 SharedQuantizationSpec)
+from torchao.quantization.pt2e import (
+    FusedMovingAvgObsFakeQuantize,
+    HistogramObserver,
+    MinMaxObserver,
+    MovingAveragePerChannelMinMaxObserver,
+    PerChannelMinMaxObserver,
+)
+from torchao.quantization.pt2e.quantizer import (
+    QuantizationAnnotation,
+    QuantizationSpec,
+    Quantizer,
+    SharedQuantizationSpec,
+)
 
 from edgepick.errors import ConfigError
 

@@ -1,0 +1,140 @@
+"""fp32 vs int8 (static PTQ) latency of the default model in onnxruntime, with the per-op breakdown.
+
+    python benchmarks/quant_speed.py [--checkpoint RUN] [--threads 2] [--runs 30] [--out FILE.md]
+
+Without --checkpoint a seeded, untrained DeepLabV3-MobileNetV3 at 480x640 is used (latency
+does not depend on the weights; accuracy does, so mIoU needs a trained RUN). Both files run
+in this one process, same thread count, same input, after warm-up; medians and the ratio
+are what to quote. Per-op times come from onnxruntime's profiler.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import sys
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+
+def make_checkpoint(path: Path, size: tuple[int, int], classes: list[str]) -> Path:
+    import torch
+
+    from edgepick.models.deeplabv3 import ModelConfig, build_model
+    from edgepick.train.checkpoint import model_meta
+
+    torch.manual_seed(0)
+    cfg = ModelConfig(num_classes=len(classes))
+    torch.save({"model": build_model(cfg).state_dict(), "train_time_s": 0.0, **model_meta(cfg, classes, size)}, path)
+    return path
+
+
+def session(path: str, threads: int, profile: str | None = None) -> ort.InferenceSession:
+    opts = ort.SessionOptions()
+    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    opts.intra_op_num_threads, opts.inter_op_num_threads = threads, 1
+    opts.log_severity_level = 3
+    if profile:
+        opts.enable_profiling, opts.profile_file_prefix = True, profile
+    return ort.InferenceSession(path, opts, providers=["CPUExecutionProvider"])
+
+
+def latency(path: str, image: np.ndarray, threads: int, runs: int) -> list[float]:
+    sess = session(path, threads)
+    for _ in range(5):
+        sess.run(None, {"image": image})
+    times = []
+    for _ in range(runs):
+        t = time.perf_counter()
+        sess.run(None, {"image": image})
+        times.append((time.perf_counter() - t) * 1000)
+    return times
+
+
+def per_op(path: str, image: np.ndarray, threads: int, runs: int, prefix: str) -> dict[str, float]:
+    """Mean ms per run for each op type (onnxruntime profiler, after warm-up)."""
+    sess = session(path, threads, profile=prefix)
+    for _ in range(3 + runs):
+        sess.run(None, {"image": image})
+    trace = json.loads(Path(sess.end_profiling()).read_text())
+    per_run = defaultdict(float)
+    for ev in trace:
+        if ev.get("cat") == "Node" and ev["name"].endswith("_kernel_time"):
+            per_run[ev["args"]["op_name"]] += ev["dur"] / 1000
+    total_runs = 3 + runs
+    return {op: ms / total_runs for op, ms in sorted(per_run.items(), key=lambda kv: -kv[1])}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--checkpoint", default=None, help="RUN or checkpoint (default: untrained model at 480x640)")
+    ap.add_argument("--data", default=None, help="data set for calibration and mIoU (default: 24 synthetic scenes)")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--runs", type=int, default=30)
+    ap.add_argument("--calib-images", type=int, default=16)
+    ap.add_argument("--out", default=None, help="also write the Markdown report here")
+    args = ap.parse_args()
+
+    from edgepick.data.synth import SynthConfig, synthesize
+    from edgepick.evaluation import evaluate
+    from edgepick.export.onnx_export import export_checkpoint
+    from edgepick.quant.passes import quantize_static
+
+    work = Path(tempfile.mkdtemp(prefix="quant-speed-"))
+    data = Path(args.data) if args.data else work / "data"
+    if not args.data:
+        synthesize(data, SynthConfig(scenes=24, seed=3, splits=(16, 4, 4)), progress=False)
+    classes = json.loads((data / "meta.json").read_text())["classes"]
+    ckpt = args.checkpoint or str(make_checkpoint(work / "untrained.pt", (480, 640), classes))
+    fp32 = export_checkpoint(ckpt, work / "fp32.onnx")
+    int8 = quantize_static(ckpt, data, work / "int8.onnx", calib_images=args.calib_images, progress=False)
+    size = fp32["input_size"]
+    image = (np.random.default_rng(0).random((1, size[0], size[1], 3)) * 255).astype(np.uint8)
+
+    rows, ops = {}, {}
+    for name, f in (("fp32", fp32), ("int8", int8)):
+        t = latency(f["out"], image, args.threads, args.runs)
+        rows[name] = {"p50": statistics.median(t), "p95": float(np.percentile(t, 95)), "mb": f["size_bytes"] / 1e6}
+        ops[name] = per_op(f["out"], image, args.threads, 10, str(work / f"prof_{name}"))
+        if args.checkpoint:
+            rows[name]["miou"] = evaluate(f["out"], data, "test", progress=False)["miou"]
+    ratio = rows["fp32"]["p50"] / rows["int8"]["p50"]
+
+    lines = [f"# fp32 vs int8 (static PTQ) in onnxruntime {ort.__version__}, {args.threads} threads, "
+             f"input {size[0]}x{size[1]}",
+             "", f"Command: `python benchmarks/quant_speed.py {' '.join(sys.argv[1:])}`  ",
+             f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; "
+             f"model: {'checkpoint ' + args.checkpoint if args.checkpoint else 'untrained DeepLabV3-MobileNetV3'}; "
+             f"{args.runs} runs after 5 warm-up, one process.", "",
+             "| Model | p50 (ms) | p95 (ms) | Size (MB) |" + (" mIoU |" if args.checkpoint else ""),
+             "|---|---|---|---|" + ("---|" if args.checkpoint else "")]
+    for name, r in rows.items():
+        lines.append(f"| {name} | {r['p50']:.1f} | {r['p95']:.1f} | {r['mb']:.2f} |"
+                     + (f" {r['miou']:.4f} |" if args.checkpoint else ""))
+    lines += ["", f"**int8 / fp32 speed-up (p50): {ratio:.2f}x**; onnxruntime-vs-torch label agreement of the "
+              f"int8 file: {int8['agreement_vs_torch']}", "", "Per-op time (ms per run, onnxruntime profiler):", "",
+              "| Op | fp32 | | Op | int8 |", "|---|---|---|---|---|"]
+    f_ops, i_ops = list(ops["fp32"].items()), list(ops["int8"].items())
+    for k in range(max(len(f_ops), len(i_ops))):
+        a = f_ops[k] if k < len(f_ops) else ("", None)
+        b = i_ops[k] if k < len(i_ops) else ("", None)
+        lines.append(f"| {a[0]} | {'' if a[1] is None else f'{a[1]:.2f}'} | | {b[0]} | "
+                     f"{'' if b[1] is None else f'{b[1]:.2f}'} |")
+    report = "\n".join(lines) + "\n"
+    print(report)
+    if args.out:
+        Path(args.out).write_text(report)
+
+
+if __name__ == "__main__":
+    main()
