@@ -14,6 +14,7 @@ import argparse
 import json
 import os
 import platform
+import shutil
 import statistics
 import sys
 import tempfile
@@ -61,8 +62,9 @@ def latency(path: str, image: np.ndarray, threads: int, runs: int) -> list[float
     return times
 
 
-def per_op(path: str, image: np.ndarray, threads: int, runs: int, prefix: str) -> dict[str, float]:
-    """Mean ms per run for each op type (onnxruntime profiler, after warm-up)."""
+def per_op(path: str, image: np.ndarray, threads: int, runs: int, prefix: str,
+           by_node: bool = False) -> dict[str, float]:
+    """Mean ms per run for each op type, or each node (onnxruntime profiler, after warm-up)."""
     sess = session(path, threads, profile=prefix)
     for _ in range(3 + runs):
         sess.run(None, {"image": image})
@@ -70,7 +72,11 @@ def per_op(path: str, image: np.ndarray, threads: int, runs: int, prefix: str) -
     per_run = defaultdict(float)
     for ev in trace:
         if ev.get("cat") == "Node" and ev["name"].endswith("_kernel_time"):
-            per_run[ev["args"]["op_name"]] += ev["dur"] / 1000
+            key = ev["args"]["op_name"]
+            if by_node:
+                shape = next(iter(ev["args"].get("output_type_shape", [{}])[0].values()), [])
+                key = f"{key} {ev['name'].removesuffix('_kernel_time')} -> {shape}"
+            per_run[key] += ev["dur"] / 1000
     total_runs = 3 + runs
     return {op: ms / total_runs for op, ms in sorted(per_run.items(), key=lambda kv: -kv[1])}
 
@@ -82,6 +88,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--runs", type=int, default=30)
     ap.add_argument("--calib-images", type=int, default=16)
+    ap.add_argument("--nodes", type=int, default=8, help="also list the N slowest nodes of each model")
     ap.add_argument("--out", default=None, help="also write the Markdown report here")
     args = ap.parse_args()
 
@@ -101,11 +108,12 @@ def main() -> None:
     size = fp32["input_size"]
     image = (np.random.default_rng(0).random((1, size[0], size[1], 3)) * 255).astype(np.uint8)
 
-    rows, ops = {}, {}
+    rows, ops, nodes = {}, {}, {}
     for name, f in (("fp32", fp32), ("int8", int8)):
         t = latency(f["out"], image, args.threads, args.runs)
         rows[name] = {"p50": statistics.median(t), "p95": float(np.percentile(t, 95)), "mb": f["size_bytes"] / 1e6}
         ops[name] = per_op(f["out"], image, args.threads, 10, str(work / f"prof_{name}"))
+        nodes[name] = per_op(f["out"], image, args.threads, 10, str(work / f"nodes_{name}"), by_node=True)
         if args.checkpoint:
             rows[name]["miou"] = evaluate(f["out"], data, "test", progress=False)["miou"]
     ratio = rows["fp32"]["p50"] / rows["int8"]["p50"]
@@ -130,10 +138,14 @@ def main() -> None:
         b = i_ops[k] if k < len(i_ops) else ("", None)
         lines.append(f"| {a[0]} | {'' if a[1] is None else f'{a[1]:.2f}'} | | {b[0]} | "
                      f"{'' if b[1] is None else f'{b[1]:.2f}'} |")
+    for name in nodes:
+        lines += ["", f"Slowest {args.nodes} nodes, {name} (ms per run):", ""]
+        lines += [f"- {ms:.2f} `{node}`" for node, ms in list(nodes[name].items())[:args.nodes]]
     report = "\n".join(lines) + "\n"
     print(report)
     if args.out:
         Path(args.out).write_text(report)
+    shutil.rmtree(work, ignore_errors=True)
 
 
 if __name__ == "__main__":
