@@ -248,16 +248,20 @@ class SceneRenderer:
                 continue
             x0, y0, x1, y1 = box
             rays = self.rays[y0:y1, x0:x1]
-            nr = ndotr[y0:y1, x0:x1]
+            inv_nr = 1.0 / ndotr[y0:y1, x0:x1]
+            # A point on the ray at depth z has object-frame coordinates (ray.a1) z - c.a1:
+            # project the rays once per object, then each level is two multiply-adds.
+            ray_a1, ray_a2 = rays @ p.a1.astype(np.float32), rays @ p.a2.astype(np.float32)
             full = np.zeros((y1 - y0, x1 - x0), bool)
             for part in p.model.parts:
                 done = np.zeros_like(full)
                 levels = np.linspace(1.0, 0.0, 4)
                 for li, t in enumerate(levels):
                     elev = p.base_elev + part.z0 + t * (part.z1 - part.z0)
-                    z = (d - elev) / nr
-                    rel = rays * z[..., None] - (p.ground - n * elev).astype(np.float32)
-                    lx, ly = rel @ p.a1.astype(np.float32), rel @ p.a2.astype(np.float32)
+                    z = np.float32(d - elev) * inv_nr
+                    c = p.ground - n * elev
+                    lx = ray_a1 * z - np.float32(c @ p.a1)
+                    ly = ray_a2 * z - np.float32(c @ p.a2)
                     inside = (part.sdf(lx, ly) < 0) & ~done
                     if not inside.any():
                         continue
@@ -291,43 +295,35 @@ class SceneRenderer:
 
         centre = (d / ndotr[h // 2, w // 2]) * self.rays[h // 2, w // 2]
         ambient, lights = _lights(rng, lighting, centre, n)
+        colours = np.stack([light["colour"] for light in lights]).astype(np.float32)  # [n_lights, 3]
         on_table = label == 0
-        shadows = [self._shadow(light, placed, footprints, n, d, on_table) for light in lights]
-        # The table is flat: shade it at 1/4 resolution. Objects: per pixel.
+        # The table is flat and its shadows are soft: light it at 1/4 resolution, then upsample.
         q = 4
         small = self.rays[q // 2::q, q // 2::q]
+        gh, gw = small.shape[:2]
         pts_t = (small * (d / (small @ n.astype(np.float32)))[..., None]).reshape(-1, 3)
         nrm_t = np.broadcast_to((-n).astype(np.float32), pts_t.shape)
+        dif_t, spc_t = _shade(pts_t, nrm_t, t_ks, t_shin, lights, centre)
+        objects_q = cv2.resize((~on_table).astype(np.float32), (gw, gh), interpolation=cv2.INTER_AREA)
+        amb_q = 1 - 0.5 * cv2.GaussianBlur(objects_q, (0, 0), 1.5)  # contact shadow around bases
+        vis = np.stack([self._shadow(light, placed, footprints, n, d, (gw, gh)) for light in lights], 1)
+        light_q = amb_q[..., None] * ambient.astype(np.float32) + ((dif_t * vis) @ colours).reshape(gh, gw, 3)
+        spec_q = ((spc_t * vis) @ colours).reshape(gh, gw, 3)
+        light = cv2.resize(light_q, (w, h), interpolation=cv2.INTER_LINEAR)
+        spec = cv2.resize(spec_q, (w, h), interpolation=cv2.INTER_LINEAR)
+        # Objects: per pixel, no cast shadow; metal tints its highlights.
         ys, xs = np.nonzero(~on_table)
         pts_o = self.rays[ys, xs] * zbuf[ys, xs, None]
-        objects = (~on_table).astype(np.float32)
-        occ = cv2.resize(cv2.GaussianBlur(cv2.resize(objects, (w // q, h // q), interpolation=cv2.INTER_AREA),
-                                          (0, 0), 1.5), (w, h))  # contact shadow around bases
-        amb = 1 - 0.5 * occ * on_table
-        dif_t, spc_t = _shade(pts_t, nrm_t, t_ks, t_shin, lights, centre)
         dif_o, spc_o = _shade(pts_o, normal[ys, xs], ks[ys, xs], shin[ys, xs], lights, centre)
-        grid = (small.shape[1], small.shape[0])
-        light_c = [amb * float(ambient[c]) for c in range(3)]  # planar per-channel sums
-        spec_c = [np.zeros((h, w), np.float32) for _ in range(3)]
-        spec_lum = np.zeros((h, w), np.float32)
-        for li, light in enumerate(lights):
-            dt = cv2.resize(dif_t[:, li].reshape(grid[1], grid[0]), (w, h), interpolation=cv2.INTER_LINEAR)
-            st = cv2.resize(spc_t[:, li].reshape(grid[1], grid[0]), (w, h), interpolation=cv2.INTER_LINEAR)
-            dt[ys, xs] = dif_o[:, li]
-            st[ys, xs] = spc_o[:, li]
-            dt *= shadows[li]
-            st *= shadows[li]
-            spec_lum += st
-            for c in range(3):
-                light_c[c] += dt * float(light["colour"][c])
-                spec_c[c] += st * float(light["colour"][c])
-        mys, mxs = np.nonzero(metal)
-        tint = albedo[mys, mxs]
-        tint = tint / (tint.mean(1, keepdims=True) + 1e-3)  # metal tints its highlights
-        alb = cv2.split(albedo)
-        for c in range(3):
-            spec_c[c][mys, mxs] *= tint[:, c]
-        linear = cv2.merge([alb[c] * light_c[c] + spec_c[c] for c in range(3)])
+        alb_o = albedo[ys, xs]
+        spec_o = spc_o @ colours
+        is_metal = metal[ys, xs]
+        spec_o[is_metal] *= alb_o[is_metal] / (alb_o[is_metal].mean(1, keepdims=True) + 1e-3)
+        light[ys, xs] = ambient.astype(np.float32) + dif_o @ colours
+        spec[ys, xs] = spec_o
+        spec_lum = np.zeros((h, w), np.float32)  # read on metal pixels only (depth holes)
+        spec_lum[ys, xs] = spc_o.sum(1)
+        linear = cv2.add(cv2.multiply(albedo, light), spec)
         mean_lin = float(np.mean(cv2.mean(linear)[:3]))
         gain = float(np.clip((0.2 / (mean_lin + 1e-4)) ** 0.7, 0.5, 4.0)) * rng.uniform(0.85, 1.15)
         idx = np.clip(linear * (gain * 4095), 0, 4095).astype(np.int16)
@@ -345,11 +341,12 @@ class SceneRenderer:
         return Scene(rgb, depth, label, grasps, info)
 
     def _shadow(self, light: dict, placed: list[Placed], footprints: list, n: np.ndarray, d: float,
-                on_table: np.ndarray) -> np.ndarray:
-        """Light visibility on the table: each object's footprint pushed away from the light."""
-        h, w = on_table.shape
-        q = 4  # shadows are soft: work at quarter resolution
-        hq, wq = h // q, w // q
+                grid: tuple[int, int]) -> np.ndarray:
+        """Light visibility on the table, flattened on the (width, height) grid: each object's
+        footprint pushed away from the light."""
+        h, w = self.intr.height, self.intr.width
+        wq, hq = grid
+        q = w / wq
         occl = np.zeros((hq, wq), np.float32)
         for p, fp in zip(placed, footprints):
             if fp is None:
@@ -369,8 +366,7 @@ class SceneRenderer:
                 shift = np.float32([[1, 0, du * s / steps], [0, 1, dv * s / steps]])
                 occl = np.maximum(occl, cv2.warpAffine(m, shift, (wq, hq)))
         occl = cv2.GaussianBlur(occl, (0, 0), max(0.7, light["soft"] / q))
-        occl = cv2.resize(occl, (w, h), interpolation=cv2.INTER_LINEAR)
-        return 1.0 - 0.85 * occl * on_table
+        return 1.0 - 0.85 * occl.ravel()
 
     def _depth(self, rng: np.random.Generator, z: np.ndarray, metal: np.ndarray, spec: np.ndarray,
                dark: np.ndarray) -> np.ndarray:
