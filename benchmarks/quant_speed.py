@@ -26,18 +26,7 @@ import numpy as np
 import onnxruntime as ort
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-
-def make_checkpoint(path: Path, size: tuple[int, int], classes: list[str]) -> Path:
-    import torch
-
-    from edgepick.models.deeplabv3 import ModelConfig, build_model
-    from edgepick.train.checkpoint import model_meta
-
-    torch.manual_seed(0)
-    cfg = ModelConfig(num_classes=len(classes))
-    torch.save({"model": build_model(cfg).state_dict(), "train_time_s": 0.0, **model_meta(cfg, classes, size)}, path)
-    return path
+from _common import untrained_checkpoint  # noqa: E402
 
 
 def session(path: str, threads: int, profile: str | None = None) -> ort.InferenceSession:
@@ -102,7 +91,7 @@ def main() -> None:
     if not args.data:
         synthesize(data, SynthConfig(scenes=24, seed=3, splits=(16, 4, 4)), progress=False)
     classes = json.loads((data / "meta.json").read_text())["classes"]
-    ckpt = args.checkpoint or str(make_checkpoint(work / "untrained.pt", (480, 640), classes))
+    ckpt = args.checkpoint or str(untrained_checkpoint(work / "untrained.pt", (480, 640), classes))
     fp32 = export_checkpoint(ckpt, work / "fp32.onnx")
     int8 = quantize_static(ckpt, data, work / "int8.onnx", calib_images=args.calib_images, progress=False)
     size = fp32["input_size"]

@@ -31,16 +31,23 @@ class GraspConfig:
     min_depth_px: int = 10  # valid depth pixels needed for a depth estimate
 
 
-def filter_class_masks(labels: np.ndarray, num_classes: int, cfg: GraspConfig) -> dict[int, np.ndarray]:
-    """Per class present: median blur then dilation of its binary mask (uint8 0/1)."""
+def filter_class_masks(labels: np.ndarray, num_classes: int, cfg: GraspConfig) -> dict[int, tuple[int, int, np.ndarray]]:
+    """Per class present: median blur then dilation of its binary mask (uint8 0/1), worked on
+    the class's bounding box plus a margin (the result is the same as on the whole frame, at a
+    fraction of the cost). Returns {class: (x0, y0, mask crop)}."""
     out = {}
     kernel = np.ones((cfg.dilate_ksize, cfg.dilate_ksize), np.uint8)
-    for c in np.unique(labels):
-        if c == 0 or c >= num_classes:
-            continue
-        m = (labels == c).astype(np.uint8)
+    margin = cfg.median_ksize // 2 + cfg.dilate_ksize // 2 + 1
+    h, w = labels.shape
+    counts = (cv2.calcHist([labels], [0], None, [256], [0, 256]).ravel() if labels.dtype == np.uint8
+              else np.bincount(labels.ravel(), minlength=num_classes))  # calcHist: ~2x faster on uint8
+    for c in np.flatnonzero(counts[1:num_classes]) + 1:
+        x, y, bw, bh = cv2.boundingRect((labels == c).view(np.uint8))
+        x0, y0 = max(x - margin, 0), max(y - margin, 0)
+        x1, y1 = min(x + bw + margin, w), min(y + bh + margin, h)
+        m = (labels[y0:y1, x0:x1] == c).view(np.uint8)
         m = cv2.medianBlur(m, cfg.median_ksize)
-        out[int(c)] = cv2.dilate(m, kernel)
+        out[int(c)] = (x0, y0, cv2.dilate(m, kernel))
     return out
 
 
@@ -98,14 +105,15 @@ def grasp_records(labels: np.ndarray, depth: np.ndarray, intr: Intrinsics, class
         raise EdgepickError(f"image size {labels.shape[1]}x{labels.shape[0]} differs from the intrinsics "
                             f"{intr.width}x{intr.height}")
     records = []
-    for c, mask in filter_class_masks(labels, len(classes), cfg).items():
+    for c, (ox, oy, mask) in filter_class_masks(labels, len(classes), cfg).items():
         n, comp, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
         for k in range(1, n):
             x, y, w, h, area = (int(v) for v in stats[k])
             if area < cfg.min_area_px:
                 continue
             # work on the region's bounding box, not the whole frame (this runs every frame)
-            region = (comp[y:y + h, x:x + w] == k).astype(np.uint8)
+            region = (comp[y:y + h, x:x + w] == k).view(np.uint8)
+            x, y = x + ox, y + oy  # crop -> frame coordinates
             cx, cy, angle, defined, area = moments_pose(region, cfg.round_ratio)
             cx, cy = cx + x, cy + y
             rec: dict = {"class": classes[c], "pixel": [round(cx, 2), round(cy, 2)], "angle_deg": angle,

@@ -155,3 +155,25 @@ def test_cli_refuses_size_mismatch_bad_rotation_and_8bit_depth(tmp_path):
     assert proc.returncode == 2 and "rotation" in proc.stderr
     proc = _grasp_cli(tmp_path, np.zeros((480, 640), np.uint8), np.zeros((480, 640), np.uint8))
     assert proc.returncode == 2 and "uint16" in proc.stderr and "Traceback" not in proc.stderr
+
+
+@given(st.integers(0, 2**31 - 1))
+@settings(max_examples=40, deadline=None)
+def test_class_masks_filtered_on_crops_equal_whole_frame_filtering(seed):
+    from edgepick.runtime.grasp import GraspConfig, filter_class_masks
+
+    rng = np.random.default_rng(seed)
+    labels = np.zeros((120, 160), np.uint8)
+    for _ in range(int(rng.integers(1, 6))):  # blobs, some touching the frame border
+        x, y = int(rng.integers(-10, 160)), int(rng.integers(-10, 120))
+        labels[max(y, 0):y + int(rng.integers(2, 40)), max(x, 0):x + int(rng.integers(2, 40))] = rng.integers(1, 5)
+    labels[rng.random(labels.shape) < 0.01] = 2  # speckle
+    cfg = GraspConfig()
+    crops = filter_class_masks(labels, 5, cfg)
+    for c in range(1, 5):
+        full = cv2.dilate(cv2.medianBlur((labels == c).astype(np.uint8), 3), np.ones((5, 5), np.uint8))
+        got = np.zeros_like(full)
+        if c in crops:
+            x0, y0, m = crops[c]
+            got[y0:y0 + m.shape[0], x0:x0 + m.shape[1]] = m
+        assert np.array_equal(got, full), c
