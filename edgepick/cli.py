@@ -95,6 +95,57 @@ def data_preview(data_dir: str, out: str, split: str, count: int) -> None:
     _emit({"out": out, "scenes": n})
 
 
+@data.command("import")
+@click.argument("fmt", metavar="FORMAT", type=click.Choice(["cityscapes", "bop", "cvat"]))
+@click.argument("src", type=click.Path())
+@click.argument("out", type=click.Path(file_okay=False))
+@click.option("--cityscapes-classes", default="30", show_default=True, type=click.Choice(["30", "19"]),
+              help="Cityscapes: all 30 benchmark classes, or the 19 train ids (the rest ignored).")
+@click.option("--splits", default="0.8,0.1,0.1", show_default=True, metavar="TRAIN,VAL,TEST",
+              help="BOP/CVAT: fractions for the train/val/test split (deterministic per file name).")
+@click.option("--images", default=None, type=click.Path(file_okay=False), help="CVAT: colour images [default: SRC/JPEGImages].")
+@click.option("--depth", default=None, type=click.Path(file_okay=False), help="CVAT: uint16 depth PNGs named like the images.")
+@click.option("--intrinsics", default=None, type=click.Path(dir_okay=False), help="CVAT: intrinsics.json of the depth camera.")
+@click.option("--depth-scale", default=0.001, show_default=True, help="CVAT: metres per unit of the depth PNGs.")
+def data_import(fmt: str, src: str, out: str, cityscapes_classes: str, splits: str, images: str | None,
+                depth: str | None, intrinsics: str | None, depth_scale: float) -> None:
+    """Convert a Cityscapes, BOP (e.g. LineMOD) or CVAT 'Segmentation mask 1.1' tree into the native layout.
+
+    \b
+    cityscapes: leftImg8bit/ + gtFine/*_labelIds.png (ids 0-3, and with 19 classes every
+                non-train id, become 255 = ignored); its val split feeds val and test.
+    bop:        <scene>/rgb, depth, mask_visib, scene_gt.json, scene_camera.json; one class
+                per object id, depth converted to millimetres, intrinsics from cam_K.
+    cvat:       labelmap.txt + SegmentationClass/*.png, images and optional depth folders.
+    """
+    from edgepick.data.importers import ImportConfig, import_dataset
+
+    try:
+        fractions = tuple(float(v) for v in splits.split(","))
+    except ValueError:
+        raise ConfigError(f"--splits must be three fractions TRAIN,VAL,TEST, got {splits!r}") from None
+    cfg = ImportConfig(cityscapes_classes=cityscapes_classes, split_fractions=fractions, images=images,
+                       depth=depth, intrinsics=intrinsics, depth_scale_m=depth_scale)
+    _emit(import_dataset(fmt, src, out, cfg))
+
+
+@data.command("capture")
+@click.argument("out", type=click.Path(file_okay=False))
+@click.option("--camera", default="realsense", show_default=True,
+              help="realsense[:SERIAL], synth[:SEED] or dir:PATH (the same sources as the runtime).")
+@click.option("--count", default=10, show_default=True, help="Frames to save.")
+@click.option("--interval", default=0.0, show_default=True, help="Seconds between frames (time to move objects).")
+@click.option("--size", default="640x480", show_default=True, help="Stream WIDTHxHEIGHT.")
+def data_capture(out: str, camera: str, count: int, interval: float, size: str) -> None:
+    """Save aligned RGB + depth + intrinsics.json from a camera into OUT, for annotation (e.g. CVAT)."""
+    from edgepick.data.capture import capture
+    from edgepick.data.synth import parse_size_wxh
+    from edgepick.runtime.camera import open_camera
+
+    width, height = parse_size_wxh(size)
+    _emit(capture(open_camera(camera, width, height), out, count, interval))
+
+
 # --------------------------------------------------------------------------- train
 @cli.command()
 @click.argument("data_dir", metavar="DATA", type=click.Path())

@@ -13,6 +13,7 @@ from edgepick.errors import DatasetError
 from edgepick.runtime.geometry import Intrinsics
 
 SPLITS = ("train", "val", "test")
+IGNORE = 255  # mask value of pixels that are neither trained on nor scored (e.g. Cityscapes' void)
 
 
 @dataclass
@@ -70,8 +71,10 @@ class NativeDataset:
         m = cv2.imread(str(self._path("mask", sid)), cv2.IMREAD_UNCHANGED)
         if m is None or m.ndim != 2:
             raise DatasetError(f"cannot read mask {self._path('mask', sid)} as a single-channel label image")
-        if int(m.max()) >= len(self.classes):
-            raise DatasetError(f"mask {self._path('mask', sid)} has class id {int(m.max())} but the data set "
+        labelled = m[m != IGNORE]
+        top = int(labelled.max()) if labelled.size else 0
+        if top >= len(self.classes):
+            raise DatasetError(f"mask {self._path('mask', sid)} has class id {top} but the data set "
                                f"has {len(self.classes)} classes")
         return m
 

@@ -10,9 +10,7 @@ import torch
 import torch.nn.functional as F
 from torch.utils.data import Dataset
 
-from edgepick.data.native import NativeDataset
-
-IGNORE = 255
+from edgepick.data.native import IGNORE, NativeDataset
 
 
 class SegmentationSet(Dataset):

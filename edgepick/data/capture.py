@@ -1,0 +1,52 @@
+"""`edgepick data capture`: save RGB + depth + intrinsics from a camera for later annotation
+(e.g. in CVAT), in the folder layout that `dir:PATH` cameras read back."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+from tqdm import tqdm
+
+from edgepick.errors import ConfigError
+from edgepick.runtime.camera import Camera
+
+
+def capture(camera: Camera, out: str | Path, count: int, interval_s: float = 0.0) -> dict:
+    """Write `count` frames to OUT/rgb, OUT/depth and OUT/intrinsics.json; all or nothing."""
+    out = Path(out)
+    if count < 1:
+        raise ConfigError("--count must be at least 1")
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise ConfigError(f"{out} already exists and is not empty; choose a new folder")
+    out.resolve().parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.resolve().parent))
+    try:
+        (tmp / "rgb").mkdir()
+        (tmp / "depth").mkdir()
+        with camera as cam:
+            (tmp / "intrinsics.json").write_text(json.dumps(cam.intrinsics.to_dict(), indent=1))
+            for i in tqdm(range(count), desc="capture", unit="frame", disable=None):
+                if i and interval_s > 0:
+                    time.sleep(interval_s)
+                try:
+                    frame = cam.read()
+                except StopIteration:
+                    raise ConfigError(f"the camera ran out of frames after {i} of {count}") from None
+                ok = cv2.imwrite(str(tmp / "rgb" / f"{i:06d}.png"), frame.rgb[..., ::-1])
+                ok &= cv2.imwrite(str(tmp / "depth" / f"{i:06d}.png"), frame.depth)
+                if not ok:
+                    raise OSError(f"could not write frame {i} under {tmp}")
+            intr = cam.intrinsics
+        if out.exists():
+            out.rmdir()
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return {"out": str(out), "frames": count, "size": [intr.width, intr.height], "depth_scale": intr.depth_scale}

@@ -1,0 +1,184 @@
+"""Importers: tiny Cityscapes, BOP and CVAT trees made here, converted to the native layout."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from edgepick.data.importers import ImportConfig, assign_splits, import_dataset
+from edgepick.data.native import IGNORE, NativeDataset
+from edgepick.errors import DatasetError
+from tests.conftest import run_cli
+
+H, W = 24, 32
+
+
+def write_rgb(path, value=100):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    img = np.zeros((H, W, 3), np.uint8)
+    img[..., 0], img[..., 2] = value, 255 - value  # RGB: red channel = value
+    assert cv2.imwrite(str(path), img[..., ::-1])
+
+
+# ------------------------------------------------------------------------------ Cityscapes
+def cityscapes_tree(root):
+    ids = np.zeros((H, W), np.uint8)  # 0 = unlabeled
+    ids[:, 8:16], ids[:, 16:24], ids[:, 24:] = 7, 26, 9  # road, car, parking
+    for split, cities in (("train", ["aachen", "bonn"]), ("val", ["lindau"])):
+        for k, city in enumerate(cities):
+            stem = f"{city}_000000_{k:06d}"
+            write_rgb(root / "leftImg8bit" / split / city / f"{stem}_leftImg8bit.png", 10 + k)
+            label = root / "gtFine" / split / city / f"{stem}_gtFine_labelIds.png"
+            label.parent.mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(label), ids)
+    return root
+
+
+@pytest.mark.parametrize("classes, road, car, parking", [("30", 3, 22, 5), ("19", 0, 13, IGNORE)])
+def test_cityscapes_class_mapping_and_ignore(tmp_path, classes, road, car, parking):
+    summary = import_dataset("cityscapes", cityscapes_tree(tmp_path / "cs"), tmp_path / "out",
+                             ImportConfig(cityscapes_classes=classes))
+    assert summary["splits"] == {"train": 2, "val": 1, "test": 1}
+    meta = json.loads((tmp_path / "out" / "meta.json").read_text())
+    assert len(meta["classes"]) == int(classes) and meta["ignore_index"] == IGNORE
+    assert meta["classes"][road] == "road" and meta["classes"][car] == "car"
+    ds = NativeDataset.open(tmp_path / "out", "test")  # 255 is accepted as ignore
+    m = ds.mask(ds.ids[0])
+    assert (m[:, :8] == IGNORE).all() and (m[:, 8:16] == road).all() and (m[:, 16:24] == car).all()
+    assert (m[:, 24:] == parking).all()
+    assert ds.rgb(ds.ids[0]).shape == (H, W, 3)
+
+
+def test_cityscapes_missing_label_file_leaves_nothing(tmp_path):
+    src = cityscapes_tree(tmp_path / "cs")
+    next((src / "gtFine" / "val").rglob("*.png")).unlink()
+    proc = run_cli("data", "import", "cityscapes", str(src), str(tmp_path / "out"))
+    assert proc.returncode == 2 and "label file missing" in proc.stderr and "Traceback" not in proc.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cs"]  # no OUT, no partial folder
+
+
+# ------------------------------------------------------------------------------------ BOP
+def bop_tree(root, images=4):
+    scene = root / "test" / "000002"
+    gt, cams = {}, {}
+    for im in range(images):
+        write_rgb(scene / "rgb" / f"{im:06d}.png", 50 + im)
+        (scene / "depth").mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(scene / "depth" / f"{im:06d}.png"), np.full((H, W), 6000 + im, np.uint16))  # 0.1 mm units
+        (scene / "mask_visib").mkdir(exist_ok=True)
+        a, b = np.zeros((H, W), np.uint8), np.zeros((H, W), np.uint8)
+        a[2:10, 2:10], b[12:20, 20:30] = 255, 255
+        cv2.imwrite(str(scene / "mask_visib" / f"{im:06d}_000000.png"), a)
+        cv2.imwrite(str(scene / "mask_visib" / f"{im:06d}_000001.png"), b)
+        gt[str(im)] = [{"obj_id": 5, "cam_R_m2c": [1, 0, 0, 0, 1, 0, 0, 0, 1], "cam_t_m2c": [0, 0, 600]},
+                       {"obj_id": 1, "cam_R_m2c": [1, 0, 0, 0, 1, 0, 0, 0, 1], "cam_t_m2c": [10, 0, 600]}]
+        cams[str(im)] = {"cam_K": [572.4, 0, 15.5, 0, 573.6, 11.5, 0, 0, 1], "depth_scale": 0.1}
+    (scene / "scene_gt.json").write_text(json.dumps(gt))
+    (scene / "scene_camera.json").write_text(json.dumps(cams))
+    return root
+
+
+def test_bop_classes_depth_scale_and_intrinsics(tmp_path):
+    summary = import_dataset("bop", bop_tree(tmp_path / "lm"), tmp_path / "out")
+    assert sum(summary["splits"].values()) == 4 and min(summary["splits"].values()) >= 1 and summary["depth"]
+    meta = json.loads((tmp_path / "out" / "meta.json").read_text())
+    assert meta["classes"] == ["background", "ape", "can"]  # object ids 1 and 5, sorted
+    intr = meta["intrinsics"]
+    assert (intr["width"], intr["height"], intr["fx"], intr["fy"], intr["cx"], intr["cy"]) == (W, H, 572.4, 573.6,
+                                                                                                 15.5, 11.5)
+    assert meta["depth_scale"] == 0.001
+    for split in ("train", "val", "test"):
+        ds = NativeDataset.open(tmp_path / "out", split)
+        for sid in ds.ids:
+            m, d = ds.mask(sid), ds.depth(sid)
+            assert (m[2:10, 2:10] == 2).all() and (m[12:20, 20:30] == 1).all() and m.sum() == 2 * 64 + 80
+            assert d.dtype == np.uint16 and 600 <= int(d[0, 0]) <= 601  # 0.1 mm units -> mm
+
+
+@pytest.mark.parametrize("damage, message", [("missing-mask", "mask file missing"), ("size", "is 16x12")])
+def test_bop_malformed_tree_is_one_line_and_nothing_written(tmp_path, damage, message):
+    src = bop_tree(tmp_path / "lm")
+    visib = src / "test" / "000002" / "mask_visib" / "000002_000001.png"
+    if damage == "missing-mask":
+        visib.unlink()
+    else:
+        cv2.imwrite(str(visib), np.zeros((12, 16), np.uint8))
+    proc = run_cli("data", "import", "bop", str(src), str(tmp_path / "out"))
+    assert proc.returncode == 2 and message in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["lm"]
+
+
+# ----------------------------------------------------------------------------------- CVAT
+def cvat_tree(root, names=("a", "b", "c", "d")):
+    (root / "SegmentationClass").mkdir(parents=True)
+    (root / "labelmap.txt").write_text("# label:color_rgb:parts:actions\nbox:250,50,83::\nbackground:0,0,0::\n"
+                                       "bearing:51,221,255::\n")
+    depth = root.parent / "depth"
+    depth.mkdir()
+    for k, name in enumerate(names):
+        write_rgb(root / "JPEGImages" / f"{name}.png", 20 * k)
+        colour = np.zeros((H, W, 3), np.uint8)  # RGB
+        colour[:12] = (250, 50, 83)
+        colour[12:, 16:] = (51, 221, 255)
+        cv2.imwrite(str(root / "SegmentationClass" / f"{name}.png"), colour[..., ::-1])
+        cv2.imwrite(str(depth / f"{name}.png"), np.full((H, W), 2500, np.uint16))  # 0.25 mm units
+    (root.parent / "intr.json").write_text(json.dumps({"width": W, "height": H, "fx": 30, "fy": 30, "cx": 15.5,
+                                                       "cy": 11.5, "depth_scale": 0.00025}))
+    return root
+
+
+def test_cvat_colours_to_classes_with_depth(tmp_path):
+    src = cvat_tree(tmp_path / "cvat")
+    cfg = ImportConfig(depth=str(tmp_path / "depth"), intrinsics=str(tmp_path / "intr.json"), depth_scale_m=0.00025)
+    summary = import_dataset("cvat", src, tmp_path / "out", cfg)
+    assert summary["splits"] == {"train": 2, "val": 1, "test": 1}
+    meta = json.loads((tmp_path / "out" / "meta.json").read_text())
+    assert meta["classes"] == ["background", "box", "bearing"]  # background moved to id 0
+    assert meta["intrinsics"]["fx"] == 30 and meta["depth_scale"] == 0.001
+    ds = NativeDataset.open(tmp_path / "out", "train")
+    m, d = ds.mask(ds.ids[0]), ds.depth(ds.ids[0])
+    assert (m[:12] == 1).all() and (m[12:, 16:] == 2).all() and (m[12:, :16] == 0).all()
+    assert (d == 625).all()  # 2500 * 0.25 mm
+
+
+def test_cvat_unknown_colour_is_refused(tmp_path):
+    src = cvat_tree(tmp_path / "cvat")
+    bad = cv2.imread(str(src / "SegmentationClass" / "c.png"))
+    bad[0, 0] = (1, 2, 3)  # BGR
+    cv2.imwrite(str(src / "SegmentationClass" / "c.png"), bad)
+    proc = run_cli("data", "import", "cvat", str(src), str(tmp_path / "out"))
+    assert proc.returncode == 2 and "(3, 2, 1)" in proc.stderr and "does not list" in proc.stderr
+    assert not (tmp_path / "out").exists() and not list(tmp_path.glob(".out.partial-*"))
+
+
+def test_import_refuses_unknown_format_missing_source_and_bad_splits(tmp_path):
+    with pytest.raises(DatasetError, match="unknown format"):
+        import_dataset("voc", tmp_path, tmp_path / "o")
+    with pytest.raises(DatasetError, match="does not exist"):
+        import_dataset("bop", tmp_path / "nope", tmp_path / "o")
+    with pytest.raises(DatasetError, match="sum to 1"):
+        import_dataset("bop", tmp_path, tmp_path / "o", ImportConfig(split_fractions=(0.5, 0.1, 0.1)))
+    with pytest.raises(DatasetError, match="too few"):
+        assign_splits(["a", "b"], (0.8, 0.1, 0.1))
+
+
+def test_assign_splits_is_deterministic_and_fills_every_split():
+    names = [f"img{i}" for i in range(50)]
+    a, b = assign_splits(names, (0.8, 0.1, 0.1)), assign_splits(list(reversed(names)), (0.8, 0.1, 0.1))
+    assert a == b
+    assert [list(a.values()).count(s) for s in ("train", "val", "test")] == [40, 5, 5]
+
+
+def test_imported_cityscapes_trains_and_evaluates_with_ignored_pixels(tmp_path):
+    pytest.importorskip("torch")
+    import_dataset("cityscapes", cityscapes_tree(tmp_path / "cs"), tmp_path / "data",
+                   ImportConfig(cityscapes_classes="19"))
+    run_cli("train", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--epochs", "1", "--size", "32x64",
+            "--batch-size", "2", "--device", "cpu", check=True)
+    proc = run_cli("eval", str(tmp_path / "run"), str(tmp_path / "data"), "--split", "test", check=True)
+    result = json.loads(proc.stdout)
+    assert len(result["classes"]) == 19 and len(result["confusion_matrix"]) == 19
+    assert result["pixels"] == H * 16  # road + car columns; unlabeled and parking (255) are not scored
