@@ -311,9 +311,11 @@ def demo(workdir: str, scenes: int, epochs: int) -> None:
 
 
 from edgepick.cli_quant import export_cmd, quantize  # noqa: E402 - click-only module, no torch
+from edgepick.cli_robot import pick  # noqa: E402 - click-only module, no torch
 
 cli.add_command(export_cmd)
 cli.add_command(quantize)
+cli.add_command(pick)
 
 
 def main() -> None:

@@ -217,12 +217,16 @@ class SceneRenderer:
         x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, intr.width), min(y1, intr.height)
         return (x0, y0, x1, y1) if x1 > x0 and y1 > y0 else None
 
-    def render(self, rng: np.random.Generator) -> Scene:
+    def render(self, rng: np.random.Generator, camera_height_m: float | None = None) -> Scene:
+        """One scene. `camera_height_m` fixes the camera straight above the table at that height
+        (a calibrated robot cell); by default height and tilt are random."""
         intr = self.intr
         h, w = intr.height, intr.width
         cam_h = rng.uniform(0.55, 0.8)
         tilt = np.deg2rad(rng.uniform(0, 10))
         tdir = rng.uniform(0, 2 * np.pi)
+        if camera_height_m is not None:  # the draws above still happen: the rest of the scene is unchanged
+            cam_h, tilt = float(camera_height_m), 0.0
         n = np.array([np.sin(tilt) * np.cos(tdir), np.sin(tilt) * np.sin(tdir), np.cos(tilt)])
         d = cam_h  # table plane: n . X = d
         lighting = LIGHTINGS[int(rng.integers(len(LIGHTINGS)))]

@@ -123,19 +123,36 @@ class FolderCamera(Camera):
 
 
 class SynthCamera(Camera):
-    """The synthetic scene generator as a live camera; each frame carries its grasp truth."""
+    """The synthetic scene generator as a live camera; each frame carries its grasp truth.
 
-    def __init__(self, width: int = 640, height: int = 480, seed: int = 0, frames: int | None = None):
+    With `mount_height_m` the camera is fixed straight above the table, like a camera
+    mounted over a robot cell; `calibration()` then gives its camera-to-robot transform.
+    """
+
+    MOUNT_XY_M = (0.28, 0.0)  # robot-frame point under the camera centre
+
+    def __init__(self, width: int = 640, height: int = 480, seed: int = 0, frames: int | None = None,
+                 mount_height_m: float | None = None):
         from edgepick.data.render import SceneRenderer  # numpy + OpenCV only
 
         self.intrinsics = Intrinsics.d415(width, height)
         self.renderer = SceneRenderer(self.intrinsics)
-        self.seed, self.frames, self.index = seed, frames, 0
+        self.seed, self.frames, self.index, self.mount = seed, frames, 0, mount_height_m
+
+    def calibration(self):
+        """Camera looking straight down at the robot's table (z = 0): image right = robot -y,
+        image down = robot -x."""
+        from edgepick.runtime.calibration import Calibration
+
+        if self.mount is None:
+            raise CameraError("only a mounted synthetic camera (mount_height_m) has a fixed calibration")
+        R = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+        return Calibration(R, np.array([*self.MOUNT_XY_M, self.mount]), 0.0, 0)
 
     def read(self) -> Frame:
         if self.frames is not None and self.index >= self.frames:
             raise StopIteration
-        scene = self.renderer.render(np.random.default_rng([self.seed, 7, self.index]))
+        scene = self.renderer.render(np.random.default_rng([self.seed, 7, self.index]), camera_height_m=self.mount)
         name = f"synth-{self.seed}-{self.index:06d}"
         self.index += 1
         return Frame(scene.rgb, scene.depth, self.intrinsics, name, scene.grasps)
@@ -204,12 +221,14 @@ class RealSenseCamera(Camera):
 
 
 def open_camera(spec: str, width: int = 640, height: int = 480, seed: int = 0, loop: bool = False) -> Camera:
-    """'synth' | 'dir:PATH' | 'realsense' | 'realsense:SERIAL' -> an unopened source."""
+    """'synth[:SEED]' | 'synth-cell[:SEED]' | 'dir:PATH' | 'realsense[:SERIAL]' -> an unopened source."""
     kind, _, arg = spec.partition(":")
     if kind == "synth":
         return SynthCamera(width, height, seed=int(arg) if arg else seed)
+    if kind == "synth-cell":  # the synthetic camera mounted over a robot cell (fixed calibration)
+        return SynthCamera(width, height, seed=int(arg) if arg else seed, mount_height_m=0.7)
     if kind == "dir" and arg:
         return FolderCamera(arg, loop=loop)
     if kind == "realsense":
         return RealSenseCamera(width, height, serial=arg or None)
-    raise CameraError(f"unknown camera {spec!r}: use synth, dir:PATH or realsense[:SERIAL]")
+    raise CameraError(f"unknown camera {spec!r}: use synth, synth-cell, dir:PATH or realsense[:SERIAL]")

@@ -66,12 +66,16 @@ def moments_pose(region: np.ndarray, round_ratio: float) -> tuple[float, float, 
     return cx, cy, angle, defined, area
 
 
-def object_depth(depth: np.ndarray, region: np.ndarray, depth_scale: float, min_px: int) -> float | None:
-    """Median of the object's own valid depth pixels (metres), or None when too few are valid."""
+def object_depth(depth: np.ndarray, region: np.ndarray, depth_scale: float, min_px: int,
+                 percentile: float = 25.0) -> float | None:
+    """Depth of the object's top surface (metres) from its own valid pixels, or None when too few
+    are valid. A low percentile rather than the median: a segmentation that bleeds onto the
+    table around the object (common with small models) would pull the median down to the
+    table, while the object's top is the near end of the distribution."""
     vals = depth[(region > 0) & (depth > 0)]
     if vals.size < min_px:
         return None
-    return float(np.median(vals)) * depth_scale
+    return float(np.percentile(vals, percentile)) * depth_scale
 
 
 def top_down_pose(cal: Calibration, intr: Intrinsics, cx: float, cy: float, z: float, angle_deg: float,

@@ -1,0 +1,154 @@
+"""The `Robot` protocol and the guard every implementation shares.
+
+`RobotBase` checks each target against the envelope BEFORE anything is sent, checks each
+command's result and the safety status AFTER it, and once a protective/emergency stop or a
+lost link has been seen it sends nothing more. As a context manager it always stops and
+disconnects on the way out. Subclasses implement the `_`-prefixed transport methods only.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from edgepick.errors import EdgepickError
+from edgepick.robot.envelope import Envelope
+
+
+class RobotError(EdgepickError):
+    """The arm or its link failed: stopped, unreachable, or a command not carried out."""
+
+
+class RobotHalted(RobotError):
+    """A protective/emergency stop or a lost link: the robot takes no more commands."""
+
+
+@dataclass
+class SafetyStatus:
+    connected: bool
+    protective_stop: bool = False
+    emergency_stop: bool = False
+
+    def problem(self) -> str | None:
+        if not self.connected:
+            return "link to the robot lost"
+        if self.emergency_stop:
+            return "emergency stop"
+        if self.protective_stop:
+            return "protective stop"
+        return None
+
+
+class RobotBase:
+    """Envelope-guarded commands; `with robot:` connects, and stops + disconnects at exit."""
+
+    def __init__(self, envelope: Envelope | None = None):
+        self.envelope = envelope or Envelope()
+        self.halted: str | None = None
+        self.connected = False
+        self.sent: list[str] = []  # names of the commands that reached the transport
+        self.on_send = None  # optional callback, called as each command goes out (latency probes)
+
+    # -- transport (subclasses) ---------------------------------------------------------------
+    def _connect(self) -> None:
+        raise NotImplementedError
+
+    def _disconnect(self) -> None:
+        raise NotImplementedError
+
+    def _move_l(self, pose: list[float], speed: float, acc: float) -> bool:
+        raise NotImplementedError
+
+    def _move_j(self, q: list[float], speed: float, acc: float) -> bool:
+        raise NotImplementedError
+
+    def _stop(self) -> None:
+        raise NotImplementedError
+
+    def _set_digital_out(self, index: int, value: bool, tool: bool) -> bool:
+        raise NotImplementedError
+
+    def _status(self) -> SafetyStatus:
+        raise NotImplementedError
+
+    def tcp_pose(self) -> list[float]:
+        raise NotImplementedError
+
+    # -- guarded commands ---------------------------------------------------------------------
+    def connect(self) -> "RobotBase":
+        self._connect()
+        self.connected = True
+        self._after("connect", True)
+        return self
+
+    def _before(self, name: str) -> None:
+        if self.halted:
+            raise RobotHalted(f"{name} not sent: robot halted earlier ({self.halted})")
+        if not self.connected:
+            raise RobotError(f"{name} not sent: not connected")
+
+    def _after(self, name: str, ok: bool) -> None:
+        problem = self._status().problem()
+        if problem:
+            self.halted = problem
+            raise RobotHalted(f"{name}: {problem}; the robot takes no more commands")
+        if not ok:
+            raise RobotError(f"{name} was not carried out by the controller")
+
+    def _send(self, name: str) -> None:
+        self.sent.append(name)
+        if self.on_send is not None:
+            self.on_send()
+
+    def move_l(self, pose: list[float], speed: float | None = None, acc: float | None = None) -> None:
+        speed = self.envelope.max_speed if speed is None else speed
+        acc = self.envelope.max_acc if acc is None else acc
+        self.envelope.check_move_l(pose, speed, acc)
+        self._before("moveL")
+        self._send("moveL")
+        self._after("moveL", self._move_l([float(v) for v in pose], speed, acc))
+
+    def move_j(self, q: list[float], speed: float | None = None, acc: float | None = None) -> None:
+        speed = self.envelope.max_joint_speed if speed is None else speed
+        acc = self.envelope.max_joint_acc if acc is None else acc
+        self.envelope.check_move_j(q, speed, acc)
+        self._before("moveJ")
+        self._send("moveJ")
+        self._after("moveJ", self._move_j([float(v) for v in q], speed, acc))
+
+    def set_digital_out(self, index: int, value: bool, tool: bool = False) -> None:
+        limit = 2 if tool else 8
+        if not 0 <= index < limit:
+            raise RobotError(f"{'tool' if tool else 'standard'} digital output {index} does not exist (0..{limit - 1})")
+        self._before("setDigitalOut")
+        self._send("setDigitalOut")
+        self._after("setDigitalOut", self._set_digital_out(index, bool(value), tool))
+
+    def stop(self) -> None:
+        """Decelerate and stop; allowed even when halted (never raises for a dead link)."""
+        if self.connected:
+            try:
+                self._stop()
+            except Exception:  # noqa: BLE001 - stopping must not mask the original problem
+                pass
+
+    def disconnect(self) -> None:
+        if self.connected:
+            try:
+                self._disconnect()
+            finally:
+                self.connected = False
+
+    def __enter__(self) -> "RobotBase":
+        return self.connect()
+
+    def __exit__(self, *exc) -> None:
+        try:
+            if not self.halted:
+                self.stop()
+        finally:
+            self.disconnect()
+
+
+def pose_distance(a: list[float], b: list[float]) -> float:
+    return math.dist(a[:3], b[:3])

@@ -1,0 +1,83 @@
+"""The safety envelope: every target is checked here before anything is sent to an arm.
+
+Workspace box in the robot base frame, UR3 reach (500 mm from the shoulder, with a margin),
+a keep-out cylinder around the base column, the table plane plus a clearance, and caps on
+speed and acceleration. A check returns the reason a target is refused, or None.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from edgepick.errors import EdgepickError
+
+UR3_REACH_M = 0.5
+UR3_SHOULDER_Z_M = 0.1519  # base joint to shoulder axis (UR3 DH d1)
+
+
+class SafetyError(EdgepickError):
+    """A target outside the envelope: refused before anything moved."""
+
+
+@dataclass
+class Envelope:
+    box_min: tuple[float, float, float] = (-0.45, -0.45, -0.05)
+    box_max: tuple[float, float, float] = (0.45, 0.45, 0.45)
+    reach_m: float = UR3_REACH_M
+    reach_margin_m: float = 0.03
+    base_keepout_m: float = 0.10  # radius around the base axis (singular, and the arm's own column)
+    table_z_m: float = 0.0  # table plane height in the robot base frame
+    clearance_m: float = 0.005  # the TCP stays this far above the table
+    max_speed: float = 0.25  # moveL, m/s
+    max_acc: float = 1.2  # moveL, m/s^2
+    max_joint_speed: float = 1.05  # moveJ, rad/s
+    max_joint_acc: float = 1.4  # moveJ, rad/s^2
+    joint_limit_rad: tuple[float, ...] = field(default=(2 * math.pi,) * 6)
+
+    def pose_reason(self, pose: list[float] | tuple[float, ...]) -> str | None:
+        """Why a TCP pose [x, y, z, rx, ry, rz] (metres, axis-angle) is refused, or None."""
+        if len(pose) != 6 or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in pose):
+            return "target must be 6 finite numbers [x, y, z, rx, ry, rz]"
+        x, y, z = pose[:3]
+        for axis, v, lo, hi in zip("xyz", (x, y, z), self.box_min, self.box_max):
+            if not lo <= v <= hi:
+                return f"{axis} = {v:.3f} m is outside the workspace box [{lo:.3f}, {hi:.3f}]"
+        reach = math.sqrt(x * x + y * y + (z - UR3_SHOULDER_Z_M) ** 2)
+        if reach > self.reach_m - self.reach_margin_m:
+            return f"{reach:.3f} m from the shoulder is beyond the UR3 reach ({self.reach_m} m - " \
+                   f"{self.reach_margin_m} m margin)"
+        if math.hypot(x, y) < self.base_keepout_m:
+            return f"{math.hypot(x, y):.3f} m from the base axis is inside the {self.base_keepout_m} m keep-out"
+        if z < self.table_z_m + self.clearance_m:
+            return f"z = {z:.3f} m is below the table plane + clearance ({self.table_z_m + self.clearance_m:.3f} m)"
+        if math.sqrt(sum(v * v for v in pose[3:])) > 2 * math.pi:
+            return "rotation vector longer than 2 pi"
+        return None
+
+    def speed_reason(self, speed: float, acc: float, joint: bool = False) -> str | None:
+        cap_v, cap_a = (self.max_joint_speed, self.max_joint_acc) if joint else (self.max_speed, self.max_acc)
+        unit = "rad/s" if joint else "m/s"
+        if not (math.isfinite(speed) and 0 < speed <= cap_v):
+            return f"speed {speed} {unit} outside (0, {cap_v}]"
+        if not (math.isfinite(acc) and 0 < acc <= cap_a):
+            return f"acceleration {acc} {unit}^2 outside (0, {cap_a}]"
+        return None
+
+    def joints_reason(self, q: list[float] | tuple[float, ...]) -> str | None:
+        if len(q) != 6 or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in q):
+            return "joint target must be 6 finite numbers (rad)"
+        for i, (v, lim) in enumerate(zip(q, self.joint_limit_rad)):
+            if abs(v) > lim:
+                return f"joint {i} = {v:.3f} rad beyond +-{lim:.3f}"
+        return None
+
+    def check_move_l(self, pose, speed: float, acc: float) -> None:
+        reason = self.pose_reason(pose) or self.speed_reason(speed, acc)
+        if reason:
+            raise SafetyError(f"refused moveL: {reason}")
+
+    def check_move_j(self, q, speed: float, acc: float) -> None:
+        reason = self.joints_reason(q) or self.speed_reason(speed, acc, joint=True)
+        if reason:
+            raise SafetyError(f"refused moveJ: {reason}")

@@ -1,0 +1,73 @@
+"""Grippers: a digital output (the thesis's electromagnet for bearings and disks) and the
+OnRobot RG2 through its URCap's XML-RPC service on the robot (port 41414)."""
+
+from __future__ import annotations
+
+import http.client
+import socket
+import xmlrpc.client
+
+from edgepick.robot.base import RobotBase, RobotError
+
+RG2_PORT = 41414
+
+
+class DigitalGripper:
+    """Magnet/vacuum on a standard (0-7) or tool (0-1) digital output: grip = on, release = off."""
+
+    def __init__(self, robot: RobotBase, index: int, tool: bool = False):
+        self.robot, self.index, self.tool = robot, index, tool
+
+    def open(self) -> None:
+        self.robot.set_digital_out(self.index, False, self.tool)
+
+    def grip(self) -> None:
+        self.robot.set_digital_out(self.index, True, self.tool)
+
+    release = open
+
+
+class _TimeoutTransport(xmlrpc.client.Transport):
+    def __init__(self, timeout: float):
+        super().__init__()
+        self.timeout = timeout
+
+    def make_connection(self, host):
+        conn = super().make_connection(host)
+        conn.timeout = self.timeout
+        return conn
+
+
+class RG2Gripper:
+    """OnRobot RG2 two-finger gripper: `rg_grip(width_mm, force_N, tool_index, blocking, ...)`
+    on the URCap's XML-RPC server. Widths in metres here, millimetres on the wire."""
+
+    def __init__(self, host: str, port: int = RG2_PORT, open_width_m: float = 0.10, force_n: float = 40.0,
+                 tool_index: int = 0, timeout_s: float = 5.0):
+        if not 0 < open_width_m <= 0.11:
+            raise RobotError(f"RG2 opening {open_width_m} m outside (0, 0.11]")
+        if not 3.0 <= force_n <= 40.0:
+            raise RobotError(f"RG2 force {force_n} N outside [3, 40]")
+        self.url = f"http://{host}:{port}/RPC2"
+        self.proxy = xmlrpc.client.ServerProxy(self.url, transport=_TimeoutTransport(timeout_s))
+        self.open_width_m, self.force_n, self.tool_index = open_width_m, force_n, tool_index
+
+    def _grip(self, width_m: float) -> None:
+        try:
+            self.proxy.rg_grip(float(width_m * 1000.0), float(self.force_n), int(self.tool_index), True, False, False)
+        except (OSError, socket.timeout, http.client.HTTPException, xmlrpc.client.Error) as exc:
+            raise RobotError(f"RG2 gripper at {self.url} does not answer: {exc}") from None
+
+    def width_m(self) -> float:
+        try:
+            return float(self.proxy.rg_get_width(int(self.tool_index))) / 1000.0
+        except (OSError, socket.timeout, http.client.HTTPException, xmlrpc.client.Error) as exc:
+            raise RobotError(f"RG2 gripper at {self.url} does not answer: {exc}") from None
+
+    def open(self) -> None:
+        self._grip(self.open_width_m)
+
+    def grip(self) -> None:
+        self._grip(0.0)  # close until the force is reached
+
+    release = open

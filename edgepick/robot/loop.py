@@ -1,0 +1,104 @@
+"""`edgepick pick`: camera -> segmentation -> grasp records -> target -> plan -> robot, per cycle.
+
+Without `execute` the plan is printed and nothing is sent. Each cycle reports the chosen
+object, the frame -> first-command latency, the outcome and, when the camera knows the
+scene's truth (synthetic), the grasp point's error (thesis criterion: within 1 cm).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import cv2
+
+from edgepick.robot.base import RobotBase, RobotError, RobotHalted
+from edgepick.robot.envelope import Envelope
+from edgepick.robot.pick import CommandLog, PickConfig, choose_target, execute
+from edgepick.runtime.camera import Camera, Frame
+from edgepick.runtime.grasp import draw_overlay
+from edgepick.runtime.pipeline import Pipeline
+
+SUCCESS_M = 0.01  # thesis 5.1.5: a grasp point within 1 cm
+
+
+def grasp_error_m(record: dict, truth: list[dict] | None) -> float | None:
+    """Distance from the record's 3D point to the nearest true object of its class (camera
+    frame); infinity when the scene has no object of that class (a false detection)."""
+    if not truth or record.get("point_camera_m") is None:
+        return None
+    same = [t for t in truth if t["class"] == record["class"]]
+    return min((math.dist(record["point_camera_m"], t["point_camera_m"]) for t in same), default=math.inf)
+
+
+def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper, cfg: PickConfig,
+               cycles: int, log: CommandLog, overlay_dir: str | Path | None = None, echo=print) -> list[dict]:
+    """Run up to `cycles` pick cycles (robot None = plan only). Stops early when the robot halts."""
+    results = []
+    envelope = robot.envelope if robot is not None else None
+    if overlay_dir:
+        Path(overlay_dir).mkdir(parents=True, exist_ok=True)
+    for cycle in range(1, cycles + 1):
+        try:
+            frame: Frame = camera.read()
+        except StopIteration:
+            echo(f"cycle {cycle}: the camera has no more frames")
+            break
+        t0 = time.perf_counter()
+        seen = pipeline(frame)
+        record, plan, note = choose_target(seen.records, envelope or Envelope(), cfg)
+        t_plan = time.perf_counter()
+        result = {"cycle": cycle, "frame": frame.name, "objects": len(seen.records), "stage_ms": seen.ms,
+                  "plan_ms": round(1000 * (t_plan - t0), 2)}
+        if record is None:
+            result.update(outcome="skipped", reason=note)
+            log.write(cycle=cycle, command="none", target=None, result=f"skipped: {note}")
+        else:
+            err = grasp_error_m(record, frame.truth)
+            result.update(target=record["class"], pixel=record["pixel"], pose_robot=record["pose_robot"],
+                          grasp_error_m=None if err is None or math.isinf(err) else round(err, 4),
+                          within_1cm=None if err is None else err <= SUCCESS_M)
+            if err is not None and math.isinf(err):
+                result["note"] = f"no {record['class']} in the scene's truth (false detection)"
+            if robot is None:
+                result.update(outcome="planned", plan=[asdict(s) for s in plan])
+            else:
+                motion0 = getattr(robot, "motion_s", 0.0)
+                first = {}
+
+                def mark(first=first):
+                    first.setdefault("t", time.perf_counter())
+
+                robot.on_send = mark
+                stopped = execute(plan, robot, gripper, log, cycle, cfg)
+                robot.on_send = None
+                if "t" in first:
+                    result["frame_to_command_ms"] = round(1000 * (first["t"] - t0), 2)
+                result["motion_s"] = round(getattr(robot, "motion_s", 0.0) - motion0, 3)
+                result.update(outcome="done" if stopped is None else "stopped", reason=stopped)
+        if overlay_dir:  # after the robot's commands: not part of the frame -> command latency
+            cv2.imwrite(str(Path(overlay_dir) / f"cycle_{cycle:03d}.png"),
+                        draw_overlay(frame.rgb, [record] if record else seen.records))
+        results.append(result)
+        echo(_line(result))
+        if robot is not None and robot.halted:
+            echo(f"robot halted ({robot.halted}): no more cycles")
+            break
+    return results
+
+
+def _line(r: dict) -> str:
+    if r["outcome"] == "skipped":
+        return f"cycle {r['cycle']}: nothing to pick ({r['reason']})"
+    err = "" if r.get("grasp_error_m") is None else \
+        f", grasp error {1000 * r['grasp_error_m']:.1f} mm ({'within' if r['within_1cm'] else 'NOT within'} 1 cm)"
+    if r.get("note"):
+        err += f", {r['note']}"
+    lat = f", frame->command {r['frame_to_command_ms']:.0f} ms" if "frame_to_command_ms" in r else ""
+    tail = "" if r["outcome"] in ("done", "planned") else f": {r['reason']}"
+    return f"cycle {r['cycle']}: {r['target']} at {r['pixel']} -> {r['outcome']}{err}{lat}{tail}"
+
+
+__all__ = ["run_cycles", "grasp_error_m", "RobotError", "RobotHalted"]

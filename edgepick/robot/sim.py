@@ -1,0 +1,82 @@
+"""SimRobot: the `Robot` protocol in-process, with UR3 limits and simulated motion time.
+
+No network, nothing moves. It can be told to raise a protective stop or lose its link on a
+given motion command, so the pick loop's stop handling is testable without an arm.
+"""
+
+from __future__ import annotations
+
+import math
+
+from edgepick.robot.base import RobotBase, SafetyStatus
+from edgepick.robot.envelope import Envelope
+
+HOME_POSE = [0.25, -0.15, 0.30, math.pi, 0.0, 0.0]  # tool pointing down
+
+
+def motion_time(distance: float, speed: float, acc: float) -> float:
+    """Trapezoidal profile duration (triangular when the distance is too short to reach speed)."""
+    if distance <= 0:
+        return 0.0
+    ramp = speed * speed / acc
+    if distance < ramp:
+        return 2 * math.sqrt(distance / acc)
+    return distance / speed + speed / acc
+
+
+class SimRobot(RobotBase):
+    def __init__(self, envelope: Envelope | None = None, start_pose: list[float] | None = None,
+                 protective_stop_on: int | None = None, drop_link_on: int | None = None):
+        super().__init__(envelope)
+        self.pose = list(start_pose or HOME_POSE)
+        self.q = [0.0, -1.57, 1.57, -1.57, -1.57, 0.0]
+        self.outputs = {False: [False] * 8, True: [False] * 2}  # standard, tool
+        self.motion_s = 0.0  # simulated time spent moving
+        self.moves = 0
+        self.protective_stop_on, self.drop_link_on = protective_stop_on, drop_link_on
+        self.state = SafetyStatus(connected=False)
+
+    def _connect(self) -> None:
+        self.state = SafetyStatus(connected=True)
+
+    def _disconnect(self) -> None:
+        self.state.connected = False
+
+    def _fault(self, target: list[float]) -> bool:
+        """Inject the configured fault on this motion command: stops halfway. True if one fired."""
+        self.moves += 1
+        if self.moves not in (self.protective_stop_on, self.drop_link_on):
+            return False
+        self.pose[:3] = [(a + b) / 2 for a, b in zip(self.pose[:3], target[:3])]
+        if self.moves == self.protective_stop_on:
+            self.state.protective_stop = True
+        else:
+            self.state.connected = False
+        return True
+
+    def _move_l(self, pose: list[float], speed: float, acc: float) -> bool:
+        if self._fault(pose):
+            return False
+        self.motion_s += motion_time(math.dist(self.pose[:3], pose[:3]), speed, acc)
+        self.pose = list(pose)
+        return True
+
+    def _move_j(self, q: list[float], speed: float, acc: float) -> bool:
+        if self._fault(self.pose):
+            return False
+        self.motion_s += motion_time(max(abs(a - b) for a, b in zip(self.q, q)), speed, acc)
+        self.q = list(q)
+        return True
+
+    def _stop(self) -> None:
+        pass
+
+    def _set_digital_out(self, index: int, value: bool, tool: bool) -> bool:
+        self.outputs[tool][index] = value
+        return True
+
+    def _status(self) -> SafetyStatus:
+        return self.state
+
+    def tcp_pose(self) -> list[float]:
+        return list(self.pose)

@@ -1,0 +1,79 @@
+"""SimRobot behind the guard: commands are checked before sending, stops halt everything after."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from edgepick.robot.base import RobotError, RobotHalted
+from edgepick.robot.envelope import SafetyError
+from edgepick.robot.grippers import DigitalGripper
+from edgepick.robot.pick import CommandLog, PickConfig, choose_target, execute, plan_pick
+from edgepick.robot.sim import SimRobot, motion_time
+
+DOWN = [math.pi, 0.0, 0.0]
+RECORD = {"class": "box", "area_px": 900, "depth_m": 0.62, "pose_robot": [0.3, -0.05, 0.06, *DOWN]}
+
+
+def test_moves_outputs_and_motion_time():
+    with SimRobot() as robot:
+        robot.move_l([0.3, 0.0, 0.2, *DOWN], 0.25, 1.2)
+        assert robot.tcp_pose()[:3] == [0.3, 0.0, 0.2]
+        robot.move_j([0.1, -1.5, 1.5, -1.5, -1.5, 0.0])
+        robot.set_digital_out(3, True)
+        robot.set_digital_out(1, True, tool=True)
+        assert robot.outputs[False][3] and robot.outputs[True][1]
+        assert robot.motion_s > 0 and robot.sent == ["moveL", "moveJ", "setDigitalOut", "setDigitalOut"]
+        with pytest.raises(RobotError, match="does not exist"):
+            robot.set_digital_out(2, True, tool=True)
+    assert not robot.connected
+    assert motion_time(0.25, 0.25, 1.2) == pytest.approx(1.0 + 0.25 / 1.2)
+    assert motion_time(0.01, 0.25, 1.2) == pytest.approx(2 * math.sqrt(0.01 / 1.2))
+
+
+def test_out_of_envelope_target_is_refused_with_nothing_sent():
+    with SimRobot() as robot:
+        with pytest.raises(SafetyError):
+            robot.move_l([0.3, 0.0, -0.1, *DOWN])
+        assert robot.sent == [] and robot.tcp_pose() == SimRobot().tcp_pose()
+
+
+def test_a_full_pick_cycle_is_logged(tmp_path):
+    log = CommandLog(tmp_path / "log.jsonl")
+    with SimRobot() as robot:
+        record, plan, note = choose_target([RECORD], robot.envelope, PickConfig())
+        assert record is RECORD and note == "ok"
+        assert execute(plan, robot, DigitalGripper(robot, 0), log, 1, PickConfig()) is None
+    log.close()
+    lines = (tmp_path / "log.jsonl").read_text().splitlines()
+    assert len(lines) == len(plan) == 10 and all('"result": "ok"' in line for line in lines)
+    assert robot.tcp_pose() == PickConfig().home_pose and robot.outputs[False][0] is False  # released
+
+
+@pytest.mark.parametrize("fault", ["protective_stop_on", "drop_link_on"])
+def test_a_stop_mid_move_ends_the_cycle_and_nothing_more_is_sent(fault):
+    log = CommandLog(None)
+    robot = SimRobot(**{fault: 2})  # the second motion command (the descent) stops halfway
+    with robot:
+        plan = plan_pick(RECORD, PickConfig())
+        reason = execute(plan, robot, DigitalGripper(robot, 0), log, 1, PickConfig())
+        assert reason and ("protective stop" in reason or "link" in reason)
+        sent = list(robot.sent)
+        assert sent == ["moveL", "setDigitalOut", "moveL"]  # approach, open, descend: then nothing
+        with pytest.raises(RobotHalted):
+            robot.move_l([0.3, 0.0, 0.2, *DOWN])
+        assert robot.sent == sent
+    assert [e["result"][:5] for e in log.records] == ["ok", "ok", "error"]
+
+
+def test_target_choice_skips_unreachable_and_depthless_objects():
+    far = {**RECORD, "area_px": 5000, "pose_robot": [0.40, 0.25, 0.05, *DOWN]}
+    nodepth = {"class": "disk", "area_px": 9000, "depth_m": None, "reason": "no valid depth under the object"}
+    robot = SimRobot()
+    record, plan, note = choose_target([nodepth, far, RECORD], robot.envelope, PickConfig())
+    assert record is RECORD
+    record, plan, note = choose_target([nodepth, far], robot.envelope, PickConfig())
+    assert record is None and plan == [] and "no valid depth" in note and "reach" in note
+    record, _, note = choose_target([RECORD], robot.envelope, PickConfig(classes=("bearing",)))
+    assert record is None and "requested classes" in note
