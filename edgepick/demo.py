@@ -1,8 +1,9 @@
 """`edgepick demo` / `make demo`: the main job end to end on an embedded default.
 
 Synthetic scenes -> a small CPU training run -> evaluation on the test split -> fp32 export,
-static int8 and hybrid-QaT int8 ONNX files, evaluated with the runtime. Later stages (the
-sim robot, the bench table) join as they land.
+static int8 and hybrid-QaT int8 ONNX files, evaluated with the runtime -> pick cycles on the
+simulated robot from synthetic scenes (grasp error against the scenes' truth, overlay PNGs).
+The bench table joins when it lands.
 """
 
 from __future__ import annotations
@@ -30,23 +31,24 @@ def run_demo(workdir: Path, scenes: int = 204, epochs: int = 12, size: tuple[int
         shutil.rmtree(workdir)
     workdir.mkdir(parents=True)
     t0 = time.perf_counter()
-    _step(f"1/5 synthesize {scenes} RGB-D scenes (640x480)")
+    _step(f"1/6 synthesize {scenes} RGB-D scenes (640x480)")
     synth = synthesize(workdir / "data", SynthConfig(scenes=scenes, seed=0))
     click.echo(f"{synth['scenes']} scenes in {synth['seconds']} s ({synth['scenes_per_s']} scenes/s), "
                f"splits {synth['splits']}", err=True)
     contact_sheet(workdir / "data", workdir / "preview.png", count=9)
-    _step(f"2/5 train DeepLabV3-MobileNetV3 on CPU, {epochs} epochs at {size[0]}x{size[1]}")
+    _step(f"2/6 train DeepLabV3-MobileNetV3 on CPU, {epochs} epochs at {size[0]}x{size[1]}")
     run = train(TrainConfig(data=str(workdir / "data"), out=str(workdir / "run"), epochs=epochs, batch_size=8,
                             size=size, device="cpu", keep_epochs=[max(1, epochs - 1)]))
-    _step("3/5 evaluate the best checkpoint on the test split")
+    _step("3/6 evaluate the best checkpoint on the test split")
     test = evaluate(workdir / "run", workdir / "data", "test")
     int8 = quantize_demo(workdir, epochs)
+    picks = pick_demo(workdir, Path(int8["hybrid"]["file"]))
     summary = {
         "data": str(workdir / "data"), "preview": str(workdir / "preview.png"), "run": run["out"],
         "train_time_s": run["train_time_s"], "best_val_miou": run["best_miou"],
         "test": {"pixel_acc": test["pixel_acc"], "miou": test["miou"],
                  "per_class_iou": {c: v["iou"] for c, v in test["per_class"].items()}},
-        "onnx": int8, "total_s": round(time.perf_counter() - t0, 1),
+        "onnx": int8, "picks": picks, "total_s": round(time.perf_counter() - t0, 1),
     }
     (workdir / "summary.json").write_text(json.dumps(summary, indent=1))
     click.echo(json.dumps(summary, indent=1))
@@ -59,13 +61,13 @@ def quantize_demo(workdir: Path, epochs: int) -> dict:
     from edgepick.export.onnx_export import export_checkpoint
     from edgepick.quant.passes import quantize_hybrid, quantize_static
 
-    _step("4/5 export fp32, quantize static int8 and hybrid-QaT int8 (onnxruntime QDQ)")
+    _step("4/6 export fp32, quantize static int8 and hybrid-QaT int8 (onnxruntime QDQ)")
     models = workdir / "models"
     files = {"fp32": export_checkpoint(workdir / "run", models / "fp32.onnx"),
              "static": quantize_static(workdir / "run", workdir / "data", models / "static.onnx", calib_images=32),
              "hybrid": quantize_hybrid(workdir / "run", workdir / "data", models / "hybrid.onnx", 1 / epochs,
                                        qat_run=workdir / "hybrid.run")}
-    _step("5/5 evaluate the ONNX files with the runtime (onnxruntime, CPU) on the test split")
+    _step("5/6 evaluate the ONNX files with the runtime (onnxruntime, CPU) on the test split")
     fp32_size = files["fp32"]["size_bytes"]
     out = {}
     for name, f in files.items():
@@ -78,3 +80,32 @@ def quantize_demo(workdir: Path, epochs: int) -> dict:
                    f"test mIoU {res['miou']:.3f}  onnxruntime-vs-torch agreement {f.get('agreement_vs_torch', '-')}",
                    err=True)
     return out
+
+
+def pick_demo(workdir: Path, model: Path, cycles: int = 6) -> dict:
+    """Pick cycles on SimRobot: a synthetic camera over a calibrated cell, the int8 model, a magnet."""
+    from edgepick.robot.grippers import DigitalGripper
+    from edgepick.robot.loop import run_cycles
+    from edgepick.robot.pick import CommandLog, PickConfig
+    from edgepick.robot.sim import SimRobot
+    from edgepick.runtime.camera import SynthCamera
+    from edgepick.runtime.pipeline import Pipeline
+    from edgepick.runtime.session import Segmenter
+
+    _step(f"6/6 pick and place on the simulated UR3: {cycles} synthetic scenes, {model.name}")
+    camera = SynthCamera(seed=100, mount_height_m=0.7)
+    pipeline = Pipeline(Segmenter(model, threads=2), camera.calibration())
+    log = CommandLog(workdir / "picks.jsonl")
+    try:
+        with camera, SimRobot() as robot:
+            results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), PickConfig(), cycles, log,
+                                 workdir / "picks", echo=lambda line: click.echo(line, err=True))
+    finally:
+        log.close()
+    errors = sorted(r["grasp_error_m"] for r in results if r.get("grasp_error_m") is not None)
+    latency = sorted(r["frame_to_command_ms"] for r in results if "frame_to_command_ms" in r)
+    return {"cycles": len(results), "done": sum(r["outcome"] == "done" for r in results),
+            "within_1cm": sum(bool(r.get("within_1cm")) for r in results),
+            "grasp_error_mm_median": round(1000 * errors[len(errors) // 2], 1) if errors else None,
+            "frame_to_command_ms_median": latency[len(latency) // 2] if latency else None,
+            "overlays": str(workdir / "picks"), "log": str(workdir / "picks.jsonl")}

@@ -29,6 +29,7 @@ class GraspConfig:
     min_area_px: int = 120  # regions smaller than this are noise, not objects
     round_ratio: float = 0.8  # minor/major variance ratio above which there is no stable major axis
     min_depth_px: int = 10  # valid depth pixels needed for a depth estimate
+    centre_fraction: float = 0.3  # depth from pixels within this share of the equivalent radius of the centroid
 
 
 def filter_class_masks(labels: np.ndarray, num_classes: int, cfg: GraspConfig) -> dict[int, tuple[int, int, np.ndarray]]:
@@ -78,6 +79,18 @@ def object_depth(depth: np.ndarray, region: np.ndarray, depth_scale: float, min_
     return float(np.percentile(vals, percentile)) * depth_scale
 
 
+def grasp_depth(depth: np.ndarray, own: np.ndarray, cx: float, cy: float, area: int, depth_scale: float,
+                cfg: GraspConfig) -> float | None:
+    """The surface the tool meets at the centroid: the object's own pixels near the centroid
+    (within `centre_fraction` of its equivalent radius) when enough of them have depth, else
+    all its pixels (a ring's centroid falls in its hole; a disk's lands on its raised hub)."""
+    radius = cfg.centre_fraction * math.sqrt(area / math.pi)
+    yy, xx = np.ogrid[:own.shape[0], :own.shape[1]]
+    near = own & ((xx - cx) ** 2 + (yy - cy) ** 2 <= radius * radius)
+    z = object_depth(depth, near, depth_scale, cfg.min_depth_px)
+    return z if z is not None else object_depth(depth, own, depth_scale, cfg.min_depth_px)
+
+
 def top_down_pose(cal: Calibration, intr: Intrinsics, cx: float, cy: float, z: float, angle_deg: float,
                   defined: bool) -> list[float]:
     """[x, y, z, rx, ry, rz] in the robot base frame: tool z straight down, tool x (finger closing)
@@ -123,7 +136,7 @@ def grasp_records(labels: np.ndarray, depth: np.ndarray, intr: Intrinsics, class
             rec: dict = {"class": classes[c], "pixel": [round(cx, 2), round(cy, 2)], "angle_deg": angle,
                          "orientation_defined": defined, "area_px": area}
             own = (labels[y:y + h, x:x + w] == c) & (region > 0)  # unfiltered pixels: not the dilated rim
-            z = object_depth(depth[y:y + h, x:x + w], own, intr.depth_scale, cfg.min_depth_px)
+            z = grasp_depth(depth[y:y + h, x:x + w], own, cx - x, cy - y, area, intr.depth_scale, cfg)
             if z is None:
                 rec.update(depth_m=None, point_camera_m=None, reason="no valid depth under the object")
             else:

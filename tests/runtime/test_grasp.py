@@ -177,3 +177,14 @@ def test_class_masks_filtered_on_crops_equal_whole_frame_filtering(seed):
             x0, y0, m = crops[c]
             got[y0:y0 + m.shape[0], x0:x0 + m.shape[1]] = m
         assert np.array_equal(got, full), c
+
+
+def test_depth_is_the_surface_under_the_centroid_when_there_is_one():
+    """A brake disk with a raised hub: the tool meets the hub (closer), not the plate."""
+    labels = np.zeros((480, 640), np.uint8)
+    cv2.circle(labels, (320, 240), 120, 2, -1)  # disk
+    depth = np.full((480, 640), 700, np.uint16)
+    depth[labels == 2] = 660  # plate
+    cv2.circle(depth, (320, 240), 30, 630, -1)  # hub, 3 cm higher
+    (r,) = grasp_records(labels, depth, INTR)
+    assert r["depth_m"] == pytest.approx(0.630, abs=1e-3)
