@@ -1,0 +1,1 @@
+"""Simulators used by tests and demos (a loopback UR controller)."""
