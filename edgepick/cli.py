@@ -239,12 +239,15 @@ def calibrate(pairs: str, out: str) -> None:
 @click.option("--classes", default=None,
               help="Mask mode: class names by id, comma-separated [default: the synthetic set's five]. "
                    "Model mode takes them from the model.")
-@click.option("--threads", default=2, show_default=True, help="onnxruntime threads (model mode).")
+@click.option("--threads", default=2, show_default=True, help="Inference threads (model mode).")
+@click.option("--engine", default="onnxruntime", show_default=True, type=click.Choice(["onnxruntime", "openvino"]),
+              help="Model mode: inference engine (openvino: the [peers] extra).")
 @click.option("--overlay", default=None, type=click.Path(dir_okay=False), help="Write a PNG with centroids, axes, fingers.")
 @click.option("--profile", is_flag=True,
               help="Print per-stage milliseconds (pre, inference, post, grasp) to stderr: median of 5 runs after one warm-up.")
 def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, depth_path: str, intrinsics: str,
-          calib: str | None, classes: str | None, threads: int, overlay: str | None, profile: bool) -> None:
+          calib: str | None, classes: str | None, threads: int, engine: str, overlay: str | None,
+          profile: bool) -> None:
     """Grasp records (JSON list, contract 3.3) for every object in a label image or a model's output.
 
     Median 3x3 and dilate 5x5 per class, one record per region: centroid and major-axis
@@ -273,7 +276,7 @@ def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, d
         from edgepick.runtime.session import Segmenter
 
         frame = Frame(read_rgb(rgb_path), depth, intr, Path(rgb_path).stem)
-        pipeline = Pipeline(Segmenter(model_path, threads=threads), cal)
+        pipeline = Pipeline(Segmenter(model_path, threads=threads, engine=engine), cal)
         runs = [pipeline(frame) for _ in range(6 if profile else 1)]
         labels, records, timings = runs[-1].labels, runs[-1].records, [r.ms for r in runs[1:]]
         picture = frame.rgb
@@ -311,11 +314,13 @@ def demo(workdir: str, scenes: int, epochs: int) -> None:
 
 
 from edgepick.cli_quant import export_cmd, quantize  # noqa: E402 - click-only module, no torch
+from edgepick.cli_bench import bench  # noqa: E402 - click-only module, no torch
 from edgepick.cli_robot import pick  # noqa: E402 - click-only module, no torch
 
 cli.add_command(export_cmd)
 cli.add_command(quantize)
 cli.add_command(pick)
+cli.add_command(bench)
 
 
 def main() -> None:

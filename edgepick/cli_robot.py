@@ -44,11 +44,13 @@ def make_gripper(spec: str, robot, robot_host: str | None):
 @click.option("--log", "log_path", default="picks.jsonl", show_default=True, type=click.Path(dir_okay=False),
               help="JSON-lines log of every command.")
 @click.option("--overlay-dir", default=None, type=click.Path(file_okay=False), help="Write an overlay PNG per cycle.")
-@click.option("--threads", default=2, show_default=True, help="onnxruntime threads.")
+@click.option("--threads", default=2, show_default=True, help="Inference threads.")
+@click.option("--engine", default="onnxruntime", show_default=True, type=click.Choice(["onnxruntime", "openvino"]),
+              help="Inference engine (openvino: the [peers] extra).")
 @click.option("--size", default="640x480", show_default=True, help="Camera WIDTHxHEIGHT.")
 def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: str, execute: bool, cycles: int,
          classes: tuple[str, ...], choose: str, speed: float, acc: float, log_path: str, overlay_dir: str | None,
-         threads: int, size: str) -> None:
+         threads: int, engine: str, size: str) -> None:
     """Pick and place: camera -> segmentation -> grasp records -> target -> robot.
 
     Each cycle chooses the largest (or closest) object whose whole plan passes the safety
@@ -78,7 +80,7 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     kind, _, host = robot_spec.partition(":")
     if kind not in ("sim", "ur") or (kind == "ur" and not host):
         raise ConfigError(f"unknown robot {robot_spec!r}: use sim or ur:HOST")
-    pipeline = Pipeline(Segmenter(model, threads=threads), cal)
+    pipeline = Pipeline(Segmenter(model, threads=threads, engine=engine), cal)
     cfg = PickConfig(classes=tuple(classes), choose=choose, speed=speed, acc=acc)
     if kind == "sim":
         robot = SimRobot()

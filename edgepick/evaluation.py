@@ -13,7 +13,8 @@ from edgepick.errors import CheckpointError
 from edgepick.metrics import confusion_matrix, segmentation_metrics
 
 
-def evaluate(model_path: str | Path, data: str | Path, split: str = "test", progress: bool = True) -> dict:
+def evaluate(model_path: str | Path, data: str | Path, split: str = "test", progress: bool = True,
+             engine: str = "onnxruntime") -> dict:
     """Pixel accuracy, per-class IoU, mIoU and confusion matrix of MODEL on DATA/<split>.
 
     Frames are resized to the model's input size and the labels back to the frame
@@ -24,7 +25,7 @@ def evaluate(model_path: str | Path, data: str | Path, split: str = "test", prog
     if model_path.suffix == ".onnx":
         from edgepick.runtime.session import Segmenter
 
-        seg = Segmenter(model_path)
+        seg = Segmenter(model_path, engine=engine)
         classes, predict = seg.info.classes, seg.labels
     else:
         classes, predict = _torch_predictor(model_path)
@@ -32,8 +33,10 @@ def evaluate(model_path: str | Path, data: str | Path, split: str = "test", prog
         raise CheckpointError(f"the model's classes {classes} differ from the data set's {ds.classes}")
     cm = np.zeros((len(classes), len(classes)), np.int64)
     for sid in tqdm(ds.ids, desc=f"eval {split}", unit="img", disable=not progress or None):
-        mask = ds.mask(sid)
-        cm += confusion_matrix(mask, predict(ds.rgb(sid)), len(classes))
+        mask, pred = ds.mask(sid), predict(ds.rgb(sid))
+        if pred.size and int(pred.max()) >= len(classes):
+            raise CheckpointError(f"{model_path} predicted class id {int(pred.max())}, outside its {len(classes)} classes")
+        cm += confusion_matrix(mask, pred, len(classes))
     result = segmentation_metrics(cm, classes)
     return {"model": str(model_path), "data": str(data), "split": split, "images": len(ds), **result}
 

@@ -69,16 +69,41 @@ def read_info(session: ort.InferenceSession, path: Path) -> ModelInfo:
     return ModelInfo(list(classes), (h, w), meta["edgepick.colorspace"], meta["edgepick.precision"], dict(meta))
 
 
+ENGINES = ("onnxruntime", "openvino")
+
+
+def _openvino_runner(path: Path, threads: int):
+    """OpenVINO's CPU plugin on the same ONNX file (the optional `[peers]` extra): on x86 CPUs it
+    runs edgepick's QDQ int8 models faster than onnxruntime (benchmarks/results/peers-cpu.md)."""
+    try:
+        import openvino as ov
+    except ImportError:
+        raise ModelError("the openvino engine needs the peers extra: pip install 'edgepick[peers]'") from None
+    try:
+        compiled = ov.Core().compile_model(str(path), "CPU", {"INFERENCE_NUM_THREADS": threads,
+                                                             "PERFORMANCE_HINT": "LATENCY"})
+    except Exception as exc:  # noqa: BLE001 - OpenVINO raises RuntimeError subclasses
+        raise ModelError(f"OpenVINO cannot compile {path}: {str(exc).strip().splitlines()[0]}") from None
+    request, output = compiled.create_infer_request(), compiled.output("labels")
+    return lambda image: request.infer({"image": image})[output]
+
+
 class Segmenter:
     """Created once per model; `labels(rgb)` gives class ids at the frame's own resolution."""
 
-    def __init__(self, path: str | Path, threads: int = 2):
+    def __init__(self, path: str | Path, threads: int = 2, engine: str = "onnxruntime"):
         path = Path(path)
         if not path.is_file():
             raise ModelError(f"no model file at {path}")
-        self.path = path
-        self.session = _session(path, threads)
+        if engine not in ENGINES:
+            raise ModelError(f"unknown engine {engine!r}: use {' or '.join(ENGINES)}")
+        self.path, self.engine = path, engine
+        self.session = _session(path, threads)  # onnxruntime also checks the contract for the other engine
         self.info = read_info(self.session, path)
+        self._run = lambda image: self.session.run(["labels"], {"image": image})[0]
+        if engine == "openvino":
+            self._run = _openvino_runner(path, threads)
+            self.session = None
 
     def prepare(self, rgb: np.ndarray) -> np.ndarray:
         """HxWx3 uint8 RGB -> the model's [1, h, w, 3] input (area resize when the size differs)."""
@@ -91,7 +116,7 @@ class Segmenter:
 
     def infer(self, image: np.ndarray) -> np.ndarray:
         """The model's own [h, w] labels for a prepared input."""
-        return self.session.run(["labels"], {"image": image})[0][0]
+        return self._run(image)[0]
 
     def restore(self, labels: np.ndarray, frame_hw: tuple[int, int]) -> np.ndarray:
         if labels.shape != tuple(frame_hw):

@@ -14,17 +14,20 @@ from onnx import TensorProto, helper  # noqa: E402
 from edgepick.runtime.session import ModelError, Segmenter  # noqa: E402
 
 
-def red_channel_model(path: Path, h: int = 8, w: int = 12, in_type=TensorProto.UINT8, meta: dict | None = None) -> Path:
-    """A contract model whose labels are the image's red channel (so the expected output is known)."""
+def red_channel_model(path: Path, h: int = 8, w: int = 12, in_type=TensorProto.UINT8, meta: dict | None = None,
+                      divide: int = 1) -> Path:
+    """A contract model whose labels are the image's red channel (integer-divided by `divide`),
+    so the expected output is known."""
     starts = helper.make_tensor("s", TensorProto.INT64, [1], [0])
     ends = helper.make_tensor("e", TensorProto.INT64, [1], [1])
     axes = helper.make_tensor("a", TensorProto.INT64, [1], [3])
     nodes = [helper.make_node("Slice", ["image", "s", "e", "a"], ["red"]),
              helper.make_node("Squeeze", ["red", "a"], ["labels0"]),
-             helper.make_node("Cast", ["labels0"], ["labels"], to=TensorProto.UINT8)]
+             helper.make_node("Cast", ["labels0"], ["labels1"], to=TensorProto.UINT8),
+             helper.make_node("Div", ["labels1", "d"], ["labels"])]
     graph = helper.make_graph(nodes, "red", [helper.make_tensor_value_info("image", in_type, [1, h, w, 3])],
                               [helper.make_tensor_value_info("labels", TensorProto.UINT8, [1, h, w])],
-                              initializer=[starts, ends, axes])
+                              initializer=[starts, ends, axes, helper.make_tensor("d", TensorProto.UINT8, [], [divide])])
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
     model.ir_version = 8
     props = {"edgepick.classes": json.dumps(["background", "a", "b"]), "edgepick.input_size": json.dumps([h, w]),
@@ -59,3 +62,17 @@ def test_models_outside_the_contract_are_refused(tmp_path, case):
         Segmenter(path)
     assert "\n" not in str(err.value)
 
+
+
+def test_openvino_engine_gives_the_same_labels(tmp_path):
+    pytest.importorskip("openvino")
+    path = red_channel_model(tmp_path / "m.onnx", 24, 32)
+    frame = np.random.default_rng(0).integers(0, 3, (48, 64, 3)).astype(np.uint8)
+    ort_labels = Segmenter(path, threads=1).labels(frame)
+    ov = Segmenter(path, threads=1, engine="openvino")
+    assert ov.session is None and np.array_equal(ov.labels(frame), ort_labels)
+
+
+def test_unknown_engine_is_refused(tmp_path):
+    with pytest.raises(ModelError, match="unknown engine"):
+        Segmenter(red_channel_model(tmp_path / "m.onnx"), engine="tensorrt")

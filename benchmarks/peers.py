@@ -1,0 +1,178 @@
+"""The same float model quantized by the tools people use instead, side by side in one run:
+onnxruntime's `quantize_static` with its defaults, NNCF on OpenVINO, and edgepick's static
+pass (run by onnxruntime, and by OpenVINO). mIoU, agreement with fp32, latency on the same
+threads and images, size.
+
+    pip install '.[peers]'      # nncf, openvino
+    python benchmarks/peers.py --run demo-out/run --data demo-out/data [--threads 2] [--out FILE.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import shutil
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from edgepick.data.native import NativeDataset  # noqa: E402
+from edgepick.metrics import confusion_matrix, segmentation_metrics  # noqa: E402
+from edgepick.runtime.session import Segmenter  # noqa: E402
+
+
+class OrtModel:
+    def __init__(self, path: Path, threads: int):
+        self.seg = Segmenter(path, threads=threads)
+        self.size = self.seg.info.input_size
+
+    def infer(self, image: np.ndarray) -> np.ndarray:
+        return self.seg.infer(image)
+
+
+class OpenVinoModel:
+    def __init__(self, model, threads: int, size: tuple[int, int]):
+        import openvino as ov
+
+        self.compiled = ov.Core().compile_model(model, "CPU", {"INFERENCE_NUM_THREADS": threads,
+                                                              "PERFORMANCE_HINT": "LATENCY"})
+        self.request = self.compiled.create_infer_request()
+        self.size = size
+
+    def infer(self, image: np.ndarray) -> np.ndarray:
+        return self.request.infer({0: image})[self.compiled.output(0)][0].astype(np.uint8)
+
+
+def prepare(rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    h, w = size
+    return np.ascontiguousarray(cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA))[None]
+
+
+def evaluate(model, ds: NativeDataset, reference: dict[str, np.ndarray] | None) -> tuple[dict, float | None]:
+    """mIoU on the split and the share of pixels equal to the fp32 model's labels."""
+    n = len(ds.classes)
+    cm = np.zeros((n, n), np.int64)
+    same = total = 0
+    labels_out = {}
+    for sid in ds.ids:
+        rgb = ds.rgb(sid)
+        labels = cv2.resize(model.infer(prepare(rgb, model.size)), (rgb.shape[1], rgb.shape[0]),
+                            interpolation=cv2.INTER_NEAREST)
+        labels_out[sid] = labels
+        cm += confusion_matrix(ds.mask(sid), labels, n)
+        if reference is not None:
+            same += int((labels == reference[sid]).sum())
+            total += labels.size
+    return {"metrics": segmentation_metrics(cm, ds.classes), "labels": labels_out}, (same / total if total else None)
+
+
+def latency(model, images: list[np.ndarray], runs: int) -> tuple[float, float]:
+    inputs = [prepare(im, model.size) for im in images]
+    for i in range(5):
+        model.infer(inputs[i % len(inputs)])
+    times = []
+    for i in range(runs):
+        t0 = time.perf_counter()
+        model.infer(inputs[i % len(inputs)])
+        times.append(1000 * (time.perf_counter() - t0))
+    return statistics.median(times), float(np.percentile(times, 95))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--run", default="demo-out/run", help="float RUN or checkpoint (default: make demo's)")
+    ap.add_argument("--data", default="demo-out/data")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--runs", type=int, default=30)
+    ap.add_argument("--calib-images", type=int, default=32)
+    ap.add_argument("--split", default="val", help="split for accuracy (the demo's test split has only 4 images)")
+    ap.add_argument("--out", default=None, help="also write the Markdown report here")
+    args = ap.parse_args()
+
+    import nncf
+    import onnx
+    import onnxruntime as ort
+    import openvino as ov
+    from onnxruntime.quantization import CalibrationDataReader, quantize_static
+
+    from edgepick.export.onnx_export import export_checkpoint
+    from edgepick.quant.passes import model_images
+    from edgepick.quant.passes import quantize_static as edgepick_static
+
+    work = Path(tempfile.mkdtemp(prefix="peers-"))
+    try:
+        fp32 = Path(export_checkpoint(args.run, work / "fp32.onnx")["out"])
+        size = tuple(Segmenter(fp32).info.input_size)
+        calib = [prepare(im, size) for im in model_images(args.data, "train", args.calib_images, size)]
+
+        class Reader(CalibrationDataReader):
+            def __init__(self):
+                self.it = iter(calib)
+
+            def get_next(self):
+                x = next(self.it, None)
+                return None if x is None else {"image": x}
+
+        ort_int8 = work / "ort_default.onnx"
+        quantize_static(str(fp32), str(ort_int8), Reader())  # onnxruntime's defaults
+        m = onnx.load(ort_int8)  # keep the contract metadata so the runtime session accepts it
+        del m.metadata_props[:]
+        m.metadata_props.extend(onnx.load(fp32).metadata_props)
+        onnx.save(m, ort_int8)
+
+        ov_fp32 = ov.Core().read_model(str(fp32))
+        ov_int8 = nncf.quantize(ov_fp32, nncf.Dataset(calib), subset_size=len(calib))
+        ov.save_model(ov_int8, work / "nncf.xml")
+        ours = Path(edgepick_static(args.run, args.data, work / "edgepick.onnx", calib_images=args.calib_images,
+                                    progress=False)["out"])
+
+        def mb(*paths: Path) -> float:
+            return round(sum(p.stat().st_size for p in paths) / 1e6, 2)
+
+        rows = [("fp32 (onnxruntime)", OrtModel(fp32, args.threads), mb(fp32)),
+                ("onnxruntime quantize_static, defaults", OrtModel(ort_int8, args.threads), mb(ort_int8)),
+                ("NNCF + OpenVINO", OpenVinoModel(ov_int8, args.threads, size), mb(work / "nncf.xml", work / "nncf.bin")),
+                ("edgepick static (onnxruntime)", OrtModel(ours, args.threads), mb(ours)),
+                ("edgepick static (OpenVINO)", OpenVinoModel(ov.Core().read_model(str(ours)), args.threads, size),
+                 mb(ours))]
+        ds = NativeDataset.open(args.data, args.split)
+        images = [ds.rgb(sid) for sid in ds.ids[:10]]
+        reference = None
+        table = []
+        for name, model, mbytes in rows:
+            result, agree = evaluate(model, ds, reference)
+            if reference is None:
+                reference = result["labels"]
+            p50, p95 = latency(model, images, args.runs)
+            table.append((name, result["metrics"]["miou"], result["metrics"]["pixel_acc"], agree, p50, p95, mbytes))
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+    fp32_p50 = table[0][4]
+    lines = [f"# Peers: the same float model quantized by other tools, {args.threads} threads",
+             "", f"Command: `python benchmarks/peers.py {' '.join(sys.argv[1:])}`  ",
+             f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; onnxruntime "
+             f"{ort.__version__}, openvino {ov.__version__.split('-')[0]}, nncf {nncf.__version__}; model: {args.run} "
+             f"(input {size[0]}x{size[1]}); accuracy on {len(ds)} {args.split} images of {args.data}; latency over "
+             f"{args.runs} runs after warm-up, one process, same images.", "",
+             "| Quantized by (engine) | mIoU (%) | Pixel acc (%) | agreement with fp32 (%) | p50 (ms) | p95 (ms) "
+             "| vs fp32 | Size (MB) |", "|---|---|---|---|---|---|---|---|"]
+    for name, miou, acc, agree, p50, p95, mbytes in table:
+        lines.append(f"| {name} | {100 * miou:.2f} | {100 * acc:.2f} | {'-' if agree is None else f'{100 * agree:.2f}'} "
+                     f"| {p50:.1f} | {p95:.1f} | {fp32_p50 / p50:.2f}x | {mbytes:.2f} |")
+    report = "\n".join(lines) + "\n"
+    print(report)
+    if args.out:
+        Path(args.out).write_text(report)
+
+
+if __name__ == "__main__":
+    main()

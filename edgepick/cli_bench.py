@@ -1,0 +1,36 @@
+"""`edgepick bench` on the command line (click only; the measuring needs no torch)."""
+
+from __future__ import annotations
+
+import json
+
+import click
+
+
+@click.command()
+@click.argument("models", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--data", required=True, type=click.Path(file_okay=False), help="Data set (native layout) for accuracy and timing.")
+@click.option("--split", default="test", show_default=True, type=click.Choice(["train", "val", "test"]))
+@click.option("--threads", default=2, show_default=True, help="onnxruntime intra-op threads for every row.")
+@click.option("--runs", default=50, show_default=True, help="Timed inferences per model (after warm-up).")
+@click.option("--out", "out_dir", default="bench-out", show_default=True, type=click.Path(file_okay=False),
+              help="Folder for table.md, table.csv, table.json and miou-latency.png.")
+@click.option("--gpu-checkpoint", default=None, type=click.Path(), help="Float RUN or checkpoint for the fp32 GPU row (needs CUDA).")
+@click.option("--no-pipeline", is_flag=True, help="Skip the Table 5.6 pipeline timing.")
+@click.option("--engine", default="onnxruntime", show_default=True, type=click.Choice(["onnxruntime", "openvino"]),
+              help="Inference engine for every row (openvino: the [peers] extra).")
+def bench(models: tuple[str, ...], data: str, split: str, threads: int, runs: int, out_dir: str,
+          gpu_checkpoint: str | None, no_pipeline: bool, engine: str) -> None:
+    """Thesis Tables 5.5 and 5.6 for MODEL... (ONNX): pixel accuracy, mIoU, inference p50/p95 at
+    fixed threads, training time (from the model's metadata), size, and the whole pipeline per
+    frame (folder frame -> labels -> grasp records). Same images for every row, one process."""
+    from edgepick.bench.measure import BenchConfig, Row
+    from edgepick.bench.report import HEADER_55, markdown, table55_rows
+    from edgepick.bench.run import run_bench
+
+    result = run_bench(list(models), data, out_dir, BenchConfig(threads=threads, runs=runs, split=split, engine=engine),
+                       gpu_checkpoint=gpu_checkpoint, with_pipeline=not no_pipeline,
+                       progress=lambda line: click.echo(line, err=True))
+    rows = [Row(**r) for r in result["rows"]]
+    click.echo(markdown(HEADER_55, table55_rows(rows)), err=True)
+    click.echo(json.dumps(result, indent=1))
