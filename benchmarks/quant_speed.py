@@ -77,6 +77,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--runs", type=int, default=30)
     ap.add_argument("--calib-images", type=int, default=16)
+    ap.add_argument("--variant", default="standard", choices=["standard", "edge"], help="model variant (untrained)")
     ap.add_argument("--nodes", type=int, default=8, help="also list the N slowest nodes of each model")
     ap.add_argument("--out", default=None, help="also write the Markdown report here")
     args = ap.parse_args()
@@ -91,7 +92,7 @@ def main() -> None:
     if not args.data:
         synthesize(data, SynthConfig(scenes=24, seed=3, splits=(16, 4, 4)), progress=False)
     classes = json.loads((data / "meta.json").read_text())["classes"]
-    ckpt = args.checkpoint or str(untrained_checkpoint(work / "untrained.pt", (480, 640), classes))
+    ckpt = args.checkpoint or str(untrained_checkpoint(work / "untrained.pt", (480, 640), classes, args.variant))
     fp32 = export_checkpoint(ckpt, work / "fp32.onnx")
     int8 = quantize_static(ckpt, data, work / "int8.onnx", calib_images=args.calib_images, progress=False)
     size = fp32["input_size"]
@@ -111,7 +112,7 @@ def main() -> None:
              f"input {size[0]}x{size[1]}",
              "", f"Command: `python benchmarks/quant_speed.py {' '.join(sys.argv[1:])}`  ",
              f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; "
-             f"model: {'checkpoint ' + args.checkpoint if args.checkpoint else 'untrained DeepLabV3-MobileNetV3'}; "
+             f"model: {'checkpoint ' + args.checkpoint if args.checkpoint else f'untrained DeepLabV3-MobileNetV3 ({args.variant})'}; "
              f"{args.runs} runs after 5 warm-up, one process.", "",
              "| Model | p50 (ms) | p95 (ms) | Size (MB) |" + (" mIoU |" if args.checkpoint else ""),
              "|---|---|---|---|" + ("---|" if args.checkpoint else "")]

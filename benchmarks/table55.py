@@ -88,7 +88,8 @@ def main() -> None:
                      lr=s.lr, device=args.device, keep_epochs=keep)
     timed("float training", train, tc, progress=False)
     files = [timed("fp32 export", export_checkpoint, work / "float", models / "fp32.onnx")["out"],
-             timed("static PTQ", quantize_static, work / "float", data, models / "static.onnx", progress=False)["out"]]
+             timed("static PTQ", quantize_static, work / "float", data, models / "static.onnx",
+                   calib_images=min(64, s.splits[0]), progress=False)["out"]]
     qat_tc = replace(tc, out=str(work / "qat"), keep_epochs=[])
     files.append(timed("QaT from scratch", quantize_qat, qat_tc, models / "qat.onnx", progress=False)["out"])
     for p in FRACTIONS:

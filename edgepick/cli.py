@@ -151,6 +151,9 @@ def data_capture(out: str, camera: str, count: int, interval: float, size: str) 
 @click.argument("data_dir", metavar="DATA", type=click.Path())
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="RUN folder for checkpoints and metrics.")
 @click.option("--arch", default="mobilenetv3", show_default=True, type=click.Choice(["mobilenetv3", "resnet50", "resnet101"]))
+@click.option("--variant", default="standard", show_default=True, type=click.Choice(["standard", "edge"]),
+              help="edge: MobileNetV3 without SE and hardswish, 128-channel ASPP (quantization-friendly; not "
+                   "torchvision-compatible).")
 @click.option("--epochs", default=None, type=int, help="Epoch budget [default: 100; on --resume: the run's own].")
 @click.option("--batch-size", default=8, show_default=True)
 @click.option("--lr", default=1e-3, show_default=True, help="AdamW learning rate (poly decay, short warm-up).")
@@ -164,7 +167,7 @@ def data_capture(out: str, camera: str, count: int, interval: float, size: str) 
 @click.option("--workers", default=-1, show_default=True, help="Data loader workers; -1 = 0 on CPU (cached), 4 on GPU.")
 @click.option("--seed", default=0, show_default=True)
 @click.option("--resume", is_flag=True, help="Continue RUN from its last.pt (losing at most one epoch).")
-def train(data_dir: str, out: str, arch: str, epochs: int | None, batch_size: int, lr: float, device: str, size: str,
+def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, batch_size: int, lr: float, device: str, size: str,
           colorspace: str, output_stride: str, aux_loss: bool, keep_epochs: str, backbone_weights: str | None,
           workers: int, seed: int, resume: bool) -> None:
     """Train a float DeepLabV3 on DATA (CPU, one GPU with bf16 AMP, or DDP under torchrun).
@@ -180,7 +183,7 @@ def train(data_dir: str, out: str, arch: str, epochs: int | None, batch_size: in
         keep = sorted({int(v) for v in keep_epochs.split(",") if v.strip()})
     except ValueError:
         raise ConfigError(f"--keep-epochs must be comma-separated integers, got {keep_epochs!r}") from None
-    cfg = TrainConfig(data=data_dir, out=out, arch=arch, epochs=epochs if epochs is not None else (0 if resume else 100),
+    cfg = TrainConfig(data=data_dir, out=out, arch=arch, variant=variant, epochs=epochs if epochs is not None else (0 if resume else 100),
                       batch_size=batch_size, lr=lr, size=parse_hxw(size), colorspace=colorspace,
                       output_stride=int(output_stride), aux_loss=aux_loss, device=device, keep_epochs=keep,
                       backbone_weights=backbone_weights, workers=workers, seed=seed)

@@ -78,15 +78,49 @@ def quantize() -> None:
               help="Activation ranges: min/max, a percentile, KL divergence (entropy) or L2 error (mse).")
 @click.option("--percentile", default=99.99, show_default=True, help="For --calib-method percentile.")
 @click.option("--seed", default=0, show_default=True, help="Which calibration images are drawn.")
+@click.option("--max-miou-drop", default=None, type=float, metavar="PP",
+              help="Accuracy-aware: keep the layers adding the most drift in float, one at a time, until the val "
+                   "mIoU (onnxruntime) is within PP percentage points of fp32's.")
+@click.option("--max-float-layers", default=6, show_default=True, help="With --max-miou-drop: at most this many.")
 @_with(common)
 def quantize_static_cmd(checkpoint: str, data_dir: str, calib_images: int, calib_method: str, percentile: float,
-                        seed: int, out: str, reduce_range: bool, keep_float: str) -> None:
+                        seed: int, max_miou_drop: float | None, max_float_layers: int, out: str, reduce_range: bool,
+                        keep_float: str) -> None:
     """Static post-training quantization of a float checkpoint (BN folded, ranges calibrated)."""
     from edgepick.quant.passes import quantize_static
 
     _refuse_existing(out)
     cfg = _quant_config(calib_method, percentile, reduce_range, keep_float)
+    if max_miou_drop is not None:
+        from edgepick.quant.inspect import quantize_accuracy_aware
+
+        _emit(quantize_accuracy_aware(checkpoint, data_dir, out, max_miou_drop, cfg, calib_images, max_float_layers))
+        return
     _emit(quantize_static(checkpoint, data_dir, out, cfg, calib_images=calib_images, seed=seed))
+
+
+@quantize.command("inspect")
+@click.argument("checkpoint", metavar="RUN_OR_CKPT", type=click.Path())
+@click.option("--data", "data_dir", required=True, type=click.Path(), help="Calibration (train) and comparison (val) images.")
+@click.option("--calib-images", default=64, show_default=True)
+@click.option("--calib-method", default="minmax", show_default=True,
+              type=click.Choice(["minmax", "percentile", "entropy", "mse"]))
+@click.option("--images", default=8, show_default=True, help="Val images compared.")
+@click.option("--top", default=10, show_default=True, help="Rows of the worst-layers table on stderr.")
+@click.option("--reduce-range/--full-range", default=True, show_default=True)
+def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int, calib_method: str, images: int, top: int,
+                         reduce_range: bool) -> None:
+    """Where int8 drifts from fp32: per conv layer, the SQNR of the int8 simulation against fp32 and
+    the drift it adds; the worst layers are the --keep-float candidates. JSON on stdout."""
+    from edgepick.quant.inspect import inspect
+
+    report = inspect(checkpoint, data_dir, _quant_config(calib_method, reduce_range=reduce_range), calib_images, images)
+    by_name = {r["layer"]: r for r in report["layers"]}
+    click.echo(f"logits SQNR {report['logits_sqnr_db']} dB, labels equal to fp32: {report['label_agreement']}", err=True)
+    click.echo(f"{'layer':40s} {'SQNR dB':>8s} {'added drift dB':>15s}", err=True)
+    for name in report["ranked"][:top]:
+        click.echo(f"{name:40s} {by_name[name]['sqnr_db']:8.2f} {by_name[name]['added_drift_db']:15.2f}", err=True)
+    _emit(report)
 
 
 @quantize.command("qat")

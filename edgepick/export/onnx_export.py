@@ -55,6 +55,19 @@ def sha256_of(path: str | Path) -> str:
     return h.hexdigest()
 
 
+def run_train_time_s(ckpt: dict) -> float:
+    """Training time of the run a checkpoint came from. A run's best.pt holds the time up to its
+    (earlier) best epoch; the thesis counts the whole run, which metrics.json beside it holds."""
+    path = Path(ckpt.get("path", ""))
+    metrics = path.parent / "metrics.json"
+    if path.name == "best.pt" and metrics.is_file():
+        try:
+            return float(json.loads(metrics.read_text())["train_time_s"])
+        except (ValueError, KeyError, TypeError):
+            pass
+    return float(ckpt.get("train_time_s", 0.0))
+
+
 def contract_metadata(ckpt: dict, precision: str, quant: dict | None, train_time_s: float | None = None) -> dict:
     """The edgepick.* metadata_props of contract 3.2, from a checkpoint's own description."""
     return {"edgepick.classes": json.dumps(ckpt["classes"]),
@@ -63,7 +76,7 @@ def contract_metadata(ckpt: dict, precision: str, quant: dict | None, train_time
             "edgepick.precision": precision,
             "edgepick.quant": json.dumps(quant or {"mode": "none"}),
             "edgepick.source_sha256": sha256_of(ckpt["path"]) if ckpt.get("path") else "",
-            "edgepick.train_time_s": f"{float(train_time_s if train_time_s is not None else ckpt.get('train_time_s', 0.0)):.1f}",
+            "edgepick.train_time_s": f"{train_time_s if train_time_s is not None else run_train_time_s(ckpt):.1f}",
             "edgepick.arch": ckpt["model_config"]["arch"]}
 
 

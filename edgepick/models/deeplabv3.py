@@ -25,6 +25,9 @@ _NORM = {"rgb": ((0.485, 0.456, 0.406), (0.229, 0.224, 0.225)),
          "gray": ((0.449, 0.449, 0.449), (0.226, 0.226, 0.226))}
 
 
+VARIANTS = ("standard", "edge")
+
+
 @dataclass
 class ModelConfig:
     arch: str = "mobilenetv3"
@@ -33,10 +36,15 @@ class ModelConfig:
     colorspace: str = "rgb"
     aux_loss: bool = False
     bn_momentum: float = 0.1
+    variant: str = "standard"  # standard (torchvision's) | edge (MobileNetV3 without SE/hardswish, 128-ch ASPP)
 
     def validate(self) -> "ModelConfig":
         if self.arch not in ARCHS:
             raise ConfigError(f"unknown arch {self.arch!r}; choose one of {', '.join(ARCHS)}")
+        if self.variant not in VARIANTS:
+            raise ConfigError(f"unknown variant {self.variant!r}; choose one of {', '.join(VARIANTS)}")
+        if self.variant == "edge" and self.arch != "mobilenetv3":
+            raise ConfigError("the edge variant is a MobileNetV3 variant")
         if self.colorspace not in COLORSPACES:
             raise ConfigError(f"unknown colour space {self.colorspace!r}; choose one of {', '.join(COLORSPACES)}")
         if self.output_stride not in (8, 16):
@@ -116,9 +124,9 @@ class ASPP(nn.Module):
 
 
 class DeepLabHead(nn.Sequential):
-    def __init__(self, cin: int, num_classes: int, rates: tuple[int, int, int] = (12, 24, 36)):
-        super().__init__(ASPP(cin, rates), nn.Conv2d(256, 256, 3, padding=1, bias=False), nn.BatchNorm2d(256),
-                         nn.ReLU(), nn.Conv2d(256, num_classes, 1))
+    def __init__(self, cin: int, num_classes: int, rates: tuple[int, int, int] = (12, 24, 36), channels: int = 256):
+        super().__init__(ASPP(cin, rates, channels), nn.Conv2d(channels, channels, 3, padding=1, bias=False),
+                         nn.BatchNorm2d(channels), nn.ReLU(), nn.Conv2d(channels, num_classes, 1))
 
 
 class FCNHead(nn.Sequential):
@@ -153,7 +161,7 @@ class DeepLabV3(nn.Module):
         rates = (12, 24, 36) if config.output_stride == 8 else (6, 12, 18)
         if config.arch == "mobilenetv3":
             rates = (12, 24, 36)  # torchvision's setting for its output-stride-16 MobileNet head
-        self.classifier = DeepLabHead(out_ch, config.num_classes, rates)
+        self.classifier = DeepLabHead(out_ch, config.num_classes, rates, 128 if config.variant == "edge" else 256)
         self.aux_classifier = FCNHead(aux_ch, config.num_classes) if config.aux_loss else None
 
     def forward(self, x: Tensor) -> dict[str, Tensor]:
@@ -170,7 +178,9 @@ def build_model(config: ModelConfig) -> DeepLabV3:
     """DeepLabV3 for a config; the keys match torchvision's builder for the same arch."""
     config.validate()
     if config.arch == "mobilenetv3":
-        backbone = MobileNetBackbone(*mobilenet_v3_large_features(config.output_stride, config.bn_momentum))
+        edge = config.variant == "edge"
+        backbone = MobileNetBackbone(*mobilenet_v3_large_features(config.output_stride, config.bn_momentum,
+                                                                  se=not edge, hardswish=not edge))
         return DeepLabV3(config, backbone, 960, 40)
     blocks = (3, 4, 6, 3) if config.arch == "resnet50" else (3, 4, 23, 3)
     return DeepLabV3(config, ResNetFeatures(blocks, config.output_stride), 2048, 1024)

@@ -82,17 +82,24 @@ LARGE = [
 ]
 
 
-def mobilenet_v3_large_features(output_stride: int = 16, bn_momentum: float = 0.1) -> nn.Sequential:
-    """The 17 `features` modules of MobileNetV3-Large; output stride 16 (torchvision) or 8."""
+def mobilenet_v3_large_features(output_stride: int = 16, bn_momentum: float = 0.1, se: bool = True,
+                                hardswish: bool = True) -> nn.Sequential:
+    """The 17 `features` modules of MobileNetV3-Large; output stride 16 (torchvision) or 8.
+
+    se=False drops the squeeze-excitation blocks and hardswish=False uses ReLU throughout: the
+    quantization-friendly 'edge' variant (no float-only ReduceMean/HardSigmoid in int8 graphs).
+    """
     if output_stride not in (8, 16):
         raise ValueError("output_stride must be 8 or 16")
     norm = partial(nn.BatchNorm2d, eps=0.001, momentum=bn_momentum)
-    layers: list[nn.Module] = [ConvBNAct(3, 16, 3, stride=2, norm=norm, act=nn.Hardswish)]
+    top_act = nn.Hardswish if hardswish else nn.ReLU
+    layers: list[nn.Module] = [ConvBNAct(3, 16, 3, stride=2, norm=norm, act=top_act)]
     dilate_from = 7 if output_stride == 8 else 13  # index into `features` where dilation starts
     dilation = 1
-    for i, (cin, k, exp, cout, se, act, stride) in enumerate(LARGE, start=1):
+    for i, (cin, k, exp, cout, use_se, act, stride) in enumerate(LARGE, start=1):
         if i >= dilate_from and stride > 1:
             dilation *= 2  # keep the resolution: the stride becomes dilation
-        layers.append(InvertedResidual(cin, k, exp, cout, se, act, stride, dilation, norm))
-    layers.append(ConvBNAct(160, 960, 1, norm=norm, act=nn.Hardswish))
+        layers.append(InvertedResidual(cin, k, exp, cout, use_se and se, act if hardswish else "RE", stride,
+                                       dilation, norm))
+    layers.append(ConvBNAct(160, 960, 1, norm=norm, act=top_act))
     return nn.Sequential(*layers)

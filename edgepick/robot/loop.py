@@ -14,7 +14,7 @@ from pathlib import Path
 
 import cv2
 
-from edgepick.robot.base import RobotBase, RobotError, RobotHalted
+from edgepick.robot.base import RobotBase
 from edgepick.robot.envelope import Envelope
 from edgepick.robot.pick import CommandLog, PickConfig, choose_target, execute
 from edgepick.runtime.camera import Camera, Frame
@@ -37,7 +37,7 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, grip
                cycles: int, log: CommandLog, overlay_dir: str | Path | None = None, echo=print) -> list[dict]:
     """Run up to `cycles` pick cycles (robot None = plan only). Stops early when the robot halts."""
     results = []
-    envelope = robot.envelope if robot is not None else None
+    envelope = robot.envelope if robot is not None else Envelope()
     if overlay_dir:
         Path(overlay_dir).mkdir(parents=True, exist_ok=True)
     for cycle in range(1, cycles + 1):
@@ -48,7 +48,7 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, grip
             break
         t0 = time.perf_counter()
         seen = pipeline(frame)
-        record, plan, note = choose_target(seen.records, envelope or Envelope(), cfg)
+        record, plan, note = choose_target(seen.records, envelope, cfg)
         t_plan = time.perf_counter()
         result = {"cycle": cycle, "frame": frame.name, "objects": len(seen.records), "stage_ms": seen.ms,
                   "plan_ms": round(1000 * (t_plan - t0), 2)}
@@ -100,5 +100,3 @@ def _line(r: dict) -> str:
     tail = "" if r["outcome"] in ("done", "planned") else f": {r['reason']}"
     return f"cycle {r['cycle']}: {r['target']} at {r['pixel']} -> {r['outcome']}{err}{lat}{tail}"
 
-
-__all__ = ["run_cycles", "grasp_error_m", "RobotError", "RobotHalted"]

@@ -36,6 +36,7 @@ class TrainConfig:
     data: str
     out: str
     arch: str = "mobilenetv3"
+    variant: str = "standard"  # edge: MobileNetV3 without SE/hardswish, 128-channel ASPP (quantization-friendly)
     epochs: int = 100
     batch_size: int = 8
     lr: float = 1e-3
@@ -124,7 +125,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
         cfg.epochs = max(epochs or cfg.epochs, ckpt["epoch"])
     elif last_path.exists():
         raise ConfigError(f"{out} already holds a training run; pass --resume or choose a new --out")
-    model_cfg = ModelConfig(cfg.arch, 0, cfg.output_stride, cfg.colorspace, cfg.aux_loss)
+    model_cfg = ModelConfig(cfg.arch, 0, cfg.output_stride, cfg.colorspace, cfg.aux_loss, variant=cfg.variant)
     train_ds = NativeDataset.open(cfg.data, "train")  # validates the layout before anything is written
     val_ds = NativeDataset.open(cfg.data, "val")
     classes = train_ds.classes

@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from edgepick.models import ModelConfig, build_model, deeplabv3_mobilenet_v3_large, deeplabv3_resnet50, deeplabv3_resnet101
+from edgepick.errors import ConfigError
 from edgepick.models.deeplabv3 import load_backbone_weights, rgb_to_hsv
 
 FIXTURE = Path(__file__).parent / "fixtures" / "torchvision_deeplabv3_keys.json"
@@ -85,3 +86,19 @@ def test_backbone_weights_of_wrong_arch_refused(tmp_path):
     torch.save(build_model(ModelConfig("resnet50", 5)).backbone.state_dict(), path)
     with pytest.raises(CheckpointError):
         load_backbone_weights(build_model(ModelConfig("mobilenetv3", 5)), str(path))
+
+
+def test_edge_variant_has_no_se_or_hardswish_and_a_slim_head():
+    from edgepick.models.mobilenetv3 import SqueezeExcitation
+
+    standard = build_model(ModelConfig("mobilenetv3", 5))
+    edge = build_model(ModelConfig("mobilenetv3", 5, variant="edge"))
+    kinds = {type(m) for m in edge.modules()}
+    assert SqueezeExcitation not in kinds and torch.nn.Hardswish not in kinds
+    assert SqueezeExcitation in {type(m) for m in standard.modules()}
+    assert edge.classifier[0].project[0].out_channels == 128 and edge.classifier[4].in_channels == 128
+    params = lambda m: sum(p.numel() for p in m.parameters())  # noqa: E731
+    assert params(edge) < 0.75 * params(standard)
+    assert edge.eval()(torch.rand(1, 3, 64, 96) * 255)["out"].shape == (1, 5, 64, 96)
+    with pytest.raises(ConfigError, match="MobileNetV3 variant"):
+        build_model(ModelConfig("resnet50", 5, variant="edge"))

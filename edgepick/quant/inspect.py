@@ -1,0 +1,186 @@
+"""Where does int8 drift from fp32? Per-layer comparison of the float graph and the quantized
+simulation (what onnxruntime's qdq_loss_debug and NNCF's accuracy-aware tools offer), and an
+accuracy-aware static pass that keeps the most drifting layers in float until the mIoU drop is
+inside a budget.
+
+Each conv group's output (the conv, or the BatchNorm after it, which int8 folds into the conv)
+is taken from both graphs on the same images; SQNR = 10 log10(|fp32|^2 / |fp32 - int8|^2).
+Errors accumulate through the network, so layers are ranked by the SQNR they LOSE relative to
+the conv before them ("added drift"), not by their absolute SQNR.
+"""
+
+from __future__ import annotations
+
+import math
+import operator
+import shutil
+import tempfile
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from edgepick.errors import ConfigError
+from edgepick.export.onnx_export import LogitsNet
+from edgepick.models.deeplabv3 import trim_dilated_convs
+from edgepick.quant.quantizer import QuantConfig, module_path
+
+PREFIX = "model."
+CONV = torch.ops.aten.conv2d.default
+BATCH_NORMS = {torch.ops.aten.batch_norm.default, torch.ops.aten._native_batch_norm_legit_no_training.default}
+
+
+def conv_group_outputs(gm: torch.fx.GraphModule) -> dict[torch.fx.Node, str]:
+    """Node carrying each conv group's output -> the conv's module path."""
+    out = {}
+    for node in gm.graph.nodes:
+        if node.op != "call_function" or node.target != CONV:
+            continue
+        carrier = node
+        users = list(node.users)
+        if len(users) == 1 and users[0].target in BATCH_NORMS:
+            carrier = users[0]
+            getitems = [u for u in carrier.users if u.target is operator.getitem and u.args[1] == 0]
+            carrier = getitems[0] if getitems else carrier
+        out[carrier] = module_path(node).removeprefix(PREFIX)
+    return out
+
+
+class _Recorder(torch.fx.Interpreter):
+    def __init__(self, gm: torch.fx.GraphModule, wanted: dict[torch.fx.Node, str]):
+        super().__init__(gm)
+        self.wanted, self.values = wanted, {}
+
+    def run_node(self, n: torch.fx.Node):
+        result = super().run_node(n)
+        if n in self.wanted:
+            self.values[self.wanted[n]] = result.detach().float().clone()  # in-place ops (hardswish_) follow
+        return result
+
+
+def record(gm: torch.fx.GraphModule, x: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+    """Conv group outputs by module path, and the logits, for one input."""
+    rec = _Recorder(gm, conv_group_outputs(gm))
+    with torch.no_grad():
+        logits = rec.run(x)
+    return rec.values, logits
+
+
+def float_graph(model: torch.nn.Module, size: tuple[int, int]) -> torch.fx.GraphModule:
+    trim_dilated_convs(model, size)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return torch.export.export(LogitsNet(model).eval(), (torch.rand(1, 3, *size) * 255,)).module()
+
+
+def _sqnr(signal: float, noise: float) -> float:
+    return round(10 * math.log10(signal / noise), 2) if noise > 0 else math.inf
+
+
+def compare(float_gm: torch.fx.GraphModule, int8_gm: torch.fx.GraphModule, images: list[np.ndarray]) -> dict:
+    """Per-layer SQNR and added drift, logits SQNR and label agreement over IMAGES."""
+    from edgepick.quant.passes import _as_input
+
+    sig: dict[str, float] = {}
+    noise: dict[str, float] = {}
+    order: list[str] = []
+    log_sig = log_noise = 0.0
+    same = total = 0
+    for rgb in images:
+        x = _as_input(rgb)
+        f_vals, f_logits = record(float_gm, x)
+        q_vals, q_logits = record(int8_gm, x)
+        for path, f in f_vals.items():
+            if path not in q_vals or q_vals[path].shape != f.shape:
+                continue
+            if path not in sig:
+                order.append(path)
+                sig[path] = noise[path] = 0.0
+            sig[path] += float((f ** 2).sum())
+            noise[path] += float(((f - q_vals[path]) ** 2).sum())
+        log_sig += float((f_logits ** 2).sum())
+        log_noise += float(((f_logits - q_logits) ** 2).sum())
+        same += int((f_logits.argmax(1) == q_logits.argmax(1)).sum())
+        total += f_logits.argmax(1).numel()
+    layers, prev = [], None
+    for path in order:
+        s = _sqnr(sig[path], noise[path])
+        layers.append({"layer": path, "sqnr_db": s,
+                       "added_drift_db": None if prev is None or math.isinf(prev) or math.isinf(s) else round(prev - s, 2)})
+        prev = s
+    return {"layers": layers, "logits_sqnr_db": _sqnr(log_sig, log_noise),
+            "label_agreement": round(same / total, 5) if total else None, "images": len(images)}
+
+
+def ranked(report: dict) -> list[str]:
+    """Layers by added drift, worst first (the keep-float candidates)."""
+    rows = [r for r in report["layers"] if r["added_drift_db"] is not None]
+    return [r["layer"] for r in sorted(rows, key=lambda r: -r["added_drift_db"])]
+
+
+def inspect(checkpoint: str | Path, data: str | Path, config: QuantConfig | None = None, calib_images: int = 64,
+            images: int = 8, seed: int = 0, progress: bool = True) -> dict:
+    """Calibrate a static int8 model (in memory) and compare it layer by layer with fp32 on val images."""
+    from tqdm import tqdm
+
+    from edgepick.quant.passes import _as_input, check_classes, convert, model_images, prepare
+    from edgepick.train.checkpoint import load_model
+
+    config = (config or QuantConfig()).validate()
+    model, ckpt = load_model(checkpoint)
+    check_classes(ckpt, data)
+    size = tuple(ckpt["input_size"])
+    float_gm = float_graph(load_model(checkpoint)[0], size)
+    prepared = prepare(model, config, size, qat=False)
+    with torch.no_grad():
+        for rgb in tqdm(model_images(data, "train", calib_images, size, seed), desc="calibrate", unit="img",
+                        disable=not progress or None):
+            prepared(_as_input(rgb))
+    report = compare(float_gm, convert(prepared), model_images(data, "val", images, size, seed))
+    report["ranked"] = ranked(report)
+    return report
+
+
+def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str | Path, max_drop_pp: float,
+                            config: QuantConfig | None = None, calib_images: int = 64, max_float_layers: int = 6,
+                            progress: bool = True) -> dict:
+    """Static PTQ that keeps the layers adding the most drift in float, one at a time, until the
+    val mIoU (onnxruntime) is within MAX_DROP_PP points of the fp32 model's, or MAX_FLOAT_LAYERS
+    are float. Writes the best file found at OUT and reports every step."""
+    from edgepick.evaluation import evaluate
+    from edgepick.export.onnx_export import export_checkpoint
+    from edgepick.quant.passes import quantize_static
+
+    if max_drop_pp < 0:
+        raise ConfigError("--max-miou-drop must be >= 0 (percentage points)")
+    config = (config or QuantConfig()).validate()
+    if Path(out).suffix != ".onnx":
+        raise ConfigError(f"--out must name an .onnx file, got {out}")
+    work = Path(tempfile.mkdtemp(prefix="accuracy-aware-"))
+    try:
+        fp32 = export_checkpoint(checkpoint, work / "fp32.onnx")["out"]
+        base = evaluate(fp32, data, "val", progress=False)["miou"]
+        candidates = ranked(inspect(checkpoint, data, config, calib_images, progress=progress))
+        keep = list(config.keep_float)
+        steps, best = [], None
+        while True:
+            cfg = QuantConfig(**{**config.to_dict(), "keep_float": keep})
+            path = work / f"step{len(steps)}.onnx"
+            res = quantize_static(checkpoint, data, path, cfg, calib_images=calib_images, progress=False)
+            miou = evaluate(path, data, "val", progress=False)["miou"]
+            drop = round(100 * (base - miou), 3)
+            steps.append({"keep_float": list(keep), "val_miou": miou, "drop_pp": drop, "file": str(path)})
+            if best is None or drop < best["drop_pp"]:
+                best = {**steps[-1], "result": res}
+            added = len(keep) - len(config.keep_float)
+            if drop <= max_drop_pp or added >= max_float_layers or not candidates:
+                break
+            keep.append(candidates.pop(0))
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        shutil.move(best["file"], out)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return {"out": str(out), "fp32_val_miou": base, "budget_pp": max_drop_pp, "met": best["drop_pp"] <= max_drop_pp,
+            "chosen": {k: v for k, v in best.items() if k not in ("file", "result")}, "steps": steps,
+            "agreement_vs_torch": best["result"]["agreement_vs_torch"]}
