@@ -17,3 +17,10 @@ def untrained_checkpoint(path: Path, size: tuple[int, int], classes: list[str], 
     cfg = ModelConfig(num_classes=len(classes), variant=variant)
     torch.save({"model": build_model(cfg).state_dict(), "train_time_s": 0.0, **model_meta(cfg, classes, size)}, path)
     return path
+
+
+def emit(report: str, out: str | None) -> None:
+    """Print a Markdown report, and write it to OUT when given."""
+    print(report)
+    if out:
+        Path(out).write_text(report)

@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from _common import emit  # noqa: E402
 
 from edgepick.data.native import NativeDataset  # noqa: E402
 from edgepick.metrics import confusion_matrix, segmentation_metrics  # noqa: E402
@@ -169,9 +170,7 @@ def main() -> None:
         lines.append(f"| {name} | {100 * miou:.2f} | {100 * acc:.2f} | {'-' if agree is None else f'{100 * agree:.2f}'} "
                      f"| {p50:.1f} | {p95:.1f} | {fp32_p50 / p50:.2f}x | {mbytes:.2f} |")
     report = "\n".join(lines) + "\n"
-    print(report)
-    if args.out:
-        Path(args.out).write_text(report)
+    emit(report, args.out)
 
 
 if __name__ == "__main__":

@@ -25,7 +25,7 @@ import numpy as np
 import onnxruntime as ort
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import untrained_checkpoint  # noqa: E402
+from _common import emit, untrained_checkpoint  # noqa: E402
 
 from edgepick.data.render import CLASSES  # noqa: E402
 from edgepick.robot.grippers import DigitalGripper  # noqa: E402
@@ -95,9 +95,7 @@ def main() -> None:
               "envelope check of every pose; frame -> first command adds issuing the first moveL. Thesis: 5.59 s.",
               "Target: <= 60 ms."]
     report = "\n".join(lines) + "\n"
-    print(report)
-    if args.out:
-        Path(args.out).write_text(report)
+    emit(report, args.out)
 
 
 if __name__ == "__main__":

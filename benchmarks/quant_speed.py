@@ -26,7 +26,7 @@ import numpy as np
 import onnxruntime as ort
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import untrained_checkpoint  # noqa: E402
+from _common import emit, untrained_checkpoint  # noqa: E402
 
 
 def session(path: str, threads: int, profile: str | None = None) -> ort.InferenceSession:
@@ -132,9 +132,7 @@ def main() -> None:
         lines += ["", f"Slowest {args.nodes} nodes, {name} (ms per run):", ""]
         lines += [f"- {ms:.2f} `{node}`" for node, ms in list(nodes[name].items())[:args.nodes]]
     report = "\n".join(lines) + "\n"
-    print(report)
-    if args.out:
-        Path(args.out).write_text(report)
+    emit(report, args.out)
     shutil.rmtree(work, ignore_errors=True)
 
 

@@ -25,7 +25,7 @@ import numpy as np
 import onnxruntime as ort
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import untrained_checkpoint  # noqa: E402
+from _common import emit, untrained_checkpoint  # noqa: E402
 
 from edgepick.data.render import CLASSES, SceneRenderer  # noqa: E402
 from edgepick.runtime.camera import Frame  # noqa: E402
@@ -101,9 +101,7 @@ def main() -> None:
     lines.append(f"Outside inference with true labels (pre + post of the slowest model + grasp): "
                  f"**{worst + true_med:.2f} ms** (target <= 5 ms).")
     report = "\n".join(lines) + "\n"
-    print(report)
-    if args.out:
-        Path(args.out).write_text(report)
+    emit(report, args.out)
     print(json.dumps({n: m for n, (m, _, _) in rows.items()}), file=sys.stderr)
 
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import untrained_checkpoint  # noqa: E402
+from _common import emit, untrained_checkpoint  # noqa: E402
 from quant_speed import latency  # noqa: E402
 
 
@@ -90,9 +90,7 @@ def main() -> None:
     lines += ["", f"Edge int8 vs standard fp32 latency: {s['fp32_ms'] / e['int8_ms']:.2f}x faster; "
               f"edge int8 vs standard int8: {s['int8_ms'] / e['int8_ms']:.2f}x."]
     report = "\n".join(lines) + "\n"
-    print(report)
-    if args.out:
-        Path(args.out).write_text(report)
+    emit(report, args.out)
 
 
 if __name__ == "__main__":

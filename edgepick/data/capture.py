@@ -4,15 +4,13 @@
 from __future__ import annotations
 
 import json
-import os
-import shutil
-import tempfile
 import time
 from pathlib import Path
 
 import cv2
 from tqdm import tqdm
 
+from edgepick.data.native import atomic_folder
 from edgepick.errors import ConfigError
 from edgepick.runtime.camera import Camera
 
@@ -22,11 +20,7 @@ def capture(camera: Camera, out: str | Path, count: int, interval_s: float = 0.0
     out = Path(out)
     if count < 1:
         raise ConfigError("--count must be at least 1")
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise ConfigError(f"{out} already exists and is not empty; choose a new folder")
-    out.resolve().parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.resolve().parent))
-    try:
+    with atomic_folder(out) as tmp:
         (tmp / "rgb").mkdir()
         (tmp / "depth").mkdir()
         with camera as cam:
@@ -43,10 +37,4 @@ def capture(camera: Camera, out: str | Path, count: int, interval_s: float = 0.0
                 if not ok:
                     raise OSError(f"could not write frame {i} under {tmp}")
             intr = cam.intrinsics
-        if out.exists():
-            out.rmdir()
-        os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return {"out": str(out), "frames": count, "size": [intr.width, intr.height], "depth_scale": intr.depth_scale}

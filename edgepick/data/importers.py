@@ -10,9 +10,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,7 +17,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from edgepick.data.native import IGNORE, SPLITS
+from edgepick.data.native import IGNORE, SPLITS, atomic_folder
 from edgepick.errors import DatasetError
 from edgepick.runtime.geometry import Intrinsics
 
@@ -53,14 +50,10 @@ class ImportConfig:
 
 
 class NativeWriter:
-    """Writes scenes into a temporary folder beside OUT; `finish` renames it into place."""
+    """Writes scenes into an `atomic_folder` beside OUT: renamed into place at the end, removed on error."""
 
-    def __init__(self, out: Path):
-        if out.exists() and (not out.is_dir() or any(out.iterdir())):
-            raise DatasetError(f"{out} already exists and is not empty; choose a new folder")
-        out.resolve().parent.mkdir(parents=True, exist_ok=True)
-        self.out = out
-        self.tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.resolve().parent))
+    def __init__(self, tmp: Path):
+        self.tmp = tmp
         self.counts = dict.fromkeys(SPLITS, 0)
         self.has_depth = False
 
@@ -84,6 +77,7 @@ class NativeWriter:
             f.write(f"{sid} {name}\n")
 
     def finish(self, classes: list[str], intrinsics: Intrinsics | None, source: dict) -> dict:
+        """meta.json (classes, ignore index, intrinsics, where the data came from)."""
         empty = [s for s in SPLITS if self.counts[s] == 0]
         if empty:
             raise DatasetError(f"the source gives no images for the {', '.join(empty)} split(s)")
@@ -92,13 +86,7 @@ class NativeWriter:
             meta["intrinsics"] = intrinsics.to_dict()
             meta["depth_scale"] = intrinsics.depth_scale
         (self.tmp / "meta.json").write_text(json.dumps(meta, indent=1))
-        if self.out.exists():
-            self.out.rmdir()
-        os.replace(self.tmp, self.out)
-        return {"out": str(self.out), "classes": len(classes), "splits": dict(self.counts), "depth": self.has_depth}
-
-    def abort(self) -> None:
-        shutil.rmtree(self.tmp, ignore_errors=True)
+        return {"classes": len(classes), "splits": dict(self.counts), "depth": self.has_depth}
 
 
 def assign_splits(names: list[str], fractions: tuple[float, float, float]) -> dict[str, str]:
@@ -327,11 +315,8 @@ def import_dataset(fmt: str, src: str | Path, out: str | Path, cfg: ImportConfig
     fr = cfg.split_fractions
     if len(fr) != 3 or min(fr) < 0 or abs(sum(fr) - 1) > 1e-6:
         raise DatasetError("split fractions must be three non-negative numbers that sum to 1")
-    writer = NativeWriter(out)
-    try:
-        importer = {"cityscapes": import_cityscapes, "bop": import_bop, "cvat": import_cvat}[fmt]
-        classes, intr, source = importer(src, writer, cfg)
-        return writer.finish(classes, intr, source)
-    except BaseException:
-        writer.abort()
-        raise
+    importer = {"cityscapes": import_cityscapes, "bop": import_bop, "cvat": import_cvat}[fmt]
+    with atomic_folder(out) as tmp:
+        writer = NativeWriter(tmp)
+        summary = writer.finish(*importer(src, writer, cfg))
+    return {"out": str(out), **summary}

@@ -3,13 +3,18 @@
 from __future__ import annotations
 
 import json
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from edgepick.errors import DatasetError
+from edgepick.errors import ConfigError, DatasetError
 from edgepick.runtime.geometry import Intrinsics
 
 SPLITS = ("train", "val", "test")
@@ -87,3 +92,23 @@ class NativeDataset:
     def grasps(self) -> dict:
         path = self.root / self.split / "grasps.json"
         return json.loads(path.read_text()) if path.is_file() else {}
+
+
+@contextmanager
+def atomic_folder(out: str | Path) -> Iterator[Path]:
+    """Write a folder all or nothing: yields a temporary folder beside OUT that is renamed to OUT
+    when the block ends, and removed if it raises (Ctrl-C included). OUT must be new or empty."""
+    out = Path(out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise ConfigError(f"{out} already exists and is not empty; choose a new folder")
+    parent = out.resolve().parent
+    parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=parent))
+    try:
+        yield tmp
+        if out.exists():
+            out.rmdir()
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise

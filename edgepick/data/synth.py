@@ -10,8 +10,6 @@ from __future__ import annotations
 import json
 import multiprocessing
 import os
-import shutil
-import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
@@ -21,6 +19,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from edgepick.data.native import atomic_folder
 from edgepick.data.render import CLASSES, LIGHTINGS, SceneRenderer
 from edgepick.errors import ConfigError
 from edgepick.runtime.geometry import Intrinsics
@@ -92,15 +91,10 @@ def _render_one(job: tuple[str, int, int, int, int, int, str]) -> tuple[str, str
 def synthesize(out: str | Path, config: SynthConfig, progress: bool = True) -> dict:
     """Generate the data set at OUT; returns a summary with scenes/s."""
     out = Path(out)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise ConfigError(f"{out} already exists and is not empty; choose a new folder")
     counts = config.split_counts()
     if min(counts) < 1 or config.scenes < 3 and config.splits is None:
         raise ConfigError("need at least one scene in each of train, val and test (--scenes >= 3)")
-    parent = out.resolve().parent
-    parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=parent))
-    try:
+    with atomic_folder(out) as tmp:
         for split in SPLITS:
             for sub in ("rgb", "depth", "mask"):
                 (tmp / split / sub).mkdir(parents=True)
@@ -142,12 +136,6 @@ def synthesize(out: str | Path, config: SynthConfig, progress: bool = True) -> d
         }
         meta["generator"].pop("workers")
         (tmp / "meta.json").write_text(json.dumps(meta, indent=1))
-        if out.exists():
-            out.rmdir()
-        os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return {"out": str(out), "scenes": len(jobs), "seconds": round(elapsed, 2),
             "scenes_per_s": round(len(jobs) / elapsed, 2), "workers": workers,
             "splits": dict(zip(SPLITS, counts))}
