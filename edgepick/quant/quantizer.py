@@ -49,7 +49,9 @@ SHARED_OPS = {aten.upsample_bilinear2d.vec, aten.upsample_nearest2d.vec, aten.ma
 class QuantConfig:
     """How a model is quantized; written into the ONNX metadata (`edgepick.quant`)."""
 
-    calib_method: str = "minmax"  # minmax | percentile | entropy | mse (activation ranges, static PTQ)
+    # Activation ranges for static PTQ: minmax | percentile | entropy | mse. On the demo model (val, 64 calibration
+    # images, 7-bit weights) mIoU was minmax 42.2, percentile 44.2, mse 44.2 (slow), entropy 28.5; fp32 42.9.
+    calib_method: str = "percentile"
     percentile: float = 99.99
     # 7-bit weights: onnxruntime's U8S8 kernels on AVX2 CPUs without VNNI (the thesis laptop) add pairs of
     # u8*s8 products in int16, which saturates with 8-bit weights; measured here (no VNNI) it cost 3 pp of

@@ -29,7 +29,7 @@ def test_static_int8_meets_the_contract(onnx_files):
     seg = Segmenter(static["out"])  # contract 3.2: uint8 image, uint8 labels, metadata
     assert seg.info.precision == "int8" and seg.info.input_size == (96, 128)
     quant = json.loads(seg.info.metadata["edgepick.quant"])
-    assert quant["mode"] == "static" and quant["calib_images"] == 8 and quant["calib_method"] == "minmax"
+    assert quant["mode"] == "static" and quant["calib_images"] == 8 and quant["calib_method"] == "percentile"
     assert len(seg.info.metadata["edgepick.source_sha256"]) == 64
     assert static["observers"] > 0
     assert static["convs"] == static["int8_convs"] == 70 and static["float_convs"] == []

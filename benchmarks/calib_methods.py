@@ -1,0 +1,74 @@
+"""Static PTQ calibration methods compared on one float run: val mIoU of the int8 file on
+onnxruntime and on OpenVINO, and onnxruntime-vs-torch label agreement, for each activation-range
+method with 7-bit (reduce-range, the default) and 8-bit weights.
+
+    python benchmarks/calib_methods.py --run demo-out/run --data demo-out/data [--out FILE.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from _common import emit  # noqa: E402
+
+from edgepick.evaluation import evaluate  # noqa: E402
+from edgepick.export.onnx_export import export_checkpoint  # noqa: E402
+from edgepick.quant.passes import quantize_static  # noqa: E402
+from edgepick.quant.quantizer import QuantConfig  # noqa: E402
+
+CASES = [("minmax", True), ("minmax", False), ("percentile", True), ("percentile", False), ("mse", True),
+         ("entropy", True)]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--run", default="demo-out/run", help="float RUN or checkpoint (default: make demo's)")
+    ap.add_argument("--data", default="demo-out/data")
+    ap.add_argument("--calib-images", type=int, default=64)
+    ap.add_argument("--split", default="val")
+    ap.add_argument("--out", default=None, help="also write the Markdown report here")
+    args = ap.parse_args()
+
+    try:
+        import openvino  # noqa: F401
+        engines = ["onnxruntime", "openvino"]
+    except ImportError:
+        engines = ["onnxruntime"]
+    work = Path(tempfile.mkdtemp(prefix="calib-"))
+    rows = []
+    try:
+        fp32 = export_checkpoint(args.run, work / "fp32.onnx")["out"]
+        base = {e: evaluate(fp32, args.data, args.split, progress=False, engine=e)["miou"] for e in engines}
+        rows.append(("fp32", "-", base, None))
+        for method, reduce_range in CASES:
+            out = work / f"{method}-{reduce_range}.onnx"
+            print(f"-- {method} reduce_range={reduce_range}", file=sys.stderr, flush=True)
+            r = quantize_static(args.run, args.data, out, QuantConfig(calib_method=method, reduce_range=reduce_range),
+                                calib_images=args.calib_images, progress=False)
+            miou = {e: evaluate(out, args.data, args.split, progress=False, engine=e)["miou"] for e in engines}
+            rows.append((method, "7-bit" if reduce_range else "8-bit", miou, r["agreement_vs_torch"]))
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+    lines = ["# Static PTQ: calibration methods on one float run", "",
+             f"Command: `python benchmarks/calib_methods.py {' '.join(sys.argv[1:])}`  ",
+             f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; model {args.run}; "
+             f"{args.calib_images} calibration images of the train split; mIoU on the {args.split} split of "
+             f"{args.data}.", "",
+             "| Method | Weights | " + " | ".join(f"mIoU {e} (%)" for e in engines) + " | onnxruntime-vs-torch agreement (%) |",
+             "|---|---|" + "---|" * len(engines) + "---|"]
+    for method, bits, miou, agree in rows:
+        lines.append(f"| {method} | {bits} | " + " | ".join(f"{100 * miou[e]:.2f}" for e in engines)
+                     + f" | {'-' if agree is None else f'{100 * agree:.2f}'} |")
+    emit("\n".join(lines) + "\n", args.out)
+
+
+if __name__ == "__main__":
+    main()
