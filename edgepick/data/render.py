@@ -310,7 +310,8 @@ class SceneRenderer:
         dif_t, spc_t = _shade(pts_t, nrm_t, t_ks, t_shin, lights, centre)
         objects_q = cv2.resize((~on_table).astype(np.float32), (gw, gh), interpolation=cv2.INTER_AREA)
         amb_q = 1 - 0.5 * cv2.GaussianBlur(objects_q, (0, 0), 1.5)  # contact shadow around bases
-        vis = np.stack([self._shadow(light, placed, footprints, n, d, (gw, gh)) for light in lights], 1)
+        masks_q = self._footprints_small(footprints, (gw, gh))  # once per object, not per light
+        vis = np.stack([self._shadow(light, placed, footprints, masks_q, n, d, (gw, gh)) for light in lights], 1)
         light_q = amb_q[..., None] * ambient.astype(np.float32) + ((dif_t * vis) @ colours).reshape(gh, gw, 3)
         spec_q = ((spc_t * vis) @ colours).reshape(gh, gw, 3)
         light = cv2.resize(light_q, (w, h), interpolation=cv2.INTER_LINEAR)
@@ -344,27 +345,36 @@ class SceneRenderer:
                 "objects": [f"{p.model.cls}:{p.model.variant}" for p in placed]}
         return Scene(rgb, depth, label, grasps, info)
 
-    def _shadow(self, light: dict, placed: list[Placed], footprints: list, n: np.ndarray, d: float,
-                grid: tuple[int, int]) -> np.ndarray:
-        """Light visibility on the table, flattened on the (width, height) grid: each object's
-        footprint pushed away from the light."""
+    def _footprints_small(self, footprints: list, grid: tuple[int, int]) -> list[np.ndarray | None]:
+        """Each object's footprint on the (width, height) shading grid."""
         h, w = self.intr.height, self.intr.width
-        wq, hq = grid
-        q = w / wq
-        occl = np.zeros((hq, wq), np.float32)
-        for p, fp in zip(placed, footprints):
+        out = []
+        for fp in footprints:
             if fp is None:
+                out.append(None)
                 continue
             (x0, y0, x1, y1), full = fp
+            m = np.zeros((h, w), np.float32)
+            m[y0:y1, x0:x1] = full
+            out.append(cv2.resize(m, grid, interpolation=cv2.INTER_AREA))
+        return out
+
+    def _shadow(self, light: dict, placed: list[Placed], footprints: list, masks_q: list, n: np.ndarray, d: float,
+                grid: tuple[int, int]) -> np.ndarray:
+        """Light visibility on the table, flattened on the (width, height) grid: each object's
+        footprint (MASKS_Q, on the grid) pushed away from the light."""
+        wq, hq = grid
+        q = self.intr.width / wq
+        occl = np.zeros((hq, wq), np.float32)
+        for p, fp, m in zip(placed, footprints, masks_q):
+            if fp is None:
+                continue
             top = p.ground - n * (p.base_elev + p.model.height)
             lvec = top - light["pos"]
             t = (d - top @ n) / (lvec @ n)  # where the light ray through the top hits the table
             hit = top + t * lvec
             du = (hit[0] / hit[2] - top[0] / top[2]) * self.intr.fx / q
             dv = (hit[1] / hit[2] - top[1] / top[2]) * self.intr.fy / q
-            m = np.zeros((h, w), np.float32)
-            m[y0:y1, x0:x1] = full
-            m = cv2.resize(m, (wq, hq), interpolation=cv2.INTER_AREA)
             steps = 4
             for s in range(1, steps + 1):
                 shift = np.float32([[1, 0, du * s / steps], [0, 1, dv * s / steps]])
