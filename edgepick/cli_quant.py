@@ -75,7 +75,7 @@ def quantize() -> None:
 @click.option("--calib-images", default=64, show_default=True, help="Train images for calibration.")
 @click.option("--calib-method", default="percentile", show_default=True,
               type=click.Choice(["minmax", "percentile", "entropy", "mse"]),
-              help="Activation ranges: a percentile of the histogram (default: on the demo model 1.3-2 pp more "
+              help="Activation ranges: a percentile of the histogram (default: on the demo model 1.5-2 pp more "
                    "val mIoU than min/max), min/max, KL divergence (entropy) or L2 error (mse, slower).")
 @click.option("--percentile", default=99.99, show_default=True, help="For --calib-method percentile.")
 @click.option("--seed", default=0, show_default=True, help="Which calibration images are drawn.")
