@@ -44,6 +44,7 @@ def main() -> None:
     from edgepick.evaluation import evaluate
     from edgepick.export.onnx_export import export_checkpoint
     from edgepick.quant.passes import quantize_static
+    from edgepick.quant.quantizer import QuantConfig
     from edgepick.train.checkpoint import load_model
     from edgepick.train.loop import TrainConfig, train
 
@@ -77,7 +78,7 @@ def main() -> None:
     lines = ["# Standard vs edge DeepLabV3-MobileNetV3: accuracy and int8 speed", "",
              f"Command: `python benchmarks/variant_study.py {' '.join(sys.argv[1:])}`  ",
              f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}. "
-             f"Accuracy: synthetic splits {splits}, {args.epochs} CPU epochs at {h}x{w}, static int8 (minmax, 32 "
+             f"Accuracy: synthetic splits {splits}, {args.epochs} CPU epochs at {h}x{w}, static int8 ({QuantConfig().calib_method}, 32 "
              f"images), test-split mIoU through onnxruntime. Latency: the same architectures at 480x640, 2 threads, "
              f"median of {args.runs} runs, one process.", "",
              "| Variant | Params (M) | train (s) | fp32 mIoU (%) | int8 mIoU (%) | drop (pp) | ORT vs torch agreement "
