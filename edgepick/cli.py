@@ -164,12 +164,17 @@ def data_capture(out: str, camera: str, count: int, interval: float, size: str) 
 @click.option("--aux-loss/--no-aux-loss", default=False, show_default=True, help="FCN auxiliary head (weight 0.4).")
 @click.option("--keep-epochs", default="", help="Comma-separated epochs whose checkpoints are kept (hybrid-QaT switch points).")
 @click.option("--backbone-weights", default=None, type=click.Path(dir_okay=False), help="Backbone state dict to start from.")
-@click.option("--workers", default=-1, show_default=True, help="Data loader workers; -1 = 0 on CPU (cached), 4 on GPU.")
+@click.option("--epoch-images", default=0, show_default=True,
+              help="Images per epoch, drawn afresh from the train split each epoch; 0 = the whole split.")
+@click.option("--val-images", default=0, show_default=True,
+              help="Validate each epoch on this many evenly spaced val images; 0 = the whole split.")
+@click.option("--workers", default=-1, show_default=True,
+              help="Data loader workers; -1 = decode once into memory (4 workers on GPU when that does not fit).")
 @click.option("--seed", default=0, show_default=True)
 @click.option("--resume", is_flag=True, help="Continue RUN from its last.pt (losing at most one epoch).")
 def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, batch_size: int, lr: float, device: str, size: str,
           colorspace: str, output_stride: str, aux_loss: bool, keep_epochs: str, backbone_weights: str | None,
-          workers: int, seed: int, resume: bool) -> None:
+          epoch_images: int, val_images: int, workers: int, seed: int, resume: bool) -> None:
     """Train a float DeepLabV3 on DATA (CPU, one GPU with bf16 AMP, or DDP under torchrun).
 
     Keeps best.pt (by validation mIoU), last.pt and epoch_NNN.pt for --keep-epochs, and
@@ -186,7 +191,8 @@ def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, 
     cfg = TrainConfig(data=data_dir, out=out, arch=arch, variant=variant, epochs=epochs if epochs is not None else (0 if resume else 100),
                       batch_size=batch_size, lr=lr, size=parse_hxw(size), colorspace=colorspace,
                       output_stride=int(output_stride), aux_loss=aux_loss, device=device, keep_epochs=keep,
-                      backbone_weights=backbone_weights, workers=workers, seed=seed)
+                      backbone_weights=backbone_weights, epoch_images=epoch_images, val_images=val_images,
+                      workers=workers, seed=seed)
     result = run_train(cfg, resume=resume)
     if result is not None:
         _emit({k: v for k, v in result.items()})

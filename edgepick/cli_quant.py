@@ -135,9 +135,14 @@ def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int, cali
 @click.option("--size", default="480x640", show_default=True, help="Training input HEIGHTxWIDTH.")
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
 @click.option("--seed", default=0, show_default=True)
+@click.option("--epoch-images", default=0, show_default=True,
+              help="Images per epoch, drawn afresh from the train split each epoch; 0 = the whole split.")
+@click.option("--val-images", default=0, show_default=True,
+              help="Validate each epoch on this many evenly spaced val images; 0 = the whole split.")
 @_with(common)
 def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int, batch_size: int, lr: float,
-                     size: str, device: str, seed: int, out: str, reduce_range: bool, keep_float: str) -> None:
+                     size: str, device: str, seed: int, epoch_images: int, val_images: int, out: str,
+                     reduce_range: bool, keep_float: str) -> None:
     """QaT from scratch: train with fake-quant for all epochs (GPU if there is one; fp32, no AMP),
     observers and BN statistics frozen for the last 30% of the steps, then export int8."""
     from edgepick.cli import parse_hxw
@@ -147,7 +152,8 @@ def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int,
     _refuse_existing(out)
     run = run_dir or str(Path(out).with_suffix(".run"))
     cfg = TrainConfig(data=data_dir, out=run, arch=arch, epochs=epochs, batch_size=batch_size, lr=lr,
-                      size=parse_hxw(size), device=device, seed=seed)
+                      size=parse_hxw(size), device=device, seed=seed, epoch_images=epoch_images,
+                      val_images=val_images)
     _emit(quantize_qat(cfg, out, _quant_config(reduce_range=reduce_range, keep_float=keep_float)))
 
 

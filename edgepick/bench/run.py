@@ -27,6 +27,7 @@ def gpu_row(checkpoint: str | Path, data: str | Path, images: list[np.ndarray], 
     import cv2
 
     from edgepick.evaluation import evaluate
+    from edgepick.export.onnx_export import run_train_time_s
     from edgepick.train.checkpoint import load_model
 
     model, ckpt = load_model(checkpoint)
@@ -46,7 +47,7 @@ def gpu_row(checkpoint: str | Path, data: str | Path, images: list[np.ndarray], 
     acc = evaluate(checkpoint, data, cfg.split, progress=False)
     size = Path(checkpoint if Path(checkpoint).is_file() else Path(checkpoint) / "best.pt").stat().st_size
     return Row("fp32 GPU", str(checkpoint), "fp32", acc["pixel_acc"], acc["miou"], round(float(np.median(times)), 3),
-               round(float(np.percentile(times, 95)), 3), ckpt.get("train_time_s"), round(size / 1e6, 3),
+               round(float(np.percentile(times, 95)), 3), run_train_time_s(ckpt), round(size / 1e6, 3),
                device=torch.cuda.get_device_name())
 
 

@@ -11,6 +11,7 @@ import json
 import os
 import platform
 import re
+import shutil
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -30,12 +31,26 @@ class Setting:
     batch_size: int
     lr: float
     runs: int  # timed inferences per model
+    epoch_images: int = 0  # images per epoch drawn from the train split (0: the whole split)
+    val_images: int = 0  # val images scored after each epoch (0: the whole split)
+
+    def describe(self) -> str:
+        per_epoch = f"{self.epoch_images} images drawn afresh from the train split" if self.epoch_images else "the whole train split"
+        val = f"{self.val_images} of the val images" if self.val_images else "the whole val split"
+        return (f"synthetic splits {self.splits} at 640x480, training input {self.size[0]}x{self.size[1]}, "
+                f"{self.epochs} epochs of {per_epoch} (validated on {val}), batch {self.batch_size}, lr {self.lr}")
 
 
 # Scaled down until the whole table takes minutes on 2 CPU cores: 3 steps per epoch at 64x96.
 QUICK = Setting("quick", splits=(24, 12, 12), size=(64, 96), epochs=100, batch_size=8, lr=2e-3, runs=30)
+# The thesis's data scale inside a 30-minute GPU lease: the 4000/1000/100 split at 480x640 and E = 100
+# epochs (so 1/5/10% are whole epochs), each epoch 160 images (4 passes over the train split).
+LEASE = Setting("lease", splits=(4000, 1000, 100), size=(480, 640), epochs=100, batch_size=16, lr=2e-3, runs=50,
+                epoch_images=160, val_images=100)
 FULL = Setting("full", splits=(4000, 1000, 100), size=(480, 640), epochs=100, batch_size=16, lr=1e-3, runs=100)
+SETTINGS = {s.name: s for s in (QUICK, LEASE, FULL)}
 FRACTIONS = (0.01, 0.05, 0.10)
+PHASES = ("synth", "float", "fp32", "static", "qat", "hybrid", *(f"hybrid{p:.2f}" for p in FRACTIONS), "bench")
 
 
 def machine_name() -> str:
@@ -47,10 +62,27 @@ def machine_name() -> str:
     return f"cpu-{os.cpu_count()}core"
 
 
+def _record(work: Path, update) -> dict:
+    """Read-modify-write WORK/phases.json under a lock (phases may run in parallel processes)."""
+    import fcntl
+
+    with open(work / ".phases.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        path = work / "phases.json"
+        state = json.loads(path.read_text()) if path.is_file() else {"times": {}, "commands": []}
+        update(state)
+        tmp = work / ".phases.json.tmp"
+        tmp.write_text(json.dumps(state, indent=1))
+        os.replace(tmp, path)
+        return state
+
+
 def make_table55(work: str | Path, setting: Setting, device: str = "auto", command: str = "",
-                 echo=print) -> dict:
-    """Run every phase in WORK (an empty or missing folder) and return the Markdown report,
-    the PNG's path, the phase wall times and the bench rows."""
+                 echo=print, only: set[str] | None = None) -> dict | None:
+    """Run the phases in WORK and return the Markdown report, the PNG's path, the phase wall
+    times and the bench rows. A phase whose output is already in WORK is kept (its time comes
+    from WORK/phases.json), so the phases can be split over several runs or machines; ONLY
+    limits this run to some PHASES (then no report unless the bench ran)."""
     import onnxruntime
     import torch
     import torchao
@@ -62,46 +94,71 @@ def make_table55(work: str | Path, setting: Setting, device: str = "auto", comma
 
     s = setting
     work = Path(work)
+    work.mkdir(parents=True, exist_ok=True)
     keep = sorted({round((1 - p) * s.epochs) for p in FRACTIONS})
-    phases: dict[str, float] = {}
+    if command:
+        _record(work, lambda st: st["commands"].append(command))
 
-    def timed(name: str, fn, *a, **k):
+    def timed(name: str, phase: str, output: Path, fn, *a, **k) -> bool:
+        if output.exists():
+            return True
+        if only is not None and phase not in only and phase.rstrip("0123456789.") not in only:
+            return False
+        for stale in {"float": [work / "float"], "qat": [work / "qat"]}.get(phase, []) + (
+                [Path(k["qat_run"])] if "qat_run" in k else []):
+            shutil.rmtree(stale, ignore_errors=True)  # a run cut off earlier: start it again
         echo(f"-- {name}")
         t0 = time.perf_counter()
-        out = fn(*a, **k)
-        phases[name] = round(time.perf_counter() - t0, 1)
-        return out
+        fn(*a, **k)
+        seconds = round(time.perf_counter() - t0, 1)
+        _record(work, lambda st: st["times"].update({name: seconds}))
+        return True
 
     data, models = work / "data", work / "models"
-    timed("synth", synthesize, data, SynthConfig(scenes=sum(s.splits), splits=s.splits, seed=0), progress=False)
+    timed("synth", "synth", data / "meta.json", synthesize, data,
+          SynthConfig(scenes=sum(s.splits), splits=s.splits, seed=0), progress=False)
     tc = TrainConfig(data=str(data), out=str(work / "float"), epochs=s.epochs, batch_size=s.batch_size, size=s.size,
-                     lr=s.lr, device=device, keep_epochs=keep)
-    timed("float training", train, tc, progress=False)
-    files = [timed("fp32 export", export_checkpoint, work / "float", models / "fp32.onnx")["out"],
-             timed("static PTQ", quantize_static, work / "float", data, models / "static.onnx",
-                   calib_images=min(64, s.splits[0]), progress=False)["out"]]
+                     lr=s.lr, device=device, keep_epochs=keep, epoch_images=s.epoch_images, val_images=s.val_images)
+    timed("float training", "float", work / "float" / "done", _train_and_mark, train, tc)
+    files = [models / "fp32.onnx", models / "static.onnx", models / "qat.onnx",
+             *[models / f"hybrid{p:.2f}.onnx" for p in FRACTIONS]]
+    timed("fp32 export", "fp32", files[0], export_checkpoint, work / "float", files[0])
+    timed("static PTQ", "static", files[1], quantize_static, work / "float", data, files[1],
+          calib_images=min(64, s.splits[0]), progress=False)
     qat_tc = replace(tc, out=str(work / "qat"), keep_epochs=[])
-    files.append(timed("QaT from scratch", quantize_qat, qat_tc, models / "qat.onnx", progress=False)["out"])
-    for p in FRACTIONS:
-        files.append(timed(f"hybrid-QaT {p:.0%}", quantize_hybrid, work / "float", data, models / f"hybrid{p:.2f}.onnx",
-                           p, qat_run=work / f"hybrid{p:.2f}.run", progress=False)["out"])
-    bench = timed("bench", run_bench, files, data, work / "bench", BenchConfig(threads=2, runs=s.runs),
-                  gpu_checkpoint=work / "float", title="Table 5.5 / 5.6", progress=lambda line: None)
+    timed("QaT from scratch", "qat", files[2], quantize_qat, qat_tc, files[2], progress=False)
+    for p, f in zip(FRACTIONS, files[3:]):
+        timed(f"hybrid-QaT {p:.0%}", f"hybrid{p:.2f}", f, quantize_hybrid, work / "float", data, f, p,
+              qat_run=work / f"hybrid{p:.2f}.run", progress=False)
+    if (only is not None and "bench" not in only) or not all(f.exists() for f in files):
+        return None
+    t0 = time.perf_counter()
+    echo("-- bench")
+    bench = run_bench(files, data, work / "bench", BenchConfig(threads=2, runs=s.runs),
+                      gpu_checkpoint=work / "float", title="Table 5.5 / 5.6", progress=lambda line: None)
+    state = _record(work, lambda st: st["times"].update({"bench": round(time.perf_counter() - t0, 1)}))
+    phases = state["times"]
 
     gpu = torch.cuda.is_available() and device != "cpu"
-    name = machine_name() + ("-quick" if s is QUICK else "")
+    name = machine_name() + ("" if s is FULL else f"-{s.name}")
     table = Path(bench["reports"]["md"]).read_text().split("## Table 5.5", 1)[1]
+    commands = " && ".join(f"`{c}`" for c in dict.fromkeys(state["commands"]))
     lines = [f"# Thesis Table 5.5 / 5.6 on {name}", "",
-             f"Command: `{command}` (every figure below comes from this one run)", "",
+             f"Command: {commands} (every figure below comes from this work folder's phases)", "",
              f"- machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
              f"{'GPU ' + torch.cuda.get_device_name() if torch.cuda.is_available() else 'no GPU'}",
              f"- versions: python {platform.python_version()}, torch {torch.__version__}, torchao {torchao.__version__}, "
              f"onnxruntime {onnxruntime.__version__}",
              f"- setting: {'QUICK (scaled down for a 2-core CPU: not the thesis scale)' if s is QUICK else s.name}; "
-             f"synthetic splits {s.splits} at 640x480, training input {s.size[0]}x{s.size[1]}, {s.epochs} epochs, "
-             f"batch {s.batch_size}, device {'cuda' if gpu else 'cpu'}; hybrid-QaT from the float run's "
+             f"{s.describe()}; device {'cuda' if gpu else 'cpu'}; hybrid-QaT from the float run's "
              f"epochs {keep} (p = 10/5/1%); inference on 2 onnxruntime threads, {s.runs} timed runs per model",
              f"- phase wall times (s): {json.dumps(phases)}",
              *([f"- {n}" for n in bench["notes"]]), "", "## Table 5.5" + table]
     return {"name": name, "markdown": "\n".join(lines), "png": bench["reports"]["png"], "phases": phases,
             "rows": bench["rows"]}
+
+
+def _train_and_mark(train, tc) -> None:
+    """Train, then mark the run complete (an interrupted run is started again, not kept)."""
+    train(tc, progress=False)
+    (Path(tc.out) / "done").write_text("")

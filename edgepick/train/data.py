@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 import numpy as np
@@ -23,17 +25,34 @@ class SegmentationSet(Dataset):
     def __len__(self) -> int:
         return len(self.ds)
 
+    def _read(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        sid = self.ds.ids[i]
+        h, w = self.size
+        img = cv2.resize(self.ds.rgb(sid), (w, h), interpolation=cv2.INTER_AREA)
+        mask = cv2.resize(self.ds.mask(sid), (w, h), interpolation=cv2.INTER_NEAREST)
+        return img, mask
+
     def __getitem__(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
         if i in self._mem:
             img, mask = self._mem[i]
         else:
-            sid = self.ds.ids[i]
-            h, w = self.size
-            img = cv2.resize(self.ds.rgb(sid), (w, h), interpolation=cv2.INTER_AREA)
-            mask = cv2.resize(self.ds.mask(sid), (w, h), interpolation=cv2.INTER_NEAREST)
+            img, mask = self._read(i)
             if self.cache:
                 self._mem[i] = (img, mask)
         return torch.from_numpy(img), torch.from_numpy(mask)
+
+    def preload(self, indices: list[int] | None = None, threads: int = 0) -> None:
+        """Decode INDICES (default: all) into the cache on a thread pool (OpenCV releases the GIL),
+        so a GPU run reads from memory instead of decoding PNGs on its critical path."""
+        todo = [i for i in (range(len(self)) if indices is None else indices) if i not in self._mem]
+        with ThreadPoolExecutor(threads or os.cpu_count() or 1) as pool:
+            for i, pair in zip(todo, pool.map(self._read, todo)):
+                self._mem[i] = pair
+
+    def cache_bytes(self, count: int | None = None) -> int:
+        """Memory the cache takes with COUNT (default: all) samples."""
+        h, w = self.size
+        return (len(self) if count is None else count) * h * w * 4
 
 
 def class_weights(ds: NativeDataset, num_classes: int, max_images: int = 200) -> torch.Tensor:

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 import torch.distributed as dist
 import torch.nn.functional as F
-from torch.utils.data import DataLoader, DistributedSampler, Subset
+from torch.utils.data import DataLoader, DistributedSampler, RandomSampler, Subset
 from tqdm import tqdm
 
 from edgepick.data.native import NativeDataset
@@ -47,8 +47,10 @@ class TrainConfig:
     aux_loss: bool = False
     device: str = "auto"
     keep_epochs: list[int] = field(default_factory=list)
+    epoch_images: int = 0  # 0: an epoch is the whole train split; N: N images drawn afresh each epoch
+    val_images: int = 0  # 0: validate on the whole val split; N: on N evenly spaced val images
     backbone_weights: str | None = None
-    workers: int = -1  # -1: 0 on CPU (in-memory cache), 4 on GPU
+    workers: int = -1  # -1: in-memory cache (decoded up front on GPU); 4 workers on GPU if it does not fit
     seed: int = 0
     class_weighting: bool = True
     # QaT (edgepick quantize qat|hybrid): the whole run trains with fake-quant
@@ -76,6 +78,17 @@ def _device(name: str, local_rank: int) -> torch.device:
     return torch.device("cpu")
 
 
+def available_memory() -> int:
+    """Bytes of memory available to new allocations (MemAvailable), or 0 if unknown."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 0
+
+
 def _log(msg: str, rank: int) -> None:
     if rank == 0:
         print(msg, file=sys.stderr, flush=True)
@@ -83,9 +96,11 @@ def _log(msg: str, rank: int) -> None:
 
 @torch.no_grad()
 def validate(model: torch.nn.Module, loader: DataLoader, num_classes: int, device: torch.device,
-             amp: bool) -> np.ndarray:
-    """Confusion matrix of the model on a loader (eval mode, argmax labels)."""
-    model.eval()
+             amp: bool, set_eval: bool = True) -> np.ndarray:
+    """Confusion matrix of the model on a loader (eval mode, argmax labels; set_eval=False for a
+    model already in eval mode)."""
+    if set_eval:
+        model.eval()
     cm = np.zeros((num_classes, num_classes), np.int64)
     for img, mask in loader:
         x = img.to(device).permute(0, 3, 1, 2).float()
@@ -108,6 +123,18 @@ def freeze_qat(model: torch.nn.Module) -> bool:
     model.apply(disable_observer)
     move_exported_model_to_eval(model)
     return True
+
+
+def qat_evaluator(prepared: torch.nn.Module) -> torch.nn.Module:
+    """An eval-mode copy of a QaT graph: switching the graph itself between train and eval rewrites
+    it (about 1 s each way), so each epoch copies the weights into this copy instead."""
+    import copy
+
+    from torchao.quantization.pt2e import move_exported_model_to_eval
+
+    evaluator = copy.deepcopy(prepared)
+    move_exported_model_to_eval(evaluator)  # not .eval(): the copied train/eval hooks act on the original
+    return evaluator
 
 
 def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict:
@@ -133,6 +160,10 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     model_cfg.validate()
     if cfg.epochs < 1 or cfg.batch_size < 1:
         raise ConfigError("--epochs and --batch-size must be at least 1")
+    if cfg.epoch_images < 0 or cfg.val_images < 0:
+        raise ConfigError("--epoch-images and --val-images must be 0 (all) or positive")
+    if cfg.epoch_images and world > 1:
+        raise ConfigError("--epoch-images is for single-process runs (DDP shards the whole split)")
     torch.manual_seed(cfg.seed)  # before the model: same seed, same initial weights
     model = build_model(model_cfg)
     if cfg.backbone_weights:
@@ -157,16 +188,35 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     if cuda:
         torch.cuda.set_device(device)
         model = model.to(device, memory_format=torch.channels_last)
-    workers = (4 if cuda else 0) if cfg.workers < 0 else cfg.workers
-    train_set = SegmentationSet(train_ds, cfg.size, cache=workers == 0)
-    val_set = SegmentationSet(val_ds, cfg.size, cache=workers == 0)
-    sampler = DistributedSampler(train_set, world, rank, shuffle=True, seed=cfg.seed) if world > 1 else None
-    train_loader = DataLoader(train_set, cfg.batch_size, shuffle=sampler is None, sampler=sampler, drop_last=True
-                              if len(train_set) // world > cfg.batch_size else False, num_workers=workers,
-                              pin_memory=cuda, persistent_workers=workers > 0,
-                              generator=torch.Generator().manual_seed(cfg.seed))
-    val_loader = DataLoader(Subset(val_set, range(rank, len(val_set), world)), cfg.batch_size,
-                            num_workers=workers, pin_memory=cuda)
+    train_set = SegmentationSet(train_ds, cfg.size)
+    val_set = SegmentationSet(val_ds, cfg.size)
+    n_val = min(cfg.val_images or len(val_set), len(val_set))
+    val_ids = [round(i * len(val_set) / n_val) for i in range(n_val)]
+    workers = cfg.workers
+    if workers < 0:  # the cache when it fits in a third of the free memory, else decoding workers
+        need = train_set.cache_bytes() + val_set.cache_bytes(n_val)
+        workers = 4 if cuda and need > available_memory() / 3 else 0
+    if workers == 0:
+        train_set.cache = val_set.cache = True
+        if cuda:  # decode everything now on a thread pool, not on the GPU's critical path
+            t0 = time.perf_counter()
+            train_set.preload()
+            val_set.preload(val_ids[rank::world])
+            _log(f"decoded {len(train_set)} + {len(val_ids[rank::world])} images into memory in "
+                 f"{time.perf_counter() - t0:.1f}s", rank)
+    gen_loader = torch.Generator().manual_seed(cfg.seed)
+    if world > 1:
+        sampler = DistributedSampler(train_set, world, rank, shuffle=True, seed=cfg.seed)
+    elif cfg.epoch_images:
+        sampler = RandomSampler(train_set, num_samples=cfg.epoch_images, generator=gen_loader)
+    else:
+        sampler = None
+    per_epoch = cfg.epoch_images or len(train_set) // world
+    train_loader = DataLoader(train_set, cfg.batch_size, shuffle=sampler is None, sampler=sampler,
+                              drop_last=per_epoch > cfg.batch_size, num_workers=workers,
+                              pin_memory=cuda, persistent_workers=workers > 0, generator=gen_loader)
+    val_loader = DataLoader(Subset(val_set, val_ids[rank::world]), cfg.batch_size,
+                            num_workers=workers, pin_memory=cuda, persistent_workers=workers > 0)
     weights = class_weights(train_ds, len(classes)).to(device) if cfg.class_weighting else None
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     steps_per_epoch = max(1, len(train_loader))
@@ -194,11 +244,13 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     first = state["phase_start"]
     freeze_step = round(((cfg.epochs - first) * cfg.freeze_at + first) * steps_per_epoch)
     frozen = False
+    evaluator = qat_evaluator(model) if cfg.qat else None
+    ddp.train()
 
     for epoch in range(state["epoch"] + 1, cfg.epochs + 1):
-        if sampler is not None:
+        if isinstance(sampler, DistributedSampler):
             sampler.set_epoch(epoch)
-        if not frozen:
+        if evaluator is None:
             ddp.train()
         t0 = time.perf_counter()
         loss_sum, seen = 0.0, 0
@@ -226,7 +278,13 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
             seen += len(x)
             bar.set_postfix(loss=f"{loss_sum / seen:.3f}")
         train_s = time.perf_counter() - t0
-        cm = validate(model, val_loader, len(classes), device, amp)
+        if evaluator is None:
+            cm = validate(model, val_loader, len(classes), device, amp)
+        elif frozen:  # the QaT graph is in eval mode for good
+            cm = validate(model, val_loader, len(classes), device, amp, set_eval=False)
+        else:
+            evaluator.load_state_dict(model.state_dict())
+            cm = validate(evaluator, val_loader, len(classes), device, amp, set_eval=False)
         if world > 1:
             t = torch.tensor(cm, device=device)
             dist.all_reduce(t)
@@ -239,7 +297,8 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
         state["train_time_s"] += epoch_s
         record = {"epoch": epoch, "loss": round(loss_sum / max(seen, 1), 5), "pixel_acc": m["pixel_acc"],
                   "miou": m["miou"], "per_class_iou": {c: v["iou"] for c, v in m["per_class"].items()},
-                  "epoch_s": round(epoch_s, 2), "train_s": round(train_s, 2),
+                  "epoch_s": round(epoch_s, 2), "train_s": round(train_s, 2), "images": seen,
+                  "val_images": n_val,
                   "images_per_s": round(seen / train_s, 2)}
         state["history"].append(record)
         state["epoch"] = epoch

@@ -148,3 +148,50 @@ def test_unreadable_image_mid_run_leaves_no_run_folder(small_data, tmp_path):
     proc = run_cli("train", str(broken), "--out", str(tmp_path / "run"), "--epochs", "1", "--size", "64x96")
     assert proc.returncode == 2 and "cannot read image" in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "run").exists()
+
+
+def test_epoch_and_val_subsets(small_data, tmp_path):
+    """--epoch-images draws that many train images per epoch; --val-images scores that many."""
+    from edgepick.train.loop import TrainConfig, train
+
+    run = tmp_path / "run"
+    train(TrainConfig(data=str(small_data), out=str(run), epochs=2, batch_size=4, size=(64, 96), device="cpu",
+                      epoch_images=8, val_images=3), progress=False)
+    history = json.loads((run / "metrics.json").read_text())["history"]
+    assert [(h["images"], h["val_images"]) for h in history] == [(8, 3), (8, 3)]
+    proc = run_cli("train", str(small_data), "--out", str(tmp_path / "bad"), "--epoch-images", "-1")
+    assert proc.returncode == 2 and "--epoch-images" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "bad").exists()
+
+
+def test_qat_evaluator_is_an_exact_eval_copy():
+    """Validation of a QaT run uses an eval-mode copy (switching the graph costs ~1 s each way):
+    after training steps and a weight copy it must give what the trained graph gives in eval mode."""
+    import copy
+
+    from torchao.quantization.pt2e import disable_observer, move_exported_model_to_eval
+
+    from edgepick.models.deeplabv3 import ModelConfig, build_model
+    from edgepick.quant.passes import prepare
+    from edgepick.quant.quantizer import QuantConfig
+    from edgepick.train.loop import qat_evaluator
+
+    torch.manual_seed(0)
+    model = prepare(build_model(ModelConfig()), QuantConfig(), (64, 96), qat=True)
+    evaluator = qat_evaluator(model)
+    x = torch.rand(4, 3, 64, 96) * 255
+    opt = torch.optim.SGD(model.parameters(), 0.01)
+    for _ in range(3):  # moves weights, BN running statistics and observer ranges
+        model(x).mean().backward()
+        opt.step()
+        opt.zero_grad()
+    evaluator.load_state_dict(model.state_dict())
+    reference = copy.deepcopy(model)
+    move_exported_model_to_eval(reference)
+    for m in (evaluator, reference):
+        m.apply(disable_observer)  # eval-mode observers still update their ranges on each call
+    with torch.no_grad():
+        assert torch.equal(evaluator(x), reference(x))
+        stale = qat_evaluator(prepare(build_model(ModelConfig()), QuantConfig(), (64, 96), qat=True))
+        stale.apply(disable_observer)
+        assert not torch.equal(stale(x), reference(x))  # the check can fail
