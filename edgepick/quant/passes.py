@@ -202,7 +202,8 @@ def quantize_qat(train_config, out: str | Path, config: QuantConfig | None = Non
 def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_fraction: float,
                     config: QuantConfig | None = None, qat_run: str | Path | None = None, progress: bool = True) -> dict:
     """Hybrid-QaT: of the float RUN's epoch budget E, continue from its epoch_NNN.pt at (1 - p)E
-    and train the last pE epochs with fake-quant (into QAT_RUN), then export the int8 ONNX."""
+    (its weights, LR schedule and AdamW moments) and train the last pE epochs with fake-quant
+    (into QAT_RUN), then export the int8 ONNX."""
     from edgepick.train.checkpoint import read_checkpoint
     from edgepick.train.loop import TrainConfig, train
 

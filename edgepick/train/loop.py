@@ -58,6 +58,7 @@ class TrainConfig:
     quant: dict | None = None  # QuantConfig as a dict
     init_from: str | None = None  # float checkpoint to continue from (hybrid: epoch_NNN.pt), epochs counted on
     freeze_at: float = 0.7  # share of the QaT steps after which observers and BN statistics are frozen
+    carry_optimizer: bool = True  # init_from: continue with its AdamW moments (a fresh AdamW jolts a converged model)
 
 
 def _dist() -> tuple[int, int, int]:
@@ -135,6 +136,23 @@ def qat_evaluator(prepared: torch.nn.Module) -> torch.nn.Module:
     evaluator = copy.deepcopy(prepared)
     move_exported_model_to_eval(evaluator)  # not .eval(): the copied train/eval hooks act on the original
     return evaluator
+
+
+def carry_optimizer_state(opt: torch.optim.Optimizer, model: torch.nn.Module, start: dict) -> int:
+    """Give OPT (over MODEL, a float model or its QaT graph) the AdamW moments that the float
+    checkpoint START holds, matched by parameter name; returns how many parameters got them."""
+    from edgepick.models.deeplabv3 import ModelConfig, build_model
+
+    saved = start.get("optimizer", {}).get("state", {})
+    names = [n for n, _ in build_model(ModelConfig(**start["model_config"])).named_parameters()]
+    by_name = {names[i]: s for i, s in saved.items() if i < len(names)}
+    carried = 0
+    for name, p in model.named_parameters():
+        s = by_name.get(name.removeprefix("model."))  # the QaT graph wraps the model as .model
+        if s is not None and s.get("exp_avg") is not None and s["exp_avg"].shape == p.shape:
+            opt.state[p] = {k: v.to(p.device) if torch.is_tensor(v) and k != "step" else v for k, v in s.items()}
+            carried += 1
+    return carried
 
 
 def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict:
@@ -225,7 +243,9 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
                                               (1 - min(s, total_steps - 1) / total_steps) ** 0.9)
     state = {"epoch": 0, "history": [], "best_miou": -1.0, "train_time_s": 0.0, "phase_start": 0,
              "init_train_time_s": 0.0}
-    if start is not None:  # continue the float run's schedule; the optimizer starts afresh (new parameters)
+    if start is not None:  # continue the float run's schedule (and its optimizer moments)
+        if cfg.carry_optimizer:
+            carry_optimizer_state(opt, model, start)
         state.update(epoch=start["epoch"], history=list(start["history"]), phase_start=start["epoch"],
                      init_train_time_s=start["train_time_s"])
         with warnings.catch_warnings():  # fast-forwarding the LR schedule before any optimizer step

@@ -195,3 +195,23 @@ def test_qat_evaluator_is_an_exact_eval_copy():
         stale = qat_evaluator(prepare(build_model(ModelConfig()), QuantConfig(), (64, 96), qat=True))
         stale.apply(disable_observer)
         assert not torch.equal(stale(x), reference(x))  # the check can fail
+
+
+def test_hybrid_qat_continues_with_the_float_runs_optimizer_moments(trained_run):
+    """Hybrid-QaT's fake-quant graph gets the AdamW moments of the float checkpoint it starts from."""
+    from edgepick.models.deeplabv3 import ModelConfig, build_model
+    from edgepick.quant.passes import prepare
+    from edgepick.quant.quantizer import QuantConfig
+    from edgepick.train.loop import carry_optimizer_state
+
+    start = read_checkpoint(trained_run / "epoch_002.pt")
+    model = prepare(build_model(ModelConfig(**start["model_config"])), QuantConfig(), (64, 96), qat=True)
+    opt = torch.optim.AdamW(model.parameters())
+    params = dict(model.named_parameters())
+    float_shapes = {k: v.shape for k, v in start["model"].items()}
+    # all but the dilated ASPP convs that prepare trims to the taps a 64x96 input reaches
+    same_shape = sum(float_shapes[n.removeprefix("model.")] == p.shape for n, p in params.items())
+    assert carry_optimizer_state(opt, model, start) == same_shape > 150
+    first = next(iter(start["optimizer"]["state"].values()))  # the float model's first parameter
+    assert torch.equal(opt.state[params["model.backbone.0.0.weight"]]["exp_avg"], first["exp_avg"])
+    assert float(opt.state[params["model.backbone.0.0.weight"]]["step"]) == float(first["step"]) > 0
