@@ -99,20 +99,23 @@ def make_table55(work: str | Path, setting: Setting, device: str = "auto", comma
     if command:
         _record(work, lambda st: st["commands"].append(command))
 
-    def timed(name: str, phase: str, output: Path, fn, *a, **k) -> bool:
-        if output.exists():
-            return True
-        if only is not None and phase not in only and phase.rstrip("0123456789.") not in only:
-            return False
+    def timed(name: str, phase: str, output: Path, fn, *a, **k) -> None:
+        if output.exists() or (only is not None and phase not in only and phase.rstrip("0123456789.") not in only):
+            return
         for stale in {"float": [work / "float"], "qat": [work / "qat"]}.get(phase, []) + (
                 [Path(k["qat_run"])] if "qat_run" in k else []):
             shutil.rmtree(stale, ignore_errors=True)  # a run cut off earlier: start it again
         echo(f"-- {name}")
         t0 = time.perf_counter()
-        fn(*a, **k)
+        result = fn(*a, **k)
         seconds = round(time.perf_counter() - t0, 1)
-        _record(work, lambda st: st["times"].update({name: seconds}))
-        return True
+        agreement = result.get("agreement_vs_torch") if isinstance(result, dict) else None
+
+        def update(st: dict) -> None:
+            st["times"][name] = seconds
+            if agreement is not None:  # int8 passes: onnxruntime labels against torch's simulation
+                st.setdefault("agreement", {})[name] = agreement
+        _record(work, update)
 
     data, models = work / "data", work / "models"
     timed("synth", "synth", data / "meta.json", synthesize, data,
@@ -153,6 +156,8 @@ def make_table55(work: str | Path, setting: Setting, device: str = "auto", comma
              f"{s.describe()}; device {'cuda' if gpu else 'cpu'}; hybrid-QaT from the float run's "
              f"epochs {keep} (p = 10/5/1%); inference on 2 onnxruntime threads, {s.runs} timed runs per model",
              f"- phase wall times (s): {json.dumps(phases)}",
+             *([f"- onnxruntime-vs-torch label agreement of the int8 files (8 val images): "
+                f"{json.dumps(state['agreement'])}"] if state.get("agreement") else []),
              *([f"- {n}" for n in bench["notes"]]), "", "## Table 5.5" + table]
     return {"name": name, "markdown": "\n".join(lines), "png": bench["reports"]["png"], "phases": phases,
             "rows": bench["rows"]}
