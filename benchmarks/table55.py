@@ -2,7 +2,7 @@
 scratch, hybrid-QaT 1/5/10% from the float run's kept epochs, then `edgepick bench`.
 
     python benchmarks/table55.py --quick             # minutes on 2 CPU cores (scaled down, stated in the output)
-    python benchmarks/table55.py --setting lease     # 4000/1000/100 at 480x640, 100 epochs of 256 images (GPU)
+    python benchmarks/table55.py --setting lease     # 4000/1000/100 at 480x640, 100 epochs of 160 images (GPU)
     python benchmarks/table55.py                     # the full setting: 4000/1000/100 at 480x640, 100 epochs (GPU)
 
 Phases can be split over several runs with --work DIR --only PHASES (synth, float, fp32, static,

@@ -16,6 +16,7 @@ import click
 
 from edgepick import __version__
 from edgepick.errors import ConfigError, EdgepickError
+from edgepick.cli_quant import _with, epoch_subset  # click-only module, no torch
 
 
 def parse_hxw(text: str) -> tuple[int, int]:
@@ -164,10 +165,7 @@ def data_capture(out: str, camera: str, count: int, interval: float, size: str) 
 @click.option("--aux-loss/--no-aux-loss", default=False, show_default=True, help="FCN auxiliary head (weight 0.4).")
 @click.option("--keep-epochs", default="", help="Comma-separated epochs whose checkpoints are kept (hybrid-QaT switch points).")
 @click.option("--backbone-weights", default=None, type=click.Path(dir_okay=False), help="Backbone state dict to start from.")
-@click.option("--epoch-images", default=0, show_default=True,
-              help="Images per epoch, drawn afresh from the train split each epoch; 0 = the whole split.")
-@click.option("--val-images", default=0, show_default=True,
-              help="Validate each epoch on this many evenly spaced val images; 0 = the whole split.")
+@_with(epoch_subset)
 @click.option("--workers", default=-1, show_default=True,
               help="Data loader workers; -1 = decode once into memory (4 workers on GPU when that does not fit).")
 @click.option("--seed", default=0, show_default=True)

@@ -37,6 +37,15 @@ common = [
 ]
 
 
+# shared with `edgepick train`
+epoch_subset = [
+    click.option("--epoch-images", default=0, show_default=True,
+                 help="Images per epoch, drawn afresh from the train split each epoch; 0 = the whole split."),
+    click.option("--val-images", default=0, show_default=True,
+                 help="Validate each epoch on this many evenly spaced val images; 0 = the whole split."),
+]
+
+
 def _with(options):
     def wrap(f):
         for opt in reversed(options):
@@ -135,10 +144,7 @@ def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int, cali
 @click.option("--size", default="480x640", show_default=True, help="Training input HEIGHTxWIDTH.")
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
 @click.option("--seed", default=0, show_default=True)
-@click.option("--epoch-images", default=0, show_default=True,
-              help="Images per epoch, drawn afresh from the train split each epoch; 0 = the whole split.")
-@click.option("--val-images", default=0, show_default=True,
-              help="Validate each epoch on this many evenly spaced val images; 0 = the whole split.")
+@_with(epoch_subset)
 @_with(common)
 def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int, batch_size: int, lr: float,
                      size: str, device: str, seed: int, epoch_images: int, val_images: int, out: str,
