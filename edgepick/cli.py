@@ -15,8 +15,8 @@ from pathlib import Path
 import click
 
 from edgepick import __version__
-from edgepick.errors import ConfigError, EdgepickError
 from edgepick.cli_quant import _with, epoch_subset  # click-only module, no torch
+from edgepick.errors import ConfigError, EdgepickError
 
 
 def parse_hxw(text: str) -> tuple[int, int]:
