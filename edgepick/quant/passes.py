@@ -94,14 +94,50 @@ def prepare(model: torch.nn.Module, config: QuantConfig, size: tuple[int, int], 
     return prepared
 
 
-def convert(prepared: torch.fx.GraphModule) -> torch.fx.GraphModule:
+def convert(prepared: torch.fx.GraphModule, snap_biases: bool = True) -> torch.fx.GraphModule:
+    """pt2e convert (Q/DQ graph, BN folded), with conv biases on onnxruntime's int32 grid
+    (snap_biases=False only to measure what that does: benchmarks/agreement.py)."""
     from torchao.quantization.pt2e import move_exported_model_to_eval
     from torchao.quantization.pt2e.quantize_pt2e import convert_pt2e
 
     move_exported_model_to_eval(prepared)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return convert_pt2e(prepared)
+        converted = convert_pt2e(prepared)
+    if snap_biases:
+        snap_conv_biases(converted)
+    return converted
+
+
+def _attr(module: torch.nn.Module, target: str):
+    for part in target.split("."):
+        module = getattr(module, part)
+    return module
+
+
+def snap_conv_biases(converted: torch.fx.GraphModule) -> int:
+    """Round each int8 conv's float bias to the int32 grid (scale = input scale x weight scale) that
+    onnxruntime quantizes it to when it fuses the conv into QLinearConv. The int8 model onnxruntime
+    runs is unchanged; torch's simulation now computes the same sums (without this, the up to half
+    a step of bias rounding flipped ~0.1% of the first conv's outputs and cost ~0.5% of label
+    agreement, benchmarks/results/agreement-cpu.md). Returns how many biases were snapped."""
+    qd = torch.ops.quantized_decomposed
+    snapped = 0
+    for node in converted.graph.nodes:
+        if node.target != torch.ops.aten.conv2d.default or len(node.args) < 3:
+            continue
+        x, w, b = node.args[:3]
+        if not (isinstance(x, torch.fx.Node) and x.target == qd.dequantize_per_tensor.default
+                and isinstance(w, torch.fx.Node) and w.target == qd.dequantize_per_channel.default
+                and isinstance(b, torch.fx.Node) and b.op == "get_attr" and not isinstance(x.args[1], torch.fx.Node)):
+            continue
+        w_scale = _attr(converted, w.args[1].target) if isinstance(w.args[1], torch.fx.Node) else w.args[1]
+        step = torch.tensor(x.args[1], dtype=torch.float32) * torch.as_tensor(w_scale, dtype=torch.float32)
+        bias = _attr(converted, b.target)
+        with torch.no_grad():
+            bias.copy_(torch.round(bias / step) * step)
+        snapped += 1
+    return snapped
 
 
 def expected_int8_convs(prepared: torch.fx.GraphModule, config: QuantConfig) -> int:
