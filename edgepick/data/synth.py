@@ -66,8 +66,24 @@ _PNG_FAST = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE
 _PNG_RLE = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE]
 
 
+def _keep_freed_memory() -> bool:
+    """glibc only: serve the renderer's frame-sized temporaries from the heap and keep freed
+    memory in the process. By default each one is a fresh mmap that the kernel zero-fills page
+    by page, which cost ~20 ms of a ~90 ms scene (benchmarks/results/foundation-cpu.md)."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        m_trim_threshold, m_mmap_threshold = -1, -3
+        return bool(libc.mallopt(m_mmap_threshold, 64 << 20)) and bool(libc.mallopt(m_trim_threshold, 256 << 20))
+    except (OSError, AttributeError):  # not glibc: keep the allocator's defaults
+        return False
+
+
 def _init_worker() -> None:
     cv2.setNumThreads(1)  # one process per core: no nested thread pools
+    _keep_freed_memory()
 
 
 def _render_one(job: tuple[str, int, int, int, int, int, str]) -> tuple[str, str, list, dict]:

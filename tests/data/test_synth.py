@@ -141,3 +141,14 @@ def test_preview_writes_a_contact_sheet(small_data, tmp_path):
     sheet = cv2.imread(str(tmp_path / "sheet.png"))
     assert sheet is not None and sheet.shape[1] == 3 * 640
     assert json.loads(proc.stdout)["scenes"] == 4
+
+
+def test_workers_keep_freed_memory_on_glibc():
+    """The pool workers' allocator setting (frame-sized temporaries from the heap, not fresh mmaps)
+    takes effect on glibc and is a no-op elsewhere; run in a child so this process keeps its defaults."""
+    import platform
+
+    code = "from edgepick.data.synth import _keep_freed_memory; print(_keep_freed_memory())"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parents[2]).stdout.strip()
+    assert out == str(platform.libc_ver()[0] == "glibc")
