@@ -24,3 +24,23 @@ def emit(report: str, out: str | None) -> None:
     print(report)
     if out:
         Path(out).write_text(report)
+
+
+def interleaved_times(calls: list, runs: int, block: int = 5) -> list[list[float]]:
+    """Milliseconds per call of each CALLS[k](i), RUNS timed calls each, in alternating blocks of BLOCK
+    after one untimed call: a shared machine's load drifts over all models alike, and no timed call
+    starts while the previous model's thread pool is still spinning (timing models one call each in
+    turn put ~35 ms on every call of a 50-100 ms model here, two onnxruntime sessions on 2 cores)."""
+    import time
+
+    times: list[list[float]] = [[] for _ in calls]
+    i = 0
+    while any(len(t) < runs for t in times):
+        for call, t in zip(calls, times):
+            call(i)
+            for _ in range(min(block, runs - len(t))):
+                i += 1
+                t0 = time.perf_counter()
+                call(i)
+                t.append(1000 * (time.perf_counter() - t0))
+    return times

@@ -16,14 +16,13 @@ import shutil
 import statistics
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import emit  # noqa: E402
+from _common import emit, interleaved_times  # noqa: E402
 
 from edgepick.data.native import NativeDataset  # noqa: E402
 from edgepick.metrics import confusion_matrix, segmentation_metrics  # noqa: E402
@@ -76,19 +75,14 @@ def evaluate(model, ds: NativeDataset, reference: dict[str, np.ndarray] | None) 
 
 
 def latency(models: list, images: list[np.ndarray], runs: int) -> list[tuple[float, float]]:
-    """p50/p95 ms per model, interleaved: each round times every model once, so a shared machine's
-    load drifts over all of them alike."""
+    """p50/p95 ms per model, RUNS timed inferences each, in alternating blocks (_common.interleaved_times),
+    so a shared machine's load drifts over all of them alike."""
     inputs = [[prepare(im, m.size) for im in images] for m in models]
     for m, xs in zip(models, inputs):
         for i in range(5):
             m.infer(xs[i % len(xs)])
-    times: list[list[float]] = [[] for _ in models]
-    for i in range(runs):
-        for k, (m, xs) in enumerate(zip(models, inputs)):
-            t0 = time.perf_counter()
-            m.infer(xs[i % len(xs)])
-            times[k].append(1000 * (time.perf_counter() - t0))
-    return [(statistics.median(t), float(np.percentile(t, 95))) for t in times]
+    calls = [lambda i, m=m, xs=xs: m.infer(xs[i % len(xs)]) for m, xs in zip(models, inputs)]
+    return [(statistics.median(t), float(np.percentile(t, 95))) for t in interleaved_times(calls, runs)]
 
 
 def why_slower(table: list[tuple]) -> str:
@@ -183,7 +177,8 @@ def main() -> None:
              f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; onnxruntime "
              f"{ort.__version__}, openvino {ov.__version__.split('-')[0]}, nncf {nncf.__version__}; model: {args.run} "
              f"(input {size[0]}x{size[1]}); accuracy on {len(ds)} {args.split} images of {args.data}; latency over "
-             f"{args.runs} rounds after warm-up, each round timing every model once (one process, same images).", "",
+             f"{args.runs} runs per model after warm-up, the models timed in alternating blocks of 5 (one process, same "
+             f"images).", "",
              "| Quantized by (engine) | mIoU (%) | Pixel acc (%) | agreement with fp32 (%) | p50 (ms) | p95 (ms) "
              "| vs fp32 | Size (MB) |", "|---|---|---|---|---|---|---|---|"]
     for name, miou, acc, agree, p50, p95, mbytes in table:
