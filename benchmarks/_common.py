@@ -30,7 +30,7 @@ def interleaved_times(calls: list, runs: int, block: int = 5) -> list[list[float
     """Milliseconds per call of each CALLS[k](i), RUNS timed calls each, in alternating blocks of BLOCK
     after one untimed call: a shared machine's load drifts over all models alike, and no timed call
     starts while the previous model's thread pool is still spinning (timing models one call each in
-    turn put ~35 ms on every call of a 50-100 ms model here, two onnxruntime sessions on 2 cores)."""
+    turn put 25-40 ms on every call here, onnxruntime sessions on 2 cores)."""
     import time
 
     times: list[list[float]] = [[] for _ in calls]

@@ -96,8 +96,8 @@ def why_slower(table: list[tuple]) -> str:
             "onnxruntime runs each conv as a QLinearConv, but HardSigmoid/hardswish, the SE blocks' ReduceMean and "
             "the bilinear Resize stay float between Quantize/DequantizeLinear pairs, and on CPUs without VNNI "
             "(AVX2 only, like this one) its U8S8 kernels gain little over fp32 (per-op breakdown: "
-            "benchmarks/quant_speed.py). OpenVINO fuses those ops into its int8 kernels: the same edgepick ONNX "
-            "file runs faster there (`--engine openvino` in the runtime, the `[peers]` extra).")
+            "benchmarks/quant_speed.py). OpenVINO fuses those ops into its int8 kernels: the runtime can run the "
+            "same file there (`--engine openvino`, the `[peers]` extra).")
 
 
 def main() -> None:

@@ -88,7 +88,7 @@ class Preprocess(nn.Module):
             y = 0.299 * x[:, 0:1] + 0.587 * x[:, 1:2] + 0.114 * x[:, 2:3]
             x = y.expand(-1, 3, -1, -1)
         # the constants spelt out along the width: onnxruntime's int8 graphs run this in NHWC, where a
-        # per-channel [3] constant broadcasts in 3-element spans (~7 ms at 480x640; 1920 here, ~0.4 ms)
+        # per-channel [3] constant broadcasts in 3-element spans (5-7 ms at 480x640; 1920 here, ~0.6 ms)
         width = x.shape[-1]
         return x * self.scale.expand(-1, -1, -1, width) + self.shift.expand(-1, -1, -1, width)
 

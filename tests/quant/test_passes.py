@@ -39,7 +39,7 @@ def test_static_int8_meets_the_contract(onnx_files):
 
 def test_preprocessing_constants_span_the_width(onnx_files):
     """onnxruntime runs the int8 graph's normalisation in NHWC: per-channel [1, 3, 1, 1] constants
-    would broadcast in 3-element spans there (~7 ms of a 50 ms model at 480x640)."""
+    would broadcast in 3-element spans there (5-7 ms of a ~55 ms model at 480x640)."""
     import onnx
 
     for name in ("fp32", "static"):
