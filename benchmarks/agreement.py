@@ -8,6 +8,7 @@ DQ -> float Conv -> Q, BASIC and up fuse convs into QLinearConv with an int32 bi
 from __future__ import annotations
 
 import argparse
+import copy
 import os
 import platform
 import shutil
@@ -61,8 +62,6 @@ def main() -> None:
     rows, labels = [], {}
     try:
         for snap in (False, True):
-            import copy
-
             converted = convert(copy.deepcopy(prepared), snap_biases=snap)
             path = export_onnx(converted, work / f"snap{snap}.onnx", contract_metadata(ckpt, "int8", {"mode": "static"}), size)
             ref = [converted(_as_input(rgb)).argmax(1)[0].numpy() for rgb in images]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 import warnings
+from operator import attrgetter
 from pathlib import Path
 
 import cv2
@@ -109,12 +110,6 @@ def convert(prepared: torch.fx.GraphModule, snap_biases: bool = True) -> torch.f
     return converted
 
 
-def _attr(module: torch.nn.Module, target: str):
-    for part in target.split("."):
-        module = getattr(module, part)
-    return module
-
-
 def snap_conv_biases(converted: torch.fx.GraphModule) -> int:
     """Round each int8 conv's float bias to the int32 grid (scale = input scale x weight scale) that
     onnxruntime quantizes it to when it fuses the conv into QLinearConv. The int8 model onnxruntime
@@ -131,9 +126,9 @@ def snap_conv_biases(converted: torch.fx.GraphModule) -> int:
                 and isinstance(w, torch.fx.Node) and w.target == qd.dequantize_per_channel.default
                 and isinstance(b, torch.fx.Node) and b.op == "get_attr" and not isinstance(x.args[1], torch.fx.Node)):
             continue
-        w_scale = _attr(converted, w.args[1].target) if isinstance(w.args[1], torch.fx.Node) else w.args[1]
+        w_scale = attrgetter(w.args[1].target)(converted) if isinstance(w.args[1], torch.fx.Node) else w.args[1]
         step = torch.tensor(x.args[1], dtype=torch.float32) * torch.as_tensor(w_scale, dtype=torch.float32)
-        bias = _attr(converted, b.target)
+        bias = attrgetter(b.target)(converted)
         with torch.no_grad():
             bias.copy_(torch.round(bias / step) * step)
         snapped += 1
