@@ -6,25 +6,42 @@
 #   bash benchmarks/table55_lease.sh WORK rest   # synth, the float run (alone on the GPU), then fp32
 #                                                # export + static PTQ and the three hybrid-QaT runs in
 #                                                # parallel (4 processes, 4 CPU threads each), then the bench
+#   bash benchmarks/table55_lease.sh WORK rest+ab  # rest, and beside the three hybrid runs two variants of
+#                                                # hybrid-QaT 10% from the same float run: a fresh AdamW
+#                                                # (--fresh-optimizer) and no freeze (--freeze-at 1.0); their
+#                                                # test-split scores land in WORK/ab/*.json
 #
 # Both parts use the same WORK folder or carry WORK/models/qat.onnx and WORK/phases.json from the
 # first to the second (the synthetic data is deterministic, so each part makes it again).
 # Phase wall times land in WORK/phases.json; the table in benchmarks/results/table55-<machine>-lease.md.
 set -euo pipefail
-work=${1:?usage: table55_lease.sh WORK qat|rest}
-part=${2:?usage: table55_lease.sh WORK qat|rest}
+work=${1:?usage: table55_lease.sh WORK qat|rest|rest+ab}
+part=${2:?usage: table55_lease.sh WORK qat|rest|rest+ab}
 t=("${PYTHON:-python3}" benchmarks/table55.py --setting lease --work "$work")
 case $part in
   qat)
     "${t[@]}" --only synth
     "${t[@]}" --only qat ;;
-  rest)
+  rest|rest+ab)
     "${t[@]}" --only synth
     "${t[@]}" --only float
     pids=()
     OMP_NUM_THREADS=4 "${t[@]}" --only fp32,static & pids+=($!)
     for p in 0.10 0.05 0.01; do OMP_NUM_THREADS=4 "${t[@]}" --only "hybrid$p" & pids+=($!); done
+    if [[ $part == rest+ab ]]; then
+      mkdir -p "$work/ab"
+      for variant in "fresh --fresh-optimizer" "nofreeze --freeze-at 1.0"; do
+        set -- $variant
+        OMP_NUM_THREADS=2 "${PYTHON:-python3}" -m edgepick quantize hybrid "$work/float" --data "$work/data" \
+          --qat-fraction 0.10 "${@:2}" --out "$work/ab/$1-0.10.onnx" >"$work/ab/$1-0.10.quantize.json" & pids+=($!)
+      done
+    fi
     for pid in "${pids[@]}"; do wait "$pid"; done
-    "${t[@]}" --only bench ;;
-  *) echo "part must be qat or rest, got $part" >&2; exit 2 ;;
+    "${t[@]}" --only bench
+    if [[ $part == rest+ab ]]; then
+      for f in "$work"/ab/*.onnx "$work"/models/hybrid0.10.onnx; do
+        "${PYTHON:-python3}" -m edgepick eval "$f" "$work/data" --split test --out "$work/ab/$(basename "$f" .onnx).eval.json" >/dev/null
+      done
+    fi ;;
+  *) echo "part must be qat, rest or rest+ab, got $part" >&2; exit 2 ;;
 esac

@@ -170,9 +170,13 @@ def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int,
               help="p in (0, 1): the last p of RUN's epoch budget is trained with QaT.")
 @click.option("--run", "qat_run", default=None, type=click.Path(file_okay=False),
               help="Folder for the QaT phase's checkpoints [default: OUT with .run].")
+@click.option("--freeze-at", default=0.7, show_default=True,
+              help="Share of the QaT steps after which observers and BN statistics are frozen (1.0: never).")
+@click.option("--fresh-optimizer", is_flag=True,
+              help="Start the QaT phase with a fresh AdamW instead of the float run's moments (for comparison).")
 @_with(common)
 def quantize_hybrid_cmd(run: str, data_dir: str, qat_fraction: float, qat_run: str | None, out: str,
-                        reduce_range: bool, keep_float: str) -> None:
+                        reduce_range: bool, keep_float: str, freeze_at: float, fresh_optimizer: bool) -> None:
     """Hybrid-QaT: continue float RUN from its epoch_NNN.pt at (1 - p) of its budget E and train
     the last pE epochs with QaT (train RUN with --keep-epochs at the switch points, e.g. 90,95,99
     for p = 10%, 5%, 1% of 100 epochs). Reports the wall time of each phase."""
@@ -180,4 +184,5 @@ def quantize_hybrid_cmd(run: str, data_dir: str, qat_fraction: float, qat_run: s
 
     _refuse_existing(out)
     cfg = _quant_config(reduce_range=reduce_range, keep_float=keep_float)
-    _emit(quantize_hybrid(run, data_dir, out, qat_fraction, cfg, qat_run=qat_run))
+    _emit(quantize_hybrid(run, data_dir, out, qat_fraction, cfg, qat_run=qat_run, freeze_at=freeze_at,
+                          carry_optimizer=not fresh_optimizer))

@@ -92,16 +92,63 @@ def prepare(model: torch.nn.Module, config: QuantConfig, size: tuple[int, int], 
     if count_quant_nodes(prepared) == 0:
         raise QuantizationError("pt2e inserted no observers: the model would stay float")
     allow_exported_model_train_eval(prepared)
+    prepared.meta[BN_LITERALS] = {f"{PREFIX}{name}.running_var": (m.eps, m.momentum) for name, m in model.named_modules()
+                                  if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)}
+    restore_bn_literals(prepared)
+    return prepared
+
+
+BN_LITERALS = "edgepick_bn_literals"  # GraphModule.meta key: running_var name -> the module's (eps, momentum)
+
+
+def restore_bn_literals(prepared: torch.fx.GraphModule) -> int:
+    """Give every BatchNorm in a prepared graph its module's eps and momentum again. torchao's QaT
+    conv-BN rewrite and its train/eval switches write F.batch_norm's defaults (eps 1e-5, momentum
+    0.1; "TODO: allow setting eps" in torchao 0.18), while MobileNetV3 uses eps 1e-3: a float
+    checkpoint then runs with other BN arithmetic in QaT (hybrid-QaT lost 1-4 pp on the GPU run,
+    benchmarks/results/gpu-lease-h100.md). Call after each such rewrite; returns the nodes changed."""
+    table = prepared.meta.get(BN_LITERALS, {})
+    changed = 0
+    for node in prepared.graph.nodes:
+        if node.op != "call_function" or not hasattr(node.target, "_schema"):
+            continue
+        names = [a.name for a in node.target._schema.arguments]
+        if "running_var" in names and "eps" in names:  # a batch_norm variant
+            var = node.args[names.index("running_var")] if len(node.args) > names.index("running_var") else None
+            literal = {"eps": 0, "momentum": 1}
+        elif node.target == torch.ops.aten.add.Tensor and len(node.args) == 2 and isinstance(node.args[1], float):
+            var, literal = node.args[0], {"other": 0}  # sqrt(running_var + eps) of the QaT weight scaling
+        else:
+            continue
+        if not (isinstance(var, torch.fx.Node) and var.op == "get_attr" and var.target in table):
+            continue
+        args = list(node.args)
+        for arg, which in literal.items():
+            i = names.index(arg)
+            if i < len(args) and args[i] != table[var.target][which]:
+                args[i] = table[var.target][which]
+                changed += 1
+        node.args = tuple(args)
+    if changed:
+        prepared.recompile()
+    return changed
+
+
+def to_eval(prepared: torch.fx.GraphModule) -> torch.fx.GraphModule:
+    """torchao's move_exported_model_to_eval (BN on running statistics, dropout off), BN literals kept."""
+    from torchao.quantization.pt2e import move_exported_model_to_eval
+
+    move_exported_model_to_eval(prepared)
+    restore_bn_literals(prepared)
     return prepared
 
 
 def convert(prepared: torch.fx.GraphModule, snap_biases: bool = True) -> torch.fx.GraphModule:
     """pt2e convert (Q/DQ graph, BN folded), with conv biases on onnxruntime's int32 grid
     (snap_biases=False only to measure what that does: benchmarks/agreement.py)."""
-    from torchao.quantization.pt2e import move_exported_model_to_eval
     from torchao.quantization.pt2e.quantize_pt2e import convert_pt2e
 
-    move_exported_model_to_eval(prepared)
+    to_eval(prepared)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         converted = convert_pt2e(prepared)
@@ -231,15 +278,19 @@ def quantize_qat(train_config, out: str | Path, config: QuantConfig | None = Non
 
 
 def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_fraction: float,
-                    config: QuantConfig | None = None, qat_run: str | Path | None = None, progress: bool = True) -> dict:
+                    config: QuantConfig | None = None, qat_run: str | Path | None = None, progress: bool = True,
+                    freeze_at: float = 0.7, carry_optimizer: bool = True) -> dict:
     """Hybrid-QaT: of the float RUN's epoch budget E, continue from its epoch_NNN.pt at (1 - p)E
-    (its weights, LR schedule and AdamW moments) and train the last pE epochs with fake-quant
-    (into QAT_RUN), then export the int8 ONNX."""
+    (its weights, LR schedule and, unless carry_optimizer is False, AdamW moments) and train the
+    last pE epochs with fake-quant (into QAT_RUN), observers and BN frozen after FREEZE_AT of the
+    QaT steps (1.0: never), then export the int8 ONNX."""
     from edgepick.train.checkpoint import read_checkpoint
     from edgepick.train.loop import TrainConfig, train
 
     if not 0.0 < qat_fraction < 1.0:
         raise ConfigError(f"--qat-fraction must be inside (0, 1), got {qat_fraction}")
+    if not 0.0 <= freeze_at <= 1.0:
+        raise ConfigError(f"--freeze-at must be inside [0, 1], got {freeze_at}")
     config = (config or QuantConfig()).validate()
     _check_out(out)
     run = Path(run)
@@ -257,9 +308,11 @@ def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_frac
         raise ConfigError(f"{init} does not exist: train the float run with --keep-epochs {switch}")
     qat_run = Path(qat_run) if qat_run else Path(out).with_suffix(".run")
     cfg = TrainConfig(**{**tc, "data": str(data), "out": str(qat_run), "keep_epochs": [], "qat": True,
-                         "quant": config.to_dict(), "init_from": str(init), "aux_loss": False})
+                         "quant": config.to_dict(), "init_from": str(init), "aux_loss": False,
+                         "freeze_at": freeze_at, "carry_optimizer": carry_optimizer})
     train(cfg, progress=progress)
-    return _finish_qat(qat_run, data, out, _qat_quant("hybrid", qat_fraction, config))
+    quant = {**_qat_quant("hybrid", qat_fraction, config), "freeze_at": freeze_at, "carry_optimizer": carry_optimizer}
+    return _finish_qat(qat_run, data, out, quant)
 
 
 def _check_out(out: str | Path) -> None:

@@ -119,10 +119,12 @@ def logits(model: torch.nn.Module, x: torch.Tensor) -> dict[str, torch.Tensor]:
 
 def freeze_qat(model: torch.nn.Module) -> bool:
     """End of QaT: stop the observers and use BN running statistics (standard practice)."""
-    from torchao.quantization.pt2e import disable_observer, move_exported_model_to_eval
+    from torchao.quantization.pt2e import disable_observer
+
+    from edgepick.quant.passes import to_eval
 
     model.apply(disable_observer)
-    move_exported_model_to_eval(model)
+    to_eval(model)
     return True
 
 
@@ -131,10 +133,10 @@ def qat_evaluator(prepared: torch.nn.Module) -> torch.nn.Module:
     it (about 1 s each way), so each epoch copies the weights into this copy instead."""
     import copy
 
-    from torchao.quantization.pt2e import move_exported_model_to_eval
+    from edgepick.quant.passes import to_eval
 
     evaluator = copy.deepcopy(prepared)
-    move_exported_model_to_eval(evaluator)  # not .eval(): the copied train/eval hooks act on the original
+    to_eval(evaluator)  # not .eval(): the copied train/eval hooks act on the original
     return evaluator
 
 
@@ -266,6 +268,10 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     frozen = False
     evaluator = qat_evaluator(model) if cfg.qat else None
     ddp.train()
+    if cfg.qat:  # train() rewrites the QaT graph's BN nodes
+        from edgepick.quant.passes import restore_bn_literals
+
+        restore_bn_literals(model)
 
     for epoch in range(state["epoch"] + 1, cfg.epochs + 1):
         if isinstance(sampler, DistributedSampler):

@@ -169,10 +169,10 @@ def test_qat_evaluator_is_an_exact_eval_copy():
     after training steps and a weight copy it must give what the trained graph gives in eval mode."""
     import copy
 
-    from torchao.quantization.pt2e import disable_observer, move_exported_model_to_eval
+    from torchao.quantization.pt2e import disable_observer
 
     from edgepick.models.deeplabv3 import ModelConfig, build_model
-    from edgepick.quant.passes import prepare
+    from edgepick.quant.passes import prepare, to_eval
     from edgepick.quant.quantizer import QuantConfig
     from edgepick.train.loop import qat_evaluator
 
@@ -187,7 +187,7 @@ def test_qat_evaluator_is_an_exact_eval_copy():
         opt.zero_grad()
     evaluator.load_state_dict(model.state_dict())
     reference = copy.deepcopy(model)
-    move_exported_model_to_eval(reference)
+    to_eval(reference)
     for m in (evaluator, reference):
         m.apply(disable_observer)  # eval-mode observers still update their ranges on each call
     with torch.no_grad():
