@@ -6,10 +6,10 @@
 #   bash benchmarks/table55_lease.sh WORK rest   # synth, the float run (alone on the GPU), then fp32
 #                                                # export + static PTQ and the three hybrid-QaT runs in
 #                                                # parallel (4 processes, 4 CPU threads each), then the bench
-#   bash benchmarks/table55_lease.sh WORK rest+ab  # rest, and beside the three hybrid runs two variants of
-#                                                # hybrid-QaT 10% from the same float run: a fresh AdamW
-#                                                # (--fresh-optimizer) and no freeze (--freeze-at 1.0); their
-#                                                # test-split scores land in WORK/ab/*.json
+#   bash benchmarks/table55_lease.sh WORK rest+ab  # rest, and beside the three hybrid runs variants of
+#                                                # hybrid-QaT 10% from the same float run (AB below; session 8
+#                                                # ran "fresh --fresh-optimizer" and "nofreeze --freeze-at 1.0");
+#                                                # their test-split scores land in WORK/ab/*.eval.json
 #
 # Both parts use the same WORK folder or carry WORK/models/qat.onnx and WORK/phases.json from the
 # first to the second (the synthetic data is deterministic, so each part makes it again).
@@ -18,6 +18,7 @@ set -euo pipefail
 work=${1:?usage: table55_lease.sh WORK qat|rest|rest+ab}
 part=${2:?usage: table55_lease.sh WORK qat|rest|rest+ab}
 t=("${PYTHON:-python3}" benchmarks/table55.py --setting lease --work "$work")
+AB=("calibhold --calib-images 64 --hold-ranges" "wexact --weight-averaging 1.0")  # name, then quantize hybrid options
 case $part in
   qat)
     "${t[@]}" --only synth
@@ -30,7 +31,7 @@ case $part in
     for p in 0.10 0.05 0.01; do OMP_NUM_THREADS=4 "${t[@]}" --only "hybrid$p" & pids+=($!); done
     if [[ $part == rest+ab ]]; then
       mkdir -p "$work/ab"
-      for variant in "fresh --fresh-optimizer" "nofreeze --freeze-at 1.0"; do
+      for variant in "${AB[@]}"; do
         set -- $variant
         OMP_NUM_THREADS=2 "${PYTHON:-python3}" -m edgepick quantize hybrid "$work/float" --data "$work/data" \
           --qat-fraction 0.10 "${@:2}" --out "$work/ab/$1-0.10.onnx" >"$work/ab/$1-0.10.quantize.json" & pids+=($!)

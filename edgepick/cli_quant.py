@@ -15,11 +15,12 @@ def _emit(result: dict) -> None:
 
 
 def _quant_config(calib_method: str = "percentile", percentile: float = 99.99, reduce_range: bool = True,
-                  keep_float: str = ""):
+                  keep_float: str = "", weight_averaging: float = 0.01):
     from edgepick.quant.quantizer import QuantConfig
 
     return QuantConfig(calib_method=calib_method, percentile=percentile, reduce_range=reduce_range,
-                       keep_float=[k.strip() for k in keep_float.split(",") if k.strip()])
+                       keep_float=[k.strip() for k in keep_float.split(",") if k.strip()],
+                       weight_averaging=weight_averaging)
 
 
 def _refuse_existing(out: str) -> None:
@@ -34,6 +35,13 @@ common = [
                       "with 8-bit weights). --full-range for AVX512-VNNI/AVX-VNNI targets."),
     click.option("--keep-float", default="", metavar="NAMES",
                  help="Comma-separated module names left in float, e.g. classifier.4,backbone.0."),
+]
+
+
+# QaT and hybrid-QaT
+qat_options = [
+    click.option("--weight-averaging", default=0.01, show_default=True,
+                 help="Moving-average constant of the QaT weight ranges; 1.0 = each step's own range."),
 ]
 
 
@@ -145,10 +153,11 @@ def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int, cali
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
 @click.option("--seed", default=0, show_default=True)
 @_with(epoch_subset)
+@_with(qat_options)
 @_with(common)
 def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int, batch_size: int, lr: float,
                      size: str, device: str, seed: int, epoch_images: int, val_images: int, out: str,
-                     reduce_range: bool, keep_float: str) -> None:
+                     reduce_range: bool, keep_float: str, weight_averaging: float) -> None:
     """QaT from scratch: train with fake-quant for all epochs (GPU if there is one; fp32, no AMP),
     observers and BN statistics frozen for the last 30% of the steps, then export int8."""
     from edgepick.cli import parse_hxw
@@ -160,7 +169,8 @@ def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int,
     cfg = TrainConfig(data=data_dir, out=run, arch=arch, epochs=epochs, batch_size=batch_size, lr=lr,
                       size=parse_hxw(size), device=device, seed=seed, epoch_images=epoch_images,
                       val_images=val_images)
-    _emit(quantize_qat(cfg, out, _quant_config(reduce_range=reduce_range, keep_float=keep_float)))
+    _emit(quantize_qat(cfg, out, _quant_config(reduce_range=reduce_range, keep_float=keep_float,
+                                               weight_averaging=weight_averaging)))
 
 
 @quantize.command("hybrid")
@@ -174,15 +184,21 @@ def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int,
               help="Share of the QaT steps after which observers and BN statistics are frozen (1.0: never).")
 @click.option("--fresh-optimizer", is_flag=True,
               help="Start the QaT phase with a fresh AdamW instead of the float run's moments (for comparison).")
+@click.option("--calib-images", default=0, show_default=True,
+              help="Start the activation ranges from static PTQ's (percentile over N train images); 0: from the "
+                   "first batch's min/max.")
+@click.option("--hold-ranges", is_flag=True, help="With --calib-images: keep those ranges for the whole QaT phase.")
+@_with(qat_options)
 @_with(common)
 def quantize_hybrid_cmd(run: str, data_dir: str, qat_fraction: float, qat_run: str | None, out: str,
-                        reduce_range: bool, keep_float: str, freeze_at: float, fresh_optimizer: bool) -> None:
+                        reduce_range: bool, keep_float: str, freeze_at: float, fresh_optimizer: bool,
+                        calib_images: int, hold_ranges: bool, weight_averaging: float) -> None:
     """Hybrid-QaT: continue float RUN from its epoch_NNN.pt at (1 - p) of its budget E and train
     the last pE epochs with QaT (train RUN with --keep-epochs at the switch points, e.g. 90,95,99
     for p = 10%, 5%, 1% of 100 epochs). Reports the wall time of each phase."""
     from edgepick.quant.passes import quantize_hybrid
 
     _refuse_existing(out)
-    cfg = _quant_config(reduce_range=reduce_range, keep_float=keep_float)
+    cfg = _quant_config(reduce_range=reduce_range, keep_float=keep_float, weight_averaging=weight_averaging)
     _emit(quantize_hybrid(run, data_dir, out, qat_fraction, cfg, qat_run=qat_run, freeze_at=freeze_at,
-                          carry_optimizer=not fresh_optimizer))
+                          carry_optimizer=not fresh_optimizer, calib_images=calib_images, hold_ranges=hold_ranges))

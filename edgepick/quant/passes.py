@@ -23,6 +23,7 @@ from edgepick.errors import CheckpointError, ConfigError, EdgepickError
 from edgepick.export.checks import conv_weight_report, label_agreement
 from edgepick.export.onnx_export import LogitsNet, contract_metadata, export_onnx
 from edgepick.models.deeplabv3 import trim_dilated_convs
+from edgepick.quant.qat_graph import BN_LITERALS, restore_bn_literals, to_eval
 from edgepick.quant.quantizer import (
     EdgeQuantizer,
     QuantConfig,
@@ -94,51 +95,6 @@ def prepare(model: torch.nn.Module, config: QuantConfig, size: tuple[int, int], 
     allow_exported_model_train_eval(prepared)
     prepared.meta[BN_LITERALS] = {f"{PREFIX}{name}.running_var": (m.eps, m.momentum) for name, m in model.named_modules()
                                   if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)}
-    restore_bn_literals(prepared)
-    return prepared
-
-
-BN_LITERALS = "edgepick_bn_literals"  # GraphModule.meta key: running_var name -> the module's (eps, momentum)
-
-
-def restore_bn_literals(prepared: torch.fx.GraphModule) -> int:
-    """Give every BatchNorm in a prepared graph its module's eps and momentum again. torchao's QaT
-    conv-BN rewrite and its train/eval switches write F.batch_norm's defaults (eps 1e-5, momentum
-    0.1; "TODO: allow setting eps" in torchao 0.18), while MobileNetV3 uses eps 1e-3: a float
-    checkpoint then runs with other BN arithmetic in QaT (hybrid-QaT lost 1-4 pp on the GPU run,
-    benchmarks/results/gpu-lease-h100.md). Call after each such rewrite; returns the nodes changed."""
-    table = prepared.meta.get(BN_LITERALS, {})
-    changed = 0
-    for node in prepared.graph.nodes:
-        if node.op != "call_function" or not hasattr(node.target, "_schema"):
-            continue
-        names = [a.name for a in node.target._schema.arguments]
-        if "running_var" in names and "eps" in names:  # a batch_norm variant
-            var = node.args[names.index("running_var")] if len(node.args) > names.index("running_var") else None
-            literal = {"eps": 0, "momentum": 1}
-        elif node.target == torch.ops.aten.add.Tensor and len(node.args) == 2 and isinstance(node.args[1], float):
-            var, literal = node.args[0], {"other": 0}  # sqrt(running_var + eps) of the QaT weight scaling
-        else:
-            continue
-        if not (isinstance(var, torch.fx.Node) and var.op == "get_attr" and var.target in table):
-            continue
-        args = list(node.args)
-        for arg, which in literal.items():
-            i = names.index(arg)
-            if i < len(args) and args[i] != table[var.target][which]:
-                args[i] = table[var.target][which]
-                changed += 1
-        node.args = tuple(args)
-    if changed:
-        prepared.recompile()
-    return changed
-
-
-def to_eval(prepared: torch.fx.GraphModule) -> torch.fx.GraphModule:
-    """torchao's move_exported_model_to_eval (BN on running statistics, dropout off), BN literals kept."""
-    from torchao.quantization.pt2e import move_exported_model_to_eval
-
-    move_exported_model_to_eval(prepared)
     restore_bn_literals(prepared)
     return prepared
 
@@ -222,7 +178,8 @@ def quantize_static(checkpoint: str | Path, data: str | Path, out: str | Path, c
     converted = convert(prepared)
     calib_s = time.perf_counter() - t0
     quant = {"mode": "static", "qat_fraction": None, "calib_method": config.calib_method,
-             "calib_images": calib_images, **{k: v for k, v in config.to_dict().items() if k != "calib_method"}}
+             "calib_images": calib_images,
+             **{k: v for k, v in config.to_dict().items() if k not in ("calib_method", "weight_averaging")}}
     meta = contract_metadata(ckpt, "int8", quant)
     result = export_int8(converted, out, meta, size, expected_int8_convs(prepared, config), check_images)
     return {"mode": "static", **result, "observers": count_quant_nodes(prepared), "calib_s": round(calib_s, 2),
@@ -279,11 +236,14 @@ def quantize_qat(train_config, out: str | Path, config: QuantConfig | None = Non
 
 def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_fraction: float,
                     config: QuantConfig | None = None, qat_run: str | Path | None = None, progress: bool = True,
-                    freeze_at: float = 0.7, carry_optimizer: bool = True) -> dict:
+                    freeze_at: float = 0.7, carry_optimizer: bool = True, calib_images: int = 0,
+                    hold_ranges: bool = False) -> dict:
     """Hybrid-QaT: of the float RUN's epoch budget E, continue from its epoch_NNN.pt at (1 - p)E
     (its weights, LR schedule and, unless carry_optimizer is False, AdamW moments) and train the
     last pE epochs with fake-quant (into QAT_RUN), observers and BN frozen after FREEZE_AT of the
-    QaT steps (1.0: never), then export the int8 ONNX."""
+    QaT steps (1.0: never), then export the int8 ONNX. CALIB_IMAGES > 0 starts the activation
+    ranges from static PTQ's (config.percentile over that many train images) instead of the first
+    batch's min/max; HOLD_RANGES keeps them for the whole QaT phase."""
     from edgepick.train.checkpoint import read_checkpoint
     from edgepick.train.loop import TrainConfig, train
 
@@ -291,6 +251,10 @@ def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_frac
         raise ConfigError(f"--qat-fraction must be inside (0, 1), got {qat_fraction}")
     if not 0.0 <= freeze_at <= 1.0:
         raise ConfigError(f"--freeze-at must be inside [0, 1], got {freeze_at}")
+    if calib_images < 0 or (hold_ranges and not calib_images):
+        raise ConfigError("--calib-images must be 0 (off) or positive, and --hold-ranges needs it")
+    if calib_images > len(NativeDataset.open(data, "train")):
+        raise ConfigError(f"asked for {calib_images} calibration images, but {data}/train has fewer")
     config = (config or QuantConfig()).validate()
     _check_out(out)
     run = Path(run)
@@ -309,9 +273,13 @@ def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_frac
     qat_run = Path(qat_run) if qat_run else Path(out).with_suffix(".run")
     cfg = TrainConfig(**{**tc, "data": str(data), "out": str(qat_run), "keep_epochs": [], "qat": True,
                          "quant": config.to_dict(), "init_from": str(init), "aux_loss": False,
-                         "freeze_at": freeze_at, "carry_optimizer": carry_optimizer})
+                         "freeze_at": freeze_at, "carry_optimizer": carry_optimizer,
+                         "qat_calib_images": calib_images, "qat_hold_ranges": hold_ranges})
     train(cfg, progress=progress)
-    quant = {**_qat_quant("hybrid", qat_fraction, config), "freeze_at": freeze_at, "carry_optimizer": carry_optimizer}
+    quant = {**_qat_quant("hybrid", qat_fraction, config), "freeze_at": freeze_at, "carry_optimizer": carry_optimizer,
+             "calib_images": calib_images or None, "hold_ranges": hold_ranges}
+    if calib_images:
+        quant["calib_method"] = f"qat from percentile {config.percentile}"
     return _finish_qat(qat_run, data, out, quant)
 
 

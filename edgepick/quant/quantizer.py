@@ -58,6 +58,10 @@ class QuantConfig:
     # u8*s8 products in int16, which saturates with 8-bit weights; measured here (no VNNI) it cost 3 pp of
     # onnxruntime-vs-torch agreement. Turn off for VNNI/AVX512 targets.
     reduce_range: bool = True
+    # QaT: moving-average constant of the per-channel weight ranges (torch.ao's default 0.01; 1.0: each step's
+    # own range). With the conv-BN fusion the quantized weight is w * gamma / sqrt(running_var + eps), which moves
+    # with the BN statistics every step: a lagging range clips it (benchmarks/results/hybrid-start-cpu.md).
+    weight_averaging: float = 0.01
     keep_float: list[str] = field(default_factory=list)  # module names (prefixes) left in float
     skip: list[str] = field(default_factory=lambda: ["preprocess"])  # never quantized
 
@@ -67,6 +71,8 @@ class QuantConfig:
                               f"{', '.join(CALIB_METHODS)}")
         if not 50.0 < self.percentile <= 100.0:
             raise ConfigError("--percentile must be in (50, 100]")
+        if not 0.0 < self.weight_averaging <= 1.0:
+            raise ConfigError("--weight-averaging must be in (0, 1]")
         return self
 
     def to_dict(self) -> dict:
@@ -132,7 +138,8 @@ def activation_spec(config: QuantConfig, qat: bool) -> QuantizationSpec:
 def weight_spec(config: QuantConfig, qat: bool) -> QuantizationSpec:
     qmin, qmax = (-64, 63) if config.reduce_range else (-127, 127)
     if qat:
-        ctr = FusedMovingAvgObsFakeQuantize.with_args(observer=MovingAveragePerChannelMinMaxObserver, eps=2 ** -12)
+        ctr = FusedMovingAvgObsFakeQuantize.with_args(observer=MovingAveragePerChannelMinMaxObserver, eps=2 ** -12,
+                                                      averaging_constant=config.weight_averaging)
     else:
         ctr = PerChannelMinMaxObserver.with_args(eps=2 ** -12)
     return QuantizationSpec(torch.int8, ctr, qmin, qmax, torch.per_channel_symmetric, ch_axis=0)

@@ -59,6 +59,8 @@ class TrainConfig:
     init_from: str | None = None  # float checkpoint to continue from (hybrid: epoch_NNN.pt), epochs counted on
     freeze_at: float = 0.7  # share of the QaT steps after which observers and BN statistics are frozen
     carry_optimizer: bool = True  # init_from: continue with its AdamW moments (a fresh AdamW jolts a converged model)
+    qat_calib_images: int = 0  # init_from: start activation ranges from static PTQ's (percentile over N train images)
+    qat_hold_ranges: bool = False  # with qat_calib_images: keep those ranges (activation observers off)
 
 
 def _dist() -> tuple[int, int, int]:
@@ -121,7 +123,7 @@ def freeze_qat(model: torch.nn.Module) -> bool:
     """End of QaT: stop the observers and use BN running statistics (standard practice)."""
     from torchao.quantization.pt2e import disable_observer
 
-    from edgepick.quant.passes import to_eval
+    from edgepick.quant.qat_graph import to_eval
 
     model.apply(disable_observer)
     to_eval(model)
@@ -133,7 +135,7 @@ def qat_evaluator(prepared: torch.nn.Module) -> torch.nn.Module:
     it (about 1 s each way), so each epoch copies the weights into this copy instead."""
     import copy
 
-    from edgepick.quant.passes import to_eval
+    from edgepick.quant.qat_graph import to_eval
 
     evaluator = copy.deepcopy(prepared)
     to_eval(evaluator)  # not .eval(): the copied train/eval hooks act on the original
@@ -208,6 +210,12 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     if cuda:
         torch.cuda.set_device(device)
         model = model.to(device, memory_format=torch.channels_last)
+    if cfg.qat and cfg.qat_calib_images and start is not None:  # hybrid: begin where static PTQ would
+        from edgepick.quant.passes import model_images
+        from edgepick.quant.qat_graph import calibrate_activations
+
+        calibrate_activations(model, model_images(cfg.data, "train", cfg.qat_calib_images, cfg.size, cfg.seed),
+                              QuantConfig(**(cfg.quant or {})).percentile, hold=cfg.qat_hold_ranges)
     train_set = SegmentationSet(train_ds, cfg.size)
     val_set = SegmentationSet(val_ds, cfg.size)
     n_val = min(cfg.val_images or len(val_set), len(val_set))
@@ -269,7 +277,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     evaluator = qat_evaluator(model) if cfg.qat else None
     ddp.train()
     if cfg.qat:  # train() rewrites the QaT graph's BN nodes
-        from edgepick.quant.passes import restore_bn_literals
+        from edgepick.quant.qat_graph import restore_bn_literals
 
         restore_bn_literals(model)
 

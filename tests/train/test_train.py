@@ -172,7 +172,8 @@ def test_qat_evaluator_is_an_exact_eval_copy():
     from torchao.quantization.pt2e import disable_observer
 
     from edgepick.models.deeplabv3 import ModelConfig, build_model
-    from edgepick.quant.passes import prepare, to_eval
+    from edgepick.quant.passes import prepare
+    from edgepick.quant.qat_graph import to_eval
     from edgepick.quant.quantizer import QuantConfig
     from edgepick.train.loop import qat_evaluator
 

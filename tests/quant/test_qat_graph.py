@@ -1,0 +1,142 @@
+"""QaT graph upkeep: BatchNorm literals through torchao's rewrites; a calibrated start (static PTQ's ranges)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+
+from edgepick.runtime.session import Segmenter
+from tests.conftest import EPOCHS
+
+
+def _prepared_qat(trained_run):
+    from edgepick.quant.passes import prepare
+    from edgepick.quant.quantizer import QuantConfig
+    from edgepick.train.checkpoint import load_model
+
+    model, ckpt = load_model(trained_run)
+    size = tuple(ckpt["input_size"])
+    return prepare(model, QuantConfig(), size, qat=True), size
+
+
+def test_calibrated_start_is_where_static_ptq_is(trained_run, small_data):
+    """Converted right after a held calibration, the QaT graph is as close to fp32 as static PTQ is."""
+    from torchao.quantization.pt2e import disable_observer
+
+    from edgepick.quant.passes import LogitsNet, _as_input, convert, model_images
+    from edgepick.quant.passes import prepare as prepare_graph
+    from edgepick.quant.qat_graph import activation_fake_quants, calibrate_activations, to_eval
+    from edgepick.quant.quantizer import QuantConfig
+    from edgepick.train.checkpoint import load_model
+
+    prepared, size = _prepared_qat(trained_run)
+    images = model_images(small_data, "train", 8, size)
+    assert calibrate_activations(prepared, images, hold=True) == len(activation_fake_quants(prepared)) > 0
+    ranges = {n: (float(fq.activation_post_process.min_val), float(fq.activation_post_process.max_val))
+              for n, fq in activation_fake_quants(prepared).items()}
+    prepared.train()
+    with torch.no_grad():  # a training-mode pass: held activation ranges must not move
+        prepared(torch.stack([_as_input(i)[0] for i in images[:4]]))
+    assert ranges == {n: (float(fq.activation_post_process.min_val), float(fq.activation_post_process.max_val))
+                      for n, fq in activation_fake_quants(prepared).items()}
+
+    fresh, _ = _prepared_qat(trained_run)
+    calibrate_activations(fresh, images, hold=True)
+    to_eval(fresh)
+    with torch.no_grad():  # weight ranges from one eval pass; BN statistics untouched
+        fresh(_as_input(images[0]))
+    fresh.apply(disable_observer)
+    qat_start = convert(fresh)
+
+    model, _ = load_model(trained_run)
+    static = prepare_graph(model, QuantConfig(calib_method="percentile"), size, qat=False)
+    with torch.no_grad():
+        for rgb in images:
+            static(_as_input(rgb))
+    static = convert(static)
+    model, _ = load_model(trained_run)
+    val = model_images(small_data, "val", 8, size)
+    with torch.no_grad():
+        labels = {name: torch.cat([net(_as_input(v)).argmax(1) for v in val])
+                  for name, net in {"fp32": LogitsNet(model.eval()), "qat_start": qat_start, "static": static}.items()}
+    agree = {name: float((labels[name] == labels["fp32"]).float().mean()) for name in ("qat_start", "static")}
+    assert agree["qat_start"] >= agree["static"] - 0.01, agree
+
+
+def test_hybrid_with_a_calibrated_start(trained_run, small_data, tmp_path):
+    from edgepick.quant.passes import quantize_hybrid
+
+    result = quantize_hybrid(trained_run, small_data, tmp_path / "h.onnx", 1 / EPOCHS, calib_images=8,
+                             hold_ranges=True, progress=False)
+    assert result["int8_convs"] == result["convs"] == 70
+    quant = json.loads(Segmenter(result["out"]).info.metadata["edgepick.quant"])
+    assert quant["calib_images"] == 8 and quant["hold_ranges"] is True
+    assert quant["calib_method"].startswith("qat from percentile")
+
+
+@pytest.mark.parametrize("args", [["--hold-ranges"], ["--calib-images", "999"]])
+def test_calibrated_start_bad_input(args, trained_run, small_data, tmp_path):
+    from tests.conftest import run_cli
+
+    proc = run_cli("quantize", "hybrid", str(trained_run), "--data", str(small_data), "--qat-fraction", "0.04",
+                   *args, "--out", str(tmp_path / "m.onnx"))
+    assert proc.returncode == 2 and proc.stderr.startswith("edgepick: error:") and proc.stderr.count("\n") == 1
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("after", ["prepare", "train_switch"])
+def test_qat_graph_keeps_the_models_batchnorm_eps(after):
+    """torchao's QaT rewrites reset BatchNorm to eps 1e-5; MobileNetV3's is 1e-3. With fake-quant off,
+    the QaT graph must compute what the float model computes, also for channels of tiny variance."""
+    import torch
+    from torchao.quantization.pt2e import disable_fake_quant, disable_observer
+
+    from edgepick.models.deeplabv3 import ModelConfig, build_model
+    from edgepick.quant.passes import LogitsNet, prepare
+    from edgepick.quant.qat_graph import restore_bn_literals, to_eval
+    from edgepick.quant.quantizer import QuantConfig
+
+    torch.manual_seed(0)
+    model = build_model(ModelConfig(num_classes=4))
+    bns = [m for m in model.modules() if isinstance(m, torch.nn.BatchNorm2d)]
+    assert {m.eps for m in bns} == {1e-3, 1e-5}  # backbone (torchvision's MobileNetV3) and head
+    with torch.no_grad():
+        for m in bns:  # some channels of tiny variance, where eps decides the output (3x with eps 1e-5)
+            m.running_var[::3] = 1e-4
+            m.weight[::3] = (1e-4 + m.eps) ** 0.5
+    model.eval()
+    x = torch.rand(2, 3, 64, 96) * 255
+    with torch.no_grad():
+        want = LogitsNet(model)(x)
+    prepared = prepare(model, QuantConfig(), (64, 96), qat=True)
+    if after == "train_switch":
+        prepared.train()  # what the training loop does before its first step
+        restore_bn_literals(prepared)
+    prepared.apply(disable_observer)
+    prepared.apply(disable_fake_quant)
+    to_eval(prepared)
+    with torch.no_grad():
+        got = prepared(x)
+    assert torch.allclose(got, want, rtol=1e-3, atol=1e-3 * float(want.abs().max())), float((got - want).abs().max())
+
+
+def test_weight_range_averaging_reaches_the_fake_quants():
+    """--weight-averaging 1.0: each QaT step quantizes the weights with that step's own range."""
+    from edgepick.models.deeplabv3 import ModelConfig, build_model
+    from edgepick.quant.passes import prepare
+    from edgepick.quant.quantizer import QuantConfig
+
+    prepared = prepare(build_model(ModelConfig(num_classes=4)), QuantConfig(weight_averaging=1.0), (64, 96), qat=True)
+    weight_fqs = [m for m in prepared.modules() if getattr(m, "is_per_channel", False)]
+    assert weight_fqs and {m.activation_post_process.averaging_constant for m in weight_fqs} == {1.0}
+    x = torch.rand(2, 3, 64, 96) * 255
+    with torch.no_grad():
+        prepared(x)
+        first = [m.activation_post_process.max_val.clone() for m in weight_fqs]
+        for p in prepared.parameters():
+            p.mul_(2.0)  # every conv weight (and BN gamma) doubles: an exact range grows 2x (4x where BN is fused)
+        prepared(x)
+    grown = torch.cat([m.activation_post_process.max_val / f for m, f in zip(weight_fqs, first)])
+    assert float(grown[~grown.isnan()].min()) >= 1.9  # with averaging 0.01: ~1.02x
