@@ -2,10 +2,11 @@
 switch to eval mode, and a calibrated start for QaT from a float checkpoint (hybrid-QaT).
 
 A QaT graph's activation fake-quants take their first range from the first training batch's
-min/max, then follow it with a moving average (1% a step). A float model converted with such
-ranges is coarser than static PTQ's percentile ranges, and a hybrid run of a few epochs at the
-tail of the learning-rate schedule cannot train that back. `calibrate_activations` gives the
-fake-quants static PTQ's ranges instead, measured on calibration images with fake-quant off.
+min/max, then follow it with a moving average (1% a step), where static PTQ uses percentile
+ranges; a hybrid run of a few epochs at the tail of the learning-rate schedule has little room
+to train such a start back. `calibrate_activations` gives the fake-quants static PTQ's ranges
+instead (an option to compare: on the CPU model of benchmarks/results/hybrid-start-cpu.md
+either start ends at fp32's mIoU).
 """
 
 from __future__ import annotations
@@ -22,8 +23,9 @@ def restore_bn_literals(prepared: torch.fx.GraphModule) -> int:
     """Give every BatchNorm in a prepared graph its module's eps and momentum again. torchao's QaT
     conv-BN rewrite and its train/eval switches write F.batch_norm's defaults (eps 1e-5, momentum
     0.1; "TODO: allow setting eps" in torchao 0.18), while MobileNetV3 uses eps 1e-3: a float
-    checkpoint then runs with other BN arithmetic in QaT (hybrid-QaT lost 1-4 pp on the GPU run,
-    benchmarks/results/gpu-lease-h100.md). Call after each such rewrite; returns the nodes changed."""
+    checkpoint then runs with other BN arithmetic in QaT (about half of hybrid-QaT's first-epoch drop
+    on the GPU run, benchmarks/results/gpu-lease-h100-2.md). Call after each such rewrite; returns
+    the number of literals changed."""
     table = prepared.meta.get(BN_LITERALS, {})
     changed = 0
     for node in prepared.graph.nodes:
