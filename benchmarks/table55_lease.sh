@@ -10,26 +10,31 @@
 #                                                # hybrid-QaT 10% from the same float run (AB below; session 8
 #                                                # ran "fresh --fresh-optimizer" and "nofreeze --freeze-at 1.0");
 #                                                # their test-split scores land in WORK/ab/*.eval.json
+#   bash benchmarks/table55_lease.sh WORK ab     # the A/B alone, no table (not run yet; ~8 min by call 2's phase times;
+#                                                # rest+ab took 9.3 min and rest alone once ran past 9 min):
+#                                                # synth, float run, hybrid-QaT 10% and its variants, test evals
 #
 # Both parts use the same WORK folder or carry WORK/models/qat.onnx and WORK/phases.json from the
 # first to the second (the synthetic data is deterministic, so each part makes it again).
 # Phase wall times land in WORK/phases.json; the table in benchmarks/results/table55-<machine>-lease.md.
 set -euo pipefail
-work=${1:?usage: table55_lease.sh WORK qat|rest|rest+ab}
-part=${2:?usage: table55_lease.sh WORK qat|rest|rest+ab}
+work=${1:?usage: table55_lease.sh WORK qat|rest|rest+ab|ab}
+part=${2:?usage: table55_lease.sh WORK qat|rest|rest+ab|ab}
 t=("${PYTHON:-python3}" benchmarks/table55.py --setting lease --work "$work")
 AB=("calibhold --calib-images 64 --hold-ranges" "wexact --weight-averaging 1.0")  # name, then quantize hybrid options
 case $part in
   qat)
     "${t[@]}" --only synth
     "${t[@]}" --only qat ;;
-  rest|rest+ab)
+  rest|rest+ab|ab)
     "${t[@]}" --only synth
     "${t[@]}" --only float
     pids=()
-    OMP_NUM_THREADS=4 "${t[@]}" --only fp32,static & pids+=($!)
-    for p in 0.10 0.05 0.01; do OMP_NUM_THREADS=4 "${t[@]}" --only "hybrid$p" & pids+=($!); done
-    if [[ $part == rest+ab ]]; then
+    [[ $part == ab ]] || { OMP_NUM_THREADS=4 "${t[@]}" --only fp32,static & pids+=($!); }
+    for p in 0.10 0.05 0.01; do
+      [[ $part == ab && $p != 0.10 ]] || { OMP_NUM_THREADS=4 "${t[@]}" --only "hybrid$p" & pids+=($!); }
+    done
+    if [[ $part != rest ]]; then
       mkdir -p "$work/ab"
       for variant in "${AB[@]}"; do
         set -- $variant
@@ -38,11 +43,11 @@ case $part in
       done
     fi
     for pid in "${pids[@]}"; do wait "$pid"; done
-    "${t[@]}" --only bench
-    if [[ $part == rest+ab ]]; then
-      for f in "$work"/ab/*.onnx "$work"/models/hybrid0.10.onnx; do
+    [[ $part == ab ]] || "${t[@]}" --only bench
+    if [[ $part != rest ]]; then
+      for f in "$work"/ab/*.onnx "$work"/models/hybrid0.10.onnx "$work/float"; do
         "${PYTHON:-python3}" -m edgepick eval "$f" "$work/data" --split test --out "$work/ab/$(basename "$f" .onnx).eval.json" >/dev/null
       done
     fi ;;
-  *) echo "part must be qat, rest or rest+ab, got $part" >&2; exit 2 ;;
+  *) echo "part must be qat, rest, rest+ab or ab, got $part" >&2; exit 2 ;;
 esac
