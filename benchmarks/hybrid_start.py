@@ -30,6 +30,7 @@ from _common import emit  # noqa: E402
 
 from edgepick.data.native import NativeDataset  # noqa: E402
 from edgepick.data.synth import SynthConfig, synthesize  # noqa: E402
+from edgepick.export.onnx_export import LogitsNet  # noqa: E402
 from edgepick.metrics import confusion_matrix, segmentation_metrics  # noqa: E402
 from edgepick.quant.passes import _as_input, convert, model_images, prepare  # noqa: E402
 from edgepick.quant.qat_graph import calibrate_activations, to_eval  # noqa: E402
@@ -161,8 +162,6 @@ def main() -> None:
             run, data = Path(args.run), Path(args.data)
         model, ckpt = load_model(run)
         size = tuple(ckpt["input_size"])
-        from edgepick.export.onnx_export import LogitsNet
-
         calib = model_images(data, "train", 64, size)
         plain = [_as_input(r) for r in calib]
         batches = train_batches(data, size, args.batches, args.batch_size)

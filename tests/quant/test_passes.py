@@ -146,7 +146,8 @@ def test_a_quantizer_that_marks_nothing_is_refused(trained_run, monkeypatch):
         passes.prepare(model, QuantConfig(), (96, 128), qat=False)
 
 
-@pytest.mark.parametrize("case", ["fraction", "freeze_at", "weight_averaging", "calib_count", "classes", "no_epoch_file", "keep_float_name"])
+@pytest.mark.parametrize("case", ["fraction", "freeze_at", "weight_averaging", "calib_count", "classes",
+                                  "no_epoch_file", "keep_float_name"])
 def test_bad_input_is_one_line_and_leaves_nothing(case, trained_run, small_data, tmp_path):
     out = tmp_path / "m.onnx"
     data = small_data
@@ -178,4 +179,3 @@ def test_eval_refuses_an_onnx_that_is_not_ours(tmp_path, small_data):
     path = red_channel_model(tmp_path / "x.onnx", meta={"producer": "someone"})
     proc = run_cli("eval", str(path), str(small_data))
     assert proc.returncode == 2 and "not an edgepick model" in proc.stderr and proc.stderr.count("\n") == 1
-
