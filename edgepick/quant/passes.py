@@ -23,7 +23,7 @@ from edgepick.errors import CheckpointError, ConfigError, EdgepickError
 from edgepick.export.checks import conv_weight_report, label_agreement
 from edgepick.export.onnx_export import LogitsNet, contract_metadata, export_onnx
 from edgepick.models.deeplabv3 import trim_dilated_convs
-from edgepick.quant.qat_graph import BN_LITERALS, restore_bn_literals, to_eval
+from edgepick.quant.qat_graph import BN_LITERALS, bn_folds_with_own_eps, restore_bn_literals, to_eval
 from edgepick.quant.quantizer import (
     EdgeQuantizer,
     QuantConfig,
@@ -105,7 +105,7 @@ def convert(prepared: torch.fx.GraphModule, snap_biases: bool = True) -> torch.f
     from torchao.quantization.pt2e.quantize_pt2e import convert_pt2e
 
     to_eval(prepared)
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), bn_folds_with_own_eps(prepared):
         warnings.simplefilter("ignore")
         converted = convert_pt2e(prepared)
     if snap_biases:
