@@ -88,6 +88,8 @@ def prepare(model: torch.nn.Module, config: QuantConfig, size: tuple[int, int], 
     # drop fake-quants nobody reads (left by the QaT conv-BN rewrite); train()/eval() would drop them
     # later anyway, and a checkpoint must load into a freshly prepared graph
     prepared.graph.eliminate_dead_code()
+    if qat:
+        drop_fake_quants_after_dropout(prepared)
     prepared.delete_all_unused_submodules()
     prepared.recompile()
     if count_quant_nodes(prepared) == 0:
@@ -97,6 +99,27 @@ def prepare(model: torch.nn.Module, config: QuantConfig, size: tuple[int, int], 
                                   if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)}
     restore_bn_literals(prepared)
     return prepared
+
+
+def drop_fake_quants_after_dropout(prepared: torch.fx.GraphModule) -> int:
+    """Remove each fake-quant that reads a dropout of an already fake-quantized tensor (ASPP's
+    Dropout(0.5) before the head conv): it learnt its range from training's 1/(1-p)-scaled values,
+    2x the deployed ones, where the dropout is gone, so the head conv read its input at half the
+    resolution. The conv now reads the grid before the dropout. Returns how many were removed."""
+    from torchao.quantization.pt2e import FakeQuantizeBase
+
+    def is_fake_quant(node: torch.fx.Node) -> bool:
+        return node.op == "call_module" and isinstance(prepared.get_submodule(node.target), FakeQuantizeBase)
+
+    removed = 0
+    for node in list(prepared.graph.nodes):
+        src = node.args[0] if is_fake_quant(node) and node.args else None
+        if (isinstance(src, torch.fx.Node) and src.target in (torch.ops.aten.dropout.default, torch.ops.aten.dropout_.default)
+                and isinstance(src.args[0], torch.fx.Node) and is_fake_quant(src.args[0])):
+            node.replace_all_uses_with(src)
+            prepared.graph.erase_node(node)
+            removed += 1
+    return removed
 
 
 def convert(prepared: torch.fx.GraphModule, snap_biases: bool = True) -> torch.fx.GraphModule:
@@ -193,7 +216,9 @@ def load_qat(checkpoint: dict) -> torch.fx.GraphModule:
     tc = checkpoint["train_config"]
     prepared = prepare(build_model(ModelConfig(**checkpoint["model_config"])), QuantConfig(**(tc["quant"] or {})),
                        tuple(tc["size"]), qat=True)
-    prepared.load_state_dict(checkpoint["model"])
+    known = prepared.state_dict()  # runs from before drop_fake_quants_after_dropout hold one fake-quant more
+    prepared.load_state_dict({k: v for k, v in checkpoint["model"].items()
+                              if k in known or ".activation_post_process" not in f".{k}"})
     return prepared
 
 

@@ -213,3 +213,20 @@ def test_converted_qat_graph_computes_what_qat_trained(trained_run, small_data):
         trained = prepared(val).argmax(1)
         deployed = convert(prepared, snap_biases=False)(val).argmax(1)  # bias rounding is onnxruntime's, not QaT's
     assert float((trained == deployed).float().mean()) >= 0.99  # measured: 0.997; with the 1e-5 fold 0.68, with the fused weight kernel 0.97
+
+
+def test_no_fake_quant_learns_from_training_dropout():
+    """ASPP's Dropout(0.5) doubles what follows it in training only: a fake-quant there would learn a
+    2x range and deploy the head conv's input at half the resolution. The conv reads the grid before it."""
+    from torchao.quantization.pt2e import FakeQuantizeBase
+
+    from edgepick.models.deeplabv3 import ModelConfig, build_model
+    from edgepick.quant.passes import prepare
+    from edgepick.quant.quantizer import QuantConfig
+
+    prepared = prepare(build_model(ModelConfig(num_classes=4)), QuantConfig(), (64, 96), qat=True)
+    dropouts = [n for n in prepared.graph.nodes if n.target == torch.ops.aten.dropout.default]
+    assert len(dropouts) == 1
+    (drop,) = dropouts
+    assert isinstance(prepared.get_submodule(drop.args[0].target), FakeQuantizeBase)  # its input is on a grid
+    assert [u.target for u in drop.users] == [torch.ops.aten.conv2d.default]  # read straight by the head conv
