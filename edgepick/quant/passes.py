@@ -111,10 +111,11 @@ def drop_fake_quants_after_dropout(prepared: torch.fx.GraphModule) -> int:
     def is_fake_quant(node: torch.fx.Node) -> bool:
         return node.op == "call_module" and isinstance(prepared.get_submodule(node.target), FakeQuantizeBase)
 
+    dropouts = (torch.ops.aten.dropout.default, torch.ops.aten.dropout_.default)
     removed = 0
     for node in list(prepared.graph.nodes):
         src = node.args[0] if is_fake_quant(node) and node.args else None
-        if (isinstance(src, torch.fx.Node) and src.target in (torch.ops.aten.dropout.default, torch.ops.aten.dropout_.default)
+        if (isinstance(src, torch.fx.Node) and src.target in dropouts
                 and isinstance(src.args[0], torch.fx.Node) and is_fake_quant(src.args[0])):
             node.replace_all_uses_with(src)
             prepared.graph.erase_node(node)
