@@ -23,7 +23,7 @@ from edgepick.errors import CheckpointError, ConfigError, EdgepickError
 from edgepick.export.checks import conv_weight_report, label_agreement
 from edgepick.export.onnx_export import LogitsNet, contract_metadata, export_onnx
 from edgepick.models.deeplabv3 import trim_dilated_convs
-from edgepick.quant.qat_graph import BN_LITERALS, bn_folds_with_own_eps, restore_bn_literals, to_eval
+from edgepick.quant.qat_graph import BN_LITERALS, bn_folds_with_own_eps, load_qat_state, restore_bn_literals, to_eval
 from edgepick.quant.quantizer import (
     EdgeQuantizer,
     QuantConfig,
@@ -217,9 +217,7 @@ def load_qat(checkpoint: dict) -> torch.fx.GraphModule:
     tc = checkpoint["train_config"]
     prepared = prepare(build_model(ModelConfig(**checkpoint["model_config"])), QuantConfig(**(tc["quant"] or {})),
                        tuple(tc["size"]), qat=True)
-    known = prepared.state_dict()  # runs from before drop_fake_quants_after_dropout hold one fake-quant more
-    prepared.load_state_dict({k: v for k, v in checkpoint["model"].items()
-                              if k in known or ".activation_post_process" not in f".{k}"})
+    load_qat_state(prepared, checkpoint["model"])
     return prepared
 
 

@@ -83,6 +83,14 @@ def bn_folds_with_own_eps(prepared: torch.fx.GraphModule):
         qat_utils.fold_bn_weights_into_conv_node = fold
 
 
+def load_qat_state(prepared: torch.fx.GraphModule, state: dict) -> None:
+    """Load a QaT run's state dict into a freshly prepared graph. Runs from before
+    `drop_fake_quants_after_dropout` hold one activation fake-quant more; its entries are skipped."""
+    known = prepared.state_dict()
+    prepared.load_state_dict({k: v for k, v in state.items()
+                              if k in known or ".activation_post_process" not in f".{k}"})
+
+
 def to_eval(prepared: torch.fx.GraphModule) -> torch.fx.GraphModule:
     """torchao's move_exported_model_to_eval (BN on running statistics, dropout off), BN literals kept."""
     from torchao.quantization.pt2e import move_exported_model_to_eval

@@ -263,7 +263,12 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
             for _ in range(start["epoch"] * steps_per_epoch):
                 sched.step()
     if resume:
-        model.load_state_dict(ckpt["model"])
+        if cfg.qat:
+            from edgepick.quant.qat_graph import load_qat_state
+
+            load_qat_state(model, ckpt["model"])
+        else:
+            model.load_state_dict(ckpt["model"])
         opt.load_state_dict(ckpt["optimizer"])
         sched.load_state_dict(ckpt["scheduler"])
         state = {k: ckpt[k] for k in state if k in ckpt}
