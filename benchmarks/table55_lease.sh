@@ -14,6 +14,10 @@
 #                                                # rest+ab took 9.3 min and rest alone once ran past 9 min):
 #                                                # synth, float run, hybrid-QaT 10% and its variants, test evals
 #
+# AB also runs hybrid-QaT 1% (one QaT epoch) from the same float checkpoint twice, its QaT phase on the
+# GPU and on the CPU: the GPU runs lost 2.8-4.3 pp in that one epoch while no CPU run has shown such a
+# drop, so the pair tells a CUDA-side cause from one in the model or the data.
+#
 # Both parts use the same WORK folder or carry WORK/models/qat.onnx and WORK/phases.json from the
 # first to the second (the synthetic data is deterministic, so each part makes it again).
 # Phase wall times land in WORK/phases.json; the table in benchmarks/results/table55-<machine>-lease.md.
@@ -21,7 +25,8 @@ set -euo pipefail
 work=${1:?usage: table55_lease.sh WORK qat|rest|rest+ab|ab}
 part=${2:?usage: table55_lease.sh WORK qat|rest|rest+ab|ab}
 t=("${PYTHON:-python3}" benchmarks/table55.py --setting lease --work "$work")
-AB=("calibhold --calib-images 64 --hold-ranges" "wexact --weight-averaging 1.0")  # name, then quantize hybrid options
+AB=("calibhold 0.10 --calib-images 64 --hold-ranges" "wexact 0.10 --weight-averaging 1.0"
+    "gpu 0.01" "cpu 0.01 --device cpu")  # name, QaT fraction, then quantize hybrid options
 case $part in
   qat)
     "${t[@]}" --only synth
@@ -38,8 +43,9 @@ case $part in
       mkdir -p "$work/ab"
       for variant in "${AB[@]}"; do
         set -- $variant
-        OMP_NUM_THREADS=2 "${PYTHON:-python3}" -m edgepick quantize hybrid "$work/float" --data "$work/data" \
-          --qat-fraction 0.10 "${@:2}" --out "$work/ab/$1-0.10.onnx" >"$work/ab/$1-0.10.quantize.json" & pids+=($!)
+        threads=2; [[ $1 == cpu ]] && threads=6
+        OMP_NUM_THREADS=$threads "${PYTHON:-python3}" -m edgepick quantize hybrid "$work/float" --data "$work/data" \
+          --qat-fraction "$2" "${@:3}" --out "$work/ab/$1-$2.onnx" >"$work/ab/$1-$2.quantize.json" & pids+=($!)
       done
     fi
     for pid in "${pids[@]}"; do wait "$pid"; done

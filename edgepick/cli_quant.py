@@ -188,11 +188,13 @@ def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int,
               help="Start the activation ranges from static PTQ's (percentile over N train images); 0: from the "
                    "first batch's min/max.")
 @click.option("--hold-ranges", is_flag=True, help="With --calib-images: keep those ranges for the whole QaT phase.")
+@click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]),
+              help="Where the QaT phase trains (auto: the GPU if there is one), whatever device RUN used.")
 @_with(qat_options)
 @_with(common)
 def quantize_hybrid_cmd(run: str, data_dir: str, qat_fraction: float, qat_run: str | None, out: str,
                         reduce_range: bool, keep_float: str, freeze_at: float, fresh_optimizer: bool,
-                        calib_images: int, hold_ranges: bool, weight_averaging: float) -> None:
+                        calib_images: int, hold_ranges: bool, device: str, weight_averaging: float) -> None:
     """Hybrid-QaT: continue float RUN from its epoch_NNN.pt at (1 - p) of its budget E and train
     the last pE epochs with QaT (train RUN with --keep-epochs at the switch points, e.g. 90,95,99
     for p = 10%, 5%, 1% of 100 epochs). Reports the wall time of each phase."""
@@ -201,4 +203,5 @@ def quantize_hybrid_cmd(run: str, data_dir: str, qat_fraction: float, qat_run: s
     _refuse_existing(out)
     cfg = _quant_config(reduce_range=reduce_range, keep_float=keep_float, weight_averaging=weight_averaging)
     _emit(quantize_hybrid(run, data_dir, out, qat_fraction, cfg, qat_run=qat_run, freeze_at=freeze_at,
-                          carry_optimizer=not fresh_optimizer, calib_images=calib_images, hold_ranges=hold_ranges))
+                          carry_optimizer=not fresh_optimizer, calib_images=calib_images, hold_ranges=hold_ranges,
+                          device=device))

@@ -132,7 +132,7 @@ def make_table55(work: str | Path, setting: Setting, device: str = "auto", comma
     timed("QaT from scratch", "qat", files[2], quantize_qat, qat_tc, files[2], progress=False)
     for p, f in zip(FRACTIONS, files[3:]):
         timed(f"hybrid-QaT {p:.0%}", f"hybrid{p:.2f}", f, quantize_hybrid, work / "float", data, f, p,
-              qat_run=work / f"hybrid{p:.2f}.run", progress=False)
+              qat_run=work / f"hybrid{p:.2f}.run", device=device, progress=False)
     if (only is not None and "bench" not in only) or not all(f.exists() for f in files):
         return None
     t0 = time.perf_counter()

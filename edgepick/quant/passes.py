@@ -261,13 +261,14 @@ def quantize_qat(train_config, out: str | Path, config: QuantConfig | None = Non
 def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_fraction: float,
                     config: QuantConfig | None = None, qat_run: str | Path | None = None, progress: bool = True,
                     freeze_at: float = 0.7, carry_optimizer: bool = True, calib_images: int = 0,
-                    hold_ranges: bool = False) -> dict:
+                    hold_ranges: bool = False, device: str = "auto") -> dict:
     """Hybrid-QaT: of the float RUN's epoch budget E, continue from its epoch_NNN.pt at (1 - p)E
     (its weights, LR schedule and, unless carry_optimizer is False, AdamW moments) and train the
     last pE epochs with fake-quant (into QAT_RUN), observers and BN frozen after FREEZE_AT of the
     QaT steps (1.0: never), then export the int8 ONNX. CALIB_IMAGES > 0 starts the activation
     ranges from static PTQ's (config.percentile over that many train images) instead of the first
-    batch's min/max; HOLD_RANGES keeps them for the whole QaT phase."""
+    batch's min/max; HOLD_RANGES keeps them for the whole QaT phase. DEVICE is this machine's choice
+    (auto, cpu, cuda), not the one the float run recorded: a run trained on a GPU box continues here."""
     from edgepick.train.checkpoint import read_checkpoint
     from edgepick.train.loop import TrainConfig, train
 
@@ -297,7 +298,7 @@ def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_frac
     qat_run = Path(qat_run) if qat_run else Path(out).with_suffix(".run")
     cfg = TrainConfig(**{**tc, "data": str(data), "out": str(qat_run), "keep_epochs": [], "qat": True,
                          "quant": config.to_dict(), "init_from": str(init), "aux_loss": False,
-                         "freeze_at": freeze_at, "carry_optimizer": carry_optimizer,
+                         "device": device, "freeze_at": freeze_at, "carry_optimizer": carry_optimizer,
                          "qat_calib_images": calib_images, "qat_hold_ranges": hold_ranges})
     train(cfg, progress=progress)
     quant = {**_qat_quant("hybrid", qat_fraction, config), "freeze_at": freeze_at, "carry_optimizer": carry_optimizer,
