@@ -131,7 +131,7 @@ def hybrid_ab(run: Path, data: Path, fraction: float, tmp: Path) -> dict[str, tu
     for label, kw in {"first-batch ranges (before)": {}, "calibrated start, 64 images": {"calib_images": 64},
                       "calibrated start, held": {"calib_images": 64, "hold_ranges": True}}.items():
         out = tmp / f"h{len(rows)}.onnx"
-        result = quantize_hybrid(run, data, out, fraction, progress=False, **kw)
+        result = quantize_hybrid(run, data, out, fraction, progress=False, device="cpu", **kw)
         rows[f"hybrid, {label}"] = (*scores(out), result["qat_phase_s"])
     return rows
 

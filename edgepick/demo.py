@@ -71,7 +71,7 @@ def quantize_demo(workdir: Path, epochs: int) -> dict:
     files = {"fp32": export_checkpoint(workdir / "run", models / "fp32.onnx"),
              "static": quantize_static(workdir / "run", workdir / "data", models / "static.onnx", calib_images=32),
              "hybrid": quantize_hybrid(workdir / "run", workdir / "data", models / "hybrid.onnx", 1 / epochs,
-                                       qat_run=workdir / "hybrid.run")}
+                                       qat_run=workdir / "hybrid.run", device="cpu")}
     _step("5/8 evaluate the ONNX files with the runtime (onnxruntime, CPU) on the test split")
     fp32_size = files["fp32"]["size_bytes"]
     out = {}
