@@ -260,15 +260,16 @@ def quantize_qat(train_config, out: str | Path, config: QuantConfig | None = Non
 
 def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_fraction: float,
                     config: QuantConfig | None = None, qat_run: str | Path | None = None, progress: bool = True,
-                    freeze_at: float = 0.7, carry_optimizer: bool = True, calib_images: int = 0,
-                    hold_ranges: bool = False, device: str = "auto") -> dict:
+                    freeze_at: float = 0.7, carry_optimizer: bool = True, calib_images: int | None = None,
+                    hold_ranges: bool | None = None, device: str = "auto") -> dict:
     """Hybrid-QaT: of the float RUN's epoch budget E, continue from its epoch_NNN.pt at (1 - p)E
     (its weights, LR schedule and, unless carry_optimizer is False, AdamW moments) and train the
     last pE epochs with fake-quant (into QAT_RUN), observers and BN frozen after FREEZE_AT of the
-    QaT steps (1.0: never), then export the int8 ONNX. CALIB_IMAGES > 0 starts the activation
-    ranges from static PTQ's (config.percentile over that many train images) instead of the first
-    batch's min/max; HOLD_RANGES keeps them for the whole QaT phase. DEVICE is this machine's choice
-    (auto, cpu, cuda), not the one the float run recorded: a run trained on a GPU box continues here."""
+    QaT steps (1.0: never), then export the int8 ONNX. The activation ranges start from static
+    PTQ's (config.percentile over CALIB_IMAGES train images; None: 64, or all if fewer) and HOLD_RANGES
+    (None: yes when calibrated) keeps them for the whole phase: moving min/max ranges from augmented
+    batches cost 1-3 pp (benchmarks/results/hybrid-start-cpu.md). CALIB_IMAGES 0: the first batch's
+    min/max, moving. DEVICE is this machine's choice (auto, cpu, cuda), not the float run's."""
     from edgepick.train.checkpoint import read_checkpoint
     from edgepick.train.loop import TrainConfig, train
 
@@ -276,10 +277,14 @@ def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_frac
         raise ConfigError(f"--qat-fraction must be inside (0, 1), got {qat_fraction}")
     if not 0.0 <= freeze_at <= 1.0:
         raise ConfigError(f"--freeze-at must be inside [0, 1], got {freeze_at}")
+    n_train = len(NativeDataset.open(data, "train"))
+    if calib_images is None:
+        calib_images = min(64, n_train)
     if calib_images < 0 or (hold_ranges and not calib_images):
         raise ConfigError("--calib-images must be 0 (off) or positive, and --hold-ranges needs it")
-    if calib_images > len(NativeDataset.open(data, "train")):
+    if calib_images > n_train:
         raise ConfigError(f"asked for {calib_images} calibration images, but {data}/train has fewer")
+    hold_ranges = bool(calib_images) if hold_ranges is None else hold_ranges
     config = (config or QuantConfig()).validate()
     _check_out(out)
     run = Path(run)

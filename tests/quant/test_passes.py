@@ -133,6 +133,7 @@ def test_hybrid_qat_from_a_kept_epoch(trained_run, small_data, tmp_path):
     quant = json.loads(meta["edgepick.quant"])
     assert quant["mode"] == "hybrid" and quant["qat_fraction"] == pytest.approx(p)
     assert quant["carry_optimizer"] is True and quant["freeze_at"] == pytest.approx(0.7)
+    assert quant["calib_images"] == 36 and quant["hold_ranges"] is True  # default: static's ranges (all 36), held
     assert float(meta["edgepick.train_time_s"]) == pytest.approx(result["float_phase_s"] + result["qat_phase_s"], abs=0.2)
     history = json.loads((tmp_path / "h.run" / "metrics.json").read_text())["history"]
     assert [h["epoch"] for h in history] == list(range(1, EPOCHS + 1))  # float epochs carried, then the QaT one

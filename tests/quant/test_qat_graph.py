@@ -92,7 +92,7 @@ def test_hybrid_with_a_calibrated_start(trained_run, small_data, tmp_path):
     assert ranges(trained) == pytest.approx(ranges(expected), rel=1e-5)
 
 
-@pytest.mark.parametrize("args", [["--hold-ranges"], ["--calib-images", "999"]])
+@pytest.mark.parametrize("args", [["--calib-images", "0", "--hold-ranges"], ["--calib-images", "999"]])
 def test_calibrated_start_bad_input(args, trained_run, small_data, tmp_path):
     from tests.conftest import run_cli
 
