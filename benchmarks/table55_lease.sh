@@ -15,8 +15,8 @@
 #                                                # synth, float run, hybrid-QaT 10% and its variants, test evals
 #
 # AB's variants of hybrid-QaT 10%: "firstbatch" is the default before session 10 (activation ranges from
-# the first batch's min/max, moving), which lost 1.2-2.2 pp on the GPU; a CPU model at 240x320 lost 2-2.7
-# pp with it and none with today's default (percentile ranges from 64 images, held).
+# the first batch's min/max, moving), which lost 1.2-2.2 pp on the GPU; a CPU model at 240x320 lost 1-2.7
+# pp with it and 0.1-0.8 pp (test) with today's default (percentile ranges from 64 images, held).
 #
 # Both parts use the same WORK folder or carry WORK/models/qat.onnx and WORK/phases.json from the
 # first to the second (the synthetic data is deterministic, so each part makes it again).

@@ -189,7 +189,7 @@ def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int,
                    "or the whole train split if smaller]; 0: from the first batch's min/max.")
 @click.option("--hold-ranges/--moving-ranges", default=None,
               help="Keep the calibrated ranges for the whole QaT phase, or let the observers move them "
-                   "[default: hold when calibrated; moving min/max ranges cost 1-3 pp mIoU in our runs].")
+                   "[default: hold when calibrated; moving min/max ranges cost 1-2.7 pp mIoU in our runs].")
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]),
               help="Where the QaT phase trains (auto: the GPU if there is one), whatever device RUN used.")
 @_with(qat_options)

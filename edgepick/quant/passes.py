@@ -268,8 +268,8 @@ def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_frac
     QaT steps (1.0: never), then export the int8 ONNX. The activation ranges start from static
     PTQ's (config.percentile over CALIB_IMAGES train images; None: 64, or all if fewer) and HOLD_RANGES
     (None: yes when calibrated) keeps them for the whole phase: moving min/max ranges from augmented
-    batches cost 1-3 pp (benchmarks/results/hybrid-start-cpu.md). CALIB_IMAGES 0: the first batch's
-    min/max, moving. DEVICE is this machine's choice (auto, cpu, cuda), not the float run's."""
+    batches cost 1-2.7 pp (benchmarks/results/hybrid-start-cpu-240x320.md). CALIB_IMAGES 0: the first
+    batch's min/max, moving. DEVICE is this machine's choice (auto, cpu, cuda), not the float run's."""
     from edgepick.train.checkpoint import read_checkpoint
     from edgepick.train.loop import TrainConfig, train
 
