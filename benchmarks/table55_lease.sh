@@ -18,6 +18,13 @@
 # the first batch's min/max, moving), which lost 1.2-2.2 pp on the GPU; a CPU model at 240x320 lost 1-2.7
 # pp with it and 0.1-0.8 pp (test) with today's default (percentile ranges from 64 images, held).
 #
+# On the leased device machine (torch with CUDA, onnxruntime, no torchao, no network): download the torchao
+# wheel here first (`pip download --no-deps --only-binary=:all: --python-version 3.12 --implementation cp
+# --platform manylinux2014_x86_64 -d .whl torchao==0.18.0`, .whl/ kept out of git), carry .whl, and start
+# each call with `pip install -q --no-index --no-deps --target /tmp/site .whl/*.whl &&
+# export PYTHONPATH=/tmp/site:$PWD`; keep each part under the call's 10 minutes (timeout ~545 s) and copy
+# WORK's logs, metrics.json files and phases.json to $OUT.
+#
 # Both parts use the same WORK folder or carry WORK/models/qat.onnx and WORK/phases.json from the
 # first to the second (the synthetic data is deterministic, so each part makes it again).
 # Phase wall times land in WORK/phases.json; the table in benchmarks/results/table55-<machine>-lease.md.
