@@ -20,7 +20,8 @@
 #
 # On the leased device machine (torch with CUDA, onnxruntime, no torchao, no network): download the torchao
 # wheel here first (`pip download --no-deps --only-binary=:all: --python-version 3.12 --implementation cp
-# --platform manylinux2014_x86_64 -d .whl torchao==0.18.0`, .whl/ kept out of git), carry .whl, and start
+# --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64
+# -d .whl torchao==0.18.0`, .whl/ kept out of git), carry .whl, and start
 # each call with `pip install -q --no-index --no-deps --target /tmp/site .whl/*.whl &&
 # export PYTHONPATH=/tmp/site:$PWD`; keep each part under the call's 10 minutes (timeout ~545 s) and copy
 # WORK's logs, metrics.json files and phases.json to $OUT.
