@@ -20,12 +20,15 @@ import sys
 import tempfile
 from collections import defaultdict
 from pathlib import Path
+from unittest.mock import patch
 
 import numpy as np
 import onnxruntime as ort
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import emit, interleaved_times, untrained_checkpoint  # noqa: E402
+
+WHOLE = "int8, convs whole"
 
 
 def session(path: str, threads: int, profile: str | None = None) -> ort.InferenceSession:
@@ -91,14 +94,18 @@ def main() -> None:
     ckpt = args.checkpoint or str(untrained_checkpoint(work / "untrained.pt", (480, 640), classes, args.variant))
     fp32 = export_checkpoint(ckpt, work / "fp32.onnx")
     int8 = quantize_static(ckpt, data, work / "int8.onnx", calib_images=args.calib_images, progress=False)
+    with patch("edgepick.export.onnx_export.crop_padded_convs", lambda model: 0):  # the same int8 model, convs whole
+        whole = quantize_static(ckpt, data, work / "int8_whole.onnx", calib_images=args.calib_images, progress=False)
     size = fp32["input_size"]
     image = (np.random.default_rng(0).random((1, size[0], size[1], 3)) * 255).astype(np.uint8)
 
     rows, ops, nodes = {}, {}, {}
-    models = (("fp32", fp32), ("int8", int8))
+    models = (("fp32", fp32), ("int8", int8), (WHOLE, whole))
     timed = latency([f["out"] for _, f in models], image, args.threads, args.runs)
     for (name, f), t in zip(models, timed):
         rows[name] = {"p50": statistics.median(t), "p95": float(np.percentile(t, 95)), "mb": f["size_bytes"] / 1e6}
+        if name == WHOLE:  # timed only: its labels are the int8 file's
+            continue
         ops[name] = per_op(f["out"], image, args.threads, 10, str(work / f"prof_{name}"))
         nodes[name] = per_op(f["out"], image, args.threads, 10, str(work / f"nodes_{name}"), by_node=True)
         if args.checkpoint:
@@ -112,14 +119,17 @@ def main() -> None:
              "", f"Command: `python benchmarks/quant_speed.py {' '.join(sys.argv[1:])}`  ",
              f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; "
              f"model: {'checkpoint ' + args.checkpoint if args.checkpoint else f'untrained DeepLabV3-MobileNetV3 ({args.variant})'}; "
-             f"{args.runs} runs each after 5 warm-up, one process, the two models timed in alternating blocks of 5.", "",
+             f"{args.runs} runs each after 5 warm-up, one process, the models timed in alternating blocks of 5.", "",
              "| Model | p50 (ms) | p95 (ms) | Size (MB) |" + (" mIoU |" if args.checkpoint else ""),
              "|---|---|---|---|" + ("---|" if args.checkpoint else "")]
     for name, r in rows.items():
         lines.append(f"| {name} | {r['p50']:.1f} | {r['p95']:.1f} | {r['mb']:.2f} |"
-                     + (f" {r['miou']:.4f} |" if args.checkpoint else ""))
+                     + (f" {r['miou']:.4f} |" if 'miou' in r else " |" if args.checkpoint else ""))
     lines += ["", f"**int8 / fp32 speed-up (p50): {ratio:.2f}x**; onnxruntime-vs-torch label agreement of the "
               f"int8 file: {int8['agreement_vs_torch']}", "",
+              f"`{WHOLE}` is the same int8 model without the export's crop of padding-only taps "
+              f"(`edgepick/export/crop_convs.py`): {rows['fp32']['p50'] / rows[WHOLE]['p50']:.2f}x fp32; "
+              f"the crop makes int8 {rows[WHOLE]['p50'] / rows['int8']['p50']:.2f}x faster.", "",
               f"Convolutions alone (profiler): fp32 {conv_fp32:.1f} ms, int8 {conv_int8:.1f} ms, {conv_fp32 / conv_int8:.2f}x. "
               f"Had every other int8 op cost nothing, int8 would run at most {rows['fp32']['p50'] / conv_int8:.2f}x "
               f"faster than fp32 on this CPU.", "", "Per-op time (ms per run, onnxruntime profiler):", "",

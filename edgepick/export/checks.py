@@ -12,24 +12,29 @@ from edgepick.runtime.session import Segmenter
 
 
 def conv_weight_report(path: str | Path) -> dict:
-    """Which Conv nodes take int8 weights (initializer -> DequantizeLinear) and which stay float."""
+    """Which of the model's convs take int8 weights (initializer [-> Slice] -> DequantizeLinear) and
+    which stay float; a conv split into regions by crop_padded_convs counts once, by its regions."""
     import onnx
     from onnx import numpy_helper
+
+    from edgepick.export.crop_convs import CROP_TAG
 
     model = onnx.load(str(path))
     inits = {i.name: i for i in model.graph.initializer}
     producers = {out: n for n in model.graph.node for out in n.output}
-    int8, float_ = [], []
+    kinds: dict[str, set[bool]] = {}
     for node in model.graph.node:
         if node.op_type != "Conv":
             continue
         dq = producers.get(node.input[1])
-        src = inits.get(dq.input[0]) if dq is not None and dq.op_type == "DequantizeLinear" else None
-        if src is not None and numpy_helper.to_array(src).dtype == np.int8:
-            int8.append(node.name)
-        else:
-            float_.append(node.name)
-    return {"convs": len(int8) + len(float_), "int8": len(int8), "float": float_}
+        src = dq.input[0] if dq is not None and dq.op_type == "DequantizeLinear" else None
+        if src in producers and producers[src].op_type == "Slice":
+            src = producers[src].input[0]
+        is_int8 = src in inits and numpy_helper.to_array(inits[src]).dtype == np.int8
+        kinds.setdefault(node.name.split(CROP_TAG)[0], set()).add(is_int8)
+    int8 = [name for name, k in kinds.items() if k == {True}]
+    float_ = [name for name in kinds if name not in int8]
+    return {"convs": len(kinds), "int8": len(int8), "float": float_}
 
 
 @torch.no_grad()
