@@ -9,7 +9,8 @@
 #   bash benchmarks/table55_lease.sh WORK rest+ab  # rest, and beside the three hybrid runs variants of
 #                                                # hybrid-QaT 10% from the same float run (AB below; session 8
 #                                                # ran "fresh --fresh-optimizer" and "nofreeze --freeze-at 1.0");
-#                                                # their test-split scores land in WORK/ab/*.eval.json
+#                                                # their test-split scores land in WORK/ab/*.eval.json, with the
+#                                                # float run's best.pt (float) and last epoch (float-last)
 #   bash benchmarks/table55_lease.sh WORK ab     # the A/B alone, no table (not run yet; ~8 min by call 2's phase times;
 #                                                # rest+ab took 9.3 min and rest alone once ran past 9 min):
 #                                                # synth, float run, hybrid-QaT 10% and its variants, test evals
@@ -57,8 +58,9 @@ case $part in
     for pid in "${pids[@]}"; do wait "$pid"; done
     [[ $part == ab ]] || "${t[@]}" --only bench
     if [[ $part != rest ]]; then
-      for f in "$work"/ab/*.onnx "$work"/models/hybrid0.10.onnx "$work/float"; do
-        "${PYTHON:-python3}" -m edgepick eval "$f" "$work/data" --split test --out "$work/ab/$(basename "$f" .onnx).eval.json" >/dev/null
+      for f in "$work"/ab/*.onnx "$work"/models/hybrid0.10.onnx "$work/float" "$work/float/last.pt"; do
+        name=$(basename "$f" .onnx); [[ $f == */last.pt ]] && name=float-last  # best.pt vs the last epoch
+        "${PYTHON:-python3}" -m edgepick eval "$f" "$work/data" --split test --out "$work/ab/$name.eval.json" >/dev/null
       done
     fi ;;
   *) echo "part must be qat, rest, rest+ab or ab, got $part" >&2; exit 2 ;;
