@@ -8,7 +8,7 @@ a slice of the input and no padding. A padded tap adds (zero point - zero point)
 int32 sum, so each output gets the same accumulator and the same uint8 value. In the QDQ graph,
 DequantizeLinear -> Conv [-> Relu] -> QuantizeLinear becomes, per region, Slice (uint8) -> the
 same QDQ group with a Slice of the one stored kernel (folded when onnxruntime loads the file),
-and the regions' uint8 outputs are joined by Concat. Region nodes are named `<conv>_crop<i><j>_*`.
+and the regions' uint8 outputs are joined by Concat. Region nodes are named `<conv>_padcrop<i><j>_*`.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from itertools import pairwise
 
 import numpy as np
 
-CROP_TAG = "_crop"
+CROP_TAG = "_padcrop"
 
 
 @dataclass(frozen=True)
@@ -161,11 +161,11 @@ def _split(graph, group: _Group, attrs: dict, rows: list[Band], cols: list[Band]
         nodes.append(helper.make_node("Concat", parts, [band_outs[-1]], name=f"{band_outs[-1]}_concat", axis=3))
     nodes.append(helper.make_node("Concat", band_outs, [group.tail[-1].output[0]], name=f"{base}{CROP_TAG}_concat",
                                   axis=2))
-    at = list(graph.node).index(conv)  # every input of the regions is made before the conv was
-    for old in [conv, *group.tail]:
-        graph.node.remove(old)
+    at = list(graph.node).index(group.tail[-1])  # every input of the regions is made before it
     for k, node in enumerate(nodes):
         graph.node.insert(at + k, node)
+    for old in [conv, *group.tail]:
+        graph.node.remove(old)
     for old in (group.x_dq, group.w_dq):
         if not any(o in n.input for n in graph.node for o in old.output):
             graph.node.remove(old)

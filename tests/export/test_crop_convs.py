@@ -88,6 +88,20 @@ def test_cropped_int8_conv_gives_the_same_uint8_outputs(h, w, kernel, dilation, 
     assert len(np.unique(before[0])) > 20  # not a trivially constant output
 
 
+def test_regions_come_after_inputs_made_between_conv_and_quantize():
+    """A QuantizeLinear scale made by a Constant node after the conv: the regions must follow it."""
+    model = qdq_conv_model(30, 40, (3, 3), 24, [24, 24, 24, 24], True)
+    x = np.random.default_rng(2).integers(0, 256, (1, 16, 30, 40), dtype=np.uint8)
+    before = run(model, x)
+    scale = next(i for i in model.graph.initializer if i.name == "y_scale")
+    model.graph.initializer.remove(scale)
+    q_at = next(k for k, n in enumerate(model.graph.node) if n.op_type == "QuantizeLinear")
+    model.graph.node.insert(q_at, helper.make_node("Constant", [], ["y_scale"], value=scale, name="scale"))
+    assert crop_padded_convs(model) == 1
+    onnx.checker.check_model(model, full_check=True)  # nodes in topological order
+    assert np.array_equal(run(model, x)[0], before[0])
+
+
 def test_convs_that_read_little_padding_depthwise_and_fp32_convs_are_left_alone():
     model = qdq_conv_model(30, 40, (3, 3), 1, [1, 1, 1, 1], True)  # 3x3, pad 1: ~12% of taps are padding
     assert crop_padded_convs(model) == 0
