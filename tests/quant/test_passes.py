@@ -137,6 +137,18 @@ def test_hybrid_qat_from_a_kept_epoch(trained_run, small_data, tmp_path):
     assert float(meta["edgepick.train_time_s"]) == pytest.approx(result["float_phase_s"] + result["qat_phase_s"], abs=0.2)
     history = json.loads((tmp_path / "h.run" / "metrics.json").read_text())["history"]
     assert [h["epoch"] for h in history] == list(range(1, EPOCHS + 1))  # float epochs carried, then the QaT one
+    assert result["qat_epoch"] == EPOCHS
+
+    # the file is the QaT phase's best epoch on val (best.pt); the phase time is the whole run's (last.pt)
+    import torch
+
+    from edgepick.quant.passes import _finish_qat
+
+    last = torch.load(tmp_path / "h.run" / "last.pt", map_location="cpu", weights_only=False)
+    last.update(epoch=EPOCHS + 1, train_time_s=last["train_time_s"] + 100.0)  # as if one more, worse, epoch ran
+    torch.save(last, tmp_path / "h.run" / "last.pt")
+    again = _finish_qat(tmp_path / "h.run", small_data, tmp_path / "h2.onnx", quant)
+    assert again["qat_epoch"] == EPOCHS and again["qat_phase_s"] == pytest.approx(result["qat_phase_s"] + 100.0, abs=0.01)
 
 
 def test_qat_from_scratch(small_data, tmp_path):
