@@ -159,7 +159,8 @@ def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int,
                      size: str, device: str, seed: int, epoch_images: int, val_images: int, out: str,
                      reduce_range: bool, keep_float: str, weight_averaging: float) -> None:
     """QaT from scratch: train with fake-quant for all epochs (GPU if there is one; fp32, no AMP),
-    observers and BN statistics frozen for the last 30% of the steps, then export int8."""
+    observers and BN statistics frozen for the last 30% of the steps, then export the int8 model
+    of the epoch with the best val mIoU."""
     from edgepick.cli import parse_hxw
     from edgepick.quant.passes import quantize_qat
     from edgepick.train.loop import TrainConfig
@@ -200,7 +201,8 @@ def quantize_hybrid_cmd(run: str, data_dir: str, qat_fraction: float, qat_run: s
                         weight_averaging: float) -> None:
     """Hybrid-QaT: continue float RUN from its epoch_NNN.pt at (1 - p) of its budget E and train
     the last pE epochs with QaT (train RUN with --keep-epochs at the switch points, e.g. 90,95,99
-    for p = 10%, 5%, 1% of 100 epochs). Reports the wall time of each phase."""
+    for p = 10%, 5%, 1% of 100 epochs). Exports the QaT epoch with the best val mIoU, as export
+    takes a float RUN's best.pt. Reports the wall time of each phase."""
     from edgepick.quant.passes import quantize_hybrid
 
     _refuse_existing(out)
