@@ -54,6 +54,16 @@ def tap_work(bands: list[Band]) -> int:
     return sum((b.out1 - b.out0) * (b.tap1 - b.tap0 + 1) for b in bands)
 
 
+def graph_links(graph) -> tuple[dict, dict[str, list], set[str]]:
+    """Tensor name -> the node that makes it, -> the nodes that read it; and the graph's output names."""
+    producer = {o: n for n in graph.node for o in n.output}
+    consumers: dict[str, list] = {}
+    for n in graph.node:
+        for i in n.input:
+            consumers.setdefault(i, []).append(n)
+    return producer, consumers, {o.name for o in graph.output}
+
+
 @dataclass
 class _Group:
     """One int8 conv: x_q -> DequantizeLinear -> Conv (kernel: int8 initializer -> DequantizeLinear)
@@ -75,12 +85,7 @@ def crop_padded_convs(model, min_saving: float = 0.25) -> int:
               for v in onnx.shape_inference.infer_shapes(model).graph.value_info}
     graph = model.graph
     inits = {i.name for i in graph.initializer}
-    producer = {o: n for n in graph.node for o in n.output}
-    consumers: dict[str, list] = {}
-    for n in graph.node:
-        for i in n.input:
-            consumers.setdefault(i, []).append(n)
-    outputs = {o.name for o in graph.output}
+    producer, consumers, outputs = graph_links(graph)
     done = 0
     for conv in [n for n in graph.node if n.op_type == "Conv"]:
         group = _int8_group(conv, producer, consumers, inits, outputs)

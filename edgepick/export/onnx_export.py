@@ -19,6 +19,7 @@ from torch import Tensor, nn
 
 from edgepick.errors import ConfigError
 from edgepick.export.crop_convs import crop_padded_convs
+from edgepick.export.int8_activations import integer_activations
 
 OPSET = 21
 
@@ -89,6 +90,15 @@ def strip_debug_info(model) -> None:
     del model.graph.value_info[:]
 
 
+def drop_unused_initializers(model) -> None:
+    """Initializers no node reads any more (left by the passes above); onnxruntime warns about each."""
+    used = {i for n in model.graph.node for i in n.input} | {o.name for o in model.graph.output}
+    keep = [i for i in model.graph.initializer if i.name in used]
+    if len(keep) != len(model.graph.initializer):
+        del model.graph.initializer[:]
+        model.graph.initializer.extend(keep)
+
+
 def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: tuple[int, int]) -> Path:
     """Export NET ([0, 255] NCHW float -> logits, float or pt2e-converted) as a contract-3.2 ONNX.
 
@@ -116,6 +126,8 @@ def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: tu
         model = program.model_proto
         strip_debug_info(model)
         crop_padded_convs(model)  # int8 convs only; the same labels, less work on ASPP's dilated convs
+        integer_activations(model)  # int8 graphs only: hardswish, hardsigmoid, mean pooling on integer kernels
+        drop_unused_initializers(model)
         for key, value in metadata.items():
             entry = model.metadata_props.add()
             entry.key, entry.value = key, str(value)

@@ -69,6 +69,24 @@ def check_classes(ckpt: dict, data: str | Path) -> None:
         raise CheckpointError(f"the checkpoint's classes {ckpt['classes']} differ from the data set's {classes}")
 
 
+class GatedHardswish(torch.nn.Module):
+    """hardswish(x) written as x * hardsigmoid(x). Quantized, the gate gets its own uint8 grid and
+    onnxruntime runs both halves on integer kernels (QLinearAdd after export's integer_activations,
+    QLinearMul); a quantized HardSwish it runs in float, dequantizing the whole map."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x * torch.nn.functional.hardsigmoid(x)
+
+
+def gate_hardswish(model: torch.nn.Module) -> int:
+    """Replace every nn.Hardswish of MODEL by GatedHardswish (the same function; no weights move)."""
+    names = [name for name, m in model.named_modules() if isinstance(m, torch.nn.Hardswish)]
+    for name in names:
+        parent, _, child = name.rpartition(".")
+        setattr(model.get_submodule(parent), child, GatedHardswish())
+    return len(names)
+
+
 def prepare(model: torch.nn.Module, config: QuantConfig, size: tuple[int, int], qat: bool) -> torch.fx.GraphModule:
     """torch.export + pt2e prepare of MODEL (changed in place); raises if no observer/fake-quant was
     inserted (the silent-float trap)."""
@@ -77,6 +95,8 @@ def prepare(model: torch.nn.Module, config: QuantConfig, size: tuple[int, int], 
 
     check_keep_float(model, config.keep_float)
     trim_dilated_convs(model, size)  # exact; int8 kernels do not skip taps that only see padding
+    if config.hardswish_gate:
+        gate_hardswish(model)
     net = LogitsNet(model).train(qat)
     example = (torch.rand(2 if qat else 1, 3, *size) * 255,)
     with warnings.catch_warnings():
@@ -215,7 +235,7 @@ def load_qat(checkpoint: dict) -> torch.fx.GraphModule:
     from edgepick.models.deeplabv3 import ModelConfig, build_model
 
     tc = checkpoint["train_config"]
-    prepared = prepare(build_model(ModelConfig(**checkpoint["model_config"])), QuantConfig(**(tc["quant"] or {})),
+    prepared = prepare(build_model(ModelConfig(**checkpoint["model_config"])), QuantConfig.of_run(tc["quant"]),
                        tuple(tc["size"]), qat=True)
     load_qat_state(prepared, checkpoint["model"])
     return prepared
@@ -234,7 +254,7 @@ def _finish_qat(run: Path, data: str | Path, out: str | Path, quant: dict) -> di
     float_s, qat_s = float(last.get("init_train_time_s", 0.0)), float(last["train_time_s"])
     meta = contract_metadata(ckpt, "int8", quant, train_time_s=float_s + qat_s)
     check_images = model_images(data, "val", min(8, len(NativeDataset.open(data, "val"))), size)
-    result = export_int8(converted, out, meta, size, expected_int8_convs(prepared, QuantConfig(**ckpt["train_config"]["quant"])),
+    result = export_int8(converted, out, meta, size, expected_int8_convs(prepared, QuantConfig.of_run(ckpt["train_config"]["quant"])),
                          check_images)
     return {"mode": quant["mode"], **result, "run": str(run), "observers": count_quant_nodes(prepared),
             "float_phase_s": round(float_s, 2), "qat_phase_s": round(qat_s, 2), "val_miou_qat": ckpt["history"][-1]["miou"],

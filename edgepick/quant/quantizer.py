@@ -63,6 +63,10 @@ class QuantConfig:
     # own range). With the conv-BN fusion the quantized weight is w * gamma / sqrt(running_var + eps), which moves
     # with the BN statistics every step: a lagging range clips it (benchmarks/results/hybrid-start-cpu.md).
     weight_averaging: float = 0.01
+    # hardswish as x * hardsigmoid(x), both quantized (passes.GatedHardswish): onnxruntime then runs it on integer
+    # kernels; as one quantized op it dequantizes the map and runs in float (2.05x -> 2.5x int8 vs fp32 speed-up
+    # of the default model, benchmarks/quant_speed.py). False rebuilds QaT runs made before this existed.
+    hardswish_gate: bool = True
     keep_float: list[str] = field(default_factory=list)  # module names (prefixes) left in float
     skip: list[str] = field(default_factory=lambda: ["preprocess"])  # never quantized
 
@@ -78,6 +82,12 @@ class QuantConfig:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    @classmethod
+    def of_run(cls, quant: dict | None) -> "QuantConfig":
+        """The config a QaT run was trained with (its train_config's quant); runs from before
+        hardswish_gate existed have no such key and a graph without the gate."""
+        return cls(**{"hardswish_gate": False, **(quant or {})})
 
 
 class PercentileObserver(HistogramObserver):
