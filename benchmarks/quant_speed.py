@@ -29,6 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import emit, interleaved_times, untrained_checkpoint  # noqa: E402
 
 WHOLE = "int8, convs whole"
+FLOAT_ACT = "int8, float activations"
 
 
 def session(path: str, threads: int, profile: str | None = None) -> ort.InferenceSession:
@@ -85,6 +86,7 @@ def main() -> None:
     from edgepick.evaluation import evaluate
     from edgepick.export.onnx_export import export_checkpoint
     from edgepick.quant.passes import quantize_static
+    from edgepick.quant.quantizer import QuantConfig
 
     work = Path(tempfile.mkdtemp(prefix="quant-speed-"))
     data = Path(args.data) if args.data else work / "data"
@@ -96,15 +98,18 @@ def main() -> None:
     int8 = quantize_static(ckpt, data, work / "int8.onnx", calib_images=args.calib_images, progress=False)
     with patch("edgepick.export.onnx_export.crop_padded_convs", lambda model: 0):  # the same int8 model, convs whole
         whole = quantize_static(ckpt, data, work / "int8_whole.onnx", calib_images=args.calib_images, progress=False)
+    with patch("edgepick.export.onnx_export.integer_activations", lambda model: {}):  # hardswish, SE, pooling in float
+        float_act = quantize_static(ckpt, data, work / "int8_float_act.onnx", QuantConfig(hardswish_gate=False),
+                                    calib_images=args.calib_images, progress=False)
     size = fp32["input_size"]
     image = (np.random.default_rng(0).random((1, size[0], size[1], 3)) * 255).astype(np.uint8)
 
     rows, ops, nodes = {}, {}, {}
-    models = (("fp32", fp32), ("int8", int8), (WHOLE, whole))
+    models = (("fp32", fp32), ("int8", int8), (WHOLE, whole), (FLOAT_ACT, float_act))
     timed = latency([f["out"] for _, f in models], image, args.threads, args.runs)
     for (name, f), t in zip(models, timed):
         rows[name] = {"p50": statistics.median(t), "p95": float(np.percentile(t, 95)), "mb": f["size_bytes"] / 1e6}
-        if name == WHOLE:  # timed only: its labels are the int8 file's
+        if name in (WHOLE, FLOAT_ACT):  # timed only
             continue
         ops[name] = per_op(f["out"], image, args.threads, 10, str(work / f"prof_{name}"))
         nodes[name] = per_op(f["out"], image, args.threads, 10, str(work / f"nodes_{name}"), by_node=True)
@@ -129,7 +134,11 @@ def main() -> None:
               f"int8 file: {int8['agreement_vs_torch']}", "",
               f"`{WHOLE}` is the same int8 model without the export's crop of padding-only taps "
               f"(`edgepick/export/crop_convs.py`): {rows['fp32']['p50'] / rows[WHOLE]['p50']:.2f}x fp32; "
-              f"the crop makes int8 {rows[WHOLE]['p50'] / rows['int8']['p50']:.2f}x faster.", "",
+              f"the crop makes int8 {rows[WHOLE]['p50'] / rows['int8']['p50']:.2f}x faster. `{FLOAT_ACT}` is the int8 "
+              f"model as exported before hardswish was quantized as x * hardsigmoid(x) and before "
+              f"`edgepick/export/int8_activations.py` (HardSigmoid, HardSwish, ReduceMean run in float): "
+              f"{rows['fp32']['p50'] / rows[FLOAT_ACT]['p50']:.2f}x fp32; the integer activations make int8 "
+              f"{rows[FLOAT_ACT]['p50'] / rows['int8']['p50']:.2f}x faster.", "",
               f"Convolutions alone (profiler): fp32 {conv_fp32:.1f} ms, int8 {conv_int8:.1f} ms, {conv_fp32 / conv_int8:.2f}x. "
               f"Had every other int8 op cost nothing, int8 would run at most {rows['fp32']['p50'] / conv_int8:.2f}x "
               f"faster than fp32 on this CPU.", "", "Per-op time (ms per run, onnxruntime profiler):", "",
