@@ -126,7 +126,7 @@ def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: tu
         model = program.model_proto
         strip_debug_info(model)
         crop_padded_convs(model)  # int8 convs only; the same labels, less work on ASPP's dilated convs
-        integer_activations(model)  # int8 graphs only: hardswish, hardsigmoid, mean pooling on integer kernels
+        integer_activations(model)  # int8 graphs only: hardsigmoid (so the gated hardswish), mean pooling
         drop_unused_initializers(model)
         for key, value in metadata.items():
             entry = model.metadata_props.add()

@@ -64,8 +64,9 @@ class QuantConfig:
     # with the BN statistics every step: a lagging range clips it (benchmarks/results/hybrid-start-cpu.md).
     weight_averaging: float = 0.01
     # hardswish as x * hardsigmoid(x), both quantized (passes.GatedHardswish): onnxruntime then runs it on integer
-    # kernels; as one quantized op it dequantizes the map and runs in float (2.05x -> 2.5x int8 vs fp32 speed-up
-    # of the default model, benchmarks/quant_speed.py). False rebuilds QaT runs made before this existed.
+    # kernels; as one quantized op it dequantizes the map and runs in float (with export's integer_activations the
+    # default model's int8 file ran 1.13x / 1.34x faster in benchmarks/results/quant-speed-cpu*.md). False rebuilds
+    # QaT runs made before this existed.
     hardswish_gate: bool = True
     keep_float: list[str] = field(default_factory=list)  # module names (prefixes) left in float
     skip: list[str] = field(default_factory=lambda: ["preprocess"])  # never quantized
