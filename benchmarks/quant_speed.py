@@ -30,6 +30,7 @@ from _common import emit, interleaved_times, untrained_checkpoint  # noqa: E402
 
 WHOLE = "int8, convs whole"
 FLOAT_ACT = "int8, float activations"
+DW_FLOAT = "int8, depthwise convs in float"
 
 
 def session(path: str, threads: int, profile: str | None = None) -> ort.InferenceSession:
@@ -39,6 +40,7 @@ def session(path: str, threads: int, profile: str | None = None) -> ort.Inferenc
     opts.log_severity_level = 3
     if profile:
         opts.enable_profiling, opts.profile_file_prefix = True, profile
+        opts.optimized_model_filepath = profile + ".optimized.onnx"  # the graph the profiler's node names refer to
     return ort.InferenceSession(path, opts, providers=["CPUExecutionProvider"])
 
 
@@ -51,20 +53,47 @@ def latency(paths: list[str], image: np.ndarray, threads: int, runs: int) -> lis
     return interleaved_times([lambda i, s=s: s.run(None, {"image": image}) for s in sessions], runs)
 
 
+def conv_kinds(optimized: str) -> dict[str, str]:
+    """Node name -> kind of convolution (first, depthwise, 1x1, dense) in onnxruntime's optimized graph."""
+    import onnx
+
+    graph = onnx.load(optimized, load_external_data=False).graph
+    weights = {t.name: list(t.dims) for t in graph.initializer if len(t.dims) == 4}
+    kinds = {}
+    for node in graph.node:
+        if "Conv" not in node.op_type:
+            continue
+        group = next((a.i for a in node.attribute if a.name == "group"), 1)
+        w = next((weights[x] for x in node.input if x in weights), None)
+        if group > 1:
+            kinds[node.name] = "depthwise"
+        elif w and w[1] == 3:
+            kinds[node.name] = "first (3 input channels)"
+        elif w and w[2:] == [1, 1]:
+            kinds[node.name] = "1x1"
+        else:
+            kinds[node.name] = "dense kxk (ASPP, head; cropped taps included)"
+    return kinds
+
+
 def per_op(path: str, image: np.ndarray, threads: int, runs: int, prefix: str,
-           by_node: bool = False) -> dict[str, float]:
-    """Mean ms per run for each op type, or each node (onnxruntime profiler, after warm-up)."""
+           by: str = "op") -> dict[str, float]:
+    """Mean ms per run for each op type, node, or kind of conv (`by` = op | node | conv),
+    from onnxruntime's profiler after warm-up."""
     sess = session(path, threads, profile=prefix)
     for _ in range(3 + runs):
         sess.run(None, {"image": image})
     trace = json.loads(Path(sess.end_profiling()).read_text())
+    kinds = conv_kinds(prefix + ".optimized.onnx") if by == "conv" else {}
     per_run = defaultdict(float)
     for ev in trace:
         if ev.get("cat") == "Node" and ev["name"].endswith("_kernel_time"):
-            key = ev["args"]["op_name"]
-            if by_node:
+            key, node = ev["args"]["op_name"], ev["name"].removesuffix("_kernel_time")
+            if by == "node":
                 shape = next(iter(ev["args"].get("output_type_shape", [{}])[0].values()), [])
-                key = f"{key} {ev['name'].removesuffix('_kernel_time')} -> {shape}"
+                key = f"{key} {node} -> {shape}"
+            elif by == "conv":
+                key = kinds.get(node, "other ops")
             per_run[key] += ev["dur"] / 1000
     total_runs = 3 + runs
     return {op: ms / total_runs for op, ms in sorted(per_run.items(), key=lambda kv: -kv[1])}
@@ -82,11 +111,14 @@ def main() -> None:
     ap.add_argument("--out", default=None, help="also write the Markdown report here")
     args = ap.parse_args()
 
+    import torch
+
     from edgepick.data.synth import SynthConfig, synthesize
     from edgepick.evaluation import evaluate
     from edgepick.export.onnx_export import export_checkpoint
     from edgepick.quant.passes import quantize_static
     from edgepick.quant.quantizer import QuantConfig
+    from edgepick.train.checkpoint import load_model
 
     work = Path(tempfile.mkdtemp(prefix="quant-speed-"))
     data = Path(args.data) if args.data else work / "data"
@@ -101,18 +133,23 @@ def main() -> None:
     with patch("edgepick.export.onnx_export.integer_activations", lambda model: {}):  # hardswish, SE, pooling in float
         float_act = quantize_static(ckpt, data, work / "int8_float_act.onnx", QuantConfig(hardswish_gate=False),
                                     calib_images=args.calib_images, progress=False)
+    model, _ = load_model(ckpt)
+    depthwise = [n for n, m in model.named_modules() if isinstance(m, torch.nn.Conv2d) and m.groups > 1]
+    dw_float = quantize_static(ckpt, data, work / "int8_dw_float.onnx", QuantConfig(keep_float=depthwise),
+                               calib_images=args.calib_images, progress=False)
     size = fp32["input_size"]
     image = (np.random.default_rng(0).random((1, size[0], size[1], 3)) * 255).astype(np.uint8)
 
-    rows, ops, nodes = {}, {}, {}
-    models = (("fp32", fp32), ("int8", int8), (WHOLE, whole), (FLOAT_ACT, float_act))
+    rows, ops, nodes, convs = {}, {}, {}, {}
+    models = (("fp32", fp32), ("int8", int8), (WHOLE, whole), (FLOAT_ACT, float_act), (DW_FLOAT, dw_float))
     timed = latency([f["out"] for _, f in models], image, args.threads, args.runs)
     for (name, f), t in zip(models, timed):
         rows[name] = {"p50": statistics.median(t), "p95": float(np.percentile(t, 95)), "mb": f["size_bytes"] / 1e6}
-        if name in (WHOLE, FLOAT_ACT):  # timed only
+        if name in (WHOLE, FLOAT_ACT, DW_FLOAT):  # timed only
             continue
         ops[name] = per_op(f["out"], image, args.threads, 10, str(work / f"prof_{name}"))
-        nodes[name] = per_op(f["out"], image, args.threads, 10, str(work / f"nodes_{name}"), by_node=True)
+        nodes[name] = per_op(f["out"], image, args.threads, 10, str(work / f"nodes_{name}"), by="node")
+        convs[name] = per_op(f["out"], image, args.threads, 10, str(work / f"convs_{name}"), by="conv")
         if args.checkpoint:
             rows[name]["miou"] = evaluate(f["out"], data, "test", progress=False)["miou"]
     ratio = rows["fp32"]["p50"] / rows["int8"]["p50"]
@@ -138,7 +175,9 @@ def main() -> None:
               f"model as exported before hardswish was quantized as x * hardsigmoid(x) and before "
               f"`edgepick/export/int8_activations.py` (HardSigmoid, HardSwish, ReduceMean run in float): "
               f"{rows['fp32']['p50'] / rows[FLOAT_ACT]['p50']:.2f}x fp32; the integer activations make int8 "
-              f"{rows[FLOAT_ACT]['p50'] / rows['int8']['p50']:.2f}x faster.", "",
+              f"{rows[FLOAT_ACT]['p50'] / rows['int8']['p50']:.2f}x faster. `{DW_FLOAT}` keeps the "
+              f"{len(depthwise)} depthwise convs float (`--keep-float`), where onnxruntime's int8 kernels gain least: "
+              f"{rows['fp32']['p50'] / rows[DW_FLOAT]['p50']:.2f}x fp32.", "",
               f"Convolutions alone (profiler): fp32 {conv_fp32:.1f} ms, int8 {conv_int8:.1f} ms, {conv_fp32 / conv_int8:.2f}x. "
               f"Had every other int8 op cost nothing, int8 would run at most {rows['fp32']['p50'] / conv_int8:.2f}x "
               f"faster than fp32 on this CPU.", "", "Per-op time (ms per run, onnxruntime profiler):", "",
@@ -149,6 +188,11 @@ def main() -> None:
         b = i_ops[k] if k < len(i_ops) else ("", None)
         lines.append(f"| {a[0]} | {'' if a[1] is None else f'{a[1]:.2f}'} | | {b[0]} | "
                      f"{'' if b[1] is None else f'{b[1]:.2f}'} |")
+    lines += ["", "Time by kind of convolution (ms per run, onnxruntime profiler; int8 kept-float convs count "
+              "with their kind):", "", "| Kind | fp32 | int8 | fp32 / int8 |", "|---|---|---|---|"]
+    for kind in sorted(set(convs["fp32"]) | set(convs["int8"]), key=lambda k: (k == "other ops", -convs["fp32"].get(k, 0))):
+        a, b = convs["fp32"].get(kind, 0.0), convs["int8"].get(kind, 0.0)
+        lines.append(f"| {kind} | {a:.2f} | {b:.2f} | {a / b if b else float('nan'):.2f}x |")
     for name in nodes:
         lines += ["", f"Slowest {args.nodes} nodes, {name} (ms per run):", ""]
         lines += [f"- {ms:.2f} `{node}`" for node, ms in list(nodes[name].items())[:args.nodes]]
