@@ -1,8 +1,20 @@
-"""Helpers shared by the benchmark scripts (run as `python benchmarks/NAME.py`)."""
+"""Helpers shared by the benchmark scripts (run as `python benchmarks/NAME.py`).
+
+Each script prints a Markdown report; `--out FILE` also writes it there, `--save` writes it to
+benchmarks/results/<study>/<yyyy-mm-dd>-<machine>.md, the study named after the script.
+"""
 
 from __future__ import annotations
 
+import argparse
+import sys
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from edgepick.bench.machine import machine_line, results_file  # noqa: E402,F401 - machine_line for the scripts
+
+RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def untrained_checkpoint(path: Path, size: tuple[int, int], classes: list[str], variant: str = "standard") -> Path:
@@ -19,11 +31,27 @@ def untrained_checkpoint(path: Path, size: tuple[int, int], classes: list[str], 
     return path
 
 
-def emit(report: str, out: str | None) -> None:
-    """Print a Markdown report, and write it to OUT when given."""
+def study_name() -> str:
+    """The running script's study: benchmarks/quant_speed.py -> quant-speed."""
+    return Path(sys.argv[0]).stem.replace("_", "-")
+
+
+def add_output(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--out", default=None, help="also write the Markdown report to this file")
+    ap.add_argument("--save", action="store_true",
+                    help=f"also write it to benchmarks/results/{study_name()}/<yyyy-mm-dd>-<machine>.md")
+
+
+def emit(report: str, args: argparse.Namespace) -> None:
+    """Print a Markdown report, and write it where --out / --save say."""
     print(report)
-    if out:
-        Path(out).write_text(report)
+    targets = [Path(args.out)] if args.out else []
+    if args.save:
+        targets.append(results_file(RESULTS, study_name()))
+    for path in targets:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(report)
+        print(f"written to {path}", file=sys.stderr)
 
 
 def interleaved_times(calls: list, runs: int, block: int = 5) -> list[list[float]]:

@@ -2,7 +2,7 @@
 snapped to onnxruntime's int32 grid, at each onnxruntime graph-optimisation level (DISABLE runs
 DQ -> float Conv -> Q, BASIC and up fuse convs into QLinearConv with an int32 bias).
 
-    python benchmarks/agreement.py --run demo-out/run --data demo-out/data [--out FILE.md]
+    python benchmarks/agreement.py --run demo-out/run --data demo-out/data [--out FILE.md | --save]
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import onnxruntime as ort
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import emit  # noqa: E402
+from _common import add_output, machine_line, emit  # noqa: E402
 
 from edgepick.export.onnx_export import contract_metadata, export_onnx  # noqa: E402
 from edgepick.quant.passes import _as_input, convert, model_images, prepare  # noqa: E402
@@ -47,7 +47,7 @@ def main() -> None:
     ap.add_argument("--data", default="demo-out/data")
     ap.add_argument("--calib-images", type=int, default=64)
     ap.add_argument("--images", type=int, default=12, help="val images compared")
-    ap.add_argument("--out", default=None, help="also write the Markdown report here")
+    add_output(ap)
     args = ap.parse_args()
 
     model, ckpt = load_model(args.run)
@@ -75,8 +75,8 @@ def main() -> None:
 
     lines = ["# onnxruntime-vs-torch label agreement: conv biases on the int32 grid", "",
              f"Command: `python benchmarks/agreement.py {' '.join(sys.argv[1:])}`  ",
-             f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; onnxruntime "
-             f"{ort.__version__}, torch {torch.__version__}; model {args.run} (input {size[0]}x{size[1]}); static PTQ "
+             f"{machine_line()}; onnxruntime "
+             f"{ort.__version__}, torch {torch.__version__}; model {args.run} (input {size[1]}x{size[0]}); static PTQ "
              f"({config.calib_method}, {'7' if config.reduce_range else '8'}-bit weights, {args.calib_images} calibration "
              f"images); agreement over {args.images} val images (share of pixels with the same label).", "",
              "| conv biases | onnxruntime optimisation | agreement with torch's simulation (%) |", "|---|---|---|"]
@@ -84,7 +84,7 @@ def main() -> None:
         lines.append(f"| {'snapped to the int32 grid' if snap else 'float (as trained)'} | {name} | {100 * agree:.3f} |")
     lines += ["", f"onnxruntime's labels (ALL) from the two files agree on {100 * same_model:.4f}% of pixels: the snap "
               "changes torch's simulation, not the int8 model onnxruntime runs."]
-    emit("\n".join(lines) + "\n", args.out)
+    emit("\n".join(lines) + "\n", args)
 
 
 if __name__ == "__main__":

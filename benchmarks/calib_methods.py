@@ -2,7 +2,7 @@
 onnxruntime and on OpenVINO, and onnxruntime-vs-torch label agreement, for each activation-range
 method with 7-bit (reduce-range, the default) and 8-bit weights.
 
-    python benchmarks/calib_methods.py --run demo-out/run --data demo-out/data [--out FILE.md]
+    python benchmarks/calib_methods.py --run demo-out/run --data demo-out/data [--out FILE.md | --save]
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import emit  # noqa: E402
+from _common import add_output, machine_line, emit  # noqa: E402
 
 from edgepick.evaluation import evaluate  # noqa: E402
 from edgepick.export.onnx_export import export_checkpoint  # noqa: E402
@@ -33,7 +33,7 @@ def main() -> None:
     ap.add_argument("--data", default="demo-out/data")
     ap.add_argument("--calib-images", type=int, default=64)
     ap.add_argument("--split", default="val")
-    ap.add_argument("--out", default=None, help="also write the Markdown report here")
+    add_output(ap)
     args = ap.parse_args()
 
     try:
@@ -59,7 +59,7 @@ def main() -> None:
 
     lines = ["# Static PTQ: calibration methods on one float run", "",
              f"Command: `python benchmarks/calib_methods.py {' '.join(sys.argv[1:])}`  ",
-             f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; model {args.run}; "
+             f"{machine_line()}; model {args.run}; "
              f"{args.calib_images} calibration images of the train split; mIoU on the {args.split} split of "
              f"{args.data}.", "",
              "| Method | Weights | " + " | ".join(f"mIoU {e} (%)" for e in engines) + " | onnxruntime-vs-torch agreement (%) |",
@@ -67,7 +67,7 @@ def main() -> None:
     for method, bits, miou, agree in rows:
         lines.append(f"| {method} | {bits} | " + " | ".join(f"{100 * miou[e]:.2f}" for e in engines)
                      + f" | {'-' if agree is None else f'{100 * agree:.2f}'} |")
-    emit("\n".join(lines) + "\n", args.out)
+    emit("\n".join(lines) + "\n", args)
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 the last 10% of its epoch budget in QaT twice from the same kept epoch, fresh optimizer against
 carried moments (TrainConfig.carry_optimizer), with the validation mIoU of each epoch.
 
-    python benchmarks/hybrid_optimizer.py [--epochs 40] [--out FILE.md]
+    python benchmarks/hybrid_optimizer.py [--epochs 40] [--out FILE.md | --save]
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from dataclasses import replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import emit  # noqa: E402
+from _common import add_output, machine_line, emit  # noqa: E402
 
 from edgepick.data.synth import SynthConfig, synthesize  # noqa: E402
 from edgepick.quant.quantizer import QuantConfig  # noqa: E402
@@ -26,7 +26,7 @@ from edgepick.train.loop import TrainConfig, train  # noqa: E402
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--epochs", type=int, default=40, help="float epoch budget E; QaT runs the last E/10")
-    ap.add_argument("--out", default=None, help="also write the Markdown report here")
+    add_output(ap)
     args = ap.parse_args()
     switch = args.epochs - max(1, args.epochs // 10)
     with tempfile.TemporaryDirectory() as tmp:
@@ -47,14 +47,14 @@ def main() -> None:
     epochs = list(range(switch + 1, args.epochs + 1))
     lines = ["# Hybrid-QaT: fresh optimizer against the float run's AdamW moments", "",
              f"Command: `python benchmarks/hybrid_optimizer.py --epochs {args.epochs}`", "",
-             f"- machine: {platform.processor() or platform.machine()}, CPU; synthetic 80/20 scenes at 320x240, "
-             f"input 64x96, batch 8, E = {args.epochs}, QaT from the float run's epoch {switch}",
+             f"- {machine_line()}; synthetic 80/20 scenes at 320x240, "
+             f"input 96x64, batch 8, E = {args.epochs}, QaT from the float run's epoch {switch}",
              "- validation mIoU (%) after each epoch, 20 val images (small: differences under ~1 pp are noise)", "",
              "| Run | " + " | ".join(f"epoch {e}" for e in epochs) + " |", "|---|" + "---|" * len(epochs)]
     for label, history in rows.items():
         by_epoch = {h["epoch"]: h["miou"] for h in history}
         lines.append(f"| {label} | " + " | ".join(f"{100 * by_epoch[e]:.2f}" for e in epochs) + " |")
-    emit("\n".join(lines) + "\n", args.out)
+    emit("\n".join(lines) + "\n", args)
 
 
 if __name__ == "__main__":

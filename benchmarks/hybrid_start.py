@@ -1,7 +1,7 @@
 """Where hybrid-QaT's first-epoch drop comes from, without any weight update: one float run, then
 the val mIoU of int8 models converted from it in ways that differ only in their activation ranges.
 
-    python benchmarks/hybrid_start.py [--run RUN --data DATA] [--hybrid P] [--out FILE.md]
+    python benchmarks/hybrid_start.py [--run RUN --data DATA] [--hybrid P] [--out FILE.md | --save]
 
 Without --run it trains a small float model on CPU first. Rows:
 - static PTQ, percentile (the default) and minmax ranges, calibrated on plain train images;
@@ -26,9 +26,10 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import emit  # noqa: E402
+from _common import add_output, machine_line, emit  # noqa: E402
 
 from edgepick.data.native import NativeDataset  # noqa: E402
+from edgepick.cli_options import model_size  # noqa: E402
 from edgepick.data.synth import SynthConfig, synthesize  # noqa: E402
 from edgepick.export.onnx_export import LogitsNet  # noqa: E402
 from edgepick.metrics import confusion_matrix, segmentation_metrics  # noqa: E402
@@ -142,20 +143,20 @@ def main() -> None:
     ap.add_argument("--run", default=None, help="float RUN or checkpoint (default: train one here)")
     ap.add_argument("--data", default=None)
     ap.add_argument("--epochs", type=int, default=40)
-    ap.add_argument("--size", default="128x160")
+    ap.add_argument("--size", default="160x128", help="model input WIDTHxHEIGHT")
     ap.add_argument("--batches", type=int, default=8, help="augmented batches for the QaT start")
     ap.add_argument("--batch-size", type=int, default=8)
     ap.add_argument("--val", type=int, default=40, help="val images scored")
     ap.add_argument("--hybrid", type=float, default=None, help="also run hybrid-QaT with this fraction")
     ap.add_argument("--clipping-only", action="store_true", help="only the weight-range clipping line")
-    ap.add_argument("--out", default=None)
+    add_output(ap)
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         if args.run is None:
             data = Path(tmp) / "data"
             synthesize(data, SynthConfig(scenes=360, width=320, height=240, seed=5, splits=(300, 40, 20)),
                        progress=False)
-            size = tuple(int(v) for v in args.size.split("x"))
+            size = model_size(args.size)
             run = Path(tmp) / "float"
             train(TrainConfig(data=str(data), out=str(run), epochs=args.epochs, batch_size=8, size=size, lr=2e-3,
                               device="cpu"), progress=False)
@@ -168,7 +169,7 @@ def main() -> None:
         batches = train_batches(data, size, args.batches, args.batch_size)
         clipping = weight_clipping(model, size, batches)
         if args.clipping_only:
-            emit(f"Command: `python benchmarks/hybrid_start.py {' '.join(sys.argv[1:])}`\n\n- {clipping}\n", args.out)
+            emit(f"Command: `python benchmarks/hybrid_start.py {' '.join(sys.argv[1:])}`\n\n- {clipping}\n", args)
             return
         rows = {"fp32": val_miou(LogitsNet(copy.deepcopy(model)).eval(), data, size, args.val),
                 "static, percentile, 64 plain images": val_miou(static(model, size, plain, "percentile"), data, size, args.val),
@@ -187,7 +188,7 @@ def main() -> None:
         source = "trained here" if args.run is None else str(run)
     lines = ["# Hybrid-QaT's starting point: activation ranges", "",
              "Command: `python benchmarks/hybrid_start.py " + " ".join(sys.argv[1:]) + "`", "",
-             f"- machine: {platform.processor() or platform.machine()}, CPU; float model {source}, input {size[0]}x{size[1]}; "
+             f"- {machine_line()}; float model {source}, input {size[1]}x{size[0]}; "
              f"batches of {args.batch_size}; mIoU on {args.val} val images", "",
              "| int8 model | val mIoU (%) | vs fp32 (pp) |", "|---|---|---|"]
     for label, value in rows.items():
@@ -200,7 +201,7 @@ def main() -> None:
                   "| model | val mIoU (%) | test mIoU (%) | QaT phase (s) |", "|---|---|---|---|"]
         for label, (val, test, seconds) in hybrid_rows.items():
             lines.append(f"| {label} | {val:.2f} | {test:.2f} | {seconds} |")
-    emit("\n".join(lines) + "\n", args.out)
+    emit("\n".join(lines) + "\n", args)
 
 
 if __name__ == "__main__":

@@ -4,7 +4,7 @@ pass (run by onnxruntime, and by OpenVINO). mIoU, agreement with fp32, latency o
 threads and images, size.
 
     pip install '.[peers]'      # nncf, openvino
-    python benchmarks/peers.py --run demo-out/run --data demo-out/data [--threads 2] [--out FILE.md]
+    python benchmarks/peers.py --run demo-out/run --data demo-out/data [--threads 2] [--out FILE.md | --save]
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import emit, interleaved_times  # noqa: E402
+from _common import add_output, machine_line, emit, interleaved_times  # noqa: E402
 
 from edgepick.data.native import NativeDataset  # noqa: E402
 from edgepick.metrics import confusion_matrix, segmentation_metrics  # noqa: E402
@@ -108,7 +108,7 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=30)
     ap.add_argument("--calib-images", type=int, default=32)
     ap.add_argument("--split", default="val", help="split for accuracy (the demo's test split has only 4 images)")
-    ap.add_argument("--out", default=None, help="also write the Markdown report here")
+    add_output(ap)
     args = ap.parse_args()
 
     import nncf
@@ -174,9 +174,9 @@ def main() -> None:
     fp32_p50 = table[0][4]
     lines = [f"# Peers: the same float model quantized by other tools, {args.threads} threads",
              "", f"Command: `python benchmarks/peers.py {' '.join(sys.argv[1:])}`  ",
-             f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; onnxruntime "
+             f"{machine_line()}; onnxruntime "
              f"{ort.__version__}, openvino {ov.__version__.split('-')[0]}, nncf {nncf.__version__}; model: {args.run} "
-             f"(input {size[0]}x{size[1]}); accuracy on {len(ds)} {args.split} images of {args.data}; latency over "
+             f"(input {size[1]}x{size[0]}); accuracy on {len(ds)} {args.split} images of {args.data}; latency over "
              f"{args.runs} runs per model after warm-up, the models timed in alternating blocks of 5 (one process, same "
              f"images).", "",
              "| Quantized by (engine) | mIoU (%) | Pixel acc (%) | agreement with fp32 (%) | p50 (ms) | p95 (ms) "
@@ -186,7 +186,7 @@ def main() -> None:
                      f"| {p50:.1f} | {p95:.1f} | {fp32_p50 / p50:.2f}x | {mbytes:.2f} |")
     lines += ["", why_slower(table)]
     report = "\n".join(lines) + "\n"
-    emit(report, args.out)
+    emit(report, args)
 
 
 if __name__ == "__main__":

@@ -1,12 +1,12 @@
 """Frame -> first robot command latency of the whole pick loop (issue target: <= 60 ms outside
 the robot's own motion; thesis: 5.59 s on a laptop).
 
-    python benchmarks/pick_latency.py [--model m.onnx ...] [--cycles 20] [--threads 2] [--out FILE.md]
+    python benchmarks/pick_latency.py [--model m.onnx ...] [--cycles 20] [--threads 2] [--out FILE.md | --save]
 
 Synthetic 640x480 frames from a camera over a calibrated cell, the pick loop with SimRobot
 (its motion takes no wall time, so what is measured is perception, target choice, planning,
 the envelope checks and issuing the first command). Without --model, untrained default
-models are exported at 480x640 and 240x320 and quantized (static int8): latency does not
+models are exported at 640x480 and 320x240 and quantized (static int8): latency does not
 depend on the weights. One process, the same frames for every model.
 """
 
@@ -25,7 +25,7 @@ import numpy as np
 import onnxruntime as ort
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import emit, untrained_checkpoint  # noqa: E402
+from _common import add_output, machine_line, emit, untrained_checkpoint  # noqa: E402
 
 from edgepick.data.render import CLASSES  # noqa: E402
 from edgepick.robot.grippers import DigitalGripper  # noqa: E402
@@ -55,7 +55,7 @@ def main() -> None:
     ap.add_argument("--model", action="append", default=None)
     ap.add_argument("--cycles", type=int, default=20)
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--out", default=None)
+    add_output(ap)
     args = ap.parse_args()
     work = Path(tempfile.mkdtemp(prefix="pick-latency-"))
     rows = {}
@@ -82,20 +82,20 @@ def main() -> None:
 
     lines = [f"# Pick loop: frame -> first command latency, {args.threads} onnxruntime threads", "",
              f"Command: `python benchmarks/pick_latency.py {' '.join(sys.argv[1:])}`  ",
-             f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; onnxruntime "
+             f"{machine_line()}; onnxruntime "
              f"{ort.__version__}; synthetic 640x480 frames, SimRobot; {args.cycles} cycles after 2 warm-up, one process.",
              "", "| Model (input) | cycles | with a target | inference p50 (ms) | frame -> plan p50 (ms) | p95 (ms) "
              "| frame -> first command p50 (ms) | simulated motion per cycle (s) |", "|---|---|---|---|---|---|---|---|"]
     for name, r in rows.items():
         cmd = "-" if r["cmd_p50"] is None else f"{r['cmd_p50']:.1f}"
         motion = "-" if r["motion_s"] is None else f"{r['motion_s']:.1f}"
-        lines.append(f"| {name} ({r['input'][0]}x{r['input'][1]}) | {r['cycles']} | {r['picked']} | "
+        lines.append(f"| {name} ({r['input'][1]}x{r['input'][0]}) | {r['cycles']} | {r['picked']} | "
                      f"{r['infer_p50']:.1f} | {r['plan_p50']:.1f} | {r['plan_p95']:.1f} | {cmd} | {motion} |")
     lines += ["", "Frame -> plan covers perception (pre, inference, post, grasp), target choice, planning and the",
               "envelope check of every pose; frame -> first command adds issuing the first moveL. Thesis: 5.59 s.",
               "Target: <= 60 ms."]
     report = "\n".join(lines) + "\n"
-    emit(report, args.out)
+    emit(report, args)
 
 
 if __name__ == "__main__":

@@ -1,8 +1,8 @@
 """fp32 vs int8 (static PTQ) latency of the default model in onnxruntime, with the per-op breakdown.
 
-    python benchmarks/quant_speed.py [--checkpoint RUN] [--threads 2] [--runs 30] [--out FILE.md]
+    python benchmarks/quant_speed.py [--checkpoint RUN] [--threads 2] [--runs 30] [--out FILE.md | --save]
 
-Without --checkpoint a seeded, untrained DeepLabV3-MobileNetV3 at 480x640 is used (latency
+Without --checkpoint a seeded, untrained DeepLabV3-MobileNetV3 at 640x480 is used (latency
 does not depend on the weights; accuracy does, so mIoU needs a trained RUN). Both files run
 in this one process, same thread count, same input, after warm-up; medians and the ratio
 are what to quote. Per-op times come from onnxruntime's profiler.
@@ -26,7 +26,7 @@ import numpy as np
 import onnxruntime as ort
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import emit, interleaved_times, untrained_checkpoint  # noqa: E402
+from _common import add_output, machine_line, emit, interleaved_times, untrained_checkpoint  # noqa: E402
 
 WHOLE = "int8, convs whole"
 FLOAT_ACT = "int8, float activations"
@@ -101,14 +101,14 @@ def per_op(path: str, image: np.ndarray, threads: int, runs: int, prefix: str,
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--checkpoint", default=None, help="RUN or checkpoint (default: untrained model at 480x640)")
+    ap.add_argument("--checkpoint", default=None, help="RUN or checkpoint (default: untrained model at 640x480)")
     ap.add_argument("--data", default=None, help="data set for calibration and mIoU (default: 24 synthetic scenes)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--runs", type=int, default=30)
     ap.add_argument("--calib-images", type=int, default=16)
     ap.add_argument("--variant", default="standard", choices=["standard", "edge"], help="model variant (untrained)")
     ap.add_argument("--nodes", type=int, default=8, help="also list the N slowest nodes of each model")
-    ap.add_argument("--out", default=None, help="also write the Markdown report here")
+    add_output(ap)
     args = ap.parse_args()
 
     import torch
@@ -157,9 +157,9 @@ def main() -> None:
     conv_int8 = ops["int8"].get("QLinearConv", 0.0) + ops["int8"].get("Conv", 0.0)  # kept-float convs count too
 
     lines = [f"# fp32 vs int8 (static PTQ) in onnxruntime {ort.__version__}, {args.threads} threads, "
-             f"input {size[0]}x{size[1]}",
+             f"input {size[1]}x{size[0]}",
              "", f"Command: `python benchmarks/quant_speed.py {' '.join(sys.argv[1:])}`  ",
-             f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; "
+             f"{machine_line()}; "
              f"model: {'checkpoint ' + args.checkpoint if args.checkpoint else f'untrained DeepLabV3-MobileNetV3 ({args.variant})'}; "
              f"{args.runs} runs each after 5 warm-up, one process, the models timed in alternating blocks of 5.", "",
              "| Model | p50 (ms) | p95 (ms) | Size (MB) |" + (" mIoU |" if args.checkpoint else ""),
@@ -197,7 +197,7 @@ def main() -> None:
         lines += ["", f"Slowest {args.nodes} nodes, {name} (ms per run):", ""]
         lines += [f"- {ms:.2f} `{node}`" for node, ms in list(nodes[name].items())[:args.nodes]]
     report = "\n".join(lines) + "\n"
-    emit(report, args.out)
+    emit(report, args)
     shutil.rmtree(work, ignore_errors=True)
 
 

@@ -1,10 +1,10 @@
 """Per-stage time of the runtime at 640x480 on a fixed thread count (issue target: everything
 outside inference <= 5 ms median).
 
-    python benchmarks/runtime_stages.py [--model m.onnx ...] [--threads 2] [--frames 20] [--out FILE.md]
+    python benchmarks/runtime_stages.py [--model m.onnx ...] [--threads 2] [--frames 20] [--out FILE.md | --save]
 
 Frames are synthetic 640x480 scenes. Without --model, an untrained DeepLabV3-MobileNetV3 at
-480x640 is exported as fp32 and static int8 (needs the [train] extra); an untrained model's
+640x480 is exported as fp32 and static int8 (needs the [train] extra); an untrained model's
 labels are noise, so the grasp stage is also timed on each scene's true label image, which has
 the real number of objects. One process, same frames for every model, after warm-up.
 """
@@ -25,7 +25,7 @@ import numpy as np
 import onnxruntime as ort
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import emit, untrained_checkpoint  # noqa: E402
+from _common import add_output, machine_line, emit, untrained_checkpoint  # noqa: E402
 
 from edgepick.data.render import CLASSES, SceneRenderer  # noqa: E402
 from edgepick.runtime.camera import Frame  # noqa: E402
@@ -54,7 +54,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--repeats", type=int, default=3, help="timed passes over the frames")
-    ap.add_argument("--out", default=None, help="also write the Markdown report here")
+    add_output(ap)
     args = ap.parse_args()
 
     work = Path(tempfile.mkdtemp(prefix="runtime-stages-"))
@@ -87,13 +87,13 @@ def main() -> None:
     true_med = float(np.median(true_grasp))
     lines = [f"# Runtime per-stage time, 640x480 frames, {args.threads} onnxruntime threads",
              "", f"Command: `python benchmarks/runtime_stages.py {' '.join(sys.argv[1:])}`  ",
-             f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; onnxruntime "
+             f"{machine_line()}; onnxruntime "
              f"{ort.__version__}; {args.frames} synthetic frames x {args.repeats} passes after warm-up, one process. "
              f"Medians in ms.", "",
              "| Model (input) | " + " | ".join(STAGES) + " | outside inference | total p50 | total p95 |",
              "|---" * (len(STAGES) + 4) + "|"]
     for name, (med, p95, size) in rows.items():
-        lines.append(f"| {name} ({size[0]}x{size[1]}) | " + " | ".join(f"{med[s]:.2f}" for s in STAGES)
+        lines.append(f"| {name} ({size[1]}x{size[0]}) | " + " | ".join(f"{med[s]:.2f}" for s in STAGES)
                      + f" | {med['outside_inference']:.2f} | {med['total']:.1f} | {p95:.1f} |")
     lines += ["", f"Grasp stage on the scenes' true label images (median {objects:.0f} objects per frame): "
               f"**{true_med:.2f} ms** median.", ""]
@@ -101,7 +101,7 @@ def main() -> None:
     lines.append(f"Outside inference with true labels (pre + post of the slowest model + grasp): "
                  f"**{worst + true_med:.2f} ms** (target <= 5 ms).")
     report = "\n".join(lines) + "\n"
-    emit(report, args.out)
+    emit(report, args)
     print(json.dumps({n: m for n, (m, _, _) in rows.items()}), file=sys.stderr)
 
 

@@ -2,12 +2,12 @@
 scratch, hybrid-QaT 1/5/10% from the float run's kept epochs, then `edgepick bench`.
 
     python benchmarks/table55.py --quick             # minutes on 2 CPU cores (scaled down, stated in the output)
-    python benchmarks/table55.py --setting lease     # 4000/1000/100 at 480x640, 100 epochs of 160 images (GPU)
-    python benchmarks/table55.py                     # the full setting: 4000/1000/100 at 480x640, 100 epochs (GPU)
+    python benchmarks/table55.py --setting short     # 4000/1000/100 at 640x480, 100 epochs of 160 images (GPU)
+    python benchmarks/table55.py                     # the full setting: 4000/1000/100 at 640x480, 100 epochs (GPU)
 
 Phases can be split over several runs with --work DIR --only PHASES (synth, float, fp32, static,
 qat, hybrid, bench): a phase whose output is already in DIR is kept, with its recorded time.
-Writes benchmarks/results/table55-<machine>[-<setting>].md (+ .png) with the machine, the
+Writes benchmarks/results/table55/<date>-<machine>[-<setting>].md (+ .png) with the machine, the
 versions, the settings, the commands, the wall time of every phase and the tables
 (edgepick/bench/table55.py).
 """
@@ -18,6 +18,7 @@ import argparse
 import os
 import shutil
 import sys
+from datetime import date
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -47,10 +48,10 @@ def main() -> None:
     table = make_table55(work, setting, args.device, cmd, echo=lambda line: print(line, file=sys.stderr, flush=True),
                          only=only)
     if table is not None:
-        results = Path(args.results)
-        results.mkdir(parents=True, exist_ok=True)
-        (results / f"table55-{table['name']}.md").write_text(table["markdown"])
-        shutil.copy(table["png"], results / f"table55-{table['name']}.png")
+        md = Path(args.results) / "table55" / f"{date.today().isoformat()}-{table['name']}.md"
+        md.parent.mkdir(parents=True, exist_ok=True)
+        md.write_text(table["markdown"])
+        shutil.copy(table["png"], md.with_suffix(".png"))
         print(table["markdown"])
     if not args.work:
         shutil.rmtree(work, ignore_errors=True)

@@ -1,8 +1,8 @@
 """Standard vs quantization-friendly ('edge') DeepLabV3-MobileNetV3, measured in one run:
 mIoU in fp32 and after static int8 (same data, same training budget), onnxruntime-vs-torch
-agreement, and fp32/int8 latency at 480x640 on 2 threads.
+agreement, and fp32/int8 latency at 640x480 on 2 threads.
 
-    python benchmarks/variant_study.py [--epochs 30] [--size 96x128] [--out FILE.md]
+    python benchmarks/variant_study.py [--epochs 30] [--size 128x96] [--out FILE.md | --save]
 
 The edge variant drops MobileNetV3's squeeze-excitation blocks and hardswish (ReLU instead)
 and slims the ASPP head to 128 channels: the ops that stay float or drift in int8 graphs.
@@ -22,19 +22,21 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import emit, untrained_checkpoint  # noqa: E402
+from _common import add_output, machine_line, emit, untrained_checkpoint  # noqa: E402
 from quant_speed import latency  # noqa: E402
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--epochs", type=int, default=30)
-    ap.add_argument("--size", default="96x128", help="training input HxW")
+    ap.add_argument("--size", default="128x96", help="model input WIDTHxHEIGHT")
     ap.add_argument("--splits", default="80,20,20")
     ap.add_argument("--runs", type=int, default=20)
-    ap.add_argument("--out", default=None)
+    add_output(ap)
     args = ap.parse_args()
-    h, w = (int(v) for v in args.size.split("x"))
+    from edgepick.cli_options import model_size
+
+    h, w = model_size(args.size)
     splits = tuple(int(v) for v in args.splits.split(","))
 
     import torch
@@ -76,9 +78,9 @@ def main() -> None:
 
     lines = ["# Standard vs edge DeepLabV3-MobileNetV3: accuracy and int8 speed", "",
              f"Command: `python benchmarks/variant_study.py {' '.join(sys.argv[1:])}`  ",
-             f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}. "
+             f"{machine_line()}; torch {torch.__version__}. "
              f"Accuracy: synthetic splits {splits}, {args.epochs} CPU epochs at {h}x{w}, static int8 ({QuantConfig().calib_method}, 32 "
-             f"images), test-split mIoU through onnxruntime. Latency: the same architectures at 480x640, 2 threads, "
+             f"images), test-split mIoU through onnxruntime. Latency: the same architectures at 640x480, 2 threads, "
              f"median of {args.runs} runs, one process, fp32 and int8 timed in alternating blocks of 5.", "",
              "| Variant | Params (M) | train (s) | fp32 mIoU (%) | int8 mIoU (%) | drop (pp) | ORT vs torch agreement "
              "| fp32 p50 (ms) | int8 p50 (ms) | int8 speed-up | int8 size (MB) |", "|---" * 11 + "|"]
@@ -90,7 +92,7 @@ def main() -> None:
     lines += ["", f"Edge int8 vs standard fp32 latency: {s['fp32_ms'] / e['int8_ms']:.2f}x faster; "
               f"edge int8 vs standard int8: {s['int8_ms'] / e['int8_ms']:.2f}x."]
     report = "\n".join(lines) + "\n"
-    emit(report, args.out)
+    emit(report, args)
 
 
 if __name__ == "__main__":

@@ -15,23 +15,21 @@ from pathlib import Path
 import click
 
 from edgepick import __version__
-from edgepick.cli_quant import _with, epoch_subset  # click-only module, no torch
+from edgepick.cli_options import SIZE_HELP, check_orientation, epoch_subset, model_size, parse_size, with_options
 from edgepick.errors import ConfigError, EdgepickError
-
-
-def parse_hxw(text: str) -> tuple[int, int]:
-    """'480x640' -> (480, 640) as height, width."""
-    try:
-        h, w = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise ConfigError(f"--size must be HEIGHTxWIDTH like 480x640, got {text!r}") from None
-    if h < 32 or w < 32 or h % 8 or w % 8:
-        raise ConfigError(f"--size {text!r}: both sides must be multiples of 8 and at least 32")
-    return h, w
 
 
 def _emit(result: dict) -> None:
     click.echo(json.dumps(result, indent=1))
+
+
+def check_data_orientation(data_dir: str, input_hw: tuple[int, int]) -> None:
+    """check_orientation against the first train image of DATA (one PNG read)."""
+    from edgepick.data.native import NativeDataset
+
+    ds = NativeDataset.open(data_dir, "train")
+    if len(ds):
+        check_orientation(input_hw, ds.rgb(ds.ids[0]).shape[:2])
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
@@ -48,14 +46,14 @@ def cli() -> None:
 # ---------------------------------------------------------------------------- data
 @cli.group()
 def data() -> None:
-    """Make and inspect data sets (native layout, contract 3.1)."""
+    """Make and inspect data sets (native layout, docs/contracts.md#data-set-layout)."""
 
 
 @data.command("synth")
 @click.argument("out", type=click.Path(file_okay=False))
 @click.option("--scenes", default=510, show_default=True, help="Total scenes, split 40:10:1 like the thesis's 4000/1000/100.")
 @click.option("--splits", default=None, metavar="TRAIN,VAL,TEST", help="Explicit scene counts per split (overrides --scenes).")
-@click.option("--size", default="640x480", show_default=True, help="Image WIDTHxHEIGHT (camera convention).")
+@click.option("--size", default="640x480", show_default=True, help="Image size, WIDTHxHEIGHT.")
 @click.option("--seed", default=0, show_default=True, help="Same seed -> identical files.")
 @click.option("--workers", default=0, show_default=True, help="Parallel processes; 0 = one per core.")
 def data_synth(out: str, scenes: int, splits: str | None, size: str, seed: int, workers: int) -> None:
@@ -65,9 +63,9 @@ def data_synth(out: str, scenes: int, splits: str | None, size: str, seed: int, 
     occluding each other, on wood/laminate/mat/steel tables under the four lighting
     conditions of thesis Table 5.3; D415-like depth with noise and holes; grasp truth.
     """
-    from edgepick.data.synth import SynthConfig, parse_size_wxh, synthesize
+    from edgepick.data.synth import SynthConfig, synthesize
 
-    width, height = parse_size_wxh(size)
+    width, height = parse_size(size)
     split_counts = None
     if splits:
         try:
@@ -136,14 +134,13 @@ def data_import(fmt: str, src: str, out: str, cityscapes_classes: str, splits: s
               help="realsense[:SERIAL], synth[:SEED] or dir:PATH (the same sources as the runtime).")
 @click.option("--count", default=10, show_default=True, help="Frames to save.")
 @click.option("--interval", default=0.0, show_default=True, help="Seconds between frames (time to move objects).")
-@click.option("--size", default="640x480", show_default=True, help="Stream WIDTHxHEIGHT.")
+@click.option("--size", default="640x480", show_default=True, help="Camera stream size, WIDTHxHEIGHT.")
 def data_capture(out: str, camera: str, count: int, interval: float, size: str) -> None:
     """Save aligned RGB + depth + intrinsics.json from a camera into OUT, for annotation (e.g. CVAT)."""
     from edgepick.data.capture import capture
-    from edgepick.data.synth import parse_size_wxh
     from edgepick.runtime.camera import open_camera
 
-    width, height = parse_size_wxh(size)
+    width, height = parse_size(size)
     _emit(capture(open_camera(camera, width, height), out, count, interval))
 
 
@@ -159,13 +156,14 @@ def data_capture(out: str, camera: str, count: int, interval: float, size: str) 
 @click.option("--batch-size", default=8, show_default=True)
 @click.option("--lr", default=1e-3, show_default=True, help="AdamW learning rate (poly decay, short warm-up).")
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
-@click.option("--size", default="480x640", show_default=True, help="Training input HEIGHTxWIDTH.")
+@click.option("--size", default="640x480", show_default=True,
+              help="Model input size, WIDTHxHEIGHT (multiples of 8); images are resized to it.")
 @click.option("--colorspace", default="rgb", show_default=True, type=click.Choice(["rgb", "hsv", "gray"]))
 @click.option("--output-stride", default=16, show_default=True, type=click.Choice(["8", "16"]))
 @click.option("--aux-loss/--no-aux-loss", default=False, show_default=True, help="FCN auxiliary head (weight 0.4).")
 @click.option("--keep-epochs", default="", help="Comma-separated epochs whose checkpoints are kept (hybrid-QaT switch points).")
 @click.option("--backbone-weights", default=None, type=click.Path(dir_okay=False), help="Backbone state dict to start from.")
-@_with(epoch_subset)
+@with_options(epoch_subset)
 @click.option("--workers", default=-1, show_default=True,
               help="Data loader workers; -1 = decode once into memory (4 workers on GPU when that does not fit).")
 @click.option("--seed", default=0, show_default=True)
@@ -186,8 +184,11 @@ def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, 
         keep = sorted({int(v) for v in keep_epochs.split(",") if v.strip()})
     except ValueError:
         raise ConfigError(f"--keep-epochs must be comma-separated integers, got {keep_epochs!r}") from None
+    input_hw = model_size(size)
+    if not resume:
+        check_data_orientation(data_dir, input_hw)
     cfg = TrainConfig(data=data_dir, out=out, arch=arch, variant=variant, epochs=epochs if epochs is not None else (0 if resume else 100),
-                      batch_size=batch_size, lr=lr, size=parse_hxw(size), colorspace=colorspace,
+                      batch_size=batch_size, lr=lr, size=input_hw, colorspace=colorspace,
                       output_stride=int(output_stride), aux_loss=aux_loss, device=device, keep_epochs=keep,
                       backbone_weights=backbone_weights, epoch_images=epoch_images, val_images=val_images,
                       workers=workers, seed=seed)
@@ -214,7 +215,8 @@ def eval_cmd(model: str, data_dir: str, split: str, out: str | None) -> None:
 # ----------------------------------------------------------------------- calibrate
 @cli.command()
 @click.argument("pairs", type=click.Path(dir_okay=False))
-@click.option("--out", required=True, type=click.Path(dir_okay=False), help="calib.json to write (contract 3.4).")
+@click.option("--out", required=True, type=click.Path(dir_okay=False),
+              help="calib.json to write (docs/contracts.md#intrinsics-and-calibration).")
 def calibrate(pairs: str, out: str) -> None:
     """Fit the camera-to-robot transform (Kabsch, det = +1) from PAIRS.csv.
 
@@ -238,10 +240,11 @@ def calibrate(pairs: str, out: str) -> None:
 @click.option("--mask", "mask_path", default=None, type=click.Path(dir_okay=False),
               help="Mask mode: label image (uint8 class ids), e.g. DATA/<split>/mask/<id>.png.")
 @click.option("--model", "model_path", default=None, type=click.Path(dir_okay=False),
-              help="Model mode: an edgepick ONNX (contract 3.2) run on --rgb.")
+              help="Model mode: an edgepick ONNX (docs/contracts.md#onnx-model) run on --rgb.")
 @click.option("--rgb", "rgb_path", default=None, type=click.Path(dir_okay=False), help="Colour image for --model.")
 @click.option("--depth", "depth_path", required=True, type=click.Path(dir_okay=False), help="uint16 depth PNG.")
-@click.option("--intrinsics", required=True, type=click.Path(dir_okay=False), help="intrinsics.json (contract 3.4).")
+@click.option("--intrinsics", required=True, type=click.Path(dir_okay=False),
+              help="intrinsics.json (docs/contracts.md#intrinsics-and-calibration).")
 @click.option("--calib", default=None, type=click.Path(dir_okay=False), help="calib.json: adds pose_robot.")
 @click.option("--classes", default=None,
               help="Mask mode: class names by id, comma-separated [default: the synthetic set's five]. "
@@ -255,7 +258,7 @@ def calibrate(pairs: str, out: str) -> None:
 def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, depth_path: str, intrinsics: str,
           calib: str | None, classes: str | None, threads: int, engine: str, overlay: str | None,
           profile: bool) -> None:
-    """Grasp records (JSON list, contract 3.3) for every object in a label image or a model's output.
+    """Grasp records (JSON list, docs/contracts.md#grasp-record) for every object in a label image or a model's output.
 
     Median 3x3 and dilate 5x5 per class, one record per region: centroid and major-axis
     angle from image moments, depth from the object's own valid pixels, 3D point, and with

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from edgepick.cli_options import epoch_subset, with_options
 from edgepick.errors import ConfigError
 
 
@@ -29,7 +30,8 @@ def _refuse_existing(out: str) -> None:
 
 
 common = [
-    click.option("--out", required=True, type=click.Path(dir_okay=False), help="int8 ONNX to write (contract 3.2)."),
+    click.option("--out", required=True, type=click.Path(dir_okay=False),
+                 help="int8 ONNX to write (docs/contracts.md#onnx-model)."),
     click.option("--reduce-range/--full-range", default=True, show_default=True,
                  help="7-bit weights, for CPUs without VNNI (AVX2 only: onnxruntime's U8S8 kernels saturate "
                       "with 8-bit weights). --full-range for AVX512-VNNI/AVX-VNNI targets."),
@@ -45,26 +47,10 @@ qat_options = [
 ]
 
 
-# shared with `edgepick train`
-epoch_subset = [
-    click.option("--epoch-images", default=0, show_default=True,
-                 help="Images per epoch, drawn afresh from the train split each epoch; 0 = the whole split."),
-    click.option("--val-images", default=0, show_default=True,
-                 help="Validate each epoch on this many evenly spaced val images; 0 = the whole split."),
-]
-
-
-def _with(options):
-    def wrap(f):
-        for opt in reversed(options):
-            f = opt(f)
-        return f
-    return wrap
-
-
 @click.command("export")
 @click.argument("checkpoint", metavar="RUN_OR_CKPT", type=click.Path())
-@click.option("--out", required=True, type=click.Path(dir_okay=False), help="fp32 ONNX to write (contract 3.2).")
+@click.option("--out", required=True, type=click.Path(dir_okay=False),
+              help="fp32 ONNX to write (docs/contracts.md#onnx-model).")
 def export_cmd(checkpoint: str, out: str) -> None:
     """Export a float checkpoint (or RUN's best.pt) as an fp32 ONNX: uint8 NHWC `image` in,
     uint8 `labels` out, normalisation and colour space in the graph, edgepick.* metadata."""
@@ -92,15 +78,15 @@ def quantize() -> None:
 @click.option("--calib-images", default=64, show_default=True, help="Train images for calibration.")
 @click.option("--calib-method", default="percentile", show_default=True,
               type=click.Choice(["minmax", "percentile", "entropy", "mse"]),
-              help="Activation ranges: a percentile of the histogram (default: on the demo model 1.5-2 pp more "
-                   "val mIoU than min/max), min/max, KL divergence (entropy) or L2 error (mse, slower).")
+              help="Activation ranges: a percentile of each histogram, min/max, KL divergence (entropy) or "
+                   "L2 error (mse, slower). Compare them on your model with benchmarks/calib_methods.py.")
 @click.option("--percentile", default=99.99, show_default=True, help="For --calib-method percentile.")
 @click.option("--seed", default=0, show_default=True, help="Which calibration images are drawn.")
 @click.option("--max-miou-drop", default=None, type=float, metavar="PP",
               help="Accuracy-aware: keep the layers adding the most drift in float, one at a time, until the val "
                    "mIoU (onnxruntime) is within PP percentage points of fp32's.")
 @click.option("--max-float-layers", default=6, show_default=True, help="With --max-miou-drop: at most this many.")
-@_with(common)
+@with_options(common)
 def quantize_static_cmd(checkpoint: str, data_dir: str, calib_images: int, calib_method: str, percentile: float,
                         seed: int, max_miou_drop: float | None, max_float_layers: int, out: str, reduce_range: bool,
                         keep_float: str) -> None:
@@ -149,26 +135,30 @@ def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int, cali
 @click.option("--epochs", default=100, show_default=True)
 @click.option("--batch-size", default=8, show_default=True)
 @click.option("--lr", default=1e-3, show_default=True)
-@click.option("--size", default="480x640", show_default=True, help="Training input HEIGHTxWIDTH.")
+@click.option("--size", default="640x480", show_default=True,
+              help="Model input size, WIDTHxHEIGHT (multiples of 8); images are resized to it.")
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
 @click.option("--seed", default=0, show_default=True)
-@_with(epoch_subset)
-@_with(qat_options)
-@_with(common)
+@with_options(epoch_subset)
+@with_options(qat_options)
+@with_options(common)
 def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int, batch_size: int, lr: float,
                      size: str, device: str, seed: int, epoch_images: int, val_images: int, out: str,
                      reduce_range: bool, keep_float: str, weight_averaging: float) -> None:
     """QaT from scratch: train with fake-quant for all epochs (GPU if there is one; fp32, no AMP),
     observers and BN statistics frozen for the last 30% of the steps, then export the int8 model
     of the epoch with the best val mIoU."""
-    from edgepick.cli import parse_hxw
+    from edgepick.cli import check_data_orientation
+    from edgepick.cli_options import model_size
     from edgepick.quant.passes import quantize_qat
     from edgepick.train.loop import TrainConfig
 
     _refuse_existing(out)
+    input_hw = model_size(size)
+    check_data_orientation(data_dir, input_hw)
     run = run_dir or str(Path(out).with_suffix(".run"))
     cfg = TrainConfig(data=data_dir, out=run, arch=arch, epochs=epochs, batch_size=batch_size, lr=lr,
-                      size=parse_hxw(size), device=device, seed=seed, epoch_images=epoch_images,
+                      size=input_hw, device=device, seed=seed, epoch_images=epoch_images,
                       val_images=val_images)
     _emit(quantize_qat(cfg, out, _quant_config(reduce_range=reduce_range, keep_float=keep_float,
                                                weight_averaging=weight_averaging)))
@@ -190,11 +180,11 @@ def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int,
                    "or the whole train split if smaller]; 0: from the first batch's min/max.")
 @click.option("--hold-ranges/--moving-ranges", default=None,
               help="Keep the calibrated ranges for the whole QaT phase, or let the observers move them "
-                   "[default: hold when calibrated; moving min/max ranges cost 1-2.7 pp mIoU in our runs].")
+                   "[default: hold when calibrated].")
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]),
               help="Where the QaT phase trains (auto: the GPU if there is one), whatever device RUN used.")
-@_with(qat_options)
-@_with(common)
+@with_options(qat_options)
+@with_options(common)
 def quantize_hybrid_cmd(run: str, data_dir: str, qat_fraction: float, qat_run: str | None, out: str,
                         reduce_range: bool, keep_float: str, freeze_at: float, fresh_optimizer: bool,
                         calib_images: int | None, hold_ranges: bool | None, device: str,

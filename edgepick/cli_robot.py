@@ -28,12 +28,14 @@ def make_gripper(spec: str, robot, robot_host: str | None):
 
 
 @click.command()
-@click.option("--model", required=True, type=click.Path(dir_okay=False), help="Segmentation ONNX (contract 3.2).")
+@click.option("--model", required=True, type=click.Path(dir_okay=False),
+              help="Segmentation ONNX (docs/contracts.md#onnx-model).")
 @click.option("--camera", default="synth-cell", show_default=True,
               help="synth-cell[:SEED] (synthetic camera over a calibrated cell), synth, dir:PATH or realsense[:SERIAL].")
 @click.option("--robot", "robot_spec", default="sim", show_default=True, help="sim, or ur:HOST for a UR3 over ur_rtde.")
 @click.option("--calib", default=None, type=click.Path(dir_okay=False),
-              help="calib.json (contract 3.4) [default for synth-cell: the cell's own calibration].")
+              help="calib.json (docs/contracts.md#intrinsics-and-calibration) [default for synth-cell: the cell's "
+                   "own calibration].")
 @click.option("--gripper", default="digital:0", show_default=True, help="digital:N, tool:N or rg2[:HOST].")
 @click.option("--execute", is_flag=True, help="Move a real arm (--robot ur:HOST). Without it the plan is only printed.")
 @click.option("--cycles", default=1, show_default=True, help="Pick cycles to run.")
@@ -47,7 +49,7 @@ def make_gripper(spec: str, robot, robot_host: str | None):
 @click.option("--threads", default=2, show_default=True, help="Inference threads.")
 @click.option("--engine", default="onnxruntime", show_default=True, type=click.Choice(["onnxruntime", "openvino"]),
               help="Inference engine (openvino: the [peers] extra).")
-@click.option("--size", default="640x480", show_default=True, help="Camera WIDTHxHEIGHT.")
+@click.option("--size", default="640x480", show_default=True, help="Camera frame size, WIDTHxHEIGHT.")
 def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: str, execute: bool, cycles: int,
          classes: tuple[str, ...], choose: str, speed: float, acc: float, log_path: str, overlay_dir: str | None,
          threads: int, engine: str, size: str) -> None:
@@ -58,7 +60,7 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     home. --robot sim runs against the in-process SimRobot; a real UR3 (--robot ur:HOST)
     moves only with --execute, otherwise the plan is printed and nothing is sent.
     """
-    from edgepick.data.synth import parse_size_wxh
+    from edgepick.cli_options import parse_size
     from edgepick.robot.loop import run_cycles
     from edgepick.robot.pick import CommandLog, PickConfig
     from edgepick.robot.sim import SimRobot
@@ -69,7 +71,7 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
 
     if cycles < 1:
         raise ConfigError("--cycles must be at least 1")
-    width, height = parse_size_wxh(size)
+    width, height = parse_size(size)
     source = open_camera(camera, width, height)
     if calib:
         cal = Calibration.load(calib)

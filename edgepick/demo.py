@@ -38,7 +38,7 @@ def run_demo(workdir: Path, scenes: int = 204, epochs: int = 12, size: tuple[int
     click.echo(f"{synth['scenes']} scenes in {synth['seconds']} s ({synth['scenes_per_s']} scenes/s), "
                f"splits {synth['splits']}", err=True)
     contact_sheet(workdir / "data", workdir / "preview.png", count=9)
-    _step(f"2/8 train DeepLabV3-MobileNetV3 on CPU, {epochs} epochs at {size[0]}x{size[1]}")
+    _step(f"2/8 train DeepLabV3-MobileNetV3 on CPU, {epochs} epochs at {size[1]}x{size[0]}")
     run = train(TrainConfig(data=str(workdir / "data"), out=str(workdir / "run"), epochs=epochs, batch_size=8,
                             size=size, device="cpu", keep_epochs=[max(1, epochs - 1)]))
     _step("3/8 evaluate the best checkpoint on the test split")
@@ -134,7 +134,7 @@ def quick_table_demo(workdir: Path) -> str:
     from edgepick.bench.table55 import QUICK, make_table55
 
     _step(f"8/8 the quick Table 5.5 / 5.6: {QUICK.splits} scenes, {QUICK.epochs} epochs at "
-          f"{QUICK.size[0]}x{QUICK.size[1]}: float, static, QaT from scratch, hybrid-QaT 1/5/10%")
+          f"{QUICK.size[1]}x{QUICK.size[0]}: float, static, QaT from scratch, hybrid-QaT 1/5/10%")
     table = make_table55(workdir / "table55", QUICK, "cpu", "edgepick demo (step 8)",
                          echo=lambda line: click.echo(line, err=True))
     out = workdir / "table55-quick.md"

@@ -18,7 +18,7 @@ def evaluate(model_path: str | Path, data: str | Path, split: str = "test", prog
     """Pixel accuracy, per-class IoU, mIoU and confusion matrix of MODEL on DATA/<split>.
 
     Frames are resized to the model's input size and the labels back to the frame
-    (nearest), as the runtime does (contract 3.2).
+    (nearest), as the runtime does (docs/contracts.md#onnx-model).
     """
     model_path = Path(model_path)
     ds = NativeDataset.open(data, split)

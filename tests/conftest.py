@@ -35,7 +35,7 @@ def small_data(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="session")
 def trained_run(small_data: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A short CPU training run (MobileNetV3, 96x128) shared by the eval and quality tests."""
+    """A short CPU training run (MobileNetV3, 128x96) shared by the eval and quality tests."""
     from edgepick.train.loop import TrainConfig, train
 
     out = tmp_path_factory.mktemp("runs") / "run"

@@ -47,7 +47,7 @@ class Row:
 
 
 def mode_label(meta: dict[str, str]) -> str:
-    """The row name the thesis uses, from the model's metadata (contract 3.2)."""
+    """The row name the thesis uses, from the model's metadata (docs/contracts.md#onnx-model)."""
     if meta.get("edgepick.precision", "fp32") != "int8":
         return "fp32 CPU"
     try:

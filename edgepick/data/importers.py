@@ -1,5 +1,5 @@
 """`edgepick data import FORMAT SRC OUT`: Cityscapes, BOP (LineMOD) and CVAT segmentation
-exports converted into the native layout (contract 3.1), so train/quantize/bench take them.
+exports converted into the native layout (docs/contracts.md#data-set-layout), so train/quantize/bench take them.
 
 Everything is checked while converting; the output goes to a temporary folder beside OUT
 that is renamed into place at the end, so a malformed tree leaves nothing half-imported.

@@ -1,4 +1,4 @@
-"""Read and validate the native data set layout (contract 3.1). numpy + OpenCV, no torch."""
+"""Read and validate the native data set layout (docs/contracts.md#data-set-layout). numpy + OpenCV, no torch."""
 
 from __future__ import annotations
 

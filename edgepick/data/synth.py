@@ -1,4 +1,4 @@
-"""`edgepick data synth`: write a synthetic RGB-D data set in the native layout (contract 3.1).
+"""`edgepick data synth`: write a synthetic RGB-D data set in the native layout (docs/contracts.md#data-set-layout).
 
 Each scene has its own seed derived from (seed, split, index), so the files do not depend
 on the number of workers. Output goes to a temporary folder beside OUT and is renamed into
@@ -47,20 +47,9 @@ class SynthConfig:
         return n - val - test, val, test
 
 
-def parse_size_wxh(text: str) -> tuple[int, int]:
-    """'640x480' -> (640, 480) as width, height."""
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise ConfigError(f"size must be WIDTHxHEIGHT like 640x480, got {text!r}") from None
-    if not (32 <= w <= 4096 and 32 <= h <= 4096):
-        raise ConfigError(f"size {text!r} out of range (32..4096 per side)")
-    return w, h
-
-
 _RENDERER: SceneRenderer | None = None
-# Measured at 640x480: the SUB filter with Huffman-only coding writes a noisy RGB frame in
-# ~13 ms (vs ~22 ms for zlib level 1) at a similar size; label masks compress best as RLE.
+# The SUB filter with Huffman-only coding writes a noisy RGB frame faster than zlib level 1 at a
+# similar size; label masks compress best as RLE (benchmarks/synth_speed.py times both).
 _PNG_FAST = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB,
              cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY]
 _PNG_RLE = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE]
@@ -69,7 +58,7 @@ _PNG_RLE = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRIT
 def _keep_freed_memory() -> bool:
     """glibc only: serve the renderer's frame-sized temporaries from the heap and keep freed
     memory in the process. By default each one is a fresh mmap that the kernel zero-fills page
-    by page, which cost ~20 ms of a ~90 ms scene (benchmarks/results/foundation-cpu.md)."""
+    by page, a large share of a scene's time (benchmarks/synth_speed.py)."""
     import ctypes
     import ctypes.util
 

@@ -1,4 +1,4 @@
-"""ONNX export (fp32 and int8 QDQ) per contract 3.2, and the checks run on exported files."""
+"""ONNX export (fp32 and int8 QDQ) per docs/contracts.md#onnx-model, and the checks run on exported files."""
 
 import logging
 

@@ -1,6 +1,6 @@
 """ONNX pass: split an int8 conv into output regions that each run only the taps that see input.
 
-DeepLabV3's ASPP convs (3x3, dilation 12/24/36 on a 30x40 map at 480x640) mostly read zero
+DeepLabV3's ASPP convs (3x3, dilation 12/24/36 on a 40x30 map at 640x480) mostly read zero
 padding: at rate 24, two thirds of the taps fall outside the map for most outputs. onnxruntime's
 fp32 conv skips such taps; its int8 QLinearConv computes them. This pass cuts the output into
 bands where the set of in-range taps is constant; each band is a conv with the smaller kernel on

@@ -1,4 +1,4 @@
-"""ONNX export per contract 3.2: uint8 NHWC `image` in, uint8 `labels` out, metadata_props filled.
+"""ONNX export per docs/contracts.md#onnx-model: uint8 NHWC `image` in, uint8 `labels` out, metadata_props filled.
 
 Works for the float model and for a converted pt2e (int8) graph alike: `DeployNet` puts
 the uint8 -> float cast and the ArgMax around whatever maps [0, 255] NCHW to logits, and
@@ -36,7 +36,7 @@ class LogitsNet(nn.Module):
 
 
 class DeployNet(nn.Module):
-    """uint8 [1, H, W, 3] RGB -> uint8 [1, H, W] class ids (contract 3.2)."""
+    """uint8 [1, H, W, 3] RGB -> uint8 [1, H, W] class ids (docs/contracts.md#onnx-model)."""
 
     def __init__(self, net: nn.Module):
         super().__init__()
@@ -71,7 +71,7 @@ def run_train_time_s(ckpt: dict) -> float:
 
 
 def contract_metadata(ckpt: dict, precision: str, quant: dict | None, train_time_s: float | None = None) -> dict:
-    """The edgepick.* metadata_props of contract 3.2, from a checkpoint's own description."""
+    """The edgepick.* metadata_props of docs/contracts.md#onnx-model, from a checkpoint's own description."""
     return {"edgepick.classes": json.dumps(ckpt["classes"]),
             "edgepick.input_size": json.dumps(list(ckpt["input_size"])),
             "edgepick.colorspace": ckpt["colorspace"],
@@ -100,7 +100,8 @@ def drop_unused_initializers(model) -> None:
 
 
 def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: tuple[int, int]) -> Path:
-    """Export NET ([0, 255] NCHW float -> logits, float or pt2e-converted) as a contract-3.2 ONNX.
+    """Export NET ([0, 255] NCHW float -> logits, float or pt2e-converted) as an ONNX model
+    (docs/contracts.md#onnx-model).
 
     Written to a temporary file first and checked with onnx.checker; PATH appears only
     when the whole file is good.
@@ -142,7 +143,8 @@ def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: tu
 
 
 def export_checkpoint(checkpoint: str | Path, out: str | Path) -> dict:
-    """`edgepick export`: the float model of a checkpoint (or RUN) as an fp32 contract-3.2 ONNX."""
+    """`edgepick export`: the float model of a checkpoint (or RUN) as an fp32 ONNX model
+    (docs/contracts.md#onnx-model)."""
     from edgepick.models.deeplabv3 import trim_dilated_convs
     from edgepick.train.checkpoint import load_model
 

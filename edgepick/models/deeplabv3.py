@@ -3,7 +3,7 @@
 State dict keys and shapes match torchvision's `deeplabv3_*` builders, so their
 checkpoints load with strict=True. The model takes float RGB in [0, 255], NCHW, and does
 its own colour-space conversion and normalisation (`Preprocess`, no state), so the ONNX
-export carries them in the graph (contract 3.2).
+export carries them in the graph (docs/contracts.md#onnx-model).
 """
 
 from __future__ import annotations
@@ -88,7 +88,7 @@ class Preprocess(nn.Module):
             y = 0.299 * x[:, 0:1] + 0.587 * x[:, 1:2] + 0.114 * x[:, 2:3]
             x = y.expand(-1, 3, -1, -1)
         # the constants spelt out along the width: onnxruntime's int8 graphs run this in NHWC, where a
-        # per-channel [3] constant broadcasts in 3-element spans (5-7 ms at 480x640; 1920 here, ~0.6 ms)
+        # per-channel [3] constant broadcasts in 3-element spans, which is slow
         width = x.shape[-1]
         return x * self.scale.expand(-1, -1, -1, width) + self.shift.expand(-1, -1, -1, width)
 
@@ -193,7 +193,7 @@ def build_model(config: ModelConfig) -> DeepLabV3:
 def trim_dilated_convs(model: DeepLabV3, input_size: tuple[int, int]) -> int:
     """Shrink ASPP 3x3 kernels whose dilation reaches past the feature map; returns how many changed.
 
-    With rate 36 on a 30x40 map (480x640 at stride 16) the outer rows of taps only ever see
+    With rate 36 on a 40x30 map (640x480 at stride 16) the outer rows of taps only ever see
     zero padding: a 1x3 kernel gives the identical result. onnxruntime's fp32 kernels skip
     such taps themselves, its int8 kernels do not (3x more work). Applied to a copy at export
     and quantization time; training keeps torchvision's shapes.

@@ -1,4 +1,5 @@
-"""The int8 passes: static PTQ, QaT from scratch, hybrid-QaT; each ends in a contract-3.2 ONNX.
+"""The int8 passes: static PTQ, QaT from scratch, hybrid-QaT; each ends in an ONNX model
+(docs/contracts.md#onnx-model).
 
 One public function per pass (`quantize_static`, `quantize_qat`, `quantize_hybrid`), like
 onnxruntime's quantize.py; the CLI is a thin layer over them. All go through torchao's
@@ -125,7 +126,7 @@ def drop_fake_quants_after_dropout(prepared: torch.fx.GraphModule) -> int:
     """Remove each fake-quant that reads a dropout of an already fake-quantized tensor (ASPP's
     Dropout(0.5) before the head conv): it learnt its range from training's 1/(1-p)-scaled values,
     2x the deployed ones, where the dropout is gone, so the head conv read its input at half the
-    resolution. The conv now reads the grid before the dropout. Returns how many were removed."""
+    resolution. The conv reads the grid before the dropout instead. Returns how many were removed."""
     from torchao.quantization.pt2e import FakeQuantizeBase
 
     def is_fake_quant(node: torch.fx.Node) -> bool:
@@ -160,9 +161,9 @@ def convert(prepared: torch.fx.GraphModule, snap_biases: bool = True) -> torch.f
 def snap_conv_biases(converted: torch.fx.GraphModule) -> int:
     """Round each int8 conv's float bias to the int32 grid (scale = input scale x weight scale) that
     onnxruntime quantizes it to when it fuses the conv into QLinearConv. The int8 model onnxruntime
-    runs is unchanged; torch's simulation now computes the same sums (without this, the up to half
-    a step of bias rounding flipped ~0.1% of the first conv's outputs and cost ~0.5% of label
-    agreement, benchmarks/results/agreement-cpu.md). Returns how many biases were snapped."""
+    runs is unchanged, and torch's simulation computes the same sums, so the label-agreement check
+    compares like with like (benchmarks/agreement.py measures the difference). Returns how many
+    biases were snapped."""
     qd = torch.ops.quantized_decomposed
     snapped = 0
     for node in converted.graph.nodes:
@@ -235,15 +236,15 @@ def load_qat(checkpoint: dict) -> torch.fx.GraphModule:
     from edgepick.models.deeplabv3 import ModelConfig, build_model
 
     tc = checkpoint["train_config"]
-    prepared = prepare(build_model(ModelConfig(**checkpoint["model_config"])), QuantConfig.of_run(tc["quant"]),
+    prepared = prepare(build_model(ModelConfig(**checkpoint["model_config"])), QuantConfig(**tc["quant"]),
                        tuple(tc["size"]), qat=True)
     load_qat_state(prepared, checkpoint["model"])
     return prepared
 
 
 def _finish_qat(run: Path, data: str | Path, out: str | Path, quant: dict) -> dict:
-    """Convert the QaT run's best epoch on val (best.pt, picked as a float RUN's best.pt is: one
-    last epoch moved our 240x320 models by up to 1 pp) and export it; the whole run's phase times."""
+    """Convert the QaT run's best epoch on val (best.pt, picked as a float RUN's best.pt is: the
+    last epoch is not always the best one) and export it, with the whole run's phase times."""
     from edgepick.train.checkpoint import read_checkpoint
 
     last = read_checkpoint(run / "last.pt")
@@ -254,8 +255,8 @@ def _finish_qat(run: Path, data: str | Path, out: str | Path, quant: dict) -> di
     float_s, qat_s = float(last.get("init_train_time_s", 0.0)), float(last["train_time_s"])
     meta = contract_metadata(ckpt, "int8", quant, train_time_s=float_s + qat_s)
     check_images = model_images(data, "val", min(8, len(NativeDataset.open(data, "val"))), size)
-    result = export_int8(converted, out, meta, size, expected_int8_convs(prepared, QuantConfig.of_run(ckpt["train_config"]["quant"])),
-                         check_images)
+    expected = expected_int8_convs(prepared, QuantConfig(**ckpt["train_config"]["quant"]))
+    result = export_int8(converted, out, meta, size, expected, check_images)
     return {"mode": quant["mode"], **result, "run": str(run), "observers": count_quant_nodes(prepared),
             "float_phase_s": round(float_s, 2), "qat_phase_s": round(qat_s, 2), "val_miou_qat": ckpt["history"][-1]["miou"],
             "qat_epoch": ckpt["epoch"],
@@ -290,9 +291,10 @@ def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_frac
     last pE epochs with fake-quant (into QAT_RUN), observers and BN frozen after FREEZE_AT of the
     QaT steps (1.0: never), then export the int8 ONNX. The activation ranges start from static
     PTQ's (config.percentile over CALIB_IMAGES train images; None: 64, or all if fewer) and HOLD_RANGES
-    (None: yes when calibrated) keeps them for the whole phase: moving min/max ranges from augmented
-    batches cost 1-2.7 pp (benchmarks/results/hybrid-start-cpu-240x320.md). CALIB_IMAGES 0: the first
-    batch's min/max, moving. DEVICE is this machine's choice (auto, cpu, cuda), not the float run's."""
+    (None: yes when calibrated) keeps them for the whole phase: a short phase at the tail of the
+    learning-rate schedule has little room to train moving min/max ranges back (docs/quantization.md).
+    CALIB_IMAGES 0: the first batch's min/max, moving. DEVICE is this machine's choice (auto, cpu,
+    cuda), not the float run's."""
     from edgepick.train.checkpoint import read_checkpoint
     from edgepick.train.loop import TrainConfig, train
 

@@ -6,8 +6,7 @@ A QaT graph's activation fake-quants take their first range from the first train
 min/max, then follow it with a moving average (1% a step), where static PTQ uses percentile
 ranges; a hybrid run of a few epochs at the tail of the learning-rate schedule has little room
 to train such a start back. `calibrate_activations` gives the fake-quants static PTQ's ranges
-instead (an option to compare: on the CPU model of benchmarks/results/hybrid-start-cpu.md
-either start ends at fp32's mIoU).
+instead (hybrid-QaT's default; docs/quantization.md#hybrid-qat).
 """
 
 from __future__ import annotations
@@ -51,9 +50,8 @@ def restore_bn_literals(prepared: torch.fx.GraphModule) -> int:
     """Give every BatchNorm in a prepared graph its module's eps and momentum again. torchao's QaT
     conv-BN rewrite and its train/eval switches write F.batch_norm's defaults (eps 1e-5, momentum
     0.1; "TODO: allow setting eps" in torchao 0.18), while MobileNetV3 uses eps 1e-3: a float
-    checkpoint then runs with other BN arithmetic in QaT (about half of hybrid-QaT's first-epoch drop
-    on the GPU run, benchmarks/results/gpu-lease-h100-2.md). Call after each such rewrite; returns
-    the number of literals changed."""
+    checkpoint would then run with other BN arithmetic in QaT than it was trained with. Call after
+    each such rewrite; returns the number of literals changed."""
     table = prepared.meta.get(BN_LITERALS, {})
     changed = sum(_restore_literals(node, table) for node in prepared.graph.nodes)
     if changed:
@@ -65,7 +63,7 @@ def restore_bn_literals(prepared: torch.fx.GraphModule) -> int:
 def bn_folds_with_own_eps(prepared: torch.fx.GraphModule):
     """While converting PREPARED, fold each BN into its conv with the BN's own eps. convert_pt2e
     rewrites a QaT conv-BN into a plain conv-BN whose batch_norm carries eps 1e-5 (the same torchao
-    TODO) and folds that: a QaT graph trained with MobileNetV3's 1e-3 was exported with other
+    TODO) and folds that: a QaT graph trained with MobileNetV3's 1e-3 would be exported with other
     weights, and its small-variance channels' weights past their int8 range."""
     from torchao.quantization.pt2e import qat_utils
 
@@ -84,11 +82,8 @@ def bn_folds_with_own_eps(prepared: torch.fx.GraphModule):
 
 
 def load_qat_state(prepared: torch.fx.GraphModule, state: dict) -> None:
-    """Load a QaT run's state dict into a freshly prepared graph. Runs from before
-    `drop_fake_quants_after_dropout` hold one activation fake-quant more; its entries are skipped."""
-    known = prepared.state_dict()
-    prepared.load_state_dict({k: v for k, v in state.items()
-                              if k in known or ".activation_post_process" not in f".{k}"})
+    """Load a QaT run's state dict into a freshly prepared graph (strict: every entry must match)."""
+    prepared.load_state_dict(state)
 
 
 def to_eval(prepared: torch.fx.GraphModule) -> torch.fx.GraphModule:

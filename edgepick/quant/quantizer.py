@@ -50,23 +50,18 @@ SHARED_OPS = {aten.upsample_bilinear2d.vec, aten.upsample_nearest2d.vec, aten.ma
 class QuantConfig:
     """How a model is quantized; written into the ONNX metadata (`edgepick.quant`)."""
 
-    # Activation ranges for static PTQ: minmax | percentile | entropy | mse. On two demo models (val, 64 calibration
-    # images, 7-bit weights; benchmarks/calib_methods.py) percentile, minmax and mse (slow) were within ~2 pp of
-    # fp32 and of each other, entropy 13 pp below.
+    # Activation ranges for static PTQ: minmax | percentile | entropy | mse (compared by benchmarks/calib_methods.py).
     calib_method: str = "percentile"
     percentile: float = 99.99
     # 7-bit weights: onnxruntime's U8S8 kernels on AVX2 CPUs without VNNI (the thesis laptop) add pairs of
-    # u8*s8 products in int16, which saturates with 8-bit weights; measured here (no VNNI) it cost 3 pp of
-    # onnxruntime-vs-torch agreement. Turn off for VNNI/AVX512 targets.
+    # u8*s8 products in int16, which saturates with 8-bit weights. Turn off for VNNI/AVX512 targets.
     reduce_range: bool = True
     # QaT: moving-average constant of the per-channel weight ranges (torch.ao's default 0.01; 1.0: each step's
     # own range). With the conv-BN fusion the quantized weight is w * gamma / sqrt(running_var + eps), which moves
-    # with the BN statistics every step: a lagging range clips it (benchmarks/results/hybrid-start-cpu.md).
+    # with the BN statistics every step: a lagging range clips it (benchmarks/results/hybrid-start/).
     weight_averaging: float = 0.01
     # hardswish as x * hardsigmoid(x), both quantized (passes.GatedHardswish): onnxruntime then runs it on integer
-    # kernels; as one quantized op it dequantizes the map and runs in float (with export's integer_activations the
-    # default model's int8 file ran 1.13x / 1.34x faster in benchmarks/results/quant-speed-cpu*.md). False rebuilds
-    # QaT runs made before this existed.
+    # kernels; as one quantized op it dequantizes the map and runs in float (benchmarks/quant_speed.py times both).
     hardswish_gate: bool = True
     keep_float: list[str] = field(default_factory=list)  # module names (prefixes) left in float
     skip: list[str] = field(default_factory=lambda: ["preprocess"])  # never quantized
@@ -83,12 +78,6 @@ class QuantConfig:
 
     def to_dict(self) -> dict:
         return asdict(self)
-
-    @classmethod
-    def of_run(cls, quant: dict | None) -> "QuantConfig":
-        """The config a QaT run was trained with (its train_config's quant); runs from before
-        hardswish_gate existed have no such key and a graph without the gate."""
-        return cls(**{"hardswish_gate": False, **(quant or {})})
 
 
 class PercentileObserver(HistogramObserver):
@@ -152,8 +141,8 @@ def weight_spec(config: QuantConfig, qat: bool) -> QuantizationSpec:
     if qat:
         # Not the fused kernel: it computes its own scales (no eps floor; on CPU a channel of one sign gets an
         # asymmetric grid), while torchao 0.18's convert_pt2e deploys the observer's (pytorch/ao#4824 later made
-        # convert read the kernel's). The unfused FakeQuantize trains on the very scales that are exported:
-        # the fused kernel cost 2-3% of QaT-graph-vs-converted label agreement on the test model.
+        # convert read the kernel's). The unfused FakeQuantize trains on the very scales that are exported
+        # (tests/quant/test_qat_graph.py checks QaT-graph-vs-converted label agreement).
         ctr = FakeQuantize.with_args(observer=MovingAveragePerChannelMinMaxObserver, eps=2 ** -12,
                                      averaging_constant=config.weight_averaging)
     else:

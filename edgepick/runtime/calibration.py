@@ -1,4 +1,5 @@
-"""Camera-to-robot calibration (contract 3.4): a Kabsch rigid fit, robot = R @ camera + t.
+"""Camera-to-robot calibration (docs/contracts.md#intrinsics-and-calibration): a Kabsch rigid fit,
+robot = R @ camera + t.
 
 numpy only. Degenerate inputs (fewer than 4 pairs, coincident or collinear points, NaN)
 are refused with one clear sentence, since a fit through them would be silently wrong.

@@ -16,7 +16,7 @@ D415_FOCAL_640 = 615.0
 
 @dataclass(frozen=True)
 class Intrinsics:
-    """Pinhole intrinsics of a colour-aligned depth camera (contract 3.4)."""
+    """Pinhole intrinsics of a colour-aligned depth camera (docs/contracts.md#intrinsics-and-calibration)."""
 
     width: int
     height: int

@@ -1,4 +1,4 @@
-"""Grasp records from a label image (contract 3.3): filters, moments, robust depth, robot pose.
+"""Grasp records from a label image (docs/contracts.md#grasp-record): filters, moments, robust depth, robot pose.
 
 Thesis 5.1 filters each class mask with a 3x3 median then a 5x5 dilation; each connected
 region is one object. Its centroid and major-axis angle come from image moments (eq. 5.1,
@@ -114,7 +114,7 @@ def top_down_pose(cal: Calibration, intr: Intrinsics, cx: float, cy: float, z: f
 
 def grasp_records(labels: np.ndarray, depth: np.ndarray, intr: Intrinsics, classes: list[str] | tuple[str, ...] =
                   DEFAULT_CLASSES, calib: Calibration | None = None, cfg: GraspConfig | None = None) -> list[dict]:
-    """One record per object region (contract 3.3), largest first."""
+    """One record per object region (docs/contracts.md#grasp-record), largest first."""
     cfg = cfg or GraspConfig()
     if labels.shape != depth.shape:
         raise EdgepickError(f"label image {labels.shape[::-1]} and depth {depth.shape[::-1]} differ in size")

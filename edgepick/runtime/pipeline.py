@@ -22,7 +22,7 @@ STAGES = ("pre", "inference", "post", "grasp")
 @dataclass
 class Perception:
     labels: np.ndarray  # class ids at the frame's resolution
-    records: list[dict]  # contract 3.3, largest first
+    records: list[dict]  # docs/contracts.md#grasp-record, largest first
     ms: dict[str, float] = field(default_factory=dict)  # per stage
 
 

@@ -1,4 +1,4 @@
-"""The runtime's segmentation session: one onnxruntime CPU session per model (contract 3.2).
+"""The runtime's segmentation session: one onnxruntime CPU session per model (docs/contracts.md#onnx-model).
 
 Reads the model's metadata (classes, input size, colour space, precision), checks the
 graph's input/output against the contract, resizes a camera frame to the model's input
@@ -19,7 +19,7 @@ from edgepick.errors import EdgepickError
 
 
 class ModelError(EdgepickError):
-    """An ONNX file that is not an edgepick model (contract 3.2)."""
+    """An ONNX file that is not an edgepick model (docs/contracts.md#onnx-model)."""
 
 
 REQUIRED_KEYS = ("edgepick.classes", "edgepick.input_size", "edgepick.colorspace", "edgepick.precision")
@@ -48,7 +48,8 @@ def _session(path: Path, threads: int) -> ort.InferenceSession:
 
 
 def read_info(session: ort.InferenceSession, path: Path) -> ModelInfo:
-    """Contract 3.2 checks: uint8 [1,H,W,3] `image` in, uint8 [1,H,W] `labels` out, edgepick metadata."""
+    """The checks of docs/contracts.md#onnx-model: uint8 [1,H,W,3] `image` in, uint8 [1,H,W] `labels` out,
+    edgepick metadata."""
     meta = session.get_modelmeta().custom_metadata_map
     missing = [k for k in REQUIRED_KEYS if k not in meta]
     if missing:
@@ -73,8 +74,8 @@ ENGINES = ("onnxruntime", "openvino")
 
 
 def _openvino_runner(path: Path, threads: int):
-    """OpenVINO's CPU plugin on the same ONNX file (the optional `[peers]` extra): on x86 CPUs it
-    runs edgepick's QDQ int8 models faster than onnxruntime (benchmarks/results/peers-cpu.md)."""
+    """OpenVINO's CPU plugin on the same ONNX file (the optional `[peers]` extra); the two engines
+    are compared by benchmarks/peers.py (benchmarks/results/peers/)."""
     try:
         import openvino as ov
     except ImportError:

@@ -202,7 +202,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
         from edgepick.quant.passes import prepare
         from edgepick.quant.quantizer import QuantConfig
 
-        model = prepare(model, QuantConfig.of_run(cfg.quant), cfg.size, qat=True)
+        model = prepare(model, QuantConfig(**(cfg.quant or {})), cfg.size, qat=True)
     cuda = device.type == "cuda"
     amp = cuda and not cfg.qat  # bf16 autocast on GPU (fake-quant ops reject bf16: QaT runs fp32); CPU fp32
     if world > 1 and not dist.is_initialized():
@@ -215,7 +215,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
         from edgepick.quant.qat_graph import calibrate_activations
 
         calibrate_activations(model, model_images(cfg.data, "train", cfg.qat_calib_images, cfg.size, cfg.seed),
-                              QuantConfig.of_run(cfg.quant).percentile, hold=cfg.qat_hold_ranges)
+                              QuantConfig(**(cfg.quant or {})).percentile, hold=cfg.qat_hold_ranges)
     train_set = SegmentationSet(train_ds, cfg.size)
     val_set = SegmentationSet(val_ds, cfg.size)
     n_val = min(cfg.val_images or len(val_set), len(val_set))

@@ -2,7 +2,7 @@
 
 import json
 
-from edgepick.bench.table55 import LEASE, PHASES, Setting, make_table55
+from edgepick.bench.table55 import PHASES, SHORT, Setting, make_table55
 
 TINY = Setting("tiny", splits=(4, 2, 2), size=(64, 96), epochs=100, batch_size=2, lr=2e-3, runs=2)
 
@@ -21,8 +21,8 @@ def test_only_runs_the_named_phases_and_keeps_finished_ones(tmp_path):
     assert set(state["times"]) == {"synth"} and state["commands"] == ["first", "second"]
 
 
-def test_lease_setting_switches_at_whole_epochs():
+def test_short_gpu_setting_switches_at_whole_epochs():
     assert {"hybrid0.01", "hybrid0.05", "hybrid0.10"} <= set(PHASES)
-    assert LEASE.splits == (4000, 1000, 100) and LEASE.size == (480, 640)
-    assert [round((1 - p) * LEASE.epochs) for p in (0.01, 0.05, 0.10)] == [99, 95, 90]
-    assert "160 images drawn afresh" in LEASE.describe()
+    assert SHORT.splits == (4000, 1000, 100) and SHORT.size == (480, 640)
+    assert [round((1 - p) * SHORT.epochs) for p in (0.01, 0.05, 0.10)] == [99, 95, 90]
+    assert "160 images drawn afresh" in SHORT.describe()

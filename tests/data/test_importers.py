@@ -176,7 +176,7 @@ def test_imported_cityscapes_trains_and_evaluates_with_ignored_pixels(tmp_path):
     pytest.importorskip("torch")
     import_dataset("cityscapes", cityscapes_tree(tmp_path / "cs"), tmp_path / "data",
                    ImportConfig(cityscapes_classes="19"))
-    run_cli("train", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--epochs", "1", "--size", "32x64",
+    run_cli("train", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--epochs", "1", "--size", "64x32",
             "--batch-size", "2", "--device", "cpu", check=True)
     proc = run_cli("eval", str(tmp_path / "run"), str(tmp_path / "data"), "--split", "test", check=True)
     result = json.loads(proc.stdout)

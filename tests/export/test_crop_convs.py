@@ -69,7 +69,7 @@ def run(model: onnx.ModelProto, x: np.ndarray) -> list[np.ndarray]:
 
 
 @pytest.mark.parametrize("h,w,kernel,dilation,pads,relu,group", [
-    (30, 40, (3, 3), 12, [12, 12, 12, 12], True, 1),   # ASPP rate 12 at 480x640
+    (30, 40, (3, 3), 12, [12, 12, 12, 12], True, 1),   # ASPP rate 12 at 640x480
     (30, 40, (3, 3), 24, [24, 24, 24, 24], True, 1),   # rate 24
     (30, 40, (1, 3), 36, [0, 36, 0, 36], False, 1),    # rate 36, already trimmed to 1x3
     (10, 9, (3, 3), 4, [4, 2, 4, 6], False, 1),        # uneven pads
@@ -115,7 +115,7 @@ def test_convs_that_read_little_padding_depthwise_and_fp32_convs_are_left_alone(
 
 
 def test_int8_export_crops_aspp_and_keeps_labels(small_data: Path, tmp_path: Path):
-    """At 192x256 the map is 12x16: ASPP's rate 12 reaches past it along the width only, so its
+    """At 256x192 the map is 16x12: ASPP's rate 12 reaches past it along the width only, so its
     1x3 kernel is split into three column bands. Every conv still counts as one int8 conv."""
     import torch
 

@@ -1,5 +1,6 @@
-"""Int8 passes on the shared tiny run: static PTQ, hybrid-QaT and QaT produce contract-3.2 ONNX files
-with int8 convs that onnxruntime runs, agreeing with torch's simulation; bad input exits 2, leaving nothing."""
+"""Int8 passes on the shared tiny run: static PTQ, hybrid-QaT and QaT produce ONNX files per
+docs/contracts.md#onnx-model with int8 convs that onnxruntime runs, agreeing with torch's simulation;
+bad input exits 2, leaving nothing."""
 
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ def onnx_files(trained_run: Path, small_data: Path, tmp_path_factory) -> dict:
 
 def test_static_int8_meets_the_contract(onnx_files):
     static = onnx_files["static"]
-    seg = Segmenter(static["out"])  # contract 3.2: uint8 image, uint8 labels, metadata
+    seg = Segmenter(static["out"])  # docs/contracts.md#onnx-model: uint8 image, uint8 labels, metadata
     assert seg.info.precision == "int8" and seg.info.input_size == (96, 128)
     quant = json.loads(seg.info.metadata["edgepick.quant"])
     assert quant["mode"] == "static" and quant["calib_images"] == 16 and quant["calib_method"] == "percentile"
@@ -41,7 +42,7 @@ def test_static_int8_meets_the_contract(onnx_files):
 
 def test_preprocessing_constants_span_the_width(onnx_files):
     """onnxruntime runs the int8 graph's normalisation in NHWC: per-channel [1, 3, 1, 1] constants
-    would broadcast in 3-element spans there (5-7 ms of a ~55 ms model at 480x640)."""
+    would broadcast in 3-element spans there (5-7 ms of a ~55 ms model at 640x480)."""
     import onnx
 
     for name in ("fp32", "static"):

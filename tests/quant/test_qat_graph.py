@@ -231,17 +231,17 @@ def test_no_fake_quant_learns_from_training_dropout():
     assert [u.target for u in drop.users] == [torch.ops.aten.conv2d.default]  # read straight by the head conv
 
 
-def test_qat_runs_with_the_old_dropout_fake_quant_still_load():
-    """A QaT checkpoint from before the dropout fix holds one fake-quant more: it loads (load_qat, train
-    --resume); any other unknown entry is still an error."""
+def test_qat_state_loads_only_into_the_graph_it_came_from():
+    """A QaT checkpoint loads into a freshly prepared graph; an entry the graph does not have (a fake-quant
+    more, or a foreign weight) is an error, not silently dropped."""
     from edgepick.models.deeplabv3 import ModelConfig, build_model
     from edgepick.quant.passes import prepare
     from edgepick.quant.qat_graph import load_qat_state
     from edgepick.quant.quantizer import QuantConfig
 
     prepared = prepare(build_model(ModelConfig(num_classes=4)), QuantConfig(), (64, 96), qat=True)
-    old = {**prepared.state_dict(), "activation_post_process_999.scale": torch.ones(1),
-           "activation_post_process_999.activation_post_process.min_val": torch.zeros(())}
-    load_qat_state(prepared, old)
-    with pytest.raises(RuntimeError):
-        load_qat_state(prepared, {**prepared.state_dict(), "model.extra.weight": torch.ones(1)})
+    load_qat_state(prepared, prepared.state_dict())
+    extra_fake_quant = {**prepared.state_dict(), "activation_post_process_999.scale": torch.ones(1)}
+    for state in (extra_fake_quant, {**prepared.state_dict(), "model.extra.weight": torch.ones(1)}):
+        with pytest.raises(RuntimeError):
+            load_qat_state(prepared, state)

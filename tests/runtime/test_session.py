@@ -1,4 +1,5 @@
-"""The runtime session: contract-3.2 checks and frame resizing, on small ONNX files built with onnx.helper."""
+"""The runtime session: the checks of docs/contracts.md#onnx-model and frame resizing, on small ONNX files
+built with onnx.helper."""
 
 from __future__ import annotations
 

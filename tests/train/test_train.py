@@ -70,7 +70,7 @@ def test_eval_cli_reports_metrics(trained_run, small_data, tmp_path):
 def test_resume_after_kill_loses_at_most_one_epoch(small_data, tmp_path):
     run = tmp_path / "run"
     args = [sys.executable, "-m", "edgepick", "train", str(small_data), "--out", str(run), "--epochs", "4",
-            "--size", "64x96", "--batch-size", "6", "--device", "cpu"]
+            "--size", "96x64", "--batch-size", "6", "--device", "cpu"]
     proc = subprocess.Popen(args, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 300
     while time.time() < deadline and not (run / "last.pt").exists():
@@ -91,7 +91,7 @@ def test_ddp_two_cpu_processes_with_gloo(small_data, tmp_path):
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     proc = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2",
                            "--master_port", "29517", "-m", "edgepick", "train", str(small_data), "--out", str(run),
-                           "--epochs", "1", "--size", "64x96", "--batch-size", "4", "--device", "cpu"],
+                           "--epochs", "1", "--size", "96x64", "--batch-size", "4", "--device", "cpu"],
                           cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     ckpt = read_checkpoint(run / "last.pt")
@@ -104,7 +104,8 @@ def test_ddp_two_cpu_processes_with_gloo(small_data, tmp_path):
 @pytest.mark.parametrize("args,needle", [
     (["train", "{missing}", "--out", "{out}"], "not an edgepick data set"),
     (["train", "{data}", "--out", "{out}", "--arch", "vgg"], "Invalid value for '--arch'"),
-    (["train", "{data}", "--out", "{out}", "--size", "480"], "HEIGHTxWIDTH"),
+    (["train", "{data}", "--out", "{out}", "--size", "480"], "WIDTHxHEIGHT"),
+    (["train", "{data}", "--out", "{out}", "--size", "480x640"], "did you mean 640x480?"),
     (["train", "{data}", "--out", "{out}", "--resume"], "nothing to resume"),
     (["eval", "{out}/none.pt", "{data}"], "no checkpoint"),
 ])
@@ -145,7 +146,7 @@ def test_unreadable_image_mid_run_leaves_no_run_folder(small_data, tmp_path):
     broken = tmp_path / "broken"
     shutil.copytree(small_data, broken)
     (broken / "train" / "rgb" / "000005.png").write_bytes(b"not a png")
-    proc = run_cli("train", str(broken), "--out", str(tmp_path / "run"), "--epochs", "1", "--size", "64x96")
+    proc = run_cli("train", str(broken), "--out", str(tmp_path / "run"), "--epochs", "1", "--size", "96x64")
     assert proc.returncode == 2 and "cannot read image" in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "run").exists()
 
@@ -211,7 +212,7 @@ def test_hybrid_qat_continues_with_the_float_runs_optimizer_moments(trained_run)
     opt = torch.optim.AdamW(model.parameters())
     params = dict(model.named_parameters())
     float_shapes = {k: v.shape for k, v in start["model"].items()}
-    # all but the dilated ASPP convs that prepare trims to the taps a 64x96 input reaches
+    # all but the dilated ASPP convs that prepare trims to the taps a 96x64 input reaches
     same_shape = sum(float_shapes[n.removeprefix("model.")] == p.shape for n, p in params.items())
     assert carry_optimizer_state(opt, model, start) == same_shape > 150
     first = next(iter(start["optimizer"]["state"].values()))  # the float model's first parameter

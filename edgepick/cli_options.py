@@ -1,0 +1,60 @@
+"""Options and parsers shared by the command groups (click only, no torch).
+
+Every `--size` in edgepick is WIDTHxHEIGHT, as cameras and image files state it (640x480),
+and is parsed here; internally the package keeps (height, width) tuples, like torch.
+"""
+
+from __future__ import annotations
+
+import click
+
+from edgepick.errors import ConfigError
+
+SIZE_HELP = "WIDTHxHEIGHT"
+
+
+def parse_size(text: str, model_input: bool = False) -> tuple[int, int]:
+    """'640x480' -> (width, height). A model input needs sides that are multiples of 8 and >= 32
+    (the backbone's stride); a camera or rendered image needs 32..4096 per side."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ConfigError(f"--size must be {SIZE_HELP} like 640x480, got {text!r}") from None
+    if model_input and (w < 32 or h < 32 or w % 8 or h % 8):
+        raise ConfigError(f"--size {text!r}: both sides must be multiples of 8 and at least 32")
+    if not (32 <= w <= 4096 and 32 <= h <= 4096):
+        raise ConfigError(f"--size {text!r} out of range (32..4096 per side)")
+    return w, h
+
+
+def model_size(text: str) -> tuple[int, int]:
+    """A model input --size as the (height, width) the trainer takes."""
+    w, h = parse_size(text, model_input=True)
+    return h, w
+
+
+def check_orientation(size_hw: tuple[int, int], image_hw: tuple[int, int], option: str = "--size") -> None:
+    """Refuse a model input that is the data's images turned on their side: the usual sign of a
+    size given as HEIGHTxWIDTH (e.g. 480x640 for 640x480 images)."""
+    (h, w), (ih, iw) = size_hw, image_hw
+    if h != w and ih != iw and (h > w) != (ih > iw) and h * ih == w * iw:
+        raise ConfigError(f"{option} {w}x{h} turns the {iw}x{ih} images on their side; sizes are "
+                          f"{SIZE_HELP} in edgepick: did you mean {h}x{w}?")
+
+
+def with_options(options):
+    """Apply a list of click options to a command, in the order listed."""
+    def wrap(f):
+        for opt in reversed(options):
+            f = opt(f)
+        return f
+    return wrap
+
+
+# shared by `edgepick train` and `edgepick quantize qat`
+epoch_subset = [
+    click.option("--epoch-images", default=0, show_default=True,
+                 help="Images per epoch, drawn afresh from the train split each epoch; 0 = the whole split."),
+    click.option("--val-images", default=0, show_default=True,
+                 help="Validate each epoch on this many evenly spaced val images; 0 = the whole split."),
+]
