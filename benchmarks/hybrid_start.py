@@ -129,7 +129,7 @@ def hybrid_ab(run: Path, data: Path, fraction: float, tmp: Path) -> dict[str, tu
 
     export_checkpoint(run, tmp / "fp32.onnx")
     rows = {"fp32": (*scores(tmp / "fp32.onnx"), "")}
-    for label, kw in {"first-batch ranges (the default before session 10)": {"calib_images": 0},
+    for label, kw in {"first-batch ranges, moving (--calib-images 0)": {"calib_images": 0},
                       "calibrated start, 64 images": {"calib_images": 64, "hold_ranges": False},
                       "calibrated start, held (the default)": {"calib_images": 64, "hold_ranges": True}}.items():
         out = tmp / f"h{len(rows)}.onnx"

@@ -1,4 +1,4 @@
-"""Frame -> first robot command latency of the whole pick loop (issue target: <= 60 ms outside
+"""Frame -> first robot command latency of the whole pick loop (target: <= 60 ms outside
 the robot's own motion; thesis: 5.59 s on a laptop).
 
     python benchmarks/pick_latency.py [--model m.onnx ...] [--cycles 20] [--threads 2] [--out FILE.md | --save]

@@ -1,4 +1,4 @@
-"""Per-stage time of the runtime at 640x480 on a fixed thread count (issue target: everything
+"""Per-stage time of the runtime at 640x480 on a fixed thread count (target: everything
 outside inference <= 5 ms median).
 
     python benchmarks/runtime_stages.py [--model m.onnx ...] [--threads 2] [--frames 20] [--out FILE.md | --save]

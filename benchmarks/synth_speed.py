@@ -1,4 +1,4 @@
-"""Synthetic scene throughput at 640x480 (issue target: >= 20 scenes/s on 2 cores).
+"""Synthetic scene throughput at 640x480 (target: >= 20 scenes/s on 2 cores).
 
     python benchmarks/synth_speed.py [--scenes 204] [--workers 0]
 """

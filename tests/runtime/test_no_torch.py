@@ -19,10 +19,11 @@ def _run(code: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-c", BLOCK + code], cwd=REPO, capture_output=True, text=True, timeout=120)
 
 
-def test_runtime_and_every_submodule_import_without_torch():
+def test_runtime_robot_bench_and_every_submodule_import_without_torch():
     proc = _run("""
-import importlib, pkgutil, edgepick.runtime as rt
-names = [m.name for m in pkgutil.walk_packages(rt.__path__, 'edgepick.runtime.')]
+import importlib, pkgutil, edgepick.runtime, edgepick.robot, edgepick.bench
+names = [m.name for pkg in (edgepick.runtime, edgepick.robot, edgepick.bench)
+         for m in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + '.')]
 for n in names:
     importlib.import_module(n)
 assert 'torch' not in sys.modules
