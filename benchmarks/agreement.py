@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import argparse
 import copy
-import os
-import platform
 import shutil
 import sys
 import tempfile

@@ -8,8 +8,6 @@ method with 7-bit (reduce-range, the default) and 8-bit weights.
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import shutil
 import sys
 import tempfile

@@ -10,8 +10,6 @@ threads and images, size.
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import shutil
 import statistics
 import sys

@@ -13,8 +13,6 @@ depend on the weights. One process, the same frames for every model.
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import shutil
 import statistics
 import sys

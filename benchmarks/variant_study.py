@@ -11,8 +11,6 @@ and slims the ASPP head to 128 channels: the ops that stay float or drift in int
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import shutil
 import statistics
 import sys

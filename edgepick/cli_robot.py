@@ -41,8 +41,10 @@ def make_gripper(spec: str, robot, robot_host: str | None):
 @click.option("--cycles", default=1, show_default=True, help="Pick cycles to run.")
 @click.option("--class", "classes", multiple=True, help="Only pick these classes (repeatable).")
 @click.option("--choose", default="largest", show_default=True, type=click.Choice(["largest", "closest"]))
-@click.option("--speed", default=0.25, show_default=True, help="moveL speed, m/s (capped by the envelope).")
-@click.option("--acc", default=1.2, show_default=True, help="moveL acceleration, m/s^2 (capped by the envelope).")
+@click.option("--speed", default=0.25, show_default=True,
+              help="moveL speed, m/s; the envelope refuses moves above its cap (0.25).")
+@click.option("--acc", default=1.2, show_default=True,
+              help="moveL acceleration, m/s^2; the envelope refuses moves above its cap (1.2).")
 @click.option("--log", "log_path", default="picks.jsonl", show_default=True, type=click.Path(dir_okay=False),
               help="JSON-lines log of every command.")
 @click.option("--overlay-dir", default=None, type=click.Path(file_okay=False), help="Write an overlay PNG per cycle.")
