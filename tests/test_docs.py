@@ -94,3 +94,12 @@ HISTORY = re.compile(r"\bsessions? \d+|\blease[ds]?\b|\bcall \d\b|\bour runs?\b|
 def test_documents_and_sources_hold_no_work_history():
     found = [f"{p.relative_to(REPO)}: {m.group(0)}" for p in USER_FACING for m in HISTORY.finditer(p.read_text())]
     assert not found, found
+
+
+def test_result_files_named_in_the_documents_exist():
+    named = {m.rstrip(".)") for p in (REPO / "README.md", *REPO.glob("docs/*.md"))
+             for m in re.findall(r"benchmarks/results/[\w./-]+", p.read_text())}
+    named |= {"benchmarks/" + m for m in re.findall(r"\((results/[^)]+)\)", (REPO / "benchmarks" / "README.md").read_text())}
+    assert len(named) >= 10
+    missing = sorted(m for m in named if not (REPO / m).exists())
+    assert not missing, missing
