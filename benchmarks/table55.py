@@ -18,11 +18,11 @@ import argparse
 import os
 import shutil
 import sys
-from datetime import date
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from edgepick.bench.machine import results_file  # noqa: E402
 from edgepick.bench.table55 import PHASES, SETTINGS, make_table55  # noqa: E402
 
 
@@ -48,7 +48,7 @@ def main() -> None:
     table = make_table55(work, setting, args.device, cmd, echo=lambda line: print(line, file=sys.stderr, flush=True),
                          only=only)
     if table is not None:
-        md = Path(args.results) / "table55" / f"{date.today().isoformat()}-{table['name']}.md"
+        md = results_file(args.results, "table55", table["name"])
         md.parent.mkdir(parents=True, exist_ok=True)
         md.write_text(table["markdown"])
         shutil.copy(table["png"], md.with_suffix(".png"))

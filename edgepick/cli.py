@@ -15,21 +15,12 @@ from pathlib import Path
 import click
 
 from edgepick import __version__
-from edgepick.cli_options import SIZE_HELP, check_orientation, epoch_subset, model_size, parse_size, with_options
+from edgepick.cli_options import check_data_orientation, epoch_subset, model_size, parse_size, with_options
 from edgepick.errors import ConfigError, EdgepickError
 
 
 def _emit(result: dict) -> None:
     click.echo(json.dumps(result, indent=1))
-
-
-def check_data_orientation(data_dir: str, input_hw: tuple[int, int]) -> None:
-    """check_orientation against the first train image of DATA (one PNG read)."""
-    from edgepick.data.native import NativeDataset
-
-    ds = NativeDataset.open(data_dir, "train")
-    if len(ds):
-        check_orientation(input_hw, ds.rgb(ds.ids[0]).shape[:2])
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})

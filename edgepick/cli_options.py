@@ -42,6 +42,15 @@ def check_orientation(size_hw: tuple[int, int], image_hw: tuple[int, int], optio
                           f"{SIZE_HELP} in edgepick: did you mean {h}x{w}?")
 
 
+def check_data_orientation(data_dir: str, input_hw: tuple[int, int]) -> None:
+    """check_orientation against the first train image of DATA (one PNG read)."""
+    from edgepick.data.native import NativeDataset
+
+    ds = NativeDataset.open(data_dir, "train")
+    if len(ds):
+        check_orientation(input_hw, ds.rgb(ds.ids[0]).shape[:2])
+
+
 def with_options(options):
     """Apply a list of click options to a command, in the order listed."""
     def wrap(f):

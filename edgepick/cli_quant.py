@@ -148,8 +148,7 @@ def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int,
     """QaT from scratch: train with fake-quant for all epochs (GPU if there is one; fp32, no AMP),
     observers and BN statistics frozen for the last 30% of the steps, then export the int8 model
     of the epoch with the best val mIoU."""
-    from edgepick.cli import check_data_orientation
-    from edgepick.cli_options import model_size
+    from edgepick.cli_options import check_data_orientation, model_size
     from edgepick.quant.passes import quantize_qat
     from edgepick.train.loop import TrainConfig
 

@@ -51,7 +51,7 @@ def machine_line(gpu: str | None = None) -> str:
             + (f"; GPU {gpu}" if gpu else "; no GPU used"))
 
 
-def results_file(results: str | Path, study: str, gpu: str | None = None, suffix: str = "") -> Path:
-    """RESULTS/<study>/<yyyy-mm-dd>-<machine>[-suffix].md, the layout of benchmarks/results."""
-    name = f"{date.today().isoformat()}-{machine_slug(gpu)}" + (f"-{suffix}" if suffix else "")
-    return Path(results) / study / f"{name}.md"
+def results_file(results: str | Path, study: str, machine: str | None = None) -> Path:
+    """RESULTS/<study>/<yyyy-mm-dd>-<machine>.md, the layout of benchmarks/results (MACHINE: this
+    CPU's machine_slug() unless given)."""
+    return Path(results) / study / f"{date.today().isoformat()}-{machine or machine_slug()}.md"
