@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import add_output, machine_line, emit  # noqa: E402
 
 from edgepick.data.native import NativeDataset  # noqa: E402
-from edgepick.cli_options import model_size  # noqa: E402
+from edgepick.cli.options import model_size  # noqa: E402
 from edgepick.data.synth import SynthConfig, synthesize  # noqa: E402
 from edgepick.export.onnx_export import LogitsNet  # noqa: E402
 from edgepick.metrics import confusion_matrix, segmentation_metrics  # noqa: E402

@@ -32,7 +32,7 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=20)
     add_output(ap)
     args = ap.parse_args()
-    from edgepick.cli_options import model_size
+    from edgepick.cli.options import model_size
 
     h, w = model_size(args.size)
     splits = tuple(int(v) for v in args.splits.split(","))

@@ -7,12 +7,8 @@ from pathlib import Path
 
 import click
 
-from edgepick.cli_options import epoch_subset, with_options
+from edgepick.cli.options import emit, epoch_subset, with_options
 from edgepick.errors import ConfigError
-
-
-def _emit(result: dict) -> None:
-    click.echo(json.dumps(result, indent=1))
 
 
 def _quant_config(calib_method: str = "percentile", percentile: float = 99.99, reduce_range: bool = True,
@@ -57,7 +53,7 @@ def export_cmd(checkpoint: str, out: str) -> None:
     from edgepick.export.onnx_export import export_checkpoint
 
     _refuse_existing(out)
-    _emit(export_checkpoint(checkpoint, out))
+    emit(export_checkpoint(checkpoint, out))
 
 
 @click.group()
@@ -98,9 +94,9 @@ def quantize_static_cmd(checkpoint: str, data_dir: str, calib_images: int, calib
     if max_miou_drop is not None:
         from edgepick.quant.inspect import quantize_accuracy_aware
 
-        _emit(quantize_accuracy_aware(checkpoint, data_dir, out, max_miou_drop, cfg, calib_images, max_float_layers))
+        emit(quantize_accuracy_aware(checkpoint, data_dir, out, max_miou_drop, cfg, calib_images, max_float_layers))
         return
-    _emit(quantize_static(checkpoint, data_dir, out, cfg, calib_images=calib_images, seed=seed))
+    emit(quantize_static(checkpoint, data_dir, out, cfg, calib_images=calib_images, seed=seed))
 
 
 @quantize.command("inspect")
@@ -124,7 +120,7 @@ def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int, cali
     click.echo(f"{'layer':40s} {'SQNR dB':>8s} {'added drift dB':>15s}", err=True)
     for name in report["ranked"][:top]:
         click.echo(f"{name:40s} {by_name[name]['sqnr_db']:8.2f} {by_name[name]['added_drift_db']:15.2f}", err=True)
-    _emit(report)
+    emit(report)
 
 
 @quantize.command("qat")
@@ -148,7 +144,7 @@ def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int,
     """QaT from scratch: train with fake-quant for all epochs (GPU if there is one; fp32, no AMP),
     observers and BN statistics frozen for the last 30% of the steps, then export the int8 model
     of the epoch with the best val mIoU."""
-    from edgepick.cli_options import check_data_orientation, model_size
+    from edgepick.cli.options import check_data_orientation, model_size
     from edgepick.quant.passes import quantize_qat
     from edgepick.train.loop import TrainConfig
 
@@ -159,7 +155,7 @@ def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int,
     cfg = TrainConfig(data=data_dir, out=run, arch=arch, epochs=epochs, batch_size=batch_size, lr=lr,
                       size=input_hw, device=device, seed=seed, epoch_images=epoch_images,
                       val_images=val_images)
-    _emit(quantize_qat(cfg, out, _quant_config(reduce_range=reduce_range, keep_float=keep_float,
+    emit(quantize_qat(cfg, out, _quant_config(reduce_range=reduce_range, keep_float=keep_float,
                                                weight_averaging=weight_averaging)))
 
 
@@ -196,6 +192,6 @@ def quantize_hybrid_cmd(run: str, data_dir: str, qat_fraction: float, qat_run: s
 
     _refuse_existing(out)
     cfg = _quant_config(reduce_range=reduce_range, keep_float=keep_float, weight_averaging=weight_averaging)
-    _emit(quantize_hybrid(run, data_dir, out, qat_fraction, cfg, qat_run=qat_run, freeze_at=freeze_at,
+    emit(quantize_hybrid(run, data_dir, out, qat_fraction, cfg, qat_run=qat_run, freeze_at=freeze_at,
                           carry_optimizer=not fresh_optimizer, calib_images=calib_images, hold_ranges=hold_ranges,
                           device=device))

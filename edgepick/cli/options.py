@@ -6,6 +6,8 @@ and is parsed here; internally the package keeps (height, width) tuples, like to
 
 from __future__ import annotations
 
+import json
+
 import click
 
 from edgepick.errors import ConfigError
@@ -67,3 +69,8 @@ epoch_subset = [
     click.option("--val-images", default=0, show_default=True,
                  help="Validate each epoch on this many evenly spaced val images; 0 = the whole split."),
 ]
+
+
+def emit(result: dict) -> None:
+    """A command's result: JSON on stdout (progress and tables go to stderr)."""
+    click.echo(json.dumps(result, indent=1))

@@ -62,7 +62,7 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     home. --robot sim runs against the in-process SimRobot; a real UR3 (--robot ur:HOST)
     moves only with --execute, otherwise the plan is printed and nothing is sent.
     """
-    from edgepick.cli_options import parse_size
+    from edgepick.cli.options import parse_size
     from edgepick.robot.loop import run_cycles
     from edgepick.robot.pick import CommandLog, PickConfig
     from edgepick.robot.sim import SimRobot

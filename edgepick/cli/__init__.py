@@ -1,0 +1,110 @@
+"""The `edgepick` command line: a thin click layer over the package's public functions.
+
+One module per command group; options, parsers and checks they share are in `options.py`.
+Heavy modules (torch, the trainer) are imported inside the commands, so `edgepick --help`
+and the runtime commands start fast and work on the torch-free base install.
+
+Exit status (docs/contracts.md#command-line): 0 done; 2 a user's error (one line on stderr,
+nothing half-written left behind); 3 the robot halted or its link failed (`pick`); 130
+interrupted; 1 anything else (a bug: the traceback is printed).
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import warnings
+
+import click
+
+from edgepick import __version__
+from edgepick.cli.bench import bench
+from edgepick.cli.calibrate import calibrate
+from edgepick.cli.data import data
+from edgepick.cli.grasp import grasp
+from edgepick.cli.pick import pick
+from edgepick.cli.quant import export_cmd, quantize
+from edgepick.cli.train import demo, eval_cmd, train
+from edgepick.errors import EdgepickError
+
+EXIT_USER_ERROR = 2
+EXIT_ROBOT_HALTED = 3
+EXIT_INTERRUPTED = 130
+
+# modules of the [train] extra: a command that needs one on the base install says which extra to add
+TRAIN_EXTRA = {"torch", "torchao", "onnx", "onnxscript", "torchvision"}
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(__version__, prog_name="edgepick")
+def cli() -> None:
+    """edgepick: train DeepLabV3, quantize it to int8, and run robot picking on a CPU.
+
+    \b
+    The path: data synth -> train -> eval (-> quantize -> export -> grasp/pick -> bench).
+    `edgepick demo` runs the main job end to end on synthetic data.
+    Exit status: 0 done, 2 a mistake in the input (one line on stderr), 3 the robot halted
+    or its link failed, 130 interrupted, 1 a bug (with its traceback).
+    """
+
+
+for _command in (data, train, eval_cmd, calibrate, grasp, demo, export_cmd, quantize, pick, bench):
+    cli.add_command(_command)
+
+
+def quiet_dependencies() -> None:
+    """Silence dependency noise that says nothing actionable to an edgepick user: torchao's log
+    line per optional CUDA kernel library, torch's pytree deprecation for torchao's classes, the
+    ONNX exporter's note per skipped torchvision op, and OpenCV's decoder warnings (edgepick
+    reports an unreadable image itself)."""
+    for name in ("torchao", "torch.utils._pytree", "torch.onnx._internal.exporter._registration"):
+        logging.getLogger(name).setLevel(logging.ERROR)
+    warnings.filterwarnings("ignore", category=FutureWarning, message=r".*LeafSpec.*")
+    warnings.filterwarnings("ignore", category=FutureWarning, module=r"torch\.utils\._pytree")
+    try:
+        import cv2
+
+        cv2.setLogLevel(2)  # errors only: no "[ WARN:0@0.05] ... findDecoder" before edgepick's message
+    except (ImportError, AttributeError):
+        pass
+
+
+def _fail(message: str, code: int) -> None:
+    click.echo(f"edgepick: error: {message}", err=True)
+    sys.exit(code)
+
+
+def _click_message(exc: click.ClickException) -> str:
+    """click's usage errors as one line: 'train: Invalid value for ... (see edgepick train --help)'."""
+    message = " ".join(exc.format_message().split())
+    ctx = getattr(exc, "ctx", None)
+    if ctx is None:
+        return message
+    command = ctx.command_path.partition(" ")[2]
+    return f"{command + ': ' if command else ''}{message} (see 'edgepick {command + ' ' if command else ''}--help')"
+
+
+def main() -> None:
+    """Console entry point: every failure a user can cause is one line on stderr and an exit status."""
+    quiet_dependencies()
+    try:
+        cli.main(prog_name="edgepick", standalone_mode=False)
+    except EdgepickError as exc:
+        _fail(str(exc), getattr(exc, "exit_code", EXIT_USER_ERROR))
+    except click.exceptions.Abort:
+        click.echo("edgepick: aborted", err=True)
+        sys.exit(EXIT_INTERRUPTED)
+    except click.ClickException as exc:
+        _fail(_click_message(exc), exc.exit_code)
+    except KeyboardInterrupt:
+        click.echo("edgepick: interrupted", err=True)
+        sys.exit(EXIT_INTERRUPTED)
+    except ModuleNotFoundError as exc:
+        if (exc.name or "").split(".")[0] not in TRAIN_EXTRA:
+            raise
+        _fail(f"this command needs the [train] extra ({exc.name} is not installed): "
+              "pip install 'edgepick[train]'", EXIT_USER_ERROR)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,35 @@
+"""`edgepick calibrate`: the camera-to-robot transform from point pairs."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import click
+
+from edgepick.cli.options import check_data_orientation, emit, epoch_subset, model_size, parse_size, with_options
+from edgepick.errors import ConfigError
+
+
+@click.command()
+@click.argument("pairs", type=click.Path(dir_okay=False))
+@click.option("--out", required=True, type=click.Path(dir_okay=False),
+              help="calib.json to write (docs/contracts.md#intrinsics-and-calibration).")
+def calibrate(pairs: str, out: str) -> None:
+    """Fit the camera-to-robot transform (Kabsch, det = +1) from PAIRS.csv.
+
+    PAIRS.csv has the header cam_x,cam_y,cam_z,robot_x,robot_y,robot_z (metres) and at
+    least 4 rows of the same physical points seen by the camera and touched by the robot.
+    Prints the per-pair residuals; refuses coincident or collinear points.
+    """
+    from edgepick.runtime.calibration import kabsch, read_pairs, residuals
+
+    camera, robot = read_pairs(pairs)
+    cal = kabsch(camera, robot)
+    for i, err in enumerate(residuals(cal, camera, robot), start=1):
+        click.echo(f"pair {i:3d}: residual {err * 1000:7.2f} mm", err=True)
+    click.echo(f"RMSE {cal.rmse_m * 1000:.2f} mm over {cal.n_pairs} pairs", err=True)
+    cal.save(out)
+    emit({"out": out, **cal.to_dict()})
+

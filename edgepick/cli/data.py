@@ -1,0 +1,114 @@
+"""`edgepick data synth|preview|import|capture`: make and inspect data sets."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import click
+
+from edgepick.cli.options import check_data_orientation, emit, epoch_subset, model_size, parse_size, with_options
+from edgepick.errors import ConfigError
+
+
+@click.group()
+def data() -> None:
+    """Make and inspect data sets (native layout, docs/contracts.md#data-set-layout)."""
+
+
+@data.command("synth")
+@click.argument("out", type=click.Path(file_okay=False))
+@click.option("--scenes", default=510, show_default=True, help="Total scenes, split 40:10:1 like the thesis's 4000/1000/100.")
+@click.option("--splits", default=None, metavar="TRAIN,VAL,TEST", help="Explicit scene counts per split (overrides --scenes).")
+@click.option("--size", default="640x480", show_default=True, help="Image size, WIDTHxHEIGHT.")
+@click.option("--seed", default=0, show_default=True, help="Same seed -> identical files.")
+@click.option("--workers", default=0, show_default=True, help="Parallel processes; 0 = one per core.")
+def data_synth(out: str, scenes: int, splits: str | None, size: str, seed: int, workers: int) -> None:
+    """Render synthetic RGB-D tabletop scenes of the thesis's four objects into OUT.
+
+    Bearings, brake disks, plug adapters and cardboard boxes, 1-4 per scene, touching and
+    occluding each other, on wood/laminate/mat/steel tables under the four lighting
+    conditions of thesis Table 5.3; D415-like depth with noise and holes; grasp truth.
+    """
+    from edgepick.data.synth import SynthConfig, synthesize
+
+    width, height = parse_size(size)
+    split_counts = None
+    if splits:
+        try:
+            split_counts = tuple(int(v) for v in splits.split(","))
+        except ValueError:
+            raise ConfigError(f"--splits must be three integers TRAIN,VAL,TEST, got {splits!r}") from None
+        if len(split_counts) != 3 or min(split_counts) < 1:
+            raise ConfigError("--splits needs three counts, each at least 1")
+        scenes = sum(split_counts)
+    if scenes < 3:
+        raise ConfigError("--scenes must be at least 3 (one per split)")
+    cfg = SynthConfig(scenes=scenes, width=width, height=height, seed=seed, splits=split_counts, workers=workers)
+    emit(synthesize(out, cfg))
+
+
+@data.command("preview")
+@click.argument("data_dir", metavar="DATA", type=click.Path())
+@click.option("--out", required=True, type=click.Path(dir_okay=False), help="PNG contact sheet to write.")
+@click.option("--split", default="train", show_default=True)
+@click.option("--count", default=12, show_default=True, help="Scenes to draw.")
+def data_preview(data_dir: str, out: str, split: str, count: int) -> None:
+    """Draw a contact sheet: RGB with mask overlays and grasp truth, and the depth map."""
+    from edgepick.data.preview import contact_sheet
+
+    n = contact_sheet(data_dir, out, split=split, count=count)
+    emit({"out": out, "scenes": n})
+
+
+@data.command("import")
+@click.argument("fmt", metavar="FORMAT", type=click.Choice(["cityscapes", "bop", "cvat"]))
+@click.argument("src", type=click.Path())
+@click.argument("out", type=click.Path(file_okay=False))
+@click.option("--cityscapes-classes", default="30", show_default=True, type=click.Choice(["30", "19"]),
+              help="Cityscapes: all 30 benchmark classes, or the 19 train ids (the rest ignored).")
+@click.option("--splits", default="0.8,0.1,0.1", show_default=True, metavar="TRAIN,VAL,TEST",
+              help="BOP/CVAT: fractions for the train/val/test split (deterministic per file name).")
+@click.option("--images", default=None, type=click.Path(file_okay=False), help="CVAT: colour images [default: SRC/JPEGImages].")
+@click.option("--depth", default=None, type=click.Path(file_okay=False), help="CVAT: uint16 depth PNGs named like the images.")
+@click.option("--intrinsics", default=None, type=click.Path(dir_okay=False), help="CVAT: intrinsics.json of the depth camera.")
+@click.option("--depth-scale", default=0.001, show_default=True, help="CVAT: metres per unit of the depth PNGs.")
+def data_import(fmt: str, src: str, out: str, cityscapes_classes: str, splits: str, images: str | None,
+                depth: str | None, intrinsics: str | None, depth_scale: float) -> None:
+    """Convert a Cityscapes, BOP (e.g. LineMOD) or CVAT 'Segmentation mask 1.1' tree into the native layout.
+
+    \b
+    cityscapes: leftImg8bit/ + gtFine/*_labelIds.png (ids 0-3, and with 19 classes every
+                non-train id, become 255 = ignored); its val split feeds val and test.
+    bop:        <scene>/rgb, depth, mask_visib, scene_gt.json, scene_camera.json; one class
+                per object id, depth converted to millimetres, intrinsics from cam_K.
+    cvat:       labelmap.txt + SegmentationClass/*.png, images and optional depth folders.
+    """
+    from edgepick.data.importers import ImportConfig, import_dataset
+
+    try:
+        fractions = tuple(float(v) for v in splits.split(","))
+    except ValueError:
+        raise ConfigError(f"--splits must be three fractions TRAIN,VAL,TEST, got {splits!r}") from None
+    cfg = ImportConfig(cityscapes_classes=cityscapes_classes, split_fractions=fractions, images=images,
+                       depth=depth, intrinsics=intrinsics, depth_scale_m=depth_scale)
+    emit(import_dataset(fmt, src, out, cfg))
+
+
+@data.command("capture")
+@click.argument("out", type=click.Path(file_okay=False))
+@click.option("--camera", default="realsense", show_default=True,
+              help="realsense[:SERIAL], synth[:SEED] or dir:PATH (the same sources as the runtime).")
+@click.option("--count", default=10, show_default=True, help="Frames to save.")
+@click.option("--interval", default=0.0, show_default=True, help="Seconds between frames (time to move objects).")
+@click.option("--size", default="640x480", show_default=True, help="Camera stream size, WIDTHxHEIGHT.")
+def data_capture(out: str, camera: str, count: int, interval: float, size: str) -> None:
+    """Save aligned RGB + depth + intrinsics.json from a camera into OUT, for annotation (e.g. CVAT)."""
+    from edgepick.data.capture import capture
+    from edgepick.runtime.camera import open_camera
+
+    width, height = parse_size(size)
+    emit(capture(open_camera(camera, width, height), out, count, interval))
+
+

@@ -1,0 +1,92 @@
+"""`edgepick train`, `eval` and `demo`: float training, evaluation, the end-to-end demo."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import click
+
+from edgepick.cli.options import check_data_orientation, emit, epoch_subset, model_size, parse_size, with_options
+from edgepick.errors import ConfigError
+
+
+@click.command()
+@click.argument("data_dir", metavar="DATA", type=click.Path())
+@click.option("--out", required=True, type=click.Path(file_okay=False), help="RUN folder for checkpoints and metrics.")
+@click.option("--arch", default="mobilenetv3", show_default=True, type=click.Choice(["mobilenetv3", "resnet50", "resnet101"]))
+@click.option("--variant", default="standard", show_default=True, type=click.Choice(["standard", "edge"]),
+              help="edge: MobileNetV3 without SE and hardswish, 128-channel ASPP (quantization-friendly; not "
+                   "torchvision-compatible).")
+@click.option("--epochs", default=None, type=int, help="Epoch budget [default: 100; on --resume: the run's own].")
+@click.option("--batch-size", default=8, show_default=True)
+@click.option("--lr", default=1e-3, show_default=True, help="AdamW learning rate (poly decay, short warm-up).")
+@click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
+@click.option("--size", default="640x480", show_default=True,
+              help="Model input size, WIDTHxHEIGHT (multiples of 8); images are resized to it.")
+@click.option("--colorspace", default="rgb", show_default=True, type=click.Choice(["rgb", "hsv", "gray"]))
+@click.option("--output-stride", default=16, show_default=True, type=click.Choice(["8", "16"]))
+@click.option("--aux-loss/--no-aux-loss", default=False, show_default=True, help="FCN auxiliary head (weight 0.4).")
+@click.option("--keep-epochs", default="", help="Comma-separated epochs whose checkpoints are kept (hybrid-QaT switch points).")
+@click.option("--backbone-weights", default=None, type=click.Path(dir_okay=False), help="Backbone state dict to start from.")
+@with_options(epoch_subset)
+@click.option("--workers", default=-1, show_default=True,
+              help="Data loader workers; -1 = decode once into memory (4 workers on GPU when that does not fit).")
+@click.option("--seed", default=0, show_default=True)
+@click.option("--resume", is_flag=True, help="Continue RUN from its last.pt (losing at most one epoch).")
+def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, batch_size: int, lr: float, device: str, size: str,
+          colorspace: str, output_stride: str, aux_loss: bool, keep_epochs: str, backbone_weights: str | None,
+          epoch_images: int, val_images: int, workers: int, seed: int, resume: bool) -> None:
+    """Train a float DeepLabV3 on DATA (CPU, one GPU with bf16 AMP, or DDP under torchrun).
+
+    Keeps best.pt (by validation mIoU), last.pt and epoch_NNN.pt for --keep-epochs, and
+    metrics.json with per-epoch loss, pixel accuracy, mIoU, per-class IoU and timings.
+    Multi-GPU: torchrun --nproc_per_node N -m edgepick train DATA --out RUN ...
+    """
+    from edgepick.train.loop import TrainConfig
+    from edgepick.train.loop import train as run_train
+
+    try:
+        keep = sorted({int(v) for v in keep_epochs.split(",") if v.strip()})
+    except ValueError:
+        raise ConfigError(f"--keep-epochs must be comma-separated integers, got {keep_epochs!r}") from None
+    input_hw = model_size(size)
+    if not resume:
+        check_data_orientation(data_dir, input_hw)
+    cfg = TrainConfig(data=data_dir, out=out, arch=arch, variant=variant, epochs=epochs if epochs is not None else (0 if resume else 100),
+                      batch_size=batch_size, lr=lr, size=input_hw, colorspace=colorspace,
+                      output_stride=int(output_stride), aux_loss=aux_loss, device=device, keep_epochs=keep,
+                      backbone_weights=backbone_weights, epoch_images=epoch_images, val_images=val_images,
+                      workers=workers, seed=seed)
+    result = run_train(cfg, resume=resume)
+    if result is not None:
+        emit({k: v for k, v in result.items()})
+
+
+@click.command("eval")
+@click.argument("model", type=click.Path())
+@click.argument("data_dir", metavar="DATA", type=click.Path())
+@click.option("--split", default="test", show_default=True, type=click.Choice(["train", "val", "test"]))
+@click.option("--out", default=None, type=click.Path(dir_okay=False), help="Also write the JSON here.")
+def eval_cmd(model: str, data_dir: str, split: str, out: str | None) -> None:
+    """Pixel accuracy, per-class IoU, mIoU and confusion matrix of MODEL (checkpoint, RUN or ONNX) as JSON."""
+    from edgepick.evaluation import evaluate
+
+    result = evaluate(model, data_dir, split)
+    if out:
+        Path(out).write_text(json.dumps(result, indent=1))
+    emit(result)
+
+
+
+@click.command()
+@click.option("--workdir", default="demo-out", show_default=True, type=click.Path(file_okay=False))
+@click.option("--scenes", default=204, show_default=True, help="Synthetic scenes to make.")
+@click.option("--epochs", default=12, show_default=True, help="CPU training epochs.")
+def demo(workdir: str, scenes: int, epochs: int) -> None:
+    """The main job on an embedded default: synth data, train a small model on CPU, evaluate."""
+    from edgepick.demo import run_demo
+
+    run_demo(Path(workdir), scenes=scenes, epochs=epochs)
+
