@@ -1,8 +1,10 @@
-"""Errors a user can cause. The CLI prints their one-sentence message and exits 2."""
+"""Errors a user can cause. The CLI prints their one-sentence message and exits with their exit_code."""
 
 
 class EdgepickError(Exception):
     """Base class: a user's error, reported as one line without a traceback."""
+
+    exit_code = 2  # docs/contracts.md#command-line
 
 
 class DatasetError(EdgepickError):

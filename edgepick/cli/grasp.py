@@ -8,7 +8,6 @@ from pathlib import Path
 
 import click
 
-from edgepick.cli.options import check_data_orientation, emit, epoch_subset, model_size, parse_size, with_options
 from edgepick.errors import ConfigError
 
 

@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import json
+import math
+import sys
 
 import click
 
+from edgepick.cli.options import parse_size
+from edgepick.files import check_output
 from edgepick.errors import ConfigError
 
 
@@ -42,27 +46,34 @@ def make_gripper(spec: str, robot, robot_host: str | None):
 @click.option("--class", "classes", multiple=True, help="Only pick these classes (repeatable).")
 @click.option("--choose", default="largest", show_default=True, type=click.Choice(["largest", "closest"]))
 @click.option("--speed", default=0.25, show_default=True,
-              help="moveL speed, m/s; the envelope refuses moves above its cap (0.25).")
+              help="moveL speed, m/s, in (0, 0.25]: the envelope's cap; anything else is refused up front.")
 @click.option("--acc", default=1.2, show_default=True,
-              help="moveL acceleration, m/s^2; the envelope refuses moves above its cap (1.2).")
+              help="moveL acceleration, m/s^2, in (0, 1.2]: the envelope's cap; anything else is refused up front.")
 @click.option("--log", "log_path", default="picks.jsonl", show_default=True, type=click.Path(dir_okay=False),
-              help="JSON-lines log of every command.")
+              help="JSON-lines log of every command (appended; created at the first entry).")
+@click.option("--robot-log", default=None, type=click.Path(dir_okay=False),
+              help="--robot ur:HOST: write ur_rtde's own messages (reconnects, socket errors) here [default: "
+                   "discarded; edgepick reports a failure itself].")
 @click.option("--overlay-dir", default=None, type=click.Path(file_okay=False), help="Write an overlay PNG per cycle.")
 @click.option("--threads", default=2, show_default=True, help="Inference threads.")
 @click.option("--engine", default="onnxruntime", show_default=True, type=click.Choice(["onnxruntime", "openvino"]),
               help="Inference engine (openvino: the [peers] extra).")
 @click.option("--size", default="640x480", show_default=True, help="Camera frame size, WIDTHxHEIGHT.")
 def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: str, execute: bool, cycles: int,
-         classes: tuple[str, ...], choose: str, speed: float, acc: float, log_path: str, overlay_dir: str | None,
-         threads: int, engine: str, size: str) -> None:
+         classes: tuple[str, ...], choose: str, speed: float, acc: float, log_path: str, robot_log: str | None,
+         overlay_dir: str | None, threads: int, engine: str, size: str) -> None:
     """Pick and place: camera -> segmentation -> grasp records -> target -> robot.
 
     Each cycle chooses the largest (or closest) object whose whole plan passes the safety
     envelope, then: approach above -> open -> descend -> grip -> lift -> place -> release ->
     home. --robot sim runs against the in-process SimRobot; a real UR3 (--robot ur:HOST)
-    moves only with --execute, otherwise the plan is printed and nothing is sent.
+    moves only with --execute, otherwise the plan is printed and nothing is sent. Every
+    target and the straight path to it are checked against the envelope before the first
+    command. The JSON summary goes to stdout; if the robot halts (protective or emergency
+    stop, lost link) or cannot be reached, it says so and the exit status is 3.
     """
-    from edgepick.cli.options import parse_size
+    from edgepick.robot.base import RobotError
+    from edgepick.robot.envelope import Envelope
     from edgepick.robot.loop import run_cycles
     from edgepick.robot.pick import CommandLog, PickConfig
     from edgepick.robot.sim import SimRobot
@@ -73,7 +84,24 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
 
     if cycles < 1:
         raise ConfigError("--cycles must be at least 1")
+    envelope = Envelope()
+    if not (math.isfinite(speed) and 0 < speed <= envelope.max_speed):
+        raise ConfigError(f"--speed {speed}: must be in (0, {envelope.max_speed}] m/s")
+    if not (math.isfinite(acc) and 0 < acc <= envelope.max_acc):
+        raise ConfigError(f"--acc {acc}: must be in (0, {envelope.max_acc}] m/s^2")
+    kind, _, host = robot_spec.partition(":")
+    if kind not in ("sim", "ur") or (kind == "ur" and not host):
+        raise ConfigError(f"unknown robot {robot_spec!r}: use sim or ur:HOST")
+    check_output(log_path, "--log")
+    if overlay_dir:
+        check_output(overlay_dir, "--overlay-dir", kind="dir")
+    if robot_log:
+        check_output(robot_log, "--robot-log")
     width, height = parse_size(size)
+    segmenter = Segmenter(model, threads=threads, engine=engine)
+    unknown = [c for c in classes if c not in segmenter.info.classes]
+    if unknown:
+        raise ConfigError(f"--class {unknown[0]}: not a class of {model} ({', '.join(segmenter.info.classes)})")
     source = open_camera(camera, width, height)
     if calib:
         cal = Calibration.load(calib)
@@ -81,36 +109,44 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
         cal = source.calibration()
     else:
         raise ConfigError("--calib is needed to turn camera points into robot poses")
-    kind, _, host = robot_spec.partition(":")
-    if kind not in ("sim", "ur") or (kind == "ur" and not host):
-        raise ConfigError(f"unknown robot {robot_spec!r}: use sim or ur:HOST")
-    pipeline = Pipeline(Segmenter(model, threads=threads, engine=engine), cal)
+    pipeline = Pipeline(segmenter, cal)
     cfg = PickConfig(classes=tuple(classes), choose=choose, speed=speed, acc=acc)
     if kind == "sim":
         robot = SimRobot()
     elif execute:
         from edgepick.robot.ur import URRobot
 
-        robot = URRobot(host)
+        robot = URRobot(host, debug_log=robot_log)
     else:
         robot = None
         click.echo(f"plan only: nothing is sent to {host} (add --execute to move the arm)", err=True)
     grip = make_gripper(gripper, robot, host or None) if robot is not None else None
     log = CommandLog(log_path)
     echo = lambda line: click.echo(line, err=True)  # noqa: E731
+    results, halted = [], None
     try:
         with source:
             if robot is None:
                 results = run_cycles(source, pipeline, None, None, cfg, cycles, log, overlay_dir, echo)
             else:
-                with robot:
-                    results = run_cycles(source, pipeline, robot, grip, cfg, cycles, log, overlay_dir, echo)
+                try:
+                    with robot:
+                        results = run_cycles(source, pipeline, robot, grip, cfg, cycles, log, overlay_dir, echo)
+                except RobotError as exc:
+                    if getattr(exc, "exit_code", 2) != 3:
+                        raise
+                    halted = str(exc)
+                halted = halted or robot.halted
     finally:
         log.close()
     done = [r for r in results if r["outcome"] == "done"]
     errors = [r["grasp_error_m"] for r in results if r.get("grasp_error_m") is not None]
-    summary = {"cycles": len(results), "done": len(done), "log": log_path,
+    summary = {"cycles": len(results), "done": len(done), "log": log_path if log.path and log.path.exists() else None,
+               "halted": halted,
                "within_1cm": sum(1 for r in results if r.get("within_1cm")),
                "grasp_error_mm_median": round(1000 * sorted(errors)[len(errors) // 2], 2) if errors else None,
                "results": results}
     click.echo(json.dumps(summary, indent=1))
+    if halted:
+        click.echo(f"edgepick: error: robot halted: {halted} ({len(done)} of {cycles} cycles done)", err=True)
+        sys.exit(3)

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 
 import click
 
-from edgepick.cli.options import check_data_orientation, emit, epoch_subset, model_size, parse_size, with_options
+from edgepick.cli.options import check_data_orientation, emit, epoch_subset, model_size, with_options
 from edgepick.errors import ConfigError
 
 

@@ -9,6 +9,7 @@ import numpy as np
 
 from edgepick.data.native import NativeDataset
 from edgepick.errors import EdgepickError
+from edgepick.files import atomic_path
 
 # BGR colours per class id (background uncoloured)
 PALETTE = np.array([[0, 0, 0], [255, 80, 40], [40, 200, 255], [60, 220, 60], [200, 60, 220],
@@ -57,10 +58,7 @@ def contact_sheet(data: str | Path, out: str | Path, split: str = "train", count
     while len(tiles) % cols:
         tiles.append(np.zeros_like(tiles[0]))
     rows = [np.hstack(tiles[i:i + cols]) for i in range(0, len(tiles), cols)]
-    out = Path(out)
-    tmp = out.with_name(f".{out.name}.tmp.png")
-    if not cv2.imwrite(str(tmp), np.vstack(rows)):
-        tmp.unlink(missing_ok=True)
-        raise EdgepickError(f"cannot write {out}")
-    tmp.replace(out)
+    with atomic_path(out) as tmp:
+        if not cv2.imwrite(str(tmp), np.vstack(rows)):
+            raise EdgepickError(f"cannot write {out}")
     return len(ds.ids[:count])

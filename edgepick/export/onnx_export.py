@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 import warnings
 from pathlib import Path
 
@@ -18,6 +16,7 @@ import torch
 from torch import Tensor, nn
 
 from edgepick.errors import ConfigError
+from edgepick.files import atomic_path
 from edgepick.export.crop_convs import crop_padded_convs
 from edgepick.export.int8_activations import integer_activations
 
@@ -111,15 +110,12 @@ def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: tu
     path = Path(path)
     if path.suffix != ".onnx":
         raise ConfigError(f"--out must name an .onnx file, got {path}")
-    path.parent.mkdir(parents=True, exist_ok=True)
     h, w = input_size
     example = (torch.zeros(1, h, w, 3, dtype=torch.uint8),)
     if not isinstance(net, torch.fx.GraphModule):  # exported graphs are already in eval form
         net.eval()
     deploy = DeployNet(net)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         with warnings.catch_warnings(), torch.no_grad():
             warnings.simplefilter("ignore")
             program = torch.onnx.export(deploy, example, dynamo=True, opset_version=OPSET, input_names=["image"],
@@ -135,10 +131,6 @@ def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: tu
         model.producer_name = "edgepick"
         onnx.save(model, tmp)
         onnx.checker.check_model(tmp, full_check=True)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return path
 
 

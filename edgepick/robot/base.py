@@ -1,8 +1,9 @@
 """The `Robot` protocol and the guard every implementation shares.
 
-`RobotBase` checks each target against the envelope BEFORE anything is sent, checks each
-command's result and the safety status AFTER it, and once a protective/emergency stop or a
-lost link has been seen it sends nothing more. As a context manager it always stops and
+`RobotBase` checks each target, and moveL's straight path to it from the arm's pose, against
+the envelope BEFORE anything is sent, checks each command's result and the safety status
+AFTER it, and once a protective/emergency stop or a lost link has been seen it sends nothing
+more. As a context manager it always stops and
 disconnects on the way out. Subclasses implement the `_`-prefixed transport methods only.
 """
 
@@ -21,6 +22,14 @@ class RobotError(EdgepickError):
 
 class RobotHalted(RobotError):
     """A protective/emergency stop or a lost link: the robot takes no more commands."""
+
+    exit_code = 3  # docs/contracts.md#command-line: the robot halted or its link failed
+
+
+class RobotUnreachable(RobotError):
+    """No link to the controller could be opened (nothing listening, no answer, refused)."""
+
+    exit_code = 3
 
 
 @dataclass
@@ -48,6 +57,7 @@ class RobotBase:
         self.connected = False
         self.sent: list[str] = []  # names of the commands that reached the transport
         self.on_send = None  # optional callback, called as each command goes out (latency probes)
+        self.last_target: list[float] | None = None  # where the last moveL went: the next one's path start
 
     # -- transport (subclasses) ---------------------------------------------------------------
     def _connect(self) -> None:
@@ -79,6 +89,7 @@ class RobotBase:
         self._connect()
         self.connected = True
         self._after("connect", True)
+        self.last_target = self.tcp_pose()
         return self
 
     def _before(self, name: str) -> None:
@@ -100,13 +111,24 @@ class RobotBase:
         if self.on_send is not None:
             self.on_send()
 
+    def _path_start(self) -> list[float] | None:
+        """The arm's pose a moveL starts from: the last confirmed target, else the reported TCP."""
+        if self.last_target is None and self.connected and not self.halted:
+            try:
+                self.last_target = self.tcp_pose()
+            except Exception:  # noqa: BLE001 - no pose: the target checks still apply
+                return None
+        return self.last_target
+
     def move_l(self, pose: list[float], speed: float | None = None, acc: float | None = None) -> None:
         speed = self.envelope.max_speed if speed is None else speed
         acc = self.envelope.max_acc if acc is None else acc
-        self.envelope.check_move_l(pose, speed, acc)
+        self.envelope.check_move_l(pose, speed, acc, start=self._path_start())
         self._before("moveL")
         self._send("moveL")
+        self.last_target = None  # unknown until the move is confirmed
         self._after("moveL", self._move_l([float(v) for v in pose], speed, acc))
+        self.last_target = [float(v) for v in pose]
 
     def move_j(self, q: list[float], speed: float | None = None, acc: float | None = None) -> None:
         speed = self.envelope.max_joint_speed if speed is None else speed
@@ -114,7 +136,9 @@ class RobotBase:
         self.envelope.check_move_j(q, speed, acc)
         self._before("moveJ")
         self._send("moveJ")
+        self.last_target = None
         self._after("moveJ", self._move_j([float(v) for v in q], speed, acc))
+        self.last_target = self.tcp_pose()
 
     def set_digital_out(self, index: int, value: bool, tool: bool = False) -> None:
         limit = 2 if tool else 8

@@ -2,7 +2,8 @@
 
 Workspace box in the robot base frame, UR3 reach (500 mm from the shoulder, with a margin),
 a keep-out cylinder around the base column, the table plane plus a clearance, and caps on
-speed and acceleration. A check returns the reason a target is refused, or None.
+speed and acceleration. Targets are checked, and so is moveL's straight path to each of them
+(sampled along the line). A check returns the reason a target is refused, or None.
 """
 
 from __future__ import annotations
@@ -39,7 +40,17 @@ class Envelope:
         """Why a TCP pose [x, y, z, rx, ry, rz] (metres, axis-angle) is refused, or None."""
         if len(pose) != 6 or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in pose):
             return "target must be 6 finite numbers [x, y, z, rx, ry, rz]"
-        x, y, z = pose[:3]
+        reason = self.position_reason(pose[:3])
+        if reason:
+            return reason
+        if math.sqrt(sum(v * v for v in pose[3:])) > 2 * math.pi:
+            return "rotation vector longer than 2 pi"
+        return None
+
+    def position_reason(self, xyz) -> str | None:
+        """Why a TCP position is refused: outside the box, beyond the reach, inside the base
+        keep-out, or below the table plus clearance. None when it is allowed."""
+        x, y, z = (float(v) for v in xyz)
         for axis, v, lo, hi in zip("xyz", (x, y, z), self.box_min, self.box_max):
             if not lo <= v <= hi:
                 return f"{axis} = {v:.3f} m is outside the workspace box [{lo:.3f}, {hi:.3f}]"
@@ -51,8 +62,23 @@ class Envelope:
             return f"{math.hypot(x, y):.3f} m from the base axis is inside the {self.base_keepout_m} m keep-out"
         if z < self.table_z_m + self.clearance_m:
             return f"z = {z:.3f} m is below the table plane + clearance ({self.table_z_m + self.clearance_m:.3f} m)"
-        if math.sqrt(sum(v * v for v in pose[3:])) > 2 * math.pi:
-            return "rotation vector longer than 2 pi"
+        return None
+
+    def path_reason(self, start, end, step_m: float = 0.005) -> str | None:
+        """Why the straight TCP line from `start` to `end` (moveL's path) is refused: the first
+        point along it, sampled every `step_m`, that position_reason refuses. None when clear.
+        Both ends inside is not enough: the base keep-out is not convex, so a line between two
+        allowed points can cross it."""
+        a, b = [float(v) for v in start[:3]], [float(v) for v in end[:3]]
+        if not all(math.isfinite(v) for v in a + b):
+            return "path ends must be finite"
+        n = max(1, math.ceil(math.dist(a, b) / step_m))
+        for i in range(1, n + 1):
+            point = [p + (q - p) * i / n for p, q in zip(a, b)]
+            reason = self.position_reason(point)
+            if reason:
+                where = ", ".join(f"{v:.3f}" for v in point)
+                return f"the straight path passes ({where}), where {reason}"
         return None
 
     def speed_reason(self, speed: float, acc: float, joint: bool = False) -> str | None:
@@ -72,8 +98,10 @@ class Envelope:
                 return f"joint {i} = {v:.3f} rad beyond +-{lim:.3f}"
         return None
 
-    def check_move_l(self, pose, speed: float, acc: float) -> None:
-        reason = self.pose_reason(pose) or self.speed_reason(speed, acc)
+    def check_move_l(self, pose, speed: float, acc: float, start=None) -> None:
+        """Refuse a moveL whose target, speed or (from `start`, when known) path is not allowed."""
+        reason = self.pose_reason(pose) or self.speed_reason(speed, acc) or \
+            (self.path_reason(start, pose) if start is not None else None)
         if reason:
             raise SafetyError(f"refused moveL: {reason}")
 

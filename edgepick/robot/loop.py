@@ -46,9 +46,10 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, grip
         except StopIteration:
             echo(f"cycle {cycle}: the camera has no more frames")
             break
+        start = robot.tcp_pose() if robot is not None else None  # plan only: from the home pose
         t0 = time.perf_counter()
         seen = pipeline(frame)
-        record, plan, note = choose_target(seen.records, envelope, cfg)
+        record, plan, note = choose_target(seen.records, envelope, cfg, start)
         t_plan = time.perf_counter()
         result = {"cycle": cycle, "frame": frame.name, "objects": len(seen.records), "stage_ms": seen.ms,
                   "plan_ms": round(1000 * (t_plan - t0), 2)}
@@ -84,8 +85,7 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, grip
         results.append(result)
         echo(_line(result))
         if robot is not None and robot.halted:
-            echo(f"robot halted ({robot.halted}): no more cycles")
-            break
+            break  # the caller reports it once
     return results
 
 

@@ -1,6 +1,7 @@
 """The pick-and-place cycle (thesis 5.2): choose a target among the grasp records, plan
 approach -> open -> descend -> grip -> lift -> place -> release -> home, check EVERY pose of
-the plan against the envelope before the first command, then execute with a JSON-lines log.
+the plan and the straight path to it against the envelope before the first command, then
+execute with a JSON-lines log.
 """
 
 from __future__ import annotations
@@ -58,21 +59,29 @@ def plan_pick(record: dict, cfg: PickConfig) -> list[Step]:
             Step("moveL", list(cfg.home_pose), "home")]
 
 
-def plan_reason(plan: list[Step], envelope: Envelope, cfg: PickConfig) -> str | None:
-    """Why the plan is refused (the first pose outside the envelope), or None."""
+def plan_reason(plan: list[Step], envelope: Envelope, cfg: PickConfig, start: list[float] | None = None) -> str | None:
+    """Why the plan is refused: the speed, the first target outside the envelope, or the first
+    moveL whose straight path (from `start`, the arm's pose, then from each target) is not
+    allowed. None when every step passes."""
     speed = envelope.speed_reason(cfg.speed, cfg.acc)
     if speed:
         return speed
+    previous = list(start) if start is not None else None
     for step in plan:
         if step.target is not None:
-            reason = envelope.pose_reason(step.target)
+            reason = envelope.pose_reason(step.target) or \
+                (envelope.path_reason(previous, step.target) if previous is not None else None)
             if reason:
                 return f"{step.note}: {reason}"
+            previous = step.target
     return None
 
 
-def choose_target(records: list[dict], envelope: Envelope, cfg: PickConfig) -> tuple[dict | None, list[Step], str]:
-    """The preferred record whose whole plan passes the envelope, its plan, and a note."""
+def choose_target(records: list[dict], envelope: Envelope, cfg: PickConfig,
+                  start: list[float] | None = None) -> tuple[dict | None, list[Step], str]:
+    """The preferred record whose whole plan, from the arm's pose `start` [default: the home
+    pose], passes the envelope; its plan, and a note."""
+    start = list(cfg.home_pose) if start is None else start
     candidates = [r for r in records if not cfg.classes or r["class"] in cfg.classes]
     if not candidates:
         return None, [], "no object of the requested classes"
@@ -86,7 +95,7 @@ def choose_target(records: list[dict], envelope: Envelope, cfg: PickConfig) -> t
             reasons.append(f"{r['class']}: {r.get('reason', 'no robot pose (no calibration?)')}")
             continue
         plan = plan_pick(r, cfg)
-        reason = plan_reason(plan, envelope, cfg)
+        reason = plan_reason(plan, envelope, cfg, start)
         if reason is None:
             return r, plan, "ok"
         reasons.append(f"{r['class']}: {reason}")
@@ -94,22 +103,27 @@ def choose_target(records: list[dict], envelope: Envelope, cfg: PickConfig) -> t
 
 
 class CommandLog:
-    """JSON lines: time, cycle, command, target, result."""
+    """JSON lines: time, cycle, command, target, result. The file is created at the first entry,
+    so a run that fails before it has anything to log leaves no empty log behind."""
 
     def __init__(self, path: str | Path | None):
-        self.file: IO[str] | None = open(path, "a") if path else None
+        self.path = Path(path) if path else None
+        self.file: IO[str] | None = None
         self.records: list[dict] = []
 
     def write(self, **entry) -> None:
         entry = {"t": round(time.time(), 4), **entry}
         self.records.append(entry)
-        if self.file:
+        if self.path is not None:
+            if self.file is None:
+                self.file = open(self.path, "a")
             self.file.write(json.dumps(entry) + "\n")
             self.file.flush()
 
     def close(self) -> None:
         if self.file:
             self.file.close()
+            self.file = None
 
 
 def execute(plan: list[Step], robot: RobotBase, gripper, log: CommandLog, cycle: int, cfg: PickConfig) -> str | None:

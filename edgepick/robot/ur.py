@@ -3,24 +3,39 @@
 ur_rtde's constructors hold the GIL while they connect, its control interface can wait for
 minutes on a controller that has vanished, and its IO interface can abort the process after
 the link is gone. So the three interfaces live in a child process; this side talks to it
-through a pipe with a timeout on every call, and kills it when it stops answering. Nothing
-touches the network before `connect()`; every command passes the envelope first (RobotBase).
+through a pipe with a timeout on every call, and kills it when it stops answering. The
+child's stdout/stderr (ur_rtde's C++ client prints "Reconnecting..." and socket errors there)
+go to a debug file on request, else nowhere: edgepick reports a failure once, in its own
+words. Nothing touches the network before `connect()`; every command passes the envelope
+first (RobotBase).
 """
 
 from __future__ import annotations
 
+import importlib.util
 import math
 import multiprocessing as mp
+import os
 import time
 
-from edgepick.robot.base import RobotBase, RobotError, SafetyStatus
+from edgepick.robot.base import RobotBase, RobotError, RobotHalted, RobotUnreachable, SafetyStatus
 from edgepick.robot.envelope import Envelope
 from edgepick.robot.sim import motion_time
 
 STALE_S = 0.5  # no new RTDE sample for this long = the link is gone (the stream runs at 125-500 Hz)
 
 
-def _worker(conn, host: str) -> None:  # runs in the child process
+def _own_output(debug_log: str | None) -> None:
+    """Point this process's file descriptors 1 and 2 (the C++ client's as well as Python's) at
+    the debug log, or at the null device."""
+    fd = os.open(debug_log or os.devnull, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o666)
+    os.dup2(fd, 1)
+    os.dup2(fd, 2)
+    os.close(fd)
+
+
+def _worker(conn, host: str, debug_log: str | None = None) -> None:  # runs in the child process
+    _own_output(debug_log)
     try:
         import rtde_control
         import rtde_io
@@ -86,9 +101,10 @@ class URRobot(RobotBase):
     """A UR arm at HOST through ur_rtde (RTDEControl/Receive/IOInterface) in a worker process."""
 
     def __init__(self, host: str, envelope: Envelope | None = None, connect_timeout_s: float = 15.0,
-                 command_margin_s: float = 5.0):
+                 command_margin_s: float = 5.0, debug_log: str | None = None):
         super().__init__(envelope)
         self.host, self.connect_timeout_s, self.margin_s = host, connect_timeout_s, command_margin_s
+        self.debug_log = debug_log  # where ur_rtde's own output goes (None: discarded)
         self.proc = None
         self.pipe = None
         self.lost = False
@@ -116,20 +132,22 @@ class URRobot(RobotBase):
             self.proc.join(5)
 
     def _connect(self) -> None:
+        if importlib.util.find_spec("rtde_control") is None:
+            raise RobotError("--robot ur:HOST needs ur_rtde: pip install 'edgepick[robot]'")
         ctx = mp.get_context("spawn")
         self.pipe, child = ctx.Pipe()
-        self.proc = ctx.Process(target=_worker, args=(child, self.host), daemon=True)
+        self.proc = ctx.Process(target=_worker, args=(child, self.host, self.debug_log), daemon=True)
         self.proc.start()
         if not self.pipe.poll(self.connect_timeout_s):
             self._kill()
-            raise RobotError(f"no answer from a UR controller at {self.host} within {self.connect_timeout_s:.0f} s")
+            raise RobotUnreachable(f"no answer from a UR controller at {self.host} within {self.connect_timeout_s:.0f} s")
         try:
             status, value = self.pipe.recv()
         except EOFError:
             status, value = "error", "the ur_rtde worker died"
         if status == "error":
             self._kill()
-            raise RobotError(f"cannot connect to the UR controller at {self.host}: {value}")
+            raise RobotUnreachable(f"cannot connect to the UR controller at {self.host}: {value}")
         self.last_pose = self.tcp_pose()
 
     def _disconnect(self) -> None:
@@ -179,5 +197,6 @@ class URRobot(RobotBase):
     def tcp_pose(self) -> list[float]:
         pose = self._call("tcp", timeout=2.0)
         if pose is None:
-            raise RobotError("link to the robot lost")
+            self.halted = self.halted or "link to the robot lost"
+            raise RobotHalted("link to the robot lost")
         return pose

@@ -10,14 +10,13 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from edgepick.errors import EdgepickError
+from edgepick.files import atomic_write
 
 HEADER = ["cam_x", "cam_y", "cam_z", "robot_x", "robot_y", "robot_z"]
 MIN_PAIRS = 4
@@ -42,15 +41,7 @@ class Calibration:
         return {"R": self.R.tolist(), "t": self.t.tolist(), "rmse_m": self.rmse_m, "n_pairs": self.n_pairs}
 
     def save(self, path: str | Path) -> None:
-        path = Path(path)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.resolve().parent)
-        try:
-            with os.fdopen(fd, "w") as f:
-                json.dump(self.to_dict(), f, indent=1)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        atomic_write(path, json.dumps(self.to_dict(), indent=1))
 
     @classmethod
     def load(cls, path: str | Path) -> "Calibration":

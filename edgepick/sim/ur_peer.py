@@ -102,13 +102,16 @@ def reachable(pose: list[float]) -> bool:
     return math.sqrt(x * x + y * y + (z - DH_D[0]) ** 2) <= REACH_M
 
 
+START_JOINTS = [math.pi, -math.pi / 2, math.pi / 2, -math.pi / 2, -math.pi / 2, 0.0]
+
+
 class Controller:
     """The simulated controller state, shared by all connections (one lock)."""
 
     def __init__(self, args: argparse.Namespace):
         self.args = args
         self.lock = threading.RLock()
-        self.q = [0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0]
+        self.q = list(args.start_joints)
         self.tcp = forward_kinematics(self.q)
         self.motion: dict | None = None
         self.runtime = RUNTIME_STOPPED
@@ -416,6 +419,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--drop-on-move", type=int, default=0, help="close every link halfway through move N")
     ap.add_argument("--time-scale", type=float, default=1.0, help="motion time factor (0.1 = ten times faster)")
     ap.add_argument("--log", default=None, help="JSON-lines log of every command received")
+    ap.add_argument("--start-joints", type=float, nargs=6, default=START_JOINTS, metavar="Q",
+                    help="joint angles (rad) at start [default: the TCP above the +x side of the base, where "
+                         "edgepick's home and the synthetic cell are]")
     args = ap.parse_args(argv)
     if not args.host.startswith("127."):
         ap.error("the peer only listens on loopback addresses (127.0.0.N)")

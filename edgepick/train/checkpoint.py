@@ -2,27 +2,19 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import torch
 
 from edgepick.errors import CheckpointError
+from edgepick.files import atomic_path
 from edgepick.models.deeplabv3 import _NORM, DeepLabV3, ModelConfig, build_model
 
 
 def save_atomic(obj: dict, path: str | Path) -> None:
     """torch.save to a temporary file beside PATH, then rename: a kill never leaves half a file."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         torch.save(obj, tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def model_meta(model_cfg: ModelConfig, classes: list[str], input_size: tuple[int, int]) -> dict:

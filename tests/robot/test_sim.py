@@ -77,3 +77,35 @@ def test_target_choice_skips_unreachable_and_depthless_objects():
     assert record is None and plan == [] and "no valid depth" in note and "reach" in note
     record, _, note = choose_target([RECORD], robot.envelope, PickConfig(classes=("bearing",)))
     assert record is None and "requested classes" in note
+
+
+BEHIND = [-0.30, -0.11, 0.31, *DOWN]  # the arm on the far side of the base column
+
+
+def test_a_path_through_the_keep_out_is_refused_though_every_target_is_inside():
+    robot = SimRobot(start_pose=BEHIND)
+    plan = plan_pick(RECORD, PickConfig())
+    assert all(robot.envelope.pose_reason(s.target) is None for s in plan if s.target)  # each target is fine
+    record, plan_out, note = choose_target([RECORD], robot.envelope, PickConfig(), start=BEHIND)
+    assert record is None and "approach above the object" in note and "keep-out" in note
+    with robot:
+        with pytest.raises(SafetyError, match="straight path .* keep-out"):
+            robot.move_l(plan[0].target)  # the guard refuses it too, from the arm's reported pose
+        assert robot.sent == []
+    assert choose_target([RECORD], robot.envelope, PickConfig())[0] is RECORD  # from home the path is clear
+
+
+def test_a_path_from_below_the_table_clearance_is_refused():
+    low = [0.30, -0.05, 0.002, *DOWN]  # e.g. jogged down onto the table by hand
+    robot = SimRobot(start_pose=low)
+    with robot:
+        with pytest.raises(SafetyError, match="straight path .* table"):
+            robot.move_l([0.30, 0.10, 0.03, *DOWN])  # a target above the clearance, a path that grazes the table
+        assert robot.sent == []
+
+
+def test_path_checks_sample_the_whole_line():
+    env = SimRobot().envelope
+    assert env.path_reason([0.15, -0.15, 0.2], [0.15, 0.15, 0.2]) is None  # passes 0.15 m from the base axis
+    reason = env.path_reason([0.05, -0.3, 0.2], [0.05, 0.3, 0.2])  # passes 0.05 m from it
+    assert reason and "keep-out" in reason and reason.startswith("the straight path passes (0.050, -0.08")

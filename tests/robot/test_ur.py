@@ -44,6 +44,7 @@ def peer(tmp_path):
             return [json.loads(line) for line in log.read_text().splitlines()] if log.exists() else []
         return host, read_log
 
+    start.procs = procs
     yield start
     for p in procs:
         p.kill()
@@ -126,3 +127,56 @@ def test_pick_command_executes_on_the_controller(peer, tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["done"] == 1
     assert commands(log()).count(3) == 7
+
+
+def _pick_cli(tmp_path, host: str, *extra: str) -> subprocess.Popen:
+    from tests.robot.test_loop import CALIB, capture
+    from tests.runtime.test_pipeline import red_model
+
+    cam = capture(tmp_path / "cap", [(160, 120)])
+    (tmp_path / "calib.json").write_text(json.dumps(CALIB))
+    return subprocess.Popen([sys.executable, "-m", "edgepick", "pick", "--model", str(red_model(tmp_path / "m.onnx")),
+                             "--camera", f"dir:{cam}", "--calib", str(tmp_path / "calib.json"), "--robot", f"ur:{host}",
+                             "--execute", "--log", str(tmp_path / "picks.jsonl"), *extra],
+                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _only_edgepick_lines(stderr: str) -> None:
+    lines = stderr.strip().splitlines()
+    assert lines and lines[-1].startswith("edgepick: error:"), stderr
+    assert all(line.startswith(("cycle ", "edgepick: ")) for line in lines), stderr  # nothing from ur_rtde
+
+
+@pytest.mark.parametrize("signal_name", ["SIGKILL", "SIGSTOP"])
+def test_a_controller_killed_or_frozen_mid_move_ends_pick_with_exit_3(peer, tmp_path, signal_name):
+    pytest.importorskip("onnx")
+    import signal
+
+    host, log = peer("--time-scale", "1.0")  # moves at real speed: ~1 s for the approach
+    proc = _pick_cli(tmp_path, host, "--robot-log", str(tmp_path / "rtde.log"))
+    deadline = time.monotonic() + 30
+    while 3 not in commands(log()) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    peer_proc = peer.procs[-1]
+    os.kill(peer_proc.pid, getattr(signal, signal_name))  # the controller dies or freezes mid-moveL
+    t0 = time.monotonic()
+    try:
+        out, err = proc.communicate(timeout=30)
+    finally:
+        os.kill(peer_proc.pid, signal.SIGKILL)
+    assert time.monotonic() - t0 < 30
+    assert proc.returncode == 3, err
+    summary = json.loads(out)  # stdout is the JSON summary alone
+    assert summary["halted"] and summary["results"][0]["outcome"] == "stopped"
+    _only_edgepick_lines(err)
+    assert "robot halted" in err.splitlines()[-1]
+
+
+def test_nothing_listening_is_exit_3_with_no_log_left(tmp_path):
+    pytest.importorskip("onnx")
+    proc = _pick_cli(tmp_path, "127.0.0.254")
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 3, err
+    assert json.loads(out)["cycles"] == 0 and "cannot connect" in json.loads(out)["halted"]
+    _only_edgepick_lines(err)
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "picks.jsonl").exists()
