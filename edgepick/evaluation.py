@@ -6,11 +6,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from tqdm import tqdm
 
 from edgepick.data.native import NativeDataset
 from edgepick.errors import CheckpointError
 from edgepick.metrics import confusion_matrix, segmentation_metrics
+from edgepick.progress import progress as progress_bar
 
 
 def evaluate(model_path: str | Path, data: str | Path, split: str = "test", progress: bool = True,
@@ -32,7 +32,7 @@ def evaluate(model_path: str | Path, data: str | Path, split: str = "test", prog
     if classes != ds.classes:
         raise CheckpointError(f"the model's classes {classes} differ from the data set's {ds.classes}")
     cm = np.zeros((len(classes), len(classes)), np.int64)
-    for sid in tqdm(ds.ids, desc=f"eval {split}", unit="img", disable=not progress or None):
+    for sid in progress_bar(ds.ids, desc=f"eval {split}", unit="img", enabled=progress):
         mask, pred = ds.mask(sid), predict(ds.rgb(sid))
         if pred.size and int(pred.max()) >= len(classes):
             raise CheckpointError(f"{model_path} predicted class id {int(pred.max())}, outside its {len(classes)} classes")

@@ -18,6 +18,7 @@ from pathlib import Path
 from edgepick.bench.machine import machine_line, machine_slug
 from edgepick.bench.measure import BenchConfig
 from edgepick.bench.run import run_bench
+from edgepick.files import atomic_write
 
 
 @dataclass(frozen=True)
@@ -57,15 +58,16 @@ def _record(work: Path, update) -> dict:
     """Read-modify-write WORK/phases.json under a lock (phases may run in parallel processes)."""
     import fcntl
 
-    with open(work / ".phases.lock", "w") as lock:
+    lock = os.open(work, os.O_RDONLY)  # the folder itself is the lock: no lock file left behind
+    try:
         fcntl.flock(lock, fcntl.LOCK_EX)
         path = work / "phases.json"
         state = json.loads(path.read_text()) if path.is_file() else {"times": {}, "commands": []}
         update(state)
-        tmp = work / ".phases.json.tmp"
-        tmp.write_text(json.dumps(state, indent=1))
-        os.replace(tmp, path)
+        atomic_write(path, json.dumps(state, indent=1))
         return state
+    finally:
+        os.close(lock)
 
 
 def make_table55(work: str | Path, setting: Setting, device: str = "auto", command: str = "",

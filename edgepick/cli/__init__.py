@@ -64,14 +64,15 @@ def quiet_dependencies() -> None:
     try:
         import cv2
 
-        cv2.setLogLevel(2)  # errors only: no "[ WARN:0@0.05] ... findDecoder" before edgepick's message
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # no "[ WARN:0@0.05] ... findDecoder"
     except (ImportError, AttributeError):
         pass
 
 
-def _fail(message: str, code: int) -> None:
-    click.echo(f"edgepick: error: {message}", err=True)
-    sys.exit(code)
+def _fail(message: str, code: int) -> int:
+    lines = [line.strip() for line in str(message).splitlines() if line.strip()]
+    click.echo(f"edgepick: error: {lines[0] if lines else 'failed'}", err=True)  # one line, always
+    return code
 
 
 def _click_message(exc: click.ClickException) -> str:
@@ -84,26 +85,37 @@ def _click_message(exc: click.ClickException) -> str:
     return f"{command + ': ' if command else ''}{message} (see 'edgepick {command + ' ' if command else ''}--help')"
 
 
-def main() -> None:
-    """Console entry point: every failure a user can cause is one line on stderr and an exit status."""
+def run(args: list[str] | None = None) -> int:
+    """Run one edgepick command line (None: sys.argv) and return its exit status, having said
+    any failure a user can cause in one line on stderr. A bug still raises, with its traceback."""
     quiet_dependencies()
     try:
-        cli.main(prog_name="edgepick", standalone_mode=False)
+        cli.main(args, prog_name="edgepick", standalone_mode=False)
     except EdgepickError as exc:
-        _fail(str(exc), getattr(exc, "exit_code", EXIT_USER_ERROR))
+        return _fail(str(exc), getattr(exc, "exit_code", EXIT_USER_ERROR))
     except click.exceptions.Abort:
         click.echo("edgepick: aborted", err=True)
-        sys.exit(EXIT_INTERRUPTED)
+        return EXIT_INTERRUPTED
+    except click.exceptions.Exit as exc:
+        return exc.exit_code
     except click.ClickException as exc:
-        _fail(_click_message(exc), exc.exit_code)
+        return _fail(_click_message(exc), exc.exit_code)
     except KeyboardInterrupt:
         click.echo("edgepick: interrupted", err=True)
-        sys.exit(EXIT_INTERRUPTED)
+        return EXIT_INTERRUPTED
     except ModuleNotFoundError as exc:
         if (exc.name or "").split(".")[0] not in TRAIN_EXTRA:
             raise
-        _fail(f"this command needs the [train] extra ({exc.name} is not installed): "
-              "pip install 'edgepick[train]'", EXIT_USER_ERROR)
+        return _fail(f"this command needs the [train] extra ({exc.name} is not installed): "
+                     "pip install 'edgepick[train]'", EXIT_USER_ERROR)
+    except SystemExit as exc:  # a command that ends with its own status (pick: 3 when the robot halted)
+        return exc.code if isinstance(exc.code, int) else 1
+    return 0
+
+
+def main() -> None:
+    """Console entry point."""
+    sys.exit(run())
 
 
 if __name__ == "__main__":

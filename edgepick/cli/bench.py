@@ -6,6 +6,9 @@ import json
 
 import click
 
+from edgepick.errors import ConfigError
+from edgepick.files import check_output
+
 
 @click.command()
 @click.argument("models", nargs=-1, required=True, type=click.Path(dir_okay=False))
@@ -27,6 +30,10 @@ def bench(models: tuple[str, ...], data: str, split: str, threads: int, runs: in
     from edgepick.bench.measure import BenchConfig, Row
     from edgepick.bench.report import HEADER_55, markdown, table55_rows
     from edgepick.bench.run import run_bench
+
+    check_output(out_dir, "--out", kind="dir")
+    if threads < 1 or runs < 1:
+        raise ConfigError("--threads and --runs must be at least 1")
 
     result = run_bench(list(models), data, out_dir, BenchConfig(threads=threads, runs=runs, split=split, engine=engine),
                        gpu_checkpoint=gpu_checkpoint, with_pipeline=not no_pipeline,

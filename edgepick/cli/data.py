@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import math
 
 import click
 
 from edgepick.cli.options import emit, parse_size
 from edgepick.errors import ConfigError
+from edgepick.files import check_output
 
 
 @click.group()
@@ -30,7 +32,12 @@ def data_synth(out: str, scenes: int, splits: str | None, size: str, seed: int, 
     """
     from edgepick.data.synth import SynthConfig, synthesize
 
+    check_output(out, "OUT", kind="dir")
     width, height = parse_size(size)
+    if seed < 0:
+        raise ConfigError(f"--seed {seed}: must be 0 or positive")
+    if workers < 0:
+        raise ConfigError(f"--workers {workers}: must be 0 (one per core) or positive")
     split_counts = None
     if splits:
         try:
@@ -49,12 +56,15 @@ def data_synth(out: str, scenes: int, splits: str | None, size: str, seed: int, 
 @data.command("preview")
 @click.argument("data_dir", metavar="DATA", type=click.Path())
 @click.option("--out", required=True, type=click.Path(dir_okay=False), help="PNG contact sheet to write.")
-@click.option("--split", default="train", show_default=True)
+@click.option("--split", default="train", show_default=True, type=click.Choice(["train", "val", "test"]))
 @click.option("--count", default=12, show_default=True, help="Scenes to draw.")
 def data_preview(data_dir: str, out: str, split: str, count: int) -> None:
     """Draw a contact sheet: RGB with mask overlays and grasp truth, and the depth map."""
     from edgepick.data.preview import contact_sheet
 
+    check_output(out, "--out", suffixes=(".png",))
+    if count < 1:
+        raise ConfigError(f"--count {count}: draw at least 1 scene")
     n = contact_sheet(data_dir, out, split=split, count=count)
     emit({"out": out, "scenes": n})
 
@@ -84,6 +94,9 @@ def data_import(fmt: str, src: str, out: str, cityscapes_classes: str, splits: s
     """
     from edgepick.data.importers import ImportConfig, import_dataset
 
+    check_output(out, "OUT", kind="dir")
+    if not (math.isfinite(depth_scale) and depth_scale > 0):
+        raise ConfigError(f"--depth-scale {depth_scale}: must be positive (metres per unit, e.g. 0.001)")
     try:
         fractions = tuple(float(v) for v in splits.split(","))
     except ValueError:
@@ -105,6 +118,9 @@ def data_capture(out: str, camera: str, count: int, interval: float, size: str) 
     from edgepick.data.capture import capture
     from edgepick.runtime.camera import open_camera
 
+    check_output(out, "OUT", kind="dir")
+    if count < 1 or not (math.isfinite(interval) and interval >= 0):
+        raise ConfigError("--count must be at least 1 and --interval 0 or more seconds")
     width, height = parse_size(size)
     emit(capture(open_camera(camera, width, height), out, count, interval))
 

@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from edgepick.errors import ConfigError
+from edgepick.files import atomic_path, check_output
 
 
 @click.command()
@@ -41,6 +42,7 @@ def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, d
     --model with --rgb.
     """
     import cv2
+    import numpy as np
 
     from edgepick.runtime.calibration import Calibration
     from edgepick.runtime.camera import Frame, read_depth, read_rgb
@@ -54,6 +56,14 @@ def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, d
         raise ConfigError("--model needs --rgb, the colour image to segment")
     if mask_path and rgb_path:
         raise ConfigError("--rgb goes with --model; mask mode reads the labels from --mask")
+    if overlay:
+        check_output(overlay, "--overlay", suffixes=(".png", ".jpg", ".jpeg"))
+    if classes is not None and model_path:
+        raise ConfigError("--classes is for mask mode; a model carries its own class names")
+    names = [c.strip() for c in classes.split(",")] if classes is not None else list(DEFAULT_CLASSES)
+    if len(names) < 2 or not all(names):
+        raise ConfigError(f"--classes {classes!r}: give every class id a name, background first, e.g. "
+                          f"{','.join(DEFAULT_CLASSES)}")
     depth = read_depth(depth_path)
     intr = Intrinsics.load(intrinsics)
     cal = Calibration.load(calib) if calib else None
@@ -69,7 +79,10 @@ def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, d
         labels = cv2.imread(mask_path, cv2.IMREAD_UNCHANGED)
         if labels is None or labels.ndim != 2 or labels.dtype != "uint8":
             raise ConfigError(f"cannot read {mask_path} as a single-channel uint8 label image")
-        names = [c.strip() for c in classes.split(",")] if classes else list(DEFAULT_CLASSES)
+        unnamed = sorted({int(v) for v in np.unique(labels) if len(names) <= v < 255})  # 255: ignored pixels
+        if unnamed:
+            click.echo(f"edgepick: warning: label ids {', '.join(map(str, unnamed))} of {mask_path} have no name "
+                       f"in the {len(names)} classes; those regions are skipped", err=True)
         timings = []
         for _ in range(6 if profile else 1):
             t0 = time.perf_counter()
@@ -78,8 +91,9 @@ def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, d
         timings = timings[1:]
         picture = labels
     if overlay:
-        if not cv2.imwrite(overlay, draw_overlay(picture, records)):
-            raise ConfigError(f"cannot write overlay {overlay}")
+        with atomic_path(overlay) as tmp:
+            if not cv2.imwrite(str(tmp), draw_overlay(picture, records)):
+                raise ConfigError(f"cannot write overlay {overlay}")
     if profile:
         med = median_ms(timings)
         click.echo(" | ".join(f"{k} {v:.2f} ms" for k, v in med.items()), err=True)

@@ -39,9 +39,13 @@ def check_orientation(size_hw: tuple[int, int], image_hw: tuple[int, int], optio
     """Refuse a model input that is the data's images turned on their side: the usual sign of a
     size given as HEIGHTxWIDTH (e.g. 480x640 for 640x480 images)."""
     (h, w), (ih, iw) = size_hw, image_hw
-    if h != w and ih != iw and (h > w) != (ih > iw) and h * ih == w * iw:
-        raise ConfigError(f"{option} {w}x{h} turns the {iw}x{ih} images on their side; sizes are "
-                          f"{SIZE_HELP} in edgepick: did you mean {h}x{w}?")
+    if h != w and ih != iw and (h > w) != (ih > iw):
+        if h * ih == w * iw:
+            raise ConfigError(f"{option} {w}x{h} turns the {iw}x{ih} images on their side; sizes are "
+                              f"{SIZE_HELP} in edgepick: did you mean {h}x{w}?")
+        shape = "portrait" if h > w else "landscape"
+        click.echo(f"edgepick: warning: {option} {w}x{h} is {shape} but the {iw}x{ih} images are not; they will "
+                   f"be squeezed to it (sizes are {SIZE_HELP})", err=True)
 
 
 def check_data_orientation(data_dir: str, input_hw: tuple[int, int]) -> None:

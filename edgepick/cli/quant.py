@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from edgepick.cli.options import emit, epoch_subset, with_options
-from edgepick.errors import ConfigError
+from edgepick.files import check_output
 
 
 def _quant_config(calib_method: str = "percentile", percentile: float = 99.99, reduce_range: bool = True,
@@ -19,9 +19,8 @@ def _quant_config(calib_method: str = "percentile", percentile: float = 99.99, r
                        weight_averaging=weight_averaging)
 
 
-def _refuse_existing(out: str) -> None:
-    if Path(out).suffix != ".onnx":
-        raise ConfigError(f"--out must name an .onnx file, got {out}")
+def _check_onnx_out(out: str) -> None:
+    check_output(out, "--out", suffixes=(".onnx",))
 
 
 common = [
@@ -51,7 +50,7 @@ def export_cmd(checkpoint: str, out: str) -> None:
     uint8 `labels` out, normalisation and colour space in the graph, edgepick.* metadata."""
     from edgepick.export.onnx_export import export_checkpoint
 
-    _refuse_existing(out)
+    _check_onnx_out(out)
     emit(export_checkpoint(checkpoint, out))
 
 
@@ -70,7 +69,8 @@ def quantize() -> None:
 @quantize.command("static")
 @click.argument("checkpoint", metavar="RUN_OR_CKPT", type=click.Path())
 @click.option("--data", "data_dir", required=True, type=click.Path(), help="Data set; calibration uses its train split.")
-@click.option("--calib-images", default=64, show_default=True, help="Train images for calibration.")
+@click.option("--calib-images", default=None, type=int,
+              help="Train images for calibration [default: 64, or the whole train split if smaller].")
 @click.option("--calib-method", default="percentile", show_default=True,
               type=click.Choice(["minmax", "percentile", "entropy", "mse"]),
               help="Activation ranges: a percentile of each histogram, min/max, KL divergence (entropy) or "
@@ -82,13 +82,13 @@ def quantize() -> None:
                    "mIoU (onnxruntime) is within PP percentage points of fp32's.")
 @click.option("--max-float-layers", default=6, show_default=True, help="With --max-miou-drop: at most this many.")
 @with_options(common)
-def quantize_static_cmd(checkpoint: str, data_dir: str, calib_images: int, calib_method: str, percentile: float,
+def quantize_static_cmd(checkpoint: str, data_dir: str, calib_images: int | None, calib_method: str, percentile: float,
                         seed: int, max_miou_drop: float | None, max_float_layers: int, out: str, reduce_range: bool,
                         keep_float: str) -> None:
     """Static post-training quantization of a float checkpoint (BN folded, ranges calibrated)."""
     from edgepick.quant.passes import quantize_static
 
-    _refuse_existing(out)
+    _check_onnx_out(out)
     cfg = _quant_config(calib_method, percentile, reduce_range, keep_float)
     if max_miou_drop is not None:
         from edgepick.quant.inspect import quantize_accuracy_aware
@@ -101,13 +101,14 @@ def quantize_static_cmd(checkpoint: str, data_dir: str, calib_images: int, calib
 @quantize.command("inspect")
 @click.argument("checkpoint", metavar="RUN_OR_CKPT", type=click.Path())
 @click.option("--data", "data_dir", required=True, type=click.Path(), help="Calibration (train) and comparison (val) images.")
-@click.option("--calib-images", default=64, show_default=True)
+@click.option("--calib-images", default=None, type=int,
+              help="Train images for calibration [default: 64, or the whole train split if smaller].")
 @click.option("--calib-method", default="percentile", show_default=True,
               type=click.Choice(["minmax", "percentile", "entropy", "mse"]))
 @click.option("--images", default=8, show_default=True, help="Val images compared.")
 @click.option("--top", default=10, show_default=True, help="Rows of the worst-layers table on stderr.")
 @click.option("--reduce-range/--full-range", default=True, show_default=True)
-def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int, calib_method: str, images: int, top: int,
+def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int | None, calib_method: str, images: int, top: int,
                          reduce_range: bool) -> None:
     """Where int8 drifts from fp32: per conv layer, the SQNR of the int8 simulation against fp32 and
     the drift it adds; the worst layers are the --keep-float candidates. JSON on stdout."""
@@ -147,10 +148,11 @@ def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int,
     from edgepick.quant.passes import quantize_qat
     from edgepick.train.loop import TrainConfig
 
-    _refuse_existing(out)
+    _check_onnx_out(out)
     input_hw = model_size(size)
     check_data_orientation(data_dir, input_hw)
     run = run_dir or str(Path(out).with_suffix(".run"))
+    check_output(run, "--run", kind="dir")
     cfg = TrainConfig(data=data_dir, out=run, arch=arch, epochs=epochs, batch_size=batch_size, lr=lr,
                       size=input_hw, device=device, seed=seed, epoch_images=epoch_images,
                       val_images=val_images)
@@ -189,7 +191,8 @@ def quantize_hybrid_cmd(run: str, data_dir: str, qat_fraction: float, qat_run: s
     takes a float RUN's best.pt. Reports the wall time of each phase."""
     from edgepick.quant.passes import quantize_hybrid
 
-    _refuse_existing(out)
+    _check_onnx_out(out)
+    check_output(qat_run or str(Path(out).with_suffix(".run")), "--run", kind="dir")
     cfg = _quant_config(reduce_range=reduce_range, keep_float=keep_float, weight_averaging=weight_averaging)
     emit(quantize_hybrid(run, data_dir, out, qat_fraction, cfg, qat_run=qat_run, freeze_at=freeze_at,
                           carry_optimizer=not fresh_optimizer, calib_images=calib_images, hold_ranges=hold_ranges,

@@ -9,6 +9,7 @@ import click
 
 from edgepick.cli.options import check_data_orientation, emit, epoch_subset, model_size, with_options
 from edgepick.errors import ConfigError
+from edgepick.files import atomic_write, check_output
 
 
 @click.command()
@@ -51,6 +52,7 @@ def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, 
     except ValueError:
         raise ConfigError(f"--keep-epochs must be comma-separated integers, got {keep_epochs!r}") from None
     input_hw = model_size(size)
+    check_output(out, "--out", kind="dir")
     if not resume:
         check_data_orientation(data_dir, input_hw)
     cfg = TrainConfig(data=data_dir, out=out, arch=arch, variant=variant, epochs=epochs if epochs is not None else (0 if resume else 100),
@@ -72,9 +74,11 @@ def eval_cmd(model: str, data_dir: str, split: str, out: str | None) -> None:
     """Pixel accuracy, per-class IoU, mIoU and confusion matrix of MODEL (checkpoint, RUN or ONNX) as JSON."""
     from edgepick.evaluation import evaluate
 
+    if out:
+        check_output(out, "--out")
     result = evaluate(model, data_dir, split)
     if out:
-        Path(out).write_text(json.dumps(result, indent=1))
+        atomic_write(out, json.dumps(result, indent=1))
     emit(result)
 
 
@@ -87,5 +91,10 @@ def demo(workdir: str, scenes: int, epochs: int) -> None:
     """The main job on an embedded default: synth data, train a small model on CPU, evaluate."""
     from edgepick.demo import run_demo
 
+    if epochs < 2:
+        raise ConfigError(f"--epochs {epochs}: the demo needs at least 2 (its hybrid-QaT continues from epoch N-1)")
+    if scenes < 30:
+        raise ConfigError(f"--scenes {scenes}: the demo needs at least 30 (train, val and test splits)")
+    check_output(workdir, "--workdir", kind="dir")
     run_demo(Path(workdir), scenes=scenes, epochs=epochs)
 

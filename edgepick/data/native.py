@@ -64,11 +64,23 @@ class NativeDataset:
     def _path(self, kind: str, sid: str) -> Path:
         return self.root / self.split / kind / f"{sid}.png"
 
+    def _same_size(self, kind: str, sid: str, image: np.ndarray) -> np.ndarray:
+        """Every image of a data set has one size (docs/contracts.md#data-set-layout): the
+        split's first colour image sets it; another size names its file."""
+        if not hasattr(self, "_hw"):
+            first = cv2.imread(str(self._path("rgb", self.ids[0])), cv2.IMREAD_UNCHANGED)
+            self._hw = first.shape[:2] if first is not None else image.shape[:2]
+        if image.shape[:2] != self._hw:
+            (h, w), (h0, w0) = image.shape[:2], self._hw
+            raise DatasetError(f"{self._path(kind, sid)} is {w}x{h} but the data set's images are {w0}x{h0} "
+                               f"(like {self.ids[0]}.png); all images of a data set must have one size")
+        return image
+
     def rgb(self, sid: str) -> np.ndarray:
         img = cv2.imread(str(self._path("rgb", sid)), cv2.IMREAD_COLOR)
         if img is None:
             raise DatasetError(f"cannot read image {self._path('rgb', sid)}")
-        return np.ascontiguousarray(img[..., ::-1])
+        return self._same_size("rgb", sid, np.ascontiguousarray(img[..., ::-1]))
 
     def mask(self, sid: str) -> np.ndarray:
         m = cv2.imread(str(self._path("mask", sid)), cv2.IMREAD_UNCHANGED)
@@ -79,13 +91,13 @@ class NativeDataset:
         if top >= len(self.classes):
             raise DatasetError(f"mask {self._path('mask', sid)} has class id {top} but the data set "
                                f"has {len(self.classes)} classes")
-        return m
+        return self._same_size("mask", sid, m)
 
     def depth(self, sid: str) -> np.ndarray:
         d = cv2.imread(str(self._path("depth", sid)), cv2.IMREAD_UNCHANGED)
         if d is None:
             raise DatasetError(f"cannot read depth {self._path('depth', sid)}")
-        return d
+        return self._same_size("depth", sid, d)
 
     def grasps(self) -> dict:
         path = self.root / self.split / "grasps.json"

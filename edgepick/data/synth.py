@@ -17,12 +17,12 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from tqdm import tqdm
 
 from edgepick.data.native import atomic_folder
 from edgepick.data.render import CLASSES, LIGHTINGS, SceneRenderer
 from edgepick.errors import ConfigError
 from edgepick.runtime.geometry import Intrinsics
+from edgepick.progress import progress as progress_bar
 
 SPLITS = ("train", "val", "test")
 GENERATOR_VERSION = 1
@@ -109,7 +109,7 @@ def synthesize(out: str | Path, config: SynthConfig, progress: bool = True) -> d
         grasps: dict[str, dict] = {s: {} for s in SPLITS}
         scenes: dict[str, dict] = {s: {} for s in SPLITS}
         t0 = time.perf_counter()
-        bar = tqdm(total=len(jobs), desc="synth", unit="scene", disable=not progress or None)
+        bar = progress_bar(total=len(jobs), desc="synth", unit="scene", enabled=progress)
         if workers <= 1:
             results = map(_render_one, jobs)
             pool = None

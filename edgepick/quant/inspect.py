@@ -25,6 +25,7 @@ from edgepick.errors import ConfigError
 from edgepick.export.onnx_export import LogitsNet
 from edgepick.models.deeplabv3 import trim_dilated_convs
 from edgepick.quant.quantizer import QuantConfig, module_path
+from edgepick.progress import progress as progress_bar
 
 PREFIX = "model."
 CONV = torch.ops.aten.conv2d.default
@@ -119,11 +120,10 @@ def ranked(report: dict) -> list[str]:
     return [r["layer"] for r in sorted(rows, key=lambda r: -r["added_drift_db"])]
 
 
-def inspect(checkpoint: str | Path, data: str | Path, config: QuantConfig | None = None, calib_images: int = 64,
+def inspect(checkpoint: str | Path, data: str | Path, config: QuantConfig | None = None, calib_images: int | None = None,
             images: int = 8, seed: int = 0, progress: bool = True) -> dict:
     """Calibrate a static int8 model (in memory) and compare it layer by layer with fp32 on val images."""
-    from tqdm import tqdm
-
+    
     from edgepick.quant.passes import _as_input, check_classes, convert, model_images, prepare
     from edgepick.train.checkpoint import load_model
 
@@ -134,8 +134,8 @@ def inspect(checkpoint: str | Path, data: str | Path, config: QuantConfig | None
     float_gm = float_graph(load_model(checkpoint)[0], size)
     prepared = prepare(model, config, size, qat=False)
     with torch.no_grad():
-        for rgb in tqdm(model_images(data, "train", calib_images, size, seed), desc="calibrate", unit="img",
-                        disable=not progress or None):
+        for rgb in progress_bar(model_images(data, "train", calib_images, size, seed), desc="calibrate", unit="img",
+                                enabled=progress):
             prepared(_as_input(rgb))
     report = compare(float_gm, convert(prepared), model_images(data, "val", images, size, seed))
     report["ranked"] = ranked(report)
@@ -143,7 +143,7 @@ def inspect(checkpoint: str | Path, data: str | Path, config: QuantConfig | None
 
 
 def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str | Path, max_drop_pp: float,
-                            config: QuantConfig | None = None, calib_images: int = 64, max_float_layers: int = 6,
+                            config: QuantConfig | None = None, calib_images: int | None = None, max_float_layers: int = 6,
                             progress: bool = True) -> dict:
     """Static PTQ that keeps the layers adding the most drift in float, one at a time, until the
     val mIoU (onnxruntime) is within MAX_DROP_PP points of the fp32 model's, or MAX_FLOAT_LAYERS

@@ -9,6 +9,7 @@ torch.onnx.export(dynamo=True), and all assert that quantization really happened
 
 from __future__ import annotations
 
+import sys
 import time
 import warnings
 from operator import attrgetter
@@ -17,7 +18,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from edgepick.data.native import NativeDataset
 from edgepick.errors import CheckpointError, ConfigError, EdgepickError
@@ -25,6 +25,7 @@ from edgepick.export.checks import conv_weight_report, label_agreement
 from edgepick.export.onnx_export import LogitsNet, contract_metadata, export_onnx
 from edgepick.models.deeplabv3 import trim_dilated_convs
 from edgepick.quant.qat_graph import BN_LITERALS, bn_folds_with_own_eps, load_qat_state, restore_bn_literals, to_eval
+from edgepick.progress import progress as progress_bar
 from edgepick.quant.quantizer import (
     EdgeQuantizer,
     QuantConfig,
@@ -40,9 +41,14 @@ class QuantizationError(EdgepickError):
     """A pass that would silently produce an unquantized model."""
 
 
-def model_images(data: str | Path, split: str, count: int, size: tuple[int, int], seed: int = 0) -> list[np.ndarray]:
-    """COUNT images of DATA/<split>, chosen with SEED, area-resized to the model's (H, W)."""
+DEFAULT_CALIB_IMAGES = 64  # or the whole train split when it is smaller
+
+
+def model_images(data: str | Path, split: str, count: int | None, size: tuple[int, int], seed: int = 0) -> list[np.ndarray]:
+    """COUNT images of DATA/<split> (None: DEFAULT_CALIB_IMAGES, or all if fewer), chosen with
+    SEED, area-resized to the model's (H, W)."""
     ds = NativeDataset.open(data, split)
+    count = min(DEFAULT_CALIB_IMAGES, len(ds)) if count is None else count
     if count < 1:
         raise ConfigError("the number of calibration images must be at least 1")
     if len(ds) < count:
@@ -190,10 +196,18 @@ def expected_int8_convs(prepared: torch.fx.GraphModule, config: QuantConfig) -> 
     return sum(not under(p, config.keep_float) for p in paths)
 
 
+def _stage(message: str, enabled: bool) -> None:
+    """A stage of a pass on stderr: long steps without a bar still say what they are doing."""
+    if enabled:
+        print(message, file=sys.stderr, flush=True)
+
+
 def export_int8(converted: torch.fx.GraphModule, out: str | Path, metadata: dict, size: tuple[int, int],
-                expected_convs: int, check_images: list[np.ndarray]) -> dict:
+                expected_convs: int, check_images: list[np.ndarray], progress: bool = False) -> dict:
     """Export, then check int8 conv weights and onnxruntime-vs-torch label agreement; no file on failure."""
+    _stage(f"export the int8 ONNX to {out} (torch.export, then onnx checks)", progress)
     path = export_onnx(converted, out, metadata, size)
+    _stage(f"compare onnxruntime's labels with torch's on {len(check_images)} val images", progress)
     report = conv_weight_report(path)
     if report["int8"] < expected_convs:
         path.unlink()
@@ -204,9 +218,10 @@ def export_int8(converted: torch.fx.GraphModule, out: str | Path, metadata: dict
 
 
 def quantize_static(checkpoint: str | Path, data: str | Path, out: str | Path, config: QuantConfig | None = None,
-                    calib_images: int = 64, seed: int = 0, progress: bool = True) -> dict:
+                    calib_images: int | None = None, seed: int = 0, progress: bool = True) -> dict:
     """Static post-training quantization: BN folded, per-channel int8 weights, activation ranges
-    calibrated on CALIB_IMAGES train images with config.calib_method; writes an int8 ONNX."""
+    calibrated on CALIB_IMAGES train images (None: 64, or all if fewer) with config.calib_method;
+    writes an int8 ONNX."""
     from edgepick.train.checkpoint import load_model
 
     config = (config or QuantConfig()).validate()
@@ -215,18 +230,20 @@ def quantize_static(checkpoint: str | Path, data: str | Path, out: str | Path, c
     size = tuple(ckpt["input_size"])
     images = model_images(data, "train", calib_images, size, seed)
     check_images = model_images(data, "val", min(8, len(NativeDataset.open(data, "val"))), size, seed)
+    check_keep_float(model, config.keep_float)
     t0 = time.perf_counter()
+    _stage(f"prepare the graph (torch.export, observers) to calibrate on {len(images)} train images", progress)
     prepared = prepare(model, config, size, qat=False)
     with torch.no_grad():
-        for rgb in tqdm(images, desc="calibrate", unit="img", disable=not progress or None):
+        for rgb in progress_bar(images, desc="calibrate", unit="img", enabled=progress):
             prepared(_as_input(rgb))
     converted = convert(prepared)
     calib_s = time.perf_counter() - t0
     quant = {"mode": "static", "qat_fraction": None, "calib_method": config.calib_method,
-             "calib_images": calib_images,
+             "calib_images": len(images),
              **{k: v for k, v in config.to_dict().items() if k not in ("calib_method", "weight_averaging")}}
     meta = contract_metadata(ckpt, "int8", quant)
-    result = export_int8(converted, out, meta, size, expected_int8_convs(prepared, config), check_images)
+    result = export_int8(converted, out, meta, size, expected_int8_convs(prepared, config), check_images, progress)
     return {"mode": "static", **result, "observers": count_quant_nodes(prepared), "calib_s": round(calib_s, 2),
             "quant": quant}
 
@@ -242,7 +259,7 @@ def load_qat(checkpoint: dict) -> torch.fx.GraphModule:
     return prepared
 
 
-def _finish_qat(run: Path, data: str | Path, out: str | Path, quant: dict) -> dict:
+def _finish_qat(run: Path, data: str | Path, out: str | Path, quant: dict, progress: bool = False) -> dict:
     """Convert the QaT run's best epoch on val (best.pt, picked as a float RUN's best.pt is: the
     last epoch is not always the best one) and export it, with the whole run's phase times."""
     from edgepick.train.checkpoint import read_checkpoint
@@ -256,7 +273,7 @@ def _finish_qat(run: Path, data: str | Path, out: str | Path, quant: dict) -> di
     meta = contract_metadata(ckpt, "int8", quant, train_time_s=float_s + qat_s)
     check_images = model_images(data, "val", min(8, len(NativeDataset.open(data, "val"))), size)
     expected = expected_int8_convs(prepared, QuantConfig(**ckpt["train_config"]["quant"]))
-    result = export_int8(converted, out, meta, size, expected, check_images)
+    result = export_int8(converted, out, meta, size, expected, check_images, progress)
     return {"mode": quant["mode"], **result, "run": str(run), "observers": count_quant_nodes(prepared),
             "float_phase_s": round(float_s, 2), "qat_phase_s": round(qat_s, 2), "val_miou_qat": ckpt["history"][-1]["miou"],
             "qat_epoch": ckpt["epoch"],
@@ -279,7 +296,7 @@ def quantize_qat(train_config, out: str | Path, config: QuantConfig | None = Non
     _check_out(out)
     cfg = replace(train_config, qat=True, quant=config.to_dict(), aux_loss=False)
     train(cfg, progress=progress)
-    return _finish_qat(Path(cfg.out), cfg.data, out, _qat_quant("qat", 1.0, config))
+    return _finish_qat(Path(cfg.out), cfg.data, out, _qat_quant("qat", 1.0, config), progress=progress)
 
 
 def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_fraction: float,
@@ -304,7 +321,7 @@ def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_frac
         raise ConfigError(f"--freeze-at must be inside [0, 1], got {freeze_at}")
     n_train = len(NativeDataset.open(data, "train"))
     if calib_images is None:
-        calib_images = min(64, n_train)
+        calib_images = min(DEFAULT_CALIB_IMAGES, n_train)
     if calib_images < 0 or (hold_ranges and not calib_images):
         raise ConfigError("--calib-images must be 0 (off) or positive, and --hold-ranges needs it")
     if calib_images > n_train:
@@ -312,6 +329,9 @@ def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_frac
     hold_ranges = bool(calib_images) if hold_ranges is None else hold_ranges
     config = (config or QuantConfig()).validate()
     _check_out(out)
+    qat_dir = Path(qat_run) if qat_run else Path(out).with_suffix(".run")
+    if qat_dir.exists() and (not qat_dir.is_dir() or any(qat_dir.iterdir())):
+        raise ConfigError(f"--run {qat_dir} already exists and is not empty; choose a new folder")
     run = Path(run)
     last = read_checkpoint(run / "last.pt" if run.is_dir() else run)
     if last.get("train_config", {}).get("qat"):
@@ -335,7 +355,7 @@ def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_frac
              "calib_images": calib_images or None, "hold_ranges": hold_ranges}
     if calib_images:
         quant["calib_method"] = f"qat from percentile {config.percentile}"
-    return _finish_qat(qat_run, data, out, quant)
+    return _finish_qat(qat_run, data, out, quant, progress=progress)
 
 
 def _check_out(out: str | Path) -> None:

@@ -58,6 +58,10 @@ class Calibration:
         return cls(R, t, float(d.get("rmse_m", float("nan"))), int(d.get("n_pairs", 0)))
 
 
+MAX_COORD_M = 10.0  # no camera point or arm position of a picking cell is this far away
+MAX_RMSE_M = 0.02  # a fit worse than this is a mistake in the pairs, not a measurement
+
+
 def read_pairs(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """pairs.csv -> (camera points [N, 3], robot points [N, 3]), in metres."""
     try:
@@ -79,6 +83,9 @@ def read_pairs(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
             raise CalibrationError(f"{path} line {i}: expected 6 values, got {len(vals)}")
         if not all(math.isfinite(v) for v in vals):
             raise CalibrationError(f"{path} line {i}: NaN or infinite value")
+        if max(abs(v) for v in vals) > MAX_COORD_M:
+            raise CalibrationError(f"{path} line {i}: a coordinate beyond {MAX_COORD_M:.0f} m; pairs are in metres "
+                                   "(millimetres given?)")
         values.append(vals)
     arr = np.array(values, dtype=np.float64).reshape(-1, 6)
     return arr[:, :3], arr[:, 3:]
@@ -112,6 +119,35 @@ def kabsch(camera: np.ndarray, robot: np.ndarray) -> Calibration:
     cal = Calibration(R, cr - R @ cc, 0.0, len(camera))
     cal.rmse_m = float(np.sqrt(np.mean(residuals(cal, camera, robot) ** 2)))
     return cal
+
+
+def diagnose(cal: Calibration, camera: np.ndarray, robot: np.ndarray, max_rmse_m: float) -> None:
+    """Refuse a fit whose RMSE is beyond what a camera and an arm can measure, saying what is
+    likely wrong: the two sides in different units, a mirrored frame (an axis with the wrong
+    sign, or two columns swapped), or pairs that are not the same physical points."""
+    if cal.rmse_m <= max_rmse_m:
+        return
+    camera, robot = np.asarray(camera, np.float64), np.asarray(robot, np.float64)
+    errors = residuals(cal, camera, robot)
+    worst = int(np.argmax(errors))
+    head = f"the fit's RMSE is {cal.rmse_m * 1000:.1f} mm (bound {max_rmse_m * 1000:.0f} mm, --max-rmse; worst: " \
+           f"pair {worst + 1}, {errors[worst] * 1000:.0f} mm)"
+    spread_c = np.linalg.norm(camera - camera.mean(0), axis=1).mean()
+    spread_r = np.linalg.norm(robot - robot.mean(0), axis=1).mean()
+    scale = spread_r / spread_c if spread_c > 0 else float("inf")
+    if not 0.5 < scale < 2:
+        raise CalibrationError(f"{head}: the robot points spread {scale:.3g}x as far as the camera points; "
+                               "are both sides in metres?")
+    cc, cr = camera.mean(0), robot.mean(0)
+    U, _, Vt = np.linalg.svd((camera - cc).T @ (robot - cr))
+    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
+    mirror = Vt.T @ np.diag([1.0, 1.0, -d]) @ U.T  # the best fit of the other handedness than kabsch's
+    mirrored = np.sqrt(np.mean(np.linalg.norm((camera - cc) @ mirror.T - (robot - cr), axis=1) ** 2))
+    if mirrored < cal.rmse_m / 3:
+        raise CalibrationError(f"{head}; a mirror image of the camera points fits ({mirrored * 1000:.1f} mm): an axis "
+                               "has the wrong sign or two columns are swapped")
+    raise CalibrationError(f"{head}: the pairs are not the same physical points (a mis-detected marker, rows out "
+                           "of order?)")
 
 
 def residuals(cal: Calibration, camera: np.ndarray, robot: np.ndarray) -> np.ndarray:

@@ -42,6 +42,9 @@ class Intrinsics:
         vals = [intr.fx, intr.fy, intr.cx, intr.cy, intr.depth_scale]
         if intr.width <= 0 or intr.height <= 0 or not all(np.isfinite(vals)) or intr.fx <= 0 or intr.fy <= 0:
             raise EdgepickError("intrinsics must have positive size and focal lengths and finite values")
+        if intr.depth_scale <= 0:
+            raise EdgepickError(f"intrinsics depth_scale {intr.depth_scale}: must be positive (metres per depth "
+                                "unit, e.g. 0.001 for millimetres)")
         return intr
 
     @classmethod

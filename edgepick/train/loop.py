@@ -8,6 +8,7 @@ hybrid-QaT switch points). --resume continues from last.pt, losing at most one e
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import sys
@@ -21,7 +22,6 @@ import torch
 import torch.distributed as dist
 import torch.nn.functional as F
 from torch.utils.data import DataLoader, DistributedSampler, RandomSampler, Subset
-from tqdm import tqdm
 
 from edgepick.data.native import NativeDataset
 from edgepick.errors import ConfigError
@@ -29,6 +29,7 @@ from edgepick.metrics import confusion_matrix, segmentation_metrics
 from edgepick.models.deeplabv3 import ModelConfig, build_model, load_backbone_weights
 from edgepick.train.checkpoint import model_meta, read_checkpoint, save_atomic
 from edgepick.train.data import IGNORE, SegmentationSet, augment, class_weights
+from edgepick.progress import progress as progress_bar
 
 
 @dataclass
@@ -182,6 +183,8 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     model_cfg.validate()
     if cfg.epochs < 1 or cfg.batch_size < 1:
         raise ConfigError("--epochs and --batch-size must be at least 1")
+    if not (math.isfinite(cfg.lr) and 0 < cfg.lr < 1):
+        raise ConfigError(f"--lr {cfg.lr}: the learning rate must be a number in (0, 1), e.g. 1e-3")
     if cfg.epoch_images < 0 or cfg.val_images < 0:
         raise ConfigError("--epoch-images and --val-images must be 0 (all) or positive")
     if cfg.epoch_images and world > 1:
@@ -293,8 +296,8 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
             ddp.train()
         t0 = time.perf_counter()
         loss_sum, seen = 0.0, 0
-        bar = tqdm(train_loader, desc=f"epoch {epoch}/{cfg.epochs}", unit="batch", leave=False,
-                   disable=(not progress or rank != 0) or None)
+        bar = progress_bar(train_loader, desc=f"epoch {epoch}/{cfg.epochs}", unit="batch",
+                           enabled=progress and rank == 0)
         for img, mask in bar:
             x = img.to(device, non_blocking=True).permute(0, 3, 1, 2).float()
             y = mask.to(device, non_blocking=True).long()

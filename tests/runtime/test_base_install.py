@@ -75,3 +75,17 @@ def test_base_install_has_no_torch_and_runs_calibrate_and_grasp(base_venv, tmp_p
     model = _run(exe, "grasp", "--model", red_model(tmp_path / "m.onnx"), "--rgb", tmp_path / "rgb.png", *common)
     assert model.returncode == 0, model.stderr
     assert json.loads(model.stdout) == [rec]
+
+
+@pytest.mark.parametrize("args", [["train", "DATA", "--out", "RUN"], ["export", "RUN", "--out", "m.onnx"],
+                                  ["quantize", "static", "RUN", "--data", "DATA", "--out", "q.onnx"]])
+def test_a_train_command_on_the_base_install_names_the_extra(base_venv, tmp_path, args):
+    from edgepick.data.synth import SynthConfig, synthesize
+
+    synthesize(tmp_path / "DATA", SynthConfig(scenes=3, width=64, height=48), progress=False)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    proc = _run(base_venv / "bin" / "edgepick", *args, cwd=tmp_path)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(lines) == 1, proc.stderr
+    assert "needs the [train] extra" in lines[0] and "pip install 'edgepick[train]'" in lines[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing written

@@ -1,0 +1,55 @@
+"""Progress on long work, on a terminal or in a log.
+
+On a terminal: a tqdm bar on stderr. When stderr is a pipe or a file (CI, `2> log`, `| tee`),
+tqdm would print nothing (or carriage returns); instead a plain line every `every_s` seconds,
+"epoch 3/12: 40/120 batch, 12 s", so a long command never looks hung in a log.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Iterable, Iterator
+
+from tqdm import tqdm
+
+
+class _LogProgress:
+    """tqdm's small interface (iterate, update, set_postfix, close) as timed log lines."""
+
+    def __init__(self, iterable: Iterable | None, desc: str, total: int | None, unit: str, every_s: float):
+        self.iterable, self.desc, self.unit, self.every_s = iterable, desc, unit, every_s
+        self.total = total if total is not None else (len(iterable) if hasattr(iterable, "__len__") else None)
+        self.n, self.postfix = 0, ""
+        self.t0 = self.last = time.monotonic()
+
+    def __iter__(self) -> Iterator:
+        for item in self.iterable:
+            yield item
+            self.update()
+
+    def update(self, n: int = 1) -> None:
+        self.n += n
+        now = time.monotonic()
+        if now - self.last >= self.every_s:
+            self.last = now
+            of = f"/{self.total}" if self.total else ""
+            post = f", {self.postfix}" if self.postfix else ""
+            print(f"{self.desc}: {self.n}{of} {self.unit}, {now - self.t0:.0f} s{post}", file=sys.stderr, flush=True)
+
+    def set_postfix(self, **values) -> None:
+        self.postfix = ", ".join(f"{k} {v}" for k, v in values.items())
+
+    def close(self) -> None:
+        pass
+
+
+def progress(iterable: Iterable | None = None, desc: str = "", total: int | None = None, unit: str = "it",
+             enabled: bool = True, every_s: float = 10.0):
+    """A progress bar over ITERABLE (or one to update() by hand): tqdm on a terminal, a line
+    every EVERY_S seconds otherwise, nothing when not ENABLED."""
+    if not enabled:
+        return tqdm(iterable, total=total, disable=True)
+    if sys.stderr.isatty():
+        return tqdm(iterable, desc=desc, total=total, unit=unit, leave=False)
+    return _LogProgress(iterable, desc, total, unit, every_s)

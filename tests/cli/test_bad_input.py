@@ -1,0 +1,165 @@
+"""A user's mistakes, command by command: each ends with edgepick's own single line on stderr,
+the documented exit status (2), no traceback, and nothing written.
+
+Run in-process through `edgepick.cli.run` (the console entry point's own function) with the
+file descriptors captured, so OpenCV's C++ warnings would show up too. One subprocess test per
+kind of entry (tests/cli/test_cli.py) and a base-install run of a [train] command
+(tests/runtime/test_base_install.py) cover the same rule as a user starts edgepick.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+pytest.importorskip("onnx")
+
+from edgepick.cli import run  # noqa: E402
+from edgepick.runtime.geometry import Intrinsics  # noqa: E402
+from tests.runtime.test_pipeline import red_model  # noqa: E402
+
+HEADER = "cam_x,cam_y,cam_z,robot_x,robot_y,robot_z"
+
+
+def _pairs(path, camera, robot):
+    rows = [HEADER] + [",".join(f"{v:.6f}" for v in (*c, *r)) for c, r in zip(camera, robot)]
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def ws(tmp_path_factory, small_data):
+    """The workspace every case runs in: a data set, one with an odd-sized image, a model, pairs,
+    a depth frame, intrinsics, and a plain file to stand where a folder should be."""
+    w = tmp_path_factory.mktemp("bad-input")
+    mixed = w / "mixed"
+    shutil.copytree(small_data, mixed)
+    first = sorted((mixed / "train" / "rgb").glob("*.png"))[0]
+    cv2.imwrite(str(first), cv2.resize(cv2.imread(str(first)), (200, 100)))
+    red_model(w / "model.onnx")
+    (w / "afile").write_text("not a folder")
+    (w / "busy.run").mkdir()
+    (w / "busy.run" / "note.txt").write_text("someone else's")
+    rng = np.random.default_rng(0)
+    cam = rng.uniform(-0.2, 0.2, (8, 3)) + [0, 0, 0.6]
+    R = np.array([[0, -1, 0], [-1, 0, 0], [0, 0, -1]], float)
+    rob = cam @ R.T + [0.3, 0.1, 0.7]
+    _pairs(w / "pairs.csv", cam, rob)
+    _pairs(w / "mirror.csv", cam * [1, 1, -1] + [0, 0, 1.2], rob)  # a camera frame with z flipped
+    _pairs(w / "mm.csv", cam, rob * 1000)  # robot side in millimetres
+    _pairs(w / "scale.csv", cam, (cam @ R.T) * 5 + [0.3, 0.1, 0.7])  # spread 5x: different units
+    _pairs(w / "huge.csv", np.vstack([cam[:-1], [[1e300, 0, 0]]]), rob)
+    intr = Intrinsics.d415(320, 240).to_dict()
+    (w / "intr.json").write_text(json.dumps(intr))
+    (w / "intr0.json").write_text(json.dumps({**intr, "depth_scale": 0}))
+    labels = np.zeros((240, 320), np.uint8)
+    cv2.rectangle(labels, (100, 80), (160, 120), 4, -1)
+    cv2.imwrite(str(w / "mask.png"), labels)
+    cv2.imwrite(str(w / "depth.png"), np.full((240, 320), 600, np.uint16))
+    cv2.imwrite(str(w / "depth8.png"), np.full((240, 320), 60, np.uint8))
+    return {"W": w, "D": small_data, "MIXED": mixed, "MODEL": w / "model.onnx", "F": w / "afile"}
+
+
+M = ["pick", "--model", "{MODEL}"]
+G = ["grasp", "--mask", "{W}/mask.png", "--depth", "{W}/depth.png", "--intrinsics", "{W}/intr.json"]
+CASES = [
+    # the command line itself
+    (["frobnicate"], "No such command"),
+    (["train"], "Missing argument 'DATA'"),
+    (["train", "{D}", "--out", "{W}/r", "--lr", "abc"], "'abc' is not a valid float"),
+    (["data", "preview", "{D}", "--out", "{W}/p.png", "--split", "dev"], "'dev' is not one of"),
+    # data
+    (["data", "synth", "{W}/s", "--seed", "-1"], "--seed -1"),
+    (["data", "synth", "{W}/s", "--scenes", "2"], "at least 3"),
+    (["data", "synth", "{W}/s", "--size", "10x10"], "out of range"),
+    (["data", "synth", "{W}/s", "--splits", "a,b"], "--splits"),
+    (["data", "synth", "{F}/s"], "is a file, not a folder"),
+    (["data", "synth", "{D}"], "not empty"),
+    (["data", "preview", "{D}", "--out", "{W}/p.png", "--count", "0"], "--count 0"),
+    (["data", "preview", "{D}", "--out", "{W}/p"], "must end in .png"),
+    (["data", "preview", "{MIXED}", "--out", "{W}/p.png"], "all images of a data set must have one size"),
+    (["data", "preview", "{W}/nothing", "--out", "{W}/p.png"], "not an edgepick data set"),
+    (["data", "import", "cvat", "{W}/nothing", "{W}/imp", "--depth-scale", "0"], "--depth-scale"),
+    (["data", "import", "bop", "{W}/nothing", "{W}/imp", "--splits", "a,b"], "--splits"),
+    (["data", "import", "bop", "{W}/nothing", "{F}/imp"], "is a file, not a folder"),
+    (["data", "capture", "{W}/cap", "--camera", "synth", "--count", "0"], "--count"),
+    # train, eval, demo
+    (["train", "{D}", "--out", "{F}/r"], "is a file, not a folder"),
+    (["train", "{D}", "--out", "{W}/r", "--lr", "-1", "--size", "64x48"], "--lr -1"),
+    (["train", "{D}", "--out", "{W}/r", "--lr", "nan", "--size", "64x48"], "--lr nan"),
+    (["train", "{D}", "--out", "{W}/r", "--size", "96x128"], "on their side"),
+    (["train", "{MIXED}", "--out", "{W}/r", "--size", "64x48", "--epochs", "1"], "all images of a data set"),
+    (["eval", "{MODEL}", "{MIXED}", "--split", "train"], "all images of a data set"),
+    (["eval", "{MODEL}", "{D}", "--out", "{F}/e.json"], "is a file, not a folder"),
+    (["eval", "{W}/none.onnx", "{D}"], "none.onnx"),
+    (["demo", "--epochs", "0", "--workdir", "{W}/demo"], "--epochs 0"),
+    # calibrate
+    (["calibrate", "{W}/none.csv", "--out", "{W}/c.json"], "cannot read"),
+    (["calibrate", "{W}/huge.csv", "--out", "{W}/c.json"], "beyond 10 m"),
+    (["calibrate", "{W}/mm.csv", "--out", "{W}/c.json"], "millimetres given?"),
+    (["calibrate", "{W}/scale.csv", "--out", "{W}/c.json"], "are both sides in metres?"),
+    (["calibrate", "{W}/mirror.csv", "--out", "{W}/c.json"], "an axis has the wrong sign"),
+    (["calibrate", "{W}/pairs.csv", "--out", "{F}/c.json"], "is a file, not a folder"),
+    (["calibrate", "{W}/pairs.csv", "--out", "{W}/c.json", "--max-rmse", "0"], "--max-rmse"),
+    # grasp
+    ([*G[:5], "--intrinsics", "{W}/intr0.json"], "depth_scale 0.0"),
+    ([*G[:3], "--depth", "{W}/depth8.png", *G[5:]], "uint16"),
+    ([*G, "--overlay", "{W}/o"], "must end in .png"),
+    ([*G, "--classes", ""], "--classes ''"),
+    (["grasp", "--mask", "{W}/none.png", *G[3:]], "cannot read"),
+    (["grasp", "--model", "{MODEL}", *G[3:]], "--model needs --rgb"),
+    # pick
+    ([*M, "--speed", "0.5"], "--speed 0.5"),
+    ([*M, "--speed", "nan"], "--speed nan"),
+    ([*M, "--speed", "0"], "--speed 0"),
+    ([*M, "--acc", "-1"], "--acc -1"),
+    ([*M, "--class", "spoon"], "--class spoon: not a class"),
+    ([*M, "--camera", "synth-cell:abc"], "must be a whole number"),
+    ([*M, "--log", "{F}/l.jsonl"], "is a file, not a folder"),
+    ([*M, "--overlay-dir", "{F}"], "is a file"),
+    ([*M, "--camera", "dir:{W}/nothing", "--log", "{W}/l.jsonl"], "has no intrinsics.json"),
+    ([*M, "--camera", "synth", "--calib", "{W}/none.json"], "none.json"),
+    # export, quantize, bench
+    (["export", "{W}/none", "--out", "{W}/m.txt"], "must end in .onnx"),
+    (["export", "{W}/none", "--out", "{W}/m.onnx"], "no checkpoint"),
+    (["quantize", "static", "{W}/none", "--data", "{D}", "--out", "{F}/q.onnx"], "is a file, not a folder"),
+    (["quantize", "hybrid", "{W}/none", "--data", "{D}", "--qat-fraction", "0.1", "--out", "{W}/h.onnx", "--run",
+      "{W}/busy.run"], "not empty"),
+    (["quantize", "hybrid", "{W}/none", "--data", "{D}", "--qat-fraction", "1.5", "--out", "{W}/h.onnx"],
+     "--qat-fraction"),
+    (["bench", "{MODEL}", "--data", "{D}", "--out", "{F}/b"], "is a file, not a folder"),
+    (["bench", "{MODEL}", "--data", "{D}", "--runs", "0", "--out", "{W}/b"], "--runs"),
+]
+
+
+def _tree(root) -> set[str]:
+    return {os.path.relpath(os.path.join(d, f), root) for d, dirs, files in os.walk(root) for f in files + dirs}
+
+
+def _fill(arg: str, ws: dict) -> str:
+    for key, value in ws.items():
+        arg = arg.replace("{" + key + "}", str(value))
+    return arg
+
+
+@pytest.mark.parametrize("args, message", CASES, ids=[" ".join(a)[:60] for a, _ in CASES])
+def test_a_mistake_is_one_line_exit_2_and_nothing_written(ws, capfd, monkeypatch, args, message):
+    monkeypatch.chdir(ws["W"])  # a default output (picks.jsonl) would land here
+    before = _tree(ws["W"]), _tree(ws["D"])
+    code = run([_fill(a, ws) for a in args])
+    out, err = capfd.readouterr()
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code == 2, err
+    assert len(lines) == 1 and lines[0].startswith("edgepick: error: "), err
+    assert message in lines[0], lines[0]
+    assert out == ""
+    assert (_tree(ws["W"]), _tree(ws["D"])) == before, "something was written"
+
+
+def test_there_are_at_least_40_cases():
+    assert len(CASES) >= 40

@@ -1,0 +1,27 @@
+"""edgepick/progress.py: a long loop says where it is in a log, not only on a terminal."""
+
+from __future__ import annotations
+
+import time
+
+from edgepick.progress import progress
+
+
+def test_in_a_log_a_line_every_interval(capsys):
+    for _ in progress(range(5), desc="epoch 1/3", unit="batch", every_s=0.0):
+        time.sleep(0.001)
+    lines = capsys.readouterr().err.splitlines()  # pytest's captured stderr is not a terminal
+    assert lines[0].startswith("epoch 1/3: 1/5 batch") and lines[-1].startswith("epoch 1/3: 5/5 batch")
+
+
+def test_updates_by_hand_and_postfix(capsys):
+    bar = progress(total=2, desc="synth", unit="scene", every_s=0.0)
+    bar.set_postfix(loss="0.5")
+    bar.update()
+    bar.close()
+    assert capsys.readouterr().err.strip() == "synth: 1/2 scene, 0 s, loss 0.5"
+
+
+def test_disabled_is_silent(capsys):
+    assert list(progress(range(3), desc="x", enabled=False)) == [0, 1, 2]
+    assert capsys.readouterr().err == ""
