@@ -29,8 +29,8 @@ from edgepick.data.render import CLASSES  # noqa: E402
 from edgepick.robot.grippers import DigitalGripper  # noqa: E402
 from edgepick.robot.loop import run_cycles  # noqa: E402
 from edgepick.robot.pick import CommandLog, PickConfig  # noqa: E402
-from edgepick.robot.sim import SimRobot  # noqa: E402
-from edgepick.runtime.camera import SynthCamera  # noqa: E402
+from edgepick.sim.robot import SimRobot  # noqa: E402
+from edgepick.sim.camera import SynthCamera  # noqa: E402
 from edgepick.runtime.pipeline import Pipeline  # noqa: E402
 from edgepick.runtime.session import Segmenter  # noqa: E402
 

@@ -26,8 +26,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import add_output, machine_line, emit, untrained_checkpoint  # noqa: E402
 
 from edgepick.data.render import CLASSES, SceneRenderer  # noqa: E402
-from edgepick.runtime.camera import Frame  # noqa: E402
-from edgepick.runtime.geometry import Intrinsics  # noqa: E402
+from edgepick.frames import Frame  # noqa: E402
+from edgepick.geometry import Intrinsics  # noqa: E402
 from edgepick.runtime.grasp import grasp_records  # noqa: E402
 from edgepick.runtime.pipeline import STAGES, Pipeline, median_ms  # noqa: E402
 from edgepick.runtime.session import Segmenter  # noqa: E402

@@ -19,7 +19,7 @@ import numpy as np
 
 from edgepick.data.render import SceneRenderer
 from edgepick.data.synth import _PNG_FAST, _PNG_RLE, SynthConfig, synthesize
-from edgepick.runtime.geometry import Intrinsics
+from edgepick.geometry import Intrinsics
 
 
 def per_scene_ms(width: int, height: int, scenes: int = 20) -> dict:

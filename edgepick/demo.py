@@ -92,8 +92,8 @@ def pick_demo(workdir: Path, model: Path, cycles: int = 6) -> dict:
     from edgepick.robot.grippers import DigitalGripper
     from edgepick.robot.loop import run_cycles
     from edgepick.robot.pick import CommandLog, PickConfig
-    from edgepick.robot.sim import SimRobot
-    from edgepick.runtime.camera import SynthCamera
+    from edgepick.sim.robot import SimRobot
+    from edgepick.sim.camera import SynthCamera
     from edgepick.runtime.pipeline import Pipeline
     from edgepick.runtime.session import Segmenter
 

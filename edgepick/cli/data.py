@@ -116,7 +116,7 @@ def data_import(fmt: str, src: str, out: str, cityscapes_classes: str, splits: s
 def data_capture(out: str, camera: str, count: int, interval: float, size: str) -> None:
     """Save aligned RGB + depth + intrinsics.json from a camera into OUT, for annotation (e.g. CVAT)."""
     from edgepick.data.capture import capture
-    from edgepick.runtime.camera import open_camera
+    from edgepick.cli.cameras import open_camera
 
     check_output(out, "OUT", kind="dir")
     if count < 1 or not (math.isfinite(interval) and interval >= 0):

@@ -45,8 +45,8 @@ def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, d
     import numpy as np
 
     from edgepick.runtime.calibration import Calibration
-    from edgepick.runtime.camera import Frame, read_depth, read_rgb
-    from edgepick.runtime.geometry import Intrinsics
+    from edgepick.frames import Frame, read_depth, read_rgb
+    from edgepick.geometry import Intrinsics
     from edgepick.runtime.grasp import DEFAULT_CLASSES, draw_overlay, grasp_records
     from edgepick.runtime.pipeline import Pipeline, median_ms
 

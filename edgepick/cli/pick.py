@@ -76,9 +76,10 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     from edgepick.robot.envelope import Envelope
     from edgepick.robot.loop import run_cycles
     from edgepick.robot.pick import CommandLog, PickConfig
-    from edgepick.robot.sim import SimRobot
+    from edgepick.sim.robot import SimRobot
     from edgepick.runtime.calibration import Calibration
-    from edgepick.runtime.camera import SynthCamera, open_camera
+    from edgepick.cli.cameras import open_camera
+    from edgepick.sim.camera import SynthCamera
     from edgepick.runtime.pipeline import Pipeline
     from edgepick.runtime.session import Segmenter
 

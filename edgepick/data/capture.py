@@ -12,7 +12,7 @@ from tqdm import tqdm
 
 from edgepick.data.native import atomic_folder
 from edgepick.errors import ConfigError
-from edgepick.runtime.camera import Camera
+from edgepick.frames import Camera
 
 
 def capture(camera: Camera, out: str | Path, count: int, interval_s: float = 0.0) -> dict:

@@ -19,7 +19,7 @@ from tqdm import tqdm
 
 from edgepick.data.native import IGNORE, SPLITS, atomic_folder
 from edgepick.errors import DatasetError
-from edgepick.runtime.geometry import Intrinsics
+from edgepick.geometry import Intrinsics
 
 FORMATS = ("cityscapes", "bop", "cvat")
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from edgepick.errors import ConfigError, DatasetError
 from edgepick.files import atomic_dir
-from edgepick.runtime.geometry import Intrinsics
+from edgepick.geometry import Intrinsics
 
 SPLITS = ("train", "val", "test")
 IGNORE = 255  # mask value of pixels that are neither trained on nor scored (e.g. Cityscapes' void)

@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 
 from edgepick.data.shapes import MAKERS, ObjectModel
-from edgepick.runtime.geometry import Intrinsics
+from edgepick.geometry import Intrinsics
 
 CLASSES = ("background", "bearing", "disk", "adapter", "box")
 LIGHTINGS = ("ceiling", "ceiling+white", "single", "hazard")

@@ -21,7 +21,7 @@ import numpy as np
 from edgepick.data.native import atomic_folder
 from edgepick.data.render import CLASSES, LIGHTINGS, SceneRenderer
 from edgepick.errors import ConfigError
-from edgepick.runtime.geometry import Intrinsics
+from edgepick.geometry import Intrinsics
 from edgepick.progress import progress as progress_bar
 
 SPLITS = ("train", "val", "test")

@@ -17,7 +17,7 @@ import cv2
 from edgepick.robot.base import RobotBase
 from edgepick.robot.envelope import Envelope
 from edgepick.robot.pick import CommandLog, PickConfig, choose_target, execute
-from edgepick.runtime.camera import Camera, Frame
+from edgepick.frames import Camera, Frame
 from edgepick.runtime.grasp import draw_overlay
 from edgepick.runtime.pipeline import Pipeline
 

@@ -15,7 +15,7 @@ from typing import IO
 
 from edgepick.robot.base import RobotBase, RobotError
 from edgepick.robot.envelope import Envelope, SafetyError
-from edgepick.robot.sim import HOME_POSE
+from edgepick.robot.motion import HOME_POSE
 
 
 @dataclass

@@ -20,7 +20,7 @@ import time
 
 from edgepick.robot.base import RobotBase, RobotError, RobotHalted, RobotUnreachable, SafetyStatus
 from edgepick.robot.envelope import Envelope
-from edgepick.robot.sim import motion_time
+from edgepick.robot.motion import motion_time
 
 STALE_S = 0.5  # no new RTDE sample for this long = the link is gone (the stream runs at 125-500 Hz)
 

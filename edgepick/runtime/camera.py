@@ -1,79 +1,20 @@
-"""Frame sources behind one interface: a folder of PNGs, the synthetic generator as a live
-stream, and an Intel RealSense D415/D435 (optional `[camera]` extra).
+"""Real frame sources: a folder of PNGs (or a data set's split) and an Intel RealSense
+D415/D435 (optional `[camera]` extra; pyrealsense2 is imported when one is opened).
 
-Each source is a context manager; `read()` gives the next `Frame` (RGB, depth aligned to
-colour, intrinsics); `open_camera("synth" | "dir:PATH" | "realsense[:SERIAL]")` picks one.
-numpy + OpenCV only (pyrealsense2 is imported when a RealSense is opened).
+Each source is a context manager; `read()` gives the next `edgepick.frames.Frame`. The
+synthetic camera is in `edgepick.sim.camera`; `edgepick.cli.cameras.open_camera` picks a
+source from a --camera spec.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from edgepick.errors import EdgepickError
-from edgepick.runtime.geometry import Intrinsics
-
-
-class CameraError(EdgepickError):
-    """A source that cannot be opened or read, or has no frames left."""
-
-
-@dataclass
-class Frame:
-    rgb: np.ndarray  # HxWx3 uint8, RGB order
-    depth: np.ndarray  # HxW uint16, intrinsics.depth_scale metres per unit, 0 = no depth
-    intrinsics: Intrinsics
-    name: str
-    truth: list[dict] | None = None  # per-object grasp truth, when the source knows it (synthetic)
-
-
-class Camera:
-    """Base of the frame sources: `with source: frame = source.read()`, or iterate."""
-
-    intrinsics: Intrinsics
-
-    def open(self) -> "Camera":
-        return self
-
-    def read(self) -> Frame:
-        raise NotImplementedError
-
-    def close(self) -> None:
-        pass
-
-    def __enter__(self) -> "Camera":
-        return self.open()
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-    def __iter__(self):
-        while True:
-            try:
-                yield self.read()
-            except StopIteration:
-                return
-
-
-def read_rgb(path: str | Path) -> np.ndarray:
-    """An 8-bit colour image file as HxWx3 RGB, or a one-line error."""
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise CameraError(f"cannot read {path} as a colour image")
-    return np.ascontiguousarray(img[..., ::-1])
-
-
-def read_depth(path: str | Path) -> np.ndarray:
-    """A single-channel uint16 depth PNG, or a one-line error."""
-    depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if depth is None or depth.ndim != 2 or depth.dtype != np.uint16:
-        raise CameraError(f"cannot read {path} as a single-channel uint16 depth image")
-    return depth
+from edgepick.frames import Camera, CameraError, Frame, read_depth, read_rgb
+from edgepick.geometry import Intrinsics
 
 
 class FolderCamera(Camera):
@@ -120,42 +61,6 @@ class FolderCamera(Camera):
             raise CameraError(f"frame {name}: rgb {rgb.shape[1]}x{rgb.shape[0]}, depth {depth.shape[::-1]} and "
                               f"intrinsics {intr.width}x{intr.height} must agree")
         return Frame(rgb, depth, intr, name, self.truth.get(name))
-
-
-class SynthCamera(Camera):
-    """The synthetic scene generator as a live camera; each frame carries its grasp truth.
-
-    With `mount_height_m` the camera is fixed straight above the table, like a camera
-    mounted over a robot cell; `calibration()` then gives its camera-to-robot transform.
-    """
-
-    MOUNT_XY_M = (0.28, 0.0)  # robot-frame point under the camera centre
-
-    def __init__(self, width: int = 640, height: int = 480, seed: int = 0, frames: int | None = None,
-                 mount_height_m: float | None = None):
-        from edgepick.data.render import SceneRenderer  # numpy + OpenCV only
-
-        self.intrinsics = Intrinsics.d415(width, height)
-        self.renderer = SceneRenderer(self.intrinsics)
-        self.seed, self.frames, self.index, self.mount = seed, frames, 0, mount_height_m
-
-    def calibration(self):
-        """Camera looking straight down at the robot's table (z = 0): image right = robot -y,
-        image down = robot -x."""
-        from edgepick.runtime.calibration import Calibration
-
-        if self.mount is None:
-            raise CameraError("only a mounted synthetic camera (mount_height_m) has a fixed calibration")
-        R = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
-        return Calibration(R, np.array([*self.MOUNT_XY_M, self.mount]), 0.0, 0)
-
-    def read(self) -> Frame:
-        if self.frames is not None and self.index >= self.frames:
-            raise StopIteration
-        scene = self.renderer.render(np.random.default_rng([self.seed, 7, self.index]), camera_height_m=self.mount)
-        name = f"synth-{self.seed}-{self.index:06d}"
-        self.index += 1
-        return Frame(scene.rgb, scene.depth, self.intrinsics, name, scene.grasps)
 
 
 class RealSenseCamera(Camera):
@@ -218,20 +123,3 @@ class RealSenseCamera(Camera):
                 self.pipeline.stop()
             finally:
                 self.pipeline = None
-
-
-def open_camera(spec: str, width: int = 640, height: int = 480, seed: int = 0, loop: bool = False) -> Camera:
-    """'synth[:SEED]' | 'synth-cell[:SEED]' | 'dir:PATH' | 'realsense[:SERIAL]' -> an unopened source."""
-    kind, _, arg = spec.partition(":")
-    if kind in ("synth", "synth-cell"):
-        if arg and not arg.isdigit():
-            raise CameraError(f"--camera {spec}: the seed after '{kind}:' must be a whole number >= 0")
-        seed = int(arg) if arg else seed
-        if kind == "synth":
-            return SynthCamera(width, height, seed=seed)
-        return SynthCamera(width, height, seed=seed, mount_height_m=0.7)  # over a robot cell (fixed calibration)
-    if kind == "dir" and arg:
-        return FolderCamera(arg, loop=loop)
-    if kind == "realsense":
-        return RealSenseCamera(width, height, serial=arg or None)
-    raise CameraError(f"unknown camera {spec!r}: use synth, synth-cell, dir:PATH or realsense[:SERIAL]")

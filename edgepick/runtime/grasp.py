@@ -17,7 +17,7 @@ import numpy as np
 
 from edgepick.errors import EdgepickError
 from edgepick.runtime.calibration import Calibration
-from edgepick.runtime.geometry import Intrinsics, deproject
+from edgepick.geometry import Intrinsics, deproject
 
 DEFAULT_CLASSES = ("background", "bearing", "disk", "adapter", "box")
 

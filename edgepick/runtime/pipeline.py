@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from edgepick.runtime.calibration import Calibration
-from edgepick.runtime.camera import Frame
+from edgepick.frames import Frame
 from edgepick.runtime.grasp import GraspConfig, grasp_records
 from edgepick.runtime.session import Segmenter
 

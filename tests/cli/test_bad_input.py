@@ -20,7 +20,7 @@ import pytest
 pytest.importorskip("onnx")
 
 from edgepick.cli import run  # noqa: E402
-from edgepick.runtime.geometry import Intrinsics  # noqa: E402
+from edgepick.geometry import Intrinsics  # noqa: E402
 from tests.runtime.test_pipeline import red_model  # noqa: E402
 
 HEADER = "cam_x,cam_y,cam_z,robot_x,robot_y,robot_z"

@@ -11,7 +11,7 @@ import pytest
 
 from edgepick.robot.base import RobotError
 from edgepick.robot.grippers import DigitalGripper, RG2Gripper
-from edgepick.robot.sim import SimRobot
+from edgepick.sim.robot import SimRobot
 
 
 @pytest.fixture()

@@ -10,7 +10,7 @@ import pytest
 
 pytest.importorskip("onnx")
 
-from edgepick.runtime.geometry import Intrinsics  # noqa: E402
+from edgepick.geometry import Intrinsics  # noqa: E402
 from tests.conftest import run_cli  # noqa: E402
 from tests.runtime.test_pipeline import red_model  # noqa: E402
 

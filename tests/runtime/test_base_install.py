@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from edgepick.runtime.geometry import Intrinsics
+from edgepick.geometry import Intrinsics
 from tests.conftest import REPO
 
 pytestmark = pytest.mark.slow

@@ -9,8 +9,11 @@ import numpy as np
 import pytest
 
 from edgepick.data.synth import SynthConfig, synthesize
-from edgepick.runtime.camera import CameraError, FolderCamera, RealSenseCamera, SynthCamera, open_camera
-from edgepick.runtime.geometry import Intrinsics
+from edgepick.cli.cameras import open_camera
+from edgepick.frames import CameraError
+from edgepick.runtime.camera import FolderCamera, RealSenseCamera
+from edgepick.sim.camera import SynthCamera
+from edgepick.geometry import Intrinsics
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from edgepick.errors import EdgepickError
 from edgepick.runtime.calibration import Calibration
-from edgepick.runtime.geometry import Intrinsics, deproject
+from edgepick.geometry import Intrinsics, deproject
 from edgepick.runtime.grasp import grasp_records
 from tests.conftest import run_cli
 

@@ -19,11 +19,12 @@ def _run(code: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-c", BLOCK + code], cwd=REPO, capture_output=True, text=True, timeout=120)
 
 
-def test_runtime_robot_bench_and_every_submodule_import_without_torch():
+def test_runtime_robot_sim_bench_and_every_submodule_import_without_torch():
     proc = _run("""
-import importlib, pkgutil, edgepick.runtime, edgepick.robot, edgepick.bench
-names = [m.name for pkg in (edgepick.runtime, edgepick.robot, edgepick.bench)
+import importlib, pkgutil, edgepick.runtime, edgepick.robot, edgepick.sim, edgepick.bench, edgepick.cli
+names = [m.name for pkg in (edgepick.runtime, edgepick.robot, edgepick.sim, edgepick.bench, edgepick.cli)
          for m in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + '.')]
+names += ['edgepick.geometry', 'edgepick.frames', 'edgepick.files', 'edgepick.progress']
 for n in names:
     importlib.import_module(n)
 assert 'torch' not in sys.modules

@@ -10,8 +10,8 @@ import pytest
 
 pytest.importorskip("onnx")
 
-from edgepick.runtime.camera import Frame  # noqa: E402
-from edgepick.runtime.geometry import Intrinsics  # noqa: E402
+from edgepick.frames import Frame  # noqa: E402
+from edgepick.geometry import Intrinsics  # noqa: E402
 from edgepick.runtime.grasp import DEFAULT_CLASSES, grasp_records  # noqa: E402
 from edgepick.runtime.pipeline import STAGES, Pipeline, median_ms  # noqa: E402
 from edgepick.runtime.session import Segmenter  # noqa: E402

@@ -10,7 +10,8 @@ from edgepick.robot.base import RobotError, RobotHalted
 from edgepick.robot.envelope import SafetyError
 from edgepick.robot.grippers import DigitalGripper
 from edgepick.robot.pick import CommandLog, PickConfig, choose_target, execute, plan_pick
-from edgepick.robot.sim import SimRobot, motion_time
+from edgepick.robot.motion import motion_time
+from edgepick.sim.robot import SimRobot
 
 DOWN = [math.pi, 0.0, 0.0]
 RECORD = {"class": "box", "area_px": 900, "depth_m": 0.62, "pose_robot": [0.3, -0.05, 0.06, *DOWN]}

@@ -10,18 +10,8 @@ import math
 
 from edgepick.robot.base import RobotBase, SafetyStatus
 from edgepick.robot.envelope import Envelope
+from edgepick.robot.motion import HOME_POSE, motion_time
 
-HOME_POSE = [0.25, -0.15, 0.30, math.pi, 0.0, 0.0]  # tool pointing down
-
-
-def motion_time(distance: float, speed: float, acc: float) -> float:
-    """Trapezoidal profile duration (triangular when the distance is too short to reach speed)."""
-    if distance <= 0:
-        return 0.0
-    ramp = speed * speed / acc
-    if distance < ramp:
-        return 2 * math.sqrt(distance / acc)
-    return distance / speed + speed / acc
 
 
 class SimRobot(RobotBase):
