@@ -18,7 +18,6 @@ import sys
 import tempfile
 from collections import defaultdict
 from pathlib import Path
-from unittest.mock import patch
 
 import numpy as np
 import onnxruntime as ort
@@ -126,11 +125,11 @@ def main() -> None:
     ckpt = args.checkpoint or str(untrained_checkpoint(work / "untrained.pt", (480, 640), classes, args.variant))
     fp32 = export_checkpoint(ckpt, work / "fp32.onnx")
     int8 = quantize_static(ckpt, data, work / "int8.onnx", calib_images=args.calib_images, progress=False)
-    with patch("edgepick.export.onnx_export.crop_padded_convs", lambda model: 0):  # the same int8 model, convs whole
-        whole = quantize_static(ckpt, data, work / "int8_whole.onnx", calib_images=args.calib_images, progress=False)
-    with patch("edgepick.export.onnx_export.integer_activations", lambda model: {}):  # hardswish, SE, pooling in float
-        float_act = quantize_static(ckpt, data, work / "int8_float_act.onnx", QuantConfig(hardswish_gate=False),
-                                    calib_images=args.calib_images, progress=False)
+    whole = quantize_static(ckpt, data, work / "int8_whole.onnx", calib_images=args.calib_images, progress=False,
+                            export_passes=("integer_activations",))  # the same int8 model, convs whole
+    float_act = quantize_static(ckpt, data, work / "int8_float_act.onnx", QuantConfig(hardswish_gate=False),
+                                calib_images=args.calib_images, progress=False,
+                                export_passes=("crop_convs",))  # hardswish, SE, pooling in float
     model, _ = load_model(ckpt)
     depthwise = [n for n, m in model.named_modules() if isinstance(m, torch.nn.Conv2d) and m.groups > 1]
     dw_float = quantize_static(ckpt, data, work / "int8_dw_float.onnx", QuantConfig(keep_float=depthwise),

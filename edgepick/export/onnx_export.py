@@ -98,9 +98,18 @@ def drop_unused_initializers(model) -> None:
         model.graph.initializer.extend(keep)
 
 
-def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: tuple[int, int]) -> Path:
+# ONNX graph passes run after the export, by name; both change only int8 graphs and keep the labels.
+EXPORT_PASSES = {
+    "crop_convs": crop_padded_convs,  # int8 convs split into regions that skip padding-only taps (ASPP)
+    "integer_activations": integer_activations,  # integer kernels for hardsigmoid (gated hardswish), pooling
+}
+
+
+def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: tuple[int, int],
+                passes: tuple[str, ...] = tuple(EXPORT_PASSES)) -> Path:
     """Export NET ([0, 255] NCHW float -> logits, float or pt2e-converted) as an ONNX model
-    (docs/contracts.md#onnx-model).
+    (docs/contracts.md#onnx-model), then run the named graph PASSES (EXPORT_PASSES; all by
+    default, none with passes=() to measure what they bring).
 
     Written to a temporary file first and checked with onnx.checker; PATH appears only
     when the whole file is good.
@@ -110,6 +119,9 @@ def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: tu
     path = Path(path)
     if path.suffix != ".onnx":
         raise ConfigError(f"--out must name an .onnx file, got {path}")
+    unknown = [p for p in passes if p not in EXPORT_PASSES]
+    if unknown:
+        raise ConfigError(f"unknown export pass {unknown[0]!r}; the passes are {', '.join(EXPORT_PASSES)}")
     h, w = input_size
     example = (torch.zeros(1, h, w, 3, dtype=torch.uint8),)
     if not isinstance(net, torch.fx.GraphModule):  # exported graphs are already in eval form
@@ -122,8 +134,8 @@ def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: tu
                                         output_names=["labels"], verbose=False, optimize=True)
         model = program.model_proto
         strip_debug_info(model)
-        crop_padded_convs(model)  # int8 convs only; the same labels, less work on ASPP's dilated convs
-        integer_activations(model)  # int8 graphs only: hardsigmoid (so the gated hardswish), mean pooling
+        for name in passes:
+            EXPORT_PASSES[name](model)
         drop_unused_initializers(model)
         for key, value in metadata.items():
             entry = model.metadata_props.add()

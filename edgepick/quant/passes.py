@@ -22,9 +22,10 @@ import torch
 from edgepick.data.native import NativeDataset
 from edgepick.errors import CheckpointError, ConfigError, EdgepickError
 from edgepick.export.checks import conv_weight_report, label_agreement
-from edgepick.export.onnx_export import LogitsNet, contract_metadata, export_onnx
+from edgepick.export.onnx_export import EXPORT_PASSES, LogitsNet, contract_metadata, export_onnx
 from edgepick.models.deeplabv3 import trim_dilated_convs
-from edgepick.quant.qat_graph import BN_LITERALS, bn_folds_with_own_eps, load_qat_state, restore_bn_literals, to_eval
+from edgepick.quant.qat_graph import load_qat_state, to_eval
+from edgepick.quant.torchao_compat import bn_folds_with_own_eps, install_train_eval
 from edgepick.progress import progress as progress_bar
 from edgepick.quant.quantizer import (
     EdgeQuantizer,
@@ -97,7 +98,6 @@ def gate_hardswish(model: torch.nn.Module) -> int:
 def prepare(model: torch.nn.Module, config: QuantConfig, size: tuple[int, int], qat: bool) -> torch.fx.GraphModule:
     """torch.export + pt2e prepare of MODEL (changed in place); raises if no observer/fake-quant was
     inserted (the silent-float trap)."""
-    from torchao.quantization.pt2e import allow_exported_model_train_eval
     from torchao.quantization.pt2e.quantize_pt2e import prepare_pt2e, prepare_qat_pt2e
 
     check_keep_float(model, config.keep_float)
@@ -121,10 +121,7 @@ def prepare(model: torch.nn.Module, config: QuantConfig, size: tuple[int, int], 
     prepared.recompile()
     if count_quant_nodes(prepared) == 0:
         raise QuantizationError("pt2e inserted no observers: the model would stay float")
-    allow_exported_model_train_eval(prepared)
-    prepared.meta[BN_LITERALS] = {f"{PREFIX}{name}.running_var": (m.eps, m.momentum) for name, m in model.named_modules()
-                                  if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)}
-    restore_bn_literals(prepared)
+    install_train_eval(prepared, model, PREFIX)
     return prepared
 
 
@@ -203,10 +200,11 @@ def _stage(message: str, enabled: bool) -> None:
 
 
 def export_int8(converted: torch.fx.GraphModule, out: str | Path, metadata: dict, size: tuple[int, int],
-                expected_convs: int, check_images: list[np.ndarray], progress: bool = False) -> dict:
+                expected_convs: int, check_images: list[np.ndarray], progress: bool = False,
+                passes: tuple[str, ...] = tuple(EXPORT_PASSES)) -> dict:
     """Export, then check int8 conv weights and onnxruntime-vs-torch label agreement; no file on failure."""
     _stage(f"export the int8 ONNX to {out} (torch.export, then onnx checks)", progress)
-    path = export_onnx(converted, out, metadata, size)
+    path = export_onnx(converted, out, metadata, size, passes)
     _stage(f"compare onnxruntime's labels with torch's on {len(check_images)} val images", progress)
     report = conv_weight_report(path)
     if report["int8"] < expected_convs:
@@ -218,10 +216,11 @@ def export_int8(converted: torch.fx.GraphModule, out: str | Path, metadata: dict
 
 
 def quantize_static(checkpoint: str | Path, data: str | Path, out: str | Path, config: QuantConfig | None = None,
-                    calib_images: int | None = None, seed: int = 0, progress: bool = True) -> dict:
+                    calib_images: int | None = None, seed: int = 0, progress: bool = True,
+                    export_passes: tuple[str, ...] = tuple(EXPORT_PASSES)) -> dict:
     """Static post-training quantization: BN folded, per-channel int8 weights, activation ranges
     calibrated on CALIB_IMAGES train images (None: 64, or all if fewer) with config.calib_method;
-    writes an int8 ONNX."""
+    writes an int8 ONNX after the ONNX graph passes EXPORT_PASSES (all by default)."""
     from edgepick.train.checkpoint import load_model
 
     config = (config or QuantConfig()).validate()
@@ -243,7 +242,8 @@ def quantize_static(checkpoint: str | Path, data: str | Path, out: str | Path, c
              "calib_images": len(images),
              **{k: v for k, v in config.to_dict().items() if k not in ("calib_method", "weight_averaging")}}
     meta = contract_metadata(ckpt, "int8", quant)
-    result = export_int8(converted, out, meta, size, expected_int8_convs(prepared, config), check_images, progress)
+    result = export_int8(converted, out, meta, size, expected_int8_convs(prepared, config), check_images, progress,
+                         export_passes)
     return {"mode": "static", **result, "observers": count_quant_nodes(prepared), "calib_s": round(calib_s, 2),
             "quant": quant}
 

@@ -283,11 +283,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     freeze_step = round(((cfg.epochs - first) * cfg.freeze_at + first) * steps_per_epoch)
     frozen = False
     evaluator = qat_evaluator(model) if cfg.qat else None
-    ddp.train()
-    if cfg.qat:  # train() rewrites the QaT graph's BN nodes
-        from edgepick.quant.qat_graph import restore_bn_literals
-
-        restore_bn_literals(model)
+    ddp.train()  # a QaT graph's own train() keeps its BatchNorm literals (quant/torchao_compat.py)
 
     for epoch in range(state["epoch"] + 1, cfg.epochs + 1):
         if isinstance(sampler, DistributedSampler):

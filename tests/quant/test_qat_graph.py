@@ -111,7 +111,7 @@ def test_qat_graph_keeps_the_models_batchnorm_eps(after):
 
     from edgepick.models.deeplabv3 import ModelConfig, build_model
     from edgepick.quant.passes import LogitsNet, prepare
-    from edgepick.quant.qat_graph import restore_bn_literals, to_eval
+    from edgepick.quant.qat_graph import to_eval
     from edgepick.quant.quantizer import QuantConfig
 
     torch.manual_seed(0)
@@ -128,8 +128,7 @@ def test_qat_graph_keeps_the_models_batchnorm_eps(after):
         want = LogitsNet(model)(x)
     prepared = prepare(model, QuantConfig(), (64, 96), qat=True)
     if after == "train_switch":
-        prepared.train()  # what the training loop does before its first step
-        restore_bn_literals(prepared)
+        prepared.train()  # what the training loop does before its first step; nothing else is called
     prepared.apply(disable_observer)
     prepared.apply(disable_fake_quant)
     to_eval(prepared)
