@@ -34,6 +34,17 @@ common = [
 ]
 
 
+# static PTQ and inspect
+calibration = [
+    click.option("--calib-images", default=None, type=int,
+                 help="Train images for calibration [default: 64, or the whole train split if smaller]."),
+    click.option("--calib-method", default="percentile", show_default=True,
+                 type=click.Choice(["minmax", "percentile", "entropy", "mse"]),
+                 help="Activation ranges: a percentile of each histogram, min/max, KL divergence (entropy) or "
+                      "L2 error (mse, slower). Compare them on your model with benchmarks/calib_methods.py."),
+]
+
+
 # QaT and hybrid-QaT
 qat_options = [
     click.option("--weight-averaging", default=0.01, show_default=True,
@@ -69,12 +80,7 @@ def quantize() -> None:
 @quantize.command("static")
 @click.argument("checkpoint", metavar="RUN_OR_CKPT", type=click.Path())
 @click.option("--data", "data_dir", required=True, type=click.Path(), help="Data set; calibration uses its train split.")
-@click.option("--calib-images", default=None, type=int,
-              help="Train images for calibration [default: 64, or the whole train split if smaller].")
-@click.option("--calib-method", default="percentile", show_default=True,
-              type=click.Choice(["minmax", "percentile", "entropy", "mse"]),
-              help="Activation ranges: a percentile of each histogram, min/max, KL divergence (entropy) or "
-                   "L2 error (mse, slower). Compare them on your model with benchmarks/calib_methods.py.")
+@with_options(calibration)
 @click.option("--percentile", default=99.99, show_default=True, help="For --calib-method percentile.")
 @click.option("--seed", default=0, show_default=True, help="Which calibration images are drawn.")
 @click.option("--max-miou-drop", default=None, type=float, metavar="PP",
@@ -101,10 +107,7 @@ def quantize_static_cmd(checkpoint: str, data_dir: str, calib_images: int | None
 @quantize.command("inspect")
 @click.argument("checkpoint", metavar="RUN_OR_CKPT", type=click.Path())
 @click.option("--data", "data_dir", required=True, type=click.Path(), help="Calibration (train) and comparison (val) images.")
-@click.option("--calib-images", default=None, type=int,
-              help="Train images for calibration [default: 64, or the whole train split if smaller].")
-@click.option("--calib-method", default="percentile", show_default=True,
-              type=click.Choice(["minmax", "percentile", "entropy", "mse"]))
+@with_options(calibration)
 @click.option("--images", default=8, show_default=True, help="Val images compared.")
 @click.option("--top", default=10, show_default=True, help="Rows of the worst-layers table on stderr.")
 @click.option("--reduce-range/--full-range", default=True, show_default=True)
