@@ -9,8 +9,8 @@ import sys
 import click
 
 from edgepick.cli.options import parse_size
-from edgepick.files import check_output
 from edgepick.errors import ConfigError
+from edgepick.files import check_output
 
 
 def make_gripper(spec: str, robot, robot_host: str | None):
@@ -72,16 +72,16 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     command. The JSON summary goes to stdout; if the robot halts (protective or emergency
     stop, lost link) or cannot be reached, it says so and the exit status is 3.
     """
+    from edgepick.cli.cameras import open_camera
     from edgepick.robot.base import RobotError
     from edgepick.robot.envelope import Envelope
     from edgepick.robot.loop import run_cycles
     from edgepick.robot.pick import CommandLog, PickConfig
-    from edgepick.sim.robot import SimRobot
     from edgepick.runtime.calibration import Calibration
-    from edgepick.cli.cameras import open_camera
-    from edgepick.sim.camera import SynthCamera
     from edgepick.runtime.pipeline import Pipeline
     from edgepick.runtime.session import Segmenter
+    from edgepick.sim.camera import SynthCamera
+    from edgepick.sim.robot import SimRobot
 
     if cycles < 1:
         raise ConfigError("--cycles must be at least 1")

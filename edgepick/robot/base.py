@@ -126,9 +126,13 @@ class RobotBase:
         self.envelope.check_move_l(pose, speed, acc, start=self._path_start())
         self._before("moveL")
         self._send("moveL")
-        self.last_target = None  # unknown until the move is confirmed
-        self._after("moveL", self._move_l([float(v) for v in pose], speed, acc))
-        self.last_target = [float(v) for v in pose]
+        target = [float(v) for v in pose]
+        try:
+            self._after("moveL", self._move_l(target, speed, acc))
+        except BaseException:
+            self.last_target = None  # where the arm stopped is unknown
+            raise
+        self.last_target = target
 
     def move_j(self, q: list[float], speed: float | None = None, acc: float | None = None) -> None:
         speed = self.envelope.max_joint_speed if speed is None else speed
@@ -136,9 +140,8 @@ class RobotBase:
         self.envelope.check_move_j(q, speed, acc)
         self._before("moveJ")
         self._send("moveJ")
-        self.last_target = None
+        self.last_target = None  # a joint move ends at a pose read back when the next moveL needs it
         self._after("moveJ", self._move_j([float(v) for v in q], speed, acc))
-        self.last_target = self.tcp_pose()
 
     def set_digital_out(self, index: int, value: bool, tool: bool = False) -> None:
         limit = 2 if tool else 8

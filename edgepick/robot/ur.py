@@ -108,7 +108,6 @@ class URRobot(RobotBase):
         self.proc = None
         self.pipe = None
         self.lost = False
-        self.last_pose: list[float] | None = None
 
     def _call(self, *msg, timeout: float):
         if self.proc is None or self.lost:
@@ -148,7 +147,6 @@ class URRobot(RobotBase):
         if status == "error":
             self._kill()
             raise RobotUnreachable(f"cannot connect to the UR controller at {self.host}: {value}")
-        self.last_pose = self.tcp_pose()
 
     def _disconnect(self) -> None:
         if not self.lost:
@@ -157,23 +155,18 @@ class URRobot(RobotBase):
         self.proc = None
 
     def _motion_timeout(self, target: list[float], speed: float, acc: float, joint: bool) -> float:
-        if joint or self.last_pose is None:
+        start = self.last_target  # RobotBase: the arm's pose when this command was checked
+        if joint or start is None:
             dist = 2 * math.pi if joint else 1.0
         else:
-            dist = math.dist(self.last_pose[:3], target[:3])
+            dist = math.dist(start[:3], target[:3])
         return motion_time(dist, speed, acc) * 1.5 + self.margin_s
 
     def _move_l(self, pose: list[float], speed: float, acc: float) -> bool:
-        ok = self._call("moveL", pose, speed, acc, timeout=self._motion_timeout(pose, speed, acc, False))
-        if ok:
-            self.last_pose = list(pose)
-        return bool(ok)
+        return bool(self._call("moveL", pose, speed, acc, timeout=self._motion_timeout(pose, speed, acc, False)))
 
     def _move_j(self, q: list[float], speed: float, acc: float) -> bool:
-        ok = self._call("moveJ", q, speed, acc, timeout=self._motion_timeout(q, speed, acc, True))
-        if ok and not self.lost:
-            self.last_pose = self.tcp_pose()
-        return bool(ok)
+        return bool(self._call("moveJ", q, speed, acc, timeout=self._motion_timeout(q, speed, acc, True)))
 
     def _stop(self) -> None:
         if not self.lost:
