@@ -22,7 +22,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import add_output, machine_line, emit  # noqa: E402
 
 from edgepick.export.onnx_export import contract_metadata, export_onnx  # noqa: E402
-from edgepick.quant.passes import _as_input, convert, model_images, prepare  # noqa: E402
+from edgepick.quant.graph import as_input, convert, prepare  # noqa: E402
+from edgepick.quant.passes import model_images  # noqa: E402
 from edgepick.quant.quantizer import QuantConfig  # noqa: E402
 from edgepick.train.checkpoint import load_model  # noqa: E402
 
@@ -55,14 +56,14 @@ def main() -> None:
     images = model_images(args.data, "val", args.images, size)
     prepared = prepare(model, config, size, qat=False)
     for rgb in calib:
-        prepared(_as_input(rgb))
+        prepared(as_input(rgb))
     work = Path(tempfile.mkdtemp(prefix="agreement-"))
     rows, labels = [], {}
     try:
         for snap in (False, True):
             converted = convert(copy.deepcopy(prepared), snap_biases=snap)
             path = export_onnx(converted, work / f"snap{snap}.onnx", contract_metadata(ckpt, "int8", {"mode": "static"}), size)
-            ref = [converted(_as_input(rgb)).argmax(1)[0].numpy() for rgb in images]
+            ref = [converted(as_input(rgb)).argmax(1)[0].numpy() for rgb in images]
             for name, level in LEVELS.items():
                 ours = onnx_labels(path, level, images)
                 labels[snap, name] = ours

@@ -1,6 +1,6 @@
 """Hybrid-QaT with and without the float run's AdamW moments: one small float run on CPU, then
 the last 10% of its epoch budget in QaT twice from the same kept epoch, fresh optimizer against
-carried moments (TrainConfig.carry_optimizer), with the validation mIoU of each epoch.
+carried moments (quantize_hybrid's carry_optimizer), with the validation mIoU of each epoch.
 
     python benchmarks/hybrid_optimizer.py [--epochs 40] [--out FILE.md | --save]
 """
@@ -18,7 +18,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import add_output, machine_line, emit  # noqa: E402
 
 from edgepick.data.synth import SynthConfig, synthesize  # noqa: E402
+from edgepick.quant.qat import train_qat  # noqa: E402
 from edgepick.quant.quantizer import QuantConfig  # noqa: E402
+from edgepick.train.checkpoint import read_checkpoint  # noqa: E402
 from edgepick.train.loop import TrainConfig, train  # noqa: E402
 
 
@@ -38,9 +40,9 @@ def main() -> None:
         rows = {"float (no QaT)": json.loads((root / "float" / "metrics.json").read_text())["history"]}
         for carry in (False, True):
             out = root / f"hybrid{int(carry)}"
-            train(replace(tc, out=str(out), keep_epochs=[], qat=True, quant=QuantConfig().to_dict(),
-                          init_from=str(root / "float" / f"epoch_{switch:03d}.pt"), carry_optimizer=carry),
-                  progress=False)
+            train_qat(replace(tc, out=str(out), keep_epochs=[]), QuantConfig(),
+                      start=read_checkpoint(root / "float" / f"epoch_{switch:03d}.pt"), carry_optimizer=carry,
+                      progress=False)
             label = "hybrid-QaT, carried AdamW moments" if carry else "hybrid-QaT, fresh AdamW"
             rows[label] = json.loads((out / "metrics.json").read_text())["history"]
     epochs = list(range(switch + 1, args.epochs + 1))

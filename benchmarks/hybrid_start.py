@@ -32,8 +32,9 @@ from edgepick.cli.options import model_size  # noqa: E402
 from edgepick.data.synth import SynthConfig, synthesize  # noqa: E402
 from edgepick.export.onnx_export import LogitsNet  # noqa: E402
 from edgepick.metrics import confusion_matrix, segmentation_metrics  # noqa: E402
-from edgepick.quant.passes import _as_input, convert, model_images, prepare  # noqa: E402
-from edgepick.quant.qat_graph import calibrate_activations, to_eval  # noqa: E402
+from edgepick.quant.graph import as_input, convert, prepare  # noqa: E402
+from edgepick.quant.passes import model_images  # noqa: E402
+from edgepick.quant.qat import calibrate_activations, to_eval  # noqa: E402
 from edgepick.quant.quantizer import QuantConfig  # noqa: E402
 from edgepick.train.checkpoint import load_model  # noqa: E402
 from edgepick.train.data import augment  # noqa: E402
@@ -52,7 +53,7 @@ def val_miou(net, data: Path, size: tuple[int, int], count: int) -> float:
         for i in ds.ids[:count]:
             rgb = cv2.resize(ds.rgb(i), (w, h), interpolation=cv2.INTER_AREA)
             mask = cv2.resize(ds.mask(i), (w, h), interpolation=cv2.INTER_NEAREST)
-            pred = net(_as_input(rgb)).argmax(1)[0].numpy()
+            pred = net(as_input(rgb)).argmax(1)[0].numpy()
             cm += confusion_matrix(mask[None], pred[None], n)
     return 100 * segmentation_metrics(cm)["miou"]
 
@@ -164,7 +165,7 @@ def main() -> None:
         model, ckpt = load_model(run)
         size = tuple(ckpt["input_size"])
         calib = model_images(data, "train", 64, size)
-        plain = [_as_input(r) for r in calib]
+        plain = [as_input(r) for r in calib]
         batches = train_batches(data, size, args.batches, args.batch_size)
         clipping = weight_clipping(model, size, batches)
         if args.clipping_only:

@@ -75,7 +75,8 @@ def make_table55(work: str | Path, setting: Setting, device: str = "auto", comma
     """Run the phases in WORK and return the Markdown report, the PNG's path, the phase wall
     times and the bench rows. A phase whose output is already in WORK is kept (its time comes
     from WORK/phases.json), so the phases can be split over several runs or machines; ONLY
-    limits this run to some PHASES (then no report unless the bench ran)."""
+    limits this run to some PHASES (then no report unless the bench ran). Longer than most functions
+    on purpose: the phases read top to bottom in the order they run, as the table's recipe."""
     import onnxruntime
     import torch
     import torchao

@@ -74,7 +74,6 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     """
     from edgepick.cli.cameras import open_camera
     from edgepick.robot.base import RobotError
-    from edgepick.robot.envelope import Envelope
     from edgepick.robot.loop import run_cycles
     from edgepick.robot.pick import CommandLog, PickConfig
     from edgepick.runtime.calibration import Calibration
@@ -83,16 +82,7 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     from edgepick.sim.camera import SynthCamera
     from edgepick.sim.robot import SimRobot
 
-    if cycles < 1:
-        raise ConfigError("--cycles must be at least 1")
-    envelope = Envelope()
-    if not (math.isfinite(speed) and 0 < speed <= envelope.max_speed):
-        raise ConfigError(f"--speed {speed}: must be in (0, {envelope.max_speed}] m/s")
-    if not (math.isfinite(acc) and 0 < acc <= envelope.max_acc):
-        raise ConfigError(f"--acc {acc}: must be in (0, {envelope.max_acc}] m/s^2")
-    kind, _, host = robot_spec.partition(":")
-    if kind not in ("sim", "ur") or (kind == "ur" and not host):
-        raise ConfigError(f"unknown robot {robot_spec!r}: use sim or ur:HOST")
+    kind, host = _check_motion(cycles, speed, acc, robot_spec)
     check_output(log_path, "--log")
     if overlay_dir:
         check_output(overlay_dir, "--overlay-dir", kind="dir")
@@ -140,14 +130,36 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
                 halted = halted or robot.halted
     finally:
         log.close()
-    done = [r for r in results if r["outcome"] == "done"]
-    errors = [r["grasp_error_m"] for r in results if r.get("grasp_error_m") is not None]
-    summary = {"cycles": len(results), "done": len(done), "log": log_path if log.path and log.path.exists() else None,
-               "halted": halted,
-               "within_1cm": sum(1 for r in results if r.get("within_1cm")),
-               "grasp_error_mm_median": round(1000 * sorted(errors)[len(errors) // 2], 2) if errors else None,
-               "results": results}
+    summary = _summary(results, log_path if log.path and log.path.exists() else None, halted)
     click.echo(json.dumps(summary, indent=1))
     if halted:
-        click.echo(f"edgepick: error: robot halted: {halted} ({len(done)} of {cycles} cycles done)", err=True)
+        click.echo(f"edgepick: error: robot halted: {halted} ({summary['done']} of {cycles} cycles done)", err=True)
         sys.exit(3)
+
+
+def _check_motion(cycles: int, speed: float, acc: float, robot_spec: str) -> tuple[str, str]:
+    """Refuse a cycle count, speed or acceleration outside the envelope's caps, or an unknown
+    robot; returns the robot's kind and host."""
+    from edgepick.robot.envelope import Envelope
+
+    if cycles < 1:
+        raise ConfigError("--cycles must be at least 1")
+    envelope = Envelope()
+    if not (math.isfinite(speed) and 0 < speed <= envelope.max_speed):
+        raise ConfigError(f"--speed {speed}: must be in (0, {envelope.max_speed}] m/s")
+    if not (math.isfinite(acc) and 0 < acc <= envelope.max_acc):
+        raise ConfigError(f"--acc {acc}: must be in (0, {envelope.max_acc}] m/s^2")
+    kind, _, host = robot_spec.partition(":")
+    if kind not in ("sim", "ur") or (kind == "ur" and not host):
+        raise ConfigError(f"unknown robot {robot_spec!r}: use sim or ur:HOST")
+    return kind, host
+
+
+def _summary(results: list[dict], log_path: str | None, halted: str | None) -> dict:
+    """The JSON summary `pick` prints: cycles, done, grasp error, each cycle's record."""
+    errors = [r["grasp_error_m"] for r in results if r.get("grasp_error_m") is not None]
+    return {"cycles": len(results), "done": sum(r["outcome"] == "done" for r in results), "log": log_path,
+            "halted": halted,
+            "within_1cm": sum(1 for r in results if r.get("within_1cm")),
+            "grasp_error_mm_median": round(1000 * sorted(errors)[len(errors) // 2], 2) if errors else None,
+            "results": results}

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from edgepick.data.shading import lights_for, shade, table_albedo
 from edgepick.data.shapes import MAKERS, ObjectModel
 from edgepick.geometry import Intrinsics
 
@@ -46,102 +47,6 @@ def _plane_frame(n: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
     y = np.cross(n, x)
     a1 = np.cos(yaw) * x + np.sin(yaw) * y
     return a1, np.cross(n, a1)
-
-
-def _table_albedo(rng: np.random.Generator, kind: str, h: int, w: int) -> tuple[np.ndarray, float, float]:
-    """Linear-RGB albedo of the table surface, with its specular strength and shininess."""
-    def noise(cells: int) -> np.ndarray:
-        g = rng.standard_normal((cells, max(2, cells * w // h))).astype(np.float32)
-        return cv2.resize(g, (w, h), interpolation=cv2.INTER_CUBIC)
-
-    fine = noise(96) * 0.5 + noise(24) * 0.5
-    if kind == "wood":  # planks: grain streaks along the plank, ring figure, seams, per-plank tint
-        base = np.power(np.array([rng.uniform(0.55, 0.75), rng.uniform(0.38, 0.5), rng.uniform(0.22, 0.3)],
-                                 np.float32), 2.2)
-        along_x = rng.random() < 0.5
-        L, A = (w, h) if along_x else (h, w)  # length along the grain, extent across it
-        streak = cv2.resize(rng.standard_normal((A // 2, 4)).astype(np.float32), (L, A),
-                            interpolation=cv2.INTER_LINEAR)
-        warp = cv2.resize(rng.standard_normal((6, 5)).astype(np.float32), (L, A), interpolation=cv2.INTER_CUBIC)
-        across = np.arange(A, dtype=np.float32)[:, None]
-        rings = 0.5 + 0.5 * np.sin(across * rng.uniform(0.15, 0.3) + warp * 6.0)
-        plank_w = int(rng.uniform(0.18, 0.35) * A) + 1
-        plank = (across // plank_w).astype(int)[:, 0]
-        tint = 1.0 + 0.1 * rng.standard_normal(plank.max() + 1).astype(np.float32)
-        seam = (np.mod(across, plank_w) < 2).astype(np.float32)
-        shade = (0.82 + 0.08 * streak + 0.12 * rings ** 4) * tint[plank][:, None] * (1 - 0.6 * seam)
-        if not along_x:
-            shade = shade.T
-        shade = np.ascontiguousarray(shade) + 0.03 * fine
-        return base * shade[..., None], 0.08, 12.0
-    if kind == "laminate":
-        g = rng.uniform(0.35, 0.75)
-        base = np.power(np.array([g, g * rng.uniform(0.96, 1.02), g * rng.uniform(0.95, 1.05)], np.float32), 2.2)
-        shade = 1.0 + 0.06 * fine + 0.05 * noise(8)
-        return base * shade[..., None], 0.1, 10.0
-    if kind == "mat":
-        palette = [(0.12, 0.3, 0.2), (0.12, 0.18, 0.32), (0.2, 0.2, 0.22)]
-        base = np.power(np.array(palette[rng.integers(len(palette))], np.float32), 2.2)
-        step = rng.uniform(10, 18)
-        yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-        grid = ((np.mod(xx, step) < 0.8) | (np.mod(yy, step) < 0.8)).astype(np.float32)
-        col = base * (1.0 + 0.05 * fine)[..., None]
-        return col * (1 - grid[..., None] * 0.3) + grid[..., None] * 0.1, 0.03, 8.0
-    # brushed steel workbench
-    g = rng.uniform(0.35, 0.5)
-    streaks = cv2.resize(rng.standard_normal((h, 8)).astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
-    if rng.random() < 0.5:
-        streaks = cv2.resize(rng.standard_normal((8, w)).astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
-    shade = 1.0 + 0.05 * streaks + 0.04 * fine
-    return np.power(np.float32(g), 2.2) * np.repeat(shade[..., None], 3, axis=2), 0.35, 18.0
-
-
-def _lights(rng: np.random.Generator, kind: str, centre: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, list[dict]]:
-    """Ambient colour and point lights (position, colour, intensity, softness) for a lighting condition."""
-    up = -n
-
-    def lateral(lo: float, hi: float) -> np.ndarray:
-        a = rng.uniform(0, 2 * np.pi)
-        d = np.array([np.cos(a), np.sin(a), 0.0])
-        d -= (d @ n) * n
-        return d / np.linalg.norm(d) * rng.uniform(lo, hi)
-
-    warm = np.array([1.0, rng.uniform(0.92, 1.0), rng.uniform(0.8, 0.95)], np.float32)
-    ceiling = dict(pos=centre + up * rng.uniform(1.8, 2.6) + lateral(0.0, 0.8), colour=warm,
-                   power=rng.uniform(0.75, 0.95), soft=15)
-    white = dict(pos=centre + up * rng.uniform(0.25, 0.55) + lateral(0.3, 0.6),
-                 colour=np.array([1.0, 1.0, 1.0], np.float32), power=rng.uniform(1.1, 1.6), soft=3)
-    if kind == "ceiling":
-        return warm * rng.uniform(0.3, 0.4), [ceiling]
-    if kind == "ceiling+white":
-        return warm * rng.uniform(0.25, 0.35), [ceiling, white]
-    if kind == "single":
-        white["power"] = rng.uniform(1.3, 1.9)
-        return np.full(3, rng.uniform(0.02, 0.06), np.float32), [white]
-    hazard = dict(pos=centre + up * rng.uniform(0.2, 0.5) + lateral(0.2, 0.5),
-                  colour=np.array([1.0, rng.uniform(0.25, 0.5), rng.uniform(0.0, 0.08)], np.float32),
-                  power=rng.uniform(1.4, 2.2), soft=4)
-    ceiling["power"] *= rng.uniform(0.4, 0.7)
-    return warm * rng.uniform(0.12, 0.2), [ceiling, hazard]
-
-
-def _shade(points: np.ndarray, normals: np.ndarray, ks, shin, lights: list[dict],
-           centre: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Lambert diffuse and Blinn-Phong specular per point and light: two [N, n_lights] arrays."""
-    view = -points / np.sqrt(np.einsum("ij,ij->i", points, points))[:, None]
-    diff = np.empty((len(points), len(lights)), np.float32)
-    spec = np.empty_like(diff)
-    for i, light in enumerate(lights):
-        to_l = light["pos"].astype(np.float32) - points
-        dist2 = np.einsum("ij,ij->i", to_l, to_l)
-        ldir = to_l / np.sqrt(dist2)[:, None]
-        fall = float(np.sum((light["pos"] - centre) ** 2)) / dist2 * light["power"]
-        half = ldir + view
-        half /= np.sqrt(np.einsum("ij,ij->i", half, half))[:, None] + 1e-9
-        diff[:, i] = np.clip(np.einsum("ij,ij->i", normals, ldir), 0, None) * fall
-        nh = np.clip(np.einsum("ij,ij->i", normals, half), 1e-6, None)
-        spec[:, i] = np.exp(np.log(nh) * shin) * ks * fall * 2.5
-    return diff, spec
 
 
 class SceneRenderer:
@@ -234,7 +139,7 @@ class SceneRenderer:
 
         ndotr = (self.rays @ n.astype(np.float32)).astype(np.float32)
         zbuf = (d / ndotr).astype(np.float32)
-        albedo, t_ks, t_shin = _table_albedo(rng, table, h // 2, w // 2)  # sensor blur hides the upsampling
+        albedo, t_ks, t_shin = table_albedo(rng, table, h // 2, w // 2)  # sensor blur hides the upsampling
         albedo = cv2.resize(albedo.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
         normal = np.zeros((h, w, 3), np.float32)  # per-pixel materials: read on object pixels only
         ks = np.zeros((h, w), np.float32)
@@ -244,61 +149,11 @@ class SceneRenderer:
         inst = np.zeros((h, w), np.uint8)
 
         placed = self.sample_objects(rng, n, d)
-        footprints = []
-        for k, p in enumerate(placed, start=1):
-            box = self._bbox(p, n)
-            if box is None:
-                footprints.append(None)
-                continue
-            x0, y0, x1, y1 = box
-            rays = self.rays[y0:y1, x0:x1]
-            inv_nr = 1.0 / ndotr[y0:y1, x0:x1]
-            # A point on the ray at depth z has object-frame coordinates (ray.a1) z - c.a1:
-            # project the rays once per object, then each level is two multiply-adds.
-            ray_a1, ray_a2 = rays @ p.a1.astype(np.float32), rays @ p.a2.astype(np.float32)
-            full = np.zeros((y1 - y0, x1 - x0), bool)
-            for part in p.model.parts:
-                done = np.zeros_like(full)
-                levels = np.linspace(1.0, 0.0, 4)
-                for li, t in enumerate(levels):
-                    elev = p.base_elev + part.z0 + t * (part.z1 - part.z0)
-                    z = np.float32(d - elev) * inv_nr
-                    c = p.ground - n * elev
-                    lx = ray_a1 * z - np.float32(c @ p.a1)
-                    ly = ray_a2 * z - np.float32(c @ p.a2)
-                    inside = (part.sdf(lx, ly) < 0) & ~done
-                    if not inside.any():
-                        continue
-                    done |= inside
-                    sub_z = zbuf[y0:y1, x0:x1]
-                    win = inside & (z < sub_z)
-                    if not win.any():
-                        continue
-                    sub_z[win] = z[win]
-                    ax, ay = lx[win], ly[win]
-                    col = part.albedo(ax, ay)
-                    if li == 0:  # top face: up, with the part's curvature tilt
-                        tx, ty = part.tilt(ax, ay) if part.tilt else (0.0 * ax, 0.0 * ay)
-                        nn = -n[None, :] + tx[:, None] * p.a1[None, :] + ty[:, None] * p.a2[None, :]
-                    else:  # side wall: outward gradient of the footprint
-                        eps = 5e-4
-                        gx = part.sdf(ax + eps, ay) - part.sdf(ax - eps, ay)
-                        gy = part.sdf(ax, ay + eps) - part.sdf(ax, ay - eps)
-                        nn = gx[:, None] * p.a1[None, :] + gy[:, None] * p.a2[None, :] - 0.15 * n[None, :]
-                        col = col * 0.85
-                    nn /= np.linalg.norm(nn, axis=1, keepdims=True) + 1e-9
-                    albedo[y0:y1, x0:x1][win] = col
-                    normal[y0:y1, x0:x1][win] = nn
-                    ks[y0:y1, x0:x1][win] = part.ks
-                    shin[y0:y1, x0:x1][win] = part.shininess
-                    metal[y0:y1, x0:x1][win] = part.metal
-                    label[y0:y1, x0:x1][win] = CLASSES.index(p.model.cls)
-                    inst[y0:y1, x0:x1][win] = k
-                full |= done
-            footprints.append((box, full))
+        buffers = dict(zbuf=zbuf, albedo=albedo, normal=normal, ks=ks, shin=shin, metal=metal, label=label, inst=inst)
+        footprints = [self._rasterize(p, k, n, d, ndotr, buffers) for k, p in enumerate(placed, start=1)]
 
         centre = (d / ndotr[h // 2, w // 2]) * self.rays[h // 2, w // 2]
-        ambient, lights = _lights(rng, lighting, centre, n)
+        ambient, lights = lights_for(rng, lighting, centre, n)
         colours = np.stack([light["colour"] for light in lights]).astype(np.float32)  # [n_lights, 3]
         on_table = label == 0
         # The table is flat and its shadows are soft: light it at 1/4 resolution, then upsample.
@@ -307,7 +162,7 @@ class SceneRenderer:
         gh, gw = small.shape[:2]
         pts_t = (small * (d / (small @ n.astype(np.float32)))[..., None]).reshape(-1, 3)
         nrm_t = np.broadcast_to((-n).astype(np.float32), pts_t.shape)
-        dif_t, spc_t = _shade(pts_t, nrm_t, t_ks, t_shin, lights, centre)
+        dif_t, spc_t = shade(pts_t, nrm_t, t_ks, t_shin, lights, centre)
         objects_q = cv2.resize((~on_table).astype(np.float32), (gw, gh), interpolation=cv2.INTER_AREA)
         amb_q = 1 - 0.5 * cv2.GaussianBlur(objects_q, (0, 0), 1.5)  # contact shadow around bases
         masks_q = self._footprints_small(footprints, (gw, gh))  # once per object, not per light
@@ -319,7 +174,7 @@ class SceneRenderer:
         # Objects: per pixel, no cast shadow; metal tints its highlights.
         ys, xs = np.nonzero(~on_table)
         pts_o = self.rays[ys, xs] * zbuf[ys, xs, None]
-        dif_o, spc_o = _shade(pts_o, normal[ys, xs], ks[ys, xs], shin[ys, xs], lights, centre)
+        dif_o, spc_o = shade(pts_o, normal[ys, xs], ks[ys, xs], shin[ys, xs], lights, centre)
         alb_o = albedo[ys, xs]
         spec_o = spc_o @ colours
         is_metal = metal[ys, xs]
@@ -344,6 +199,62 @@ class SceneRenderer:
                 "tilt_deg": round(float(np.rad2deg(tilt)), 2), "exposure_gain": round(gain, 3),
                 "objects": [f"{p.model.cls}:{p.model.variant}" for p in placed]}
         return Scene(rgb, depth, label, grasps, info)
+
+    def _rasterize(self, p: Placed, k: int, n: np.ndarray, d: float, ndotr: np.ndarray, buf: dict) -> tuple | None:
+        """Z-buffer object K (its parts as extruded footprints at four levels, top face first) into
+        the per-pixel buffers; returns its bounding box and footprint, or None when out of view."""
+        zbuf, albedo, normal, ks, shin = buf["zbuf"], buf["albedo"], buf["normal"], buf["ks"], buf["shin"]
+        metal, label, inst = buf["metal"], buf["label"], buf["inst"]
+        box = self._bbox(p, n)
+        if box is None:
+            return None
+        x0, y0, x1, y1 = box
+        rays = self.rays[y0:y1, x0:x1]
+        inv_nr = 1.0 / ndotr[y0:y1, x0:x1]
+        # A point on the ray at depth z has object-frame coordinates (ray.a1) z - c.a1:
+        # project the rays once per object, then each level is two multiply-adds.
+        ray_a1, ray_a2 = rays @ p.a1.astype(np.float32), rays @ p.a2.astype(np.float32)
+        full = np.zeros((y1 - y0, x1 - x0), bool)
+        for part in p.model.parts:
+            done = np.zeros_like(full)
+            levels = np.linspace(1.0, 0.0, 4)
+            for li, t in enumerate(levels):
+                elev = p.base_elev + part.z0 + t * (part.z1 - part.z0)
+                z = np.float32(d - elev) * inv_nr
+                c = p.ground - n * elev
+                lx = ray_a1 * z - np.float32(c @ p.a1)
+                ly = ray_a2 * z - np.float32(c @ p.a2)
+                inside = (part.sdf(lx, ly) < 0) & ~done
+                if not inside.any():
+                    continue
+                done |= inside
+                sub_z = zbuf[y0:y1, x0:x1]
+                win = inside & (z < sub_z)
+                if not win.any():
+                    continue
+                sub_z[win] = z[win]
+                ax, ay = lx[win], ly[win]
+                col = part.albedo(ax, ay)
+                if li == 0:  # top face: up, with the part's curvature tilt
+                    tx, ty = part.tilt(ax, ay) if part.tilt else (0.0 * ax, 0.0 * ay)
+                    nn = -n[None, :] + tx[:, None] * p.a1[None, :] + ty[:, None] * p.a2[None, :]
+                else:  # side wall: outward gradient of the footprint
+                    eps = 5e-4
+                    gx = part.sdf(ax + eps, ay) - part.sdf(ax - eps, ay)
+                    gy = part.sdf(ax, ay + eps) - part.sdf(ax, ay - eps)
+                    nn = gx[:, None] * p.a1[None, :] + gy[:, None] * p.a2[None, :] - 0.15 * n[None, :]
+                    col = col * 0.85
+                nn /= np.linalg.norm(nn, axis=1, keepdims=True) + 1e-9
+                albedo[y0:y1, x0:x1][win] = col
+                normal[y0:y1, x0:x1][win] = nn
+                ks[y0:y1, x0:x1][win] = part.ks
+                shin[y0:y1, x0:x1][win] = part.shininess
+                metal[y0:y1, x0:x1][win] = part.metal
+                label[y0:y1, x0:x1][win] = CLASSES.index(p.model.cls)
+                inst[y0:y1, x0:x1][win] = k
+            full |= done
+        return box, full
+
 
     def _footprints_small(self, footprints: list, grid: tuple[int, int]) -> list[np.ndarray | None]:
         """Each object's footprint on the (width, height) shading grid."""

@@ -8,7 +8,7 @@ convs) and quantizes again. This pass rewrites them, in place, into ops that do 
 - HardSigmoid(x) = clip(x + 3, 0, 6) / 6 becomes an Add of the constant 3, quantized with the
   output's scale times 6: the same uint8 values up to rounding, and saturation does the clip
   (the output range starts at 0 and ends at or below 1). QLinearAdd. With hardswish quantized
-  as x * hardsigmoid(x) (quant.passes.GatedHardswish) this covers MobileNetV3's hardswish too.
+  as x * hardsigmoid(x) (quant.rewrites.GatedHardswish) this covers MobileNetV3's hardswish too.
 - ReduceMean over H and W (SE blocks, ASPP image pooling; the exporter may add a Reshape and
   an identity Gather after it) becomes GlobalAveragePool. QLinearGlobalAveragePool.
 

@@ -24,10 +24,10 @@ import torch
 from edgepick.errors import ConfigError
 from edgepick.export.onnx_export import LogitsNet
 from edgepick.models.deeplabv3 import trim_dilated_convs
+from edgepick.quant.graph import PREFIX, as_input, convert, prepare
 from edgepick.quant.quantizer import QuantConfig, module_path
 from edgepick.progress import progress as progress_bar
 
-PREFIX = "model."
 CONV = torch.ops.aten.conv2d.default
 BATCH_NORMS = {torch.ops.aten.batch_norm.default, torch.ops.aten._native_batch_norm_legit_no_training.default}
 
@@ -81,15 +81,13 @@ def _sqnr(signal: float, noise: float) -> float:
 
 def compare(float_gm: torch.fx.GraphModule, int8_gm: torch.fx.GraphModule, images: list[np.ndarray]) -> dict:
     """Per-layer SQNR and added drift, logits SQNR and label agreement over IMAGES."""
-    from edgepick.quant.passes import _as_input
-
     sig: dict[str, float] = {}
     noise: dict[str, float] = {}
     order: list[str] = []
     log_sig = log_noise = 0.0
     same = total = 0
     for rgb in images:
-        x = _as_input(rgb)
+        x = as_input(rgb)
         f_vals, f_logits = record(float_gm, x)
         q_vals, q_logits = record(int8_gm, x)
         for path, f in f_vals.items():
@@ -123,8 +121,7 @@ def ranked(report: dict) -> list[str]:
 def inspect(checkpoint: str | Path, data: str | Path, config: QuantConfig | None = None, calib_images: int | None = None,
             images: int = 8, seed: int = 0, progress: bool = True) -> dict:
     """Calibrate a static int8 model (in memory) and compare it layer by layer with fp32 on val images."""
-    
-    from edgepick.quant.passes import _as_input, check_classes, convert, model_images, prepare
+    from edgepick.quant.passes import check_classes, model_images
     from edgepick.train.checkpoint import load_model
 
     config = (config or QuantConfig()).validate()
@@ -136,7 +133,7 @@ def inspect(checkpoint: str | Path, data: str | Path, config: QuantConfig | None
     with torch.no_grad():
         for rgb in progress_bar(model_images(data, "train", calib_images, size, seed), desc="calibrate", unit="img",
                                 enabled=progress):
-            prepared(_as_input(rgb))
+            prepared(as_input(rgb))
     report = compare(float_gm, convert(prepared), model_images(data, "val", images, size, seed))
     report["ranked"] = ranked(report)
     return report

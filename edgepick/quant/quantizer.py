@@ -60,7 +60,7 @@ class QuantConfig:
     # own range). With the conv-BN fusion the quantized weight is w * gamma / sqrt(running_var + eps), which moves
     # with the BN statistics every step: a lagging range clips it (benchmarks/results/hybrid-start/).
     weight_averaging: float = 0.01
-    # hardswish as x * hardsigmoid(x), both quantized (passes.GatedHardswish): onnxruntime then runs it on integer
+    # hardswish as x * hardsigmoid(x), both quantized (rewrites.GatedHardswish): onnxruntime then runs it on integer
     # kernels; as one quantized op it dequantizes the map and runs in float (benchmarks/quant_speed.py times both).
     hardswish_gate: bool = True
     keep_float: list[str] = field(default_factory=list)  # module names (prefixes) left in float
@@ -142,7 +142,7 @@ def weight_spec(config: QuantConfig, qat: bool) -> QuantizationSpec:
         # Not the fused kernel: it computes its own scales (no eps floor; on CPU a channel of one sign gets an
         # asymmetric grid), while torchao 0.18's convert_pt2e deploys the observer's (pytorch/ao#4824 later made
         # convert read the kernel's). The unfused FakeQuantize trains on the very scales that are exported
-        # (tests/quant/test_qat_graph.py checks QaT-graph-vs-converted label agreement).
+        # (tests/quant/test_qat.py checks QaT-graph-vs-converted label agreement).
         ctr = FakeQuantize.with_args(observer=MovingAveragePerChannelMinMaxObserver, eps=2 ** -12,
                                      averaging_constant=config.weight_averaging)
     else:

@@ -9,7 +9,7 @@
    Kept in ONE place: the graph's own train/eval switch (`install_train_eval`, `set_mode`) puts
    each BN's own literals back after torchao's rewrite, and `bn_folds_with_own_eps` does it for
    the fold in convert. Tests that fail without it:
-   tests/quant/test_qat_graph.py::test_qat_graph_keeps_the_models_batchnorm_eps and
+   tests/quant/test_qat.py::test_qat_graph_keeps_the_models_batchnorm_eps and
    ::test_converted_qat_graph_computes_what_qat_trained.
    Delete when torchao takes eps/momentum from the BN node it replaces (check that TODO).
 """

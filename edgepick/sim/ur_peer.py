@@ -22,6 +22,9 @@ import sys
 import threading
 import time
 
+from edgepick.sim.rtde_wire import FMT, recv_exact, rtde_type, send_package
+from edgepick.sim.ur3_kinematics import forward_kinematics, reachable
+
 VERSION = (3, 15, 7, 106331)  # a CB3 controller (UR3): 125 Hz RTDE, no remote-control check
 FREQUENCY_HZ = 125.0
 RUNTIME_STOPPED, RUNTIME_PLAYING = 1, 2
@@ -30,78 +33,6 @@ PROTECTIVE_BIT, EMERGENCY_BIT = 1 << 2, 1 << 7
 PROGRAM_RUNNING_BIT = 1 << 1
 CMD_NONE, CMD_MOVEJ, CMD_MOVEL, CMD_STOPL, CMD_POSE_OK, CMD_STOP_SCRIPT = 0, 1, 3, 33, 36, 255
 READY, DONE = 1, 2
-# UR3 DH parameters (Universal Robots' published values)
-DH_D = (0.1519, 0.0, 0.0, 0.11235, 0.08535, 0.0819)
-DH_A = (0.0, -0.24365, -0.21325, 0.0, 0.0, 0.0)
-DH_ALPHA = (math.pi / 2, 0.0, 0.0, math.pi / 2, -math.pi / 2, 0.0)
-REACH_M = 0.5
-
-FMT = {"BOOL": "?", "UINT8": "B", "UINT32": "I", "UINT64": "Q", "INT32": "i", "DOUBLE": "d",
-       "VECTOR3D": "3d", "VECTOR6D": "6d", "VECTOR6INT32": "6i", "VECTOR6UINT32": "6I"}
-FIXED_TYPES = {
-    "timestamp": "DOUBLE", "robot_mode": "INT32", "safety_mode": "INT32", "safety_status": "INT32",
-    "runtime_state": "UINT32", "robot_status_bits": "UINT32", "safety_status_bits": "UINT32",
-    "actual_digital_input_bits": "UINT64", "actual_digital_output_bits": "UINT64", "joint_mode": "VECTOR6INT32",
-    "actual_tool_accelerometer": "VECTOR3D", "elbow_position": "VECTOR3D", "elbow_velocity": "VECTOR3D",
-    "payload_cog": "VECTOR3D", "analog_io_types": "UINT32", "tool_mode": "UINT32", "tool_analog_input_types": "UINT32",
-    "tool_output_voltage": "INT32", "output_bit_registers0_to_31": "UINT32", "output_bit_registers32_to_63": "UINT32",
-    "input_bit_registers0_to_31": "UINT32", "input_bit_registers32_to_63": "UINT32", "speed_slider_mask": "UINT32",
-    "script_control_line": "UINT32", "euromap67_input_bits": "UINT32", "euromap67_output_bits": "UINT32",
-    "standard_digital_output_mask": "UINT8", "standard_digital_output": "UINT8",
-    "configurable_digital_output_mask": "UINT8", "configurable_digital_output": "UINT8",
-    "tool_digital_output_mask": "UINT8", "tool_digital_output": "UINT8", "standard_analog_output_mask": "UINT8",
-    "standard_analog_output_type": "UINT8", "tool_output_mode": "UINT8", "tool_digital_output0_mode": "UINT8",
-    "tool_digital_output1_mode": "UINT8", "time_scale_source": "INT32",
-}
-VECTOR6D = ("target_q", "target_qd", "target_qdd", "target_current", "target_moment", "actual_q", "actual_qd",
-            "actual_current", "joint_control_output", "actual_TCP_pose", "actual_TCP_speed", "actual_TCP_force",
-            "target_TCP_pose", "target_TCP_speed", "joint_temperatures", "actual_joint_voltage", "ft_raw_wrench",
-            "external_force_torque", "payload_inertia", "actual_current_window", "target_current_window")
-
-
-def rtde_type(name: str) -> str:
-    if name in FIXED_TYPES:
-        return FIXED_TYPES[name]
-    if name in VECTOR6D:
-        return "VECTOR6D"
-    if "_int_register_" in name:
-        return "INT32"
-    if "_bit_register_" in name:
-        return "BOOL"
-    return "DOUBLE"  # every other scalar RTDE field is a double
-
-
-def forward_kinematics(q: list[float]) -> list[float]:
-    """UR3 TCP pose [x, y, z, rx, ry, rz] of joint angles (standard DH)."""
-    T = [[1.0 if i == j else 0.0 for j in range(4)] for i in range(4)]
-    for th, d, a, al in zip(q, DH_D, DH_A, DH_ALPHA):
-        ct, st, ca, sa = math.cos(th), math.sin(th), math.cos(al), math.sin(al)
-        A = [[ct, -st * ca, st * sa, a * ct], [st, ct * ca, -ct * sa, a * st], [0, sa, ca, d], [0, 0, 0, 1]]
-        T = [[sum(T[i][k] * A[k][j] for k in range(4)) for j in range(4)] for i in range(4)]
-    return [T[0][3], T[1][3], T[2][3], *rotvec(T)]
-
-
-def rotvec(T) -> list[float]:
-    c = max(-1.0, min(1.0, (T[0][0] + T[1][1] + T[2][2] - 1) / 2))
-    angle = math.acos(c)
-    if angle < 1e-9:
-        return [0.0, 0.0, 0.0]
-    if math.pi - angle < 1e-6:  # half turn: axis from the diagonal
-        axis = [math.sqrt(max(0.0, (T[i][i] + 1) / 2)) for i in range(3)]
-        if T[0][1] < 0:
-            axis[1] = -axis[1]
-        if T[0][2] < 0:
-            axis[2] = -axis[2]
-        return [angle * a for a in axis]
-    s = 2 * math.sin(angle)
-    return [angle * (T[2][1] - T[1][2]) / s, angle * (T[0][2] - T[2][0]) / s, angle * (T[1][0] - T[0][1]) / s]
-
-
-def reachable(pose: list[float]) -> bool:
-    x, y, z = pose[:3]
-    return math.sqrt(x * x + y * y + (z - DH_D[0]) ** 2) <= REACH_M
-
-
 START_JOINTS = [math.pi, -math.pi / 2, math.pi / 2, -math.pi / 2, -math.pi / 2, 0.0]
 
 
@@ -260,22 +191,6 @@ class Controller:
         self.digital_out = bits
 
 
-# ----------------------------------------------------------------------------------- sockets
-def _recv_exact(conn: socket.socket, n: int) -> bytes:
-    buf = b""
-    while len(buf) < n:
-        chunk = conn.recv(n - len(buf))
-        if not chunk:
-            raise ConnectionError("closed")
-        buf += chunk
-    return buf
-
-
-def _send(conn: socket.socket, kind: bytes, payload: bytes, lock: threading.Lock) -> None:
-    with lock:
-        conn.sendall(struct.pack(">HB", 3 + len(payload), kind[0]) + payload)
-
-
 def serve_rtde(ctl: Controller, conn: socket.socket) -> None:
     """One RTDE client: recipes, start, a 125 Hz output stream, input packages."""
     lock = threading.Lock()
@@ -293,7 +208,7 @@ def serve_rtde(ctl: Controller, conn: socket.socket) -> None:
                     v = ctl.value(name)
                     parts.append(struct.pack(">" + FMT[kind], *(v if isinstance(v, (list, tuple)) else [v])))
             try:
-                _send(conn, b"U", bytes([1]) + b"".join(parts), lock)
+                send_package(conn, b"U", bytes([1]) + b"".join(parts), lock)
             except OSError:
                 return
             nxt += period
@@ -301,30 +216,30 @@ def serve_rtde(ctl: Controller, conn: socket.socket) -> None:
 
     try:
         while not ctl.dropped.is_set():
-            size, kind = struct.unpack(">HB", _recv_exact(conn, 3))
-            body = _recv_exact(conn, size - 3)
+            size, kind = struct.unpack(">HB", recv_exact(conn, 3))
+            body = recv_exact(conn, size - 3)
             k = chr(kind)
             if k == "V":
-                _send(conn, b"V", b"\x01", lock)
+                send_package(conn, b"V", b"\x01", lock)
             elif k == "v":
-                _send(conn, b"v", struct.pack(">IIII", *VERSION), lock)
+                send_package(conn, b"v", struct.pack(">IIII", *VERSION), lock)
             elif k == "O":
                 names = [n for n in body[8:].decode().split(",") if n]
                 output = [(n, rtde_type(n)) for n in names]
                 ctl.record(event="output_recipe", names=names)
-                _send(conn, b"O", bytes([1]) + ",".join(t for _, t in output).encode(), lock)
+                send_package(conn, b"O", bytes([1]) + ",".join(t for _, t in output).encode(), lock)
             elif k == "I":
                 names = [n for n in body.decode().split(",") if n]
                 rid = len(inputs) + 1
                 inputs[rid] = [(n, rtde_type(n)) for n in names]
-                _send(conn, b"I", bytes([rid]) + ",".join(t for _, t in inputs[rid]).encode(), lock)
+                send_package(conn, b"I", bytes([rid]) + ",".join(t for _, t in inputs[rid]).encode(), lock)
             elif k == "S":
-                _send(conn, b"S", b"\x01", lock)
+                send_package(conn, b"S", b"\x01", lock)
                 if output and not streaming.is_set():
                     streaming.set()
                     threading.Thread(target=stream, daemon=True).start()
             elif k == "P":
-                _send(conn, b"P", b"\x01", lock)
+                send_package(conn, b"P", b"\x01", lock)
             elif k == "U":
                 recipe = inputs.get(body[0], [])
                 values, offset = {}, 1

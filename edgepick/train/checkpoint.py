@@ -40,10 +40,15 @@ def read_checkpoint(path: str | Path) -> dict:
     return ckpt
 
 
+def is_qat_checkpoint(ckpt: dict) -> bool:
+    """A QaT run's checkpoint holds a fake-quant graph's state, not a float model's."""
+    return "qat" in ckpt or bool(ckpt.get("train_config", {}).get("qat"))  # the latter: older QaT runs
+
+
 def load_model(path: str | Path) -> tuple[DeepLabV3, dict]:
     """Rebuild the model of a checkpoint (or RUN folder) in eval mode; returns (model, checkpoint)."""
     ckpt = read_checkpoint(path)
-    if ckpt.get("train_config", {}).get("qat"):
+    if is_qat_checkpoint(ckpt):
         raise CheckpointError(f"{ckpt['path']} is a QaT checkpoint; use the int8 ONNX its quantize command wrote")
     cfg = ModelConfig(**ckpt["model_config"])
     model = build_model(cfg)

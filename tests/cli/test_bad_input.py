@@ -161,5 +161,58 @@ def test_a_mistake_is_one_line_exit_2_and_nothing_written(ws, capfd, monkeypatch
     assert (_tree(ws["W"]), _tree(ws["D"])) == before, "something was written"
 
 
+@pytest.fixture(scope="module")
+def runws(ws, trained_run, tmp_path_factory):
+    """ws plus a trained float RUN (kept epochs 2 and 24 of 25), a data set with other class names,
+    one with a mask missing (half-written) and one with an image that is not a PNG."""
+    w = tmp_path_factory.mktemp("bad-input-run")
+    other, broken, unreadable = w / "other", w / "broken", w / "unreadable"
+    for copy in (other, broken, unreadable):
+        shutil.copytree(ws["D"], copy)
+    meta = json.loads((other / "meta.json").read_text())
+    meta["classes"] = meta["classes"][:-1] + ["crate"]
+    (other / "meta.json").write_text(json.dumps(meta))
+    (broken / "train" / "mask" / "000003.png").unlink()
+    (unreadable / "train" / "rgb" / "000005.png").write_bytes(b"not a png")
+    return {**ws, "RUN": trained_run, "OTHER": other, "BROKEN": broken, "UNREADABLE": unreadable, "V": w}
+
+
+H = ["quantize", "hybrid", "{RUN}", "--data", "{D}", "--out", "{V}/m.onnx"]
+S = ["quantize", "static", "{RUN}", "--out", "{V}/m.onnx"]
+RUN_CASES = [
+    ([*H, "--qat-fraction", "0.04", "--freeze-at", "1.5"], "--freeze-at"),
+    ([*H, "--qat-fraction", "0.04", "--weight-averaging", "0"], "--weight-averaging"),
+    ([*H, "--qat-fraction", "0.5"], "--keep-epochs 12"),
+    ([*H, "--qat-fraction", "0.04", "--calib-images", "0", "--hold-ranges"], "--hold-ranges needs it"),
+    ([*H, "--qat-fraction", "0.04", "--calib-images", "999"], "calibration images"),
+    ([*S, "--data", "{D}", "--calib-images", "500"], "calibration images"),
+    ([*S, "--data", "{OTHER}"], "classes"),
+    ([*S, "--data", "{D}", "--keep-float", "nope.3"], "--keep-float names no module"),
+    (["eval", "{RUN}", "{OTHER}"], "classes"),
+    (["train", "{BROKEN}", "--out", "{V}/r", "--epochs", "1"], "half-written"),
+    (["train", "{UNREADABLE}", "--out", "{V}/r", "--epochs", "1", "--size", "96x64"], "cannot read image"),
+    (["train", "{D}", "--out", "{V}/r", "--resume"], "nothing to resume"),
+    (["train", "{D}", "--out", "{V}/r", "--epoch-images", "-1", "--size", "96x64"], "--epoch-images"),
+    (["train", "{D}", "--out", "{V}/r", "--arch", "vgg"], "Invalid value for '--arch'"),
+    (["train", "{D}", "--out", "{V}/r", "--size", "480x640"], "did you mean 640x480?"),
+]
+
+
+@pytest.mark.parametrize("args, message", RUN_CASES, ids=[" ".join(a)[:60] for a, _ in RUN_CASES])
+def test_a_mistake_with_a_trained_run_is_one_line_and_nothing_written(runws, capfd, monkeypatch, args, message):
+    """The same rule for the commands that start from a float run: checked before any training or
+    calibration, or (an unreadable image) failing in the first epoch with no RUN folder left."""
+    monkeypatch.chdir(runws["V"])
+    roots = [runws[k] for k in ("V", "D", "RUN", "OTHER", "BROKEN")]
+    before = [_tree(r) for r in roots]
+    code = run([_fill(a, runws) for a in args])
+    out, err = capfd.readouterr()
+    lines = [line for line in err.splitlines() if line.strip() and not line.startswith("epoch ")]
+    assert code == 2, err
+    assert len(lines) == 1 and lines[0].startswith("edgepick: error: "), err
+    assert message in lines[0], lines[0]
+    assert [_tree(r) for r in roots] == before, "something was written"
+
+
 def test_there_are_at_least_40_cases():
     assert len(CASES) >= 40

@@ -1,0 +1,88 @@
+"""The pt2e verbs on a DeepLabV3, as torchao's quantize_pt2e has them: `prepare` (observers for
+static PTQ, or fake-quant for QaT) and `convert` (a Q/DQ graph with BatchNorm folded). Both assert
+that quantization really happened, where pt2e would hand back a float model without a word."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import torch
+
+from edgepick.errors import ConfigError, EdgepickError
+from edgepick.export.onnx_export import LogitsNet
+from edgepick.models.deeplabv3 import trim_dilated_convs
+from edgepick.quant.quantizer import EdgeQuantizer, QuantConfig, count_quant_nodes, module_path, under
+from edgepick.quant.rewrites import drop_fake_quants_after_dropout, gate_hardswish, snap_conv_biases
+from edgepick.quant.torchao_compat import bn_folds_with_own_eps, install_train_eval, set_mode
+
+PREFIX = "model."  # LogitsNet's attribute in front of every module name
+
+
+class QuantizationError(EdgepickError):
+    """A pass that would silently produce an unquantized model."""
+
+
+def as_input(rgb: np.ndarray) -> torch.Tensor:
+    """An HWC uint8 RGB image as the model's [1, 3, H, W] float input."""
+    return torch.from_numpy(rgb).permute(2, 0, 1)[None].float()
+
+
+def check_keep_float(model: torch.nn.Module, names: list[str]) -> None:
+    known = {n for n, _ in model.named_modules()}
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise ConfigError(f"--keep-float names no module of the model: {', '.join(unknown)} "
+                          f"(see 'edgepick quantize inspect' for layer names)")
+
+
+def prepare(model: torch.nn.Module, config: QuantConfig, size: tuple[int, int], qat: bool) -> torch.fx.GraphModule:
+    """torch.export + pt2e prepare of MODEL (changed in place: trimmed taps, gated hardswish);
+    QAT gives a fake-quant graph with a batch dimension to train. Raises if no observer or
+    fake-quant was inserted (the silent-float trap)."""
+    from torchao.quantization.pt2e.quantize_pt2e import prepare_pt2e, prepare_qat_pt2e
+
+    check_keep_float(model, config.keep_float)
+    trim_dilated_convs(model, size)  # exact; int8 kernels do not skip taps that only see padding
+    if config.hardswish_gate:
+        gate_hardswish(model)
+    net = LogitsNet(model).train(qat)
+    example = (torch.rand(2 if qat else 1, 3, *size) * 255,)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        batch = torch.export.Dim("batch", min=1, max=4096)  # QaT trains on batches
+        graph = torch.export.export(net, example, dynamic_shapes=({0: batch},) if qat else None).module()
+        quantizer = EdgeQuantizer(config, qat=qat, prefix=PREFIX)
+        prepared = prepare_qat_pt2e(graph, quantizer) if qat else prepare_pt2e(graph, quantizer)
+    # drop fake-quants nobody reads (left by the QaT conv-BN rewrite); train()/eval() would drop them
+    # later anyway, and a checkpoint must load into a freshly prepared graph
+    prepared.graph.eliminate_dead_code()
+    if qat:
+        drop_fake_quants_after_dropout(prepared)
+    prepared.delete_all_unused_submodules()
+    prepared.recompile()
+    if count_quant_nodes(prepared) == 0:
+        raise QuantizationError("pt2e inserted no observers: the model would stay float")
+    install_train_eval(prepared, model, PREFIX)
+    return prepared
+
+
+def convert(prepared: torch.fx.GraphModule, snap_biases: bool = True) -> torch.fx.GraphModule:
+    """pt2e convert (Q/DQ graph, BN folded with each BN's own eps), with conv biases on onnxruntime's
+    int32 grid (snap_biases=False only to measure what that does: benchmarks/agreement.py)."""
+    from torchao.quantization.pt2e.quantize_pt2e import convert_pt2e
+
+    set_mode(prepared, training=False)
+    with warnings.catch_warnings(), bn_folds_with_own_eps(prepared):
+        warnings.simplefilter("ignore")
+        converted = convert_pt2e(prepared)
+    if snap_biases:
+        snap_conv_biases(converted)
+    return converted
+
+
+def expected_int8_convs(prepared: torch.fx.GraphModule, config: QuantConfig) -> int:
+    """Convs the quantizer was asked to quantize (all but those under --keep-float)."""
+    paths = [module_path(n).removeprefix(PREFIX) for n in prepared.graph.nodes
+             if n.op == "call_function" and n.target == torch.ops.aten.conv2d.default]
+    return sum(not under(p, config.keep_float) for p in paths)

@@ -1,0 +1,169 @@
+"""QaT: a DeepLabV3 prepared with fake-quant and trained by edgepick.train's own loop (torchao's
+design: prepare_qat_pt2e returns a graph and the user's loop trains it). This module owns the
+graph's life around that loop (`QatHooks`): a calibrated start, the freeze of observers and
+BatchNorm statistics at a share of the steps, an eval-mode copy for validation, the checkpoint
+record, and loading a checkpoint back into a graph (`load_qat`).
+
+A QaT graph's activation fake-quants take their first range from the first training batch's
+min/max, then follow it with a moving average (1% a step), where static PTQ uses percentile
+ranges; a hybrid run of a few epochs at the tail of the learning-rate schedule has little room
+to train such a start back. `calibrate_activations` gives the fake-quants static PTQ's ranges
+instead (hybrid-QaT's default; docs/quantization.md#hybrid-qat). torchao's BatchNorm rewrites
+are kept in check in torchao_compat.py.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import replace
+
+import numpy as np
+import torch
+
+from edgepick.models.deeplabv3 import ModelConfig, build_model
+from edgepick.quant.graph import PREFIX, as_input, prepare
+from edgepick.quant.quantizer import PercentileObserver, QuantConfig
+from edgepick.quant.torchao_compat import set_mode
+from edgepick.train.loop import Hooks, TrainConfig, fit, new_model
+
+
+def to_eval(prepared: torch.fx.GraphModule) -> torch.fx.GraphModule:
+    """BN on running statistics, dropout off (torchao's eval rewrite), BN literals kept; also on a
+    deep copy, which loses the graph's own train/eval methods."""
+    return set_mode(prepared, training=False)
+
+
+def load_qat_state(prepared: torch.fx.GraphModule, state: dict) -> None:
+    """Load a QaT run's state dict into a freshly prepared graph (strict: every entry must match)."""
+    prepared.load_state_dict(state)
+
+
+def activation_fake_quants(prepared: torch.nn.Module) -> dict[str, torch.nn.Module]:
+    """The per-tensor (activation) fake-quant modules of a QaT graph, by name."""
+    from torchao.quantization.pt2e import FakeQuantizeBase
+
+    return {name: m for name, m in prepared.named_modules()
+            if isinstance(m, FakeQuantizeBase) and not m.is_per_channel}
+
+
+def calibrate_activations(prepared: torch.fx.GraphModule, images: list[np.ndarray], percentile: float = 99.99,
+                          hold: bool = False) -> int:
+    """Set every activation fake-quant of the QaT graph PREPARED (in training mode) to the
+    PERCENTILE range of its float input over IMAGES (HWC uint8 RGB), as static PTQ would; with
+    HOLD, its observer then stays off, so QaT trains against those ranges. Returns how many were set."""
+    from torchao.quantization.pt2e import disable_fake_quant, disable_observer, enable_fake_quant, enable_observer
+
+    targets = activation_fake_quants(prepared)
+    observers = {name: PercentileObserver(percentile=percentile, eps=2 ** -12, dtype=torch.quint8,
+                                          quant_min=fq.activation_post_process.quant_min,
+                                          quant_max=fq.activation_post_process.quant_max) for name, fq in targets.items()}
+    hooks = [fq.register_forward_pre_hook(lambda mod, args, o=observers[name]: o(args[0].detach().float().cpu()))
+             for name, fq in targets.items()]
+    device = next(prepared.parameters()).device
+    prepared.apply(disable_fake_quant)
+    prepared.apply(disable_observer)
+    to_eval(prepared)  # BN on running statistics, as at deployment
+    try:
+        with torch.no_grad():
+            for rgb in images:
+                prepared(as_input(rgb).to(device))
+    finally:
+        for h in hooks:
+            h.remove()
+    for name, fq in targets.items():
+        lo, hi = observers[name]._non_linear_param_search()
+        obs = fq.activation_post_process
+        obs.min_val.copy_(torch.minimum(torch.as_tensor(lo, dtype=torch.float32), torch.zeros(())))
+        obs.max_val.copy_(torch.maximum(torch.as_tensor(hi, dtype=torch.float32), torch.zeros(())))
+        scale, zero_point = obs.calculate_qparams()
+        fq.scale.copy_(scale.reshape(fq.scale.shape))
+        fq.zero_point.copy_(zero_point.reshape(fq.zero_point.shape))
+    set_mode(prepared, training=True)
+    prepared.apply(enable_fake_quant)
+    prepared.apply(enable_observer)
+    if hold:
+        for fq in targets.values():
+            fq.disable_observer()
+    return len(targets)
+
+
+def eval_copy(prepared: torch.fx.GraphModule) -> torch.fx.GraphModule:
+    """An eval-mode copy of a QaT graph: switching the graph itself between train and eval rewrites
+    it (about 1 s each way), so each epoch copies the weights into this copy instead."""
+    evaluator = copy.deepcopy(prepared)
+    to_eval(evaluator)  # not .eval(): the copied train/eval methods act on the original
+    return evaluator
+
+
+def freeze(prepared: torch.fx.GraphModule) -> None:
+    """End of QaT's range learning: observers stop and BN uses its running statistics (standard practice)."""
+    from torchao.quantization.pt2e import disable_observer
+
+    prepared.apply(disable_observer)
+    to_eval(prepared)
+
+
+class QatHooks(Hooks):
+    """A QaT graph in the training loop: it trains in fp32 (fake-quant ops reject bf16), starts from
+    static PTQ's ranges when given CALIB_IMAGES (HOLD_RANGES: and keeps them), freezes after
+    FREEZE_AT of the run's steps, validates on an eval-mode copy until then, and records its
+    QuantConfig in each checkpoint."""
+
+    bf16 = False
+    param_prefix = PREFIX
+
+    def __init__(self, config: QuantConfig, freeze_at: float = 0.7, calib_images: list[np.ndarray] | None = None,
+                 hold_ranges: bool = False):
+        self.config, self.freeze_at = config, freeze_at
+        self.calib_images, self.hold_ranges = calib_images, hold_ranges
+        self.frozen, self.freeze_step, self.evaluator = False, 0, None
+
+    def begin(self, model: torch.nn.Module, device: torch.device, first_step: int, last_step: int) -> None:
+        if self.calib_images:
+            calibrate_activations(model, self.calib_images, self.config.percentile, hold=self.hold_ranges)
+        self.freeze_step = round(first_step + (last_step - first_step) * self.freeze_at)
+        self.evaluator = eval_copy(model)
+        model.train()  # the graph's own switch: BatchNorm literals kept (torchao_compat.py)
+
+    def epoch_start(self, model: torch.nn.Module) -> None:
+        """The graph stays in its mode: training until frozen, eval after."""
+
+    def after_step(self, model: torch.nn.Module, step: int) -> None:
+        if not self.frozen and step >= self.freeze_step:
+            freeze(model)
+            self.frozen = True
+
+    def eval_model(self, model: torch.nn.Module) -> torch.nn.Module:
+        if self.frozen:  # in eval mode for good
+            return model
+        self.evaluator.load_state_dict(model.state_dict())
+        return self.evaluator
+
+    def checkpoint(self) -> dict:
+        return {"qat": {"quant": self.config.to_dict(), "freeze_at": self.freeze_at,
+                        "calib_images": len(self.calib_images or []), "hold_ranges": self.hold_ranges}}
+
+
+def train_qat(cfg: TrainConfig, config: QuantConfig, start: dict | None = None, carry_optimizer: bool = True,
+              freeze_at: float = 0.7, calib_images: list[np.ndarray] | None = None, hold_ranges: bool = False,
+              progress: bool = True) -> dict:
+    """A QaT run into cfg.out: the float model (fresh, or START's weights and schedule: hybrid-QaT)
+    prepared with fake-quant, then trained by edgepick.train's loop with QatHooks."""
+    cfg = replace(cfg, aux_loss=False)  # the deployed graph has no auxiliary head
+    graph = prepare(new_model(cfg, start), config, cfg.size, qat=True)
+    hooks = QatHooks(config, freeze_at, calib_images, hold_ranges)
+    return fit(cfg, graph, hooks, start=start, carry_optimizer=carry_optimizer, progress=progress)
+
+
+def qat_config(checkpoint: dict) -> QuantConfig:
+    """The QuantConfig a QaT run's checkpoint was trained with."""
+    record = checkpoint.get("qat") or {"quant": checkpoint["train_config"]["quant"]}  # older QaT runs
+    return QuantConfig(**record["quant"])
+
+
+def load_qat(checkpoint: dict) -> torch.fx.GraphModule:
+    """Rebuild a QaT run's fake-quant graph from its checkpoint."""
+    prepared = prepare(build_model(ModelConfig(**checkpoint["model_config"])), qat_config(checkpoint),
+                       tuple(checkpoint["input_size"]), qat=True)
+    load_qat_state(prepared, checkpoint["model"])
+    return prepared

@@ -1,0 +1,16 @@
+"""The pt2e verbs: a prepare that inserts nothing is refused (the silent-float trap)."""
+
+from __future__ import annotations
+
+import pytest
+
+
+def test_a_quantizer_that_marks_nothing_is_refused(trained_run, monkeypatch):
+    from edgepick.quant import graph
+    from edgepick.quant.quantizer import EdgeQuantizer, QuantConfig
+    from edgepick.train.checkpoint import load_model
+
+    monkeypatch.setattr(EdgeQuantizer, "annotate", lambda self, model: model)
+    model, _ = load_model(trained_run)
+    with pytest.raises(graph.QuantizationError):
+        graph.prepare(model, QuantConfig(), (96, 128), qat=False)
