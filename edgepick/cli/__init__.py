@@ -98,6 +98,9 @@ def run(args: list[str] | None = None) -> int:
         return EXIT_INTERRUPTED
     except click.exceptions.Exit as exc:
         return exc.exit_code
+    except click.exceptions.NoArgsIsHelpError as exc:  # `edgepick quantize` alone: its help, as --help gives it
+        click.echo(exc.ctx.get_help())
+        return 0
     except click.ClickException as exc:
         return _fail(_click_message(exc), exc.exit_code)
     except KeyboardInterrupt:

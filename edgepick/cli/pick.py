@@ -149,6 +149,11 @@ def _check_motion(cycles: int, speed: float, acc: float, robot_spec: str) -> tup
         raise ConfigError(f"--speed {speed}: must be in (0, {envelope.max_speed}] m/s")
     if not (math.isfinite(acc) and 0 < acc <= envelope.max_acc):
         raise ConfigError(f"--acc {acc}: must be in (0, {envelope.max_acc}] m/s^2")
+    return check_robot(robot_spec)
+
+
+def check_robot(robot_spec: str) -> tuple[str, str]:
+    """'sim' or 'ur:HOST' -> (kind, host)."""
     kind, _, host = robot_spec.partition(":")
     if kind not in ("sim", "ur") or (kind == "ur" and not host):
         raise ConfigError(f"unknown robot {robot_spec!r}: use sim or ur:HOST")

@@ -153,3 +153,57 @@ def diagnose(cal: Calibration, camera: np.ndarray, robot: np.ndarray, max_rmse_m
 def residuals(cal: Calibration, camera: np.ndarray, robot: np.ndarray) -> np.ndarray:
     """Per-pair Euclidean error (m) of a calibration."""
     return np.linalg.norm(cal.apply(camera) - robot, axis=1)
+
+
+def write_pairs(path: str | Path, camera: np.ndarray, robot: np.ndarray) -> None:
+    """pairs.csv (HEADER, metres), written atomically."""
+    rows = [",".join(HEADER)] + [",".join(f"{v:.6f}" for v in (*c, *r)) for c, r in zip(camera, robot)]
+    atomic_write(path, "\n".join(rows) + "\n")
+
+
+def leave_one_out(camera: np.ndarray, robot: np.ndarray) -> np.ndarray:
+    """Each pair's error (m) under the fit of all the OTHER pairs: what the calibration would get
+    wrong at that point had it not been measured (a mis-detected pair stands out here, while the
+    full fit spreads its error over every residual)."""
+    camera, robot = np.asarray(camera, np.float64), np.asarray(robot, np.float64)
+    keep = np.ones(len(camera), bool)
+    errors = np.empty(len(camera))
+    for i in range(len(camera)):
+        keep[i] = False
+        cal = kabsch(camera[keep], robot[keep])
+        errors[i] = float(np.linalg.norm(cal.apply(camera[i]) - robot[i]))
+        keep[i] = True
+    return errors
+
+
+def outliers(loo: np.ndarray, factor: float = 4.0, floor_m: float = 0.01) -> list[int]:
+    """Pairs whose leave-one-out error is more than FACTOR times the median and above FLOOR_M (the
+    1 cm the thesis budgets for calibration: below it a pair is noise, not a mis-detection)."""
+    bound = max(factor * float(np.median(loo)), floor_m)
+    return [i for i, e in enumerate(loo) if e > bound]
+
+
+def subset_errors(camera: np.ndarray, robot: np.ndarray, sizes: list[int], trials: int = 200,
+                  seed: int = 0) -> dict[int, dict]:
+    """Thesis Table 5.2 from the user's own pairs: for each size K, fit TRIALS random K-pair
+    subsets and measure each fit on the pairs it did not see; mean and p95 of that error (mm)."""
+    camera, robot = np.asarray(camera, np.float64), np.asarray(robot, np.float64)
+    rng = np.random.default_rng(seed)
+    table = {}
+    for k in sizes:
+        if not MIN_PAIRS <= k < len(camera):
+            raise CalibrationError(f"--subsets {k}: a subset needs {MIN_PAIRS} or more pairs and fewer than the "
+                                   f"{len(camera)} given (the rest measure it)")
+        errs = []
+        for _ in range(trials):
+            pick = np.zeros(len(camera), bool)
+            pick[rng.choice(len(camera), k, replace=False)] = True
+            try:
+                cal = kabsch(camera[pick], robot[pick])
+            except CalibrationError:  # a collinear draw: no fit, as a user would redraw
+                continue
+            errs.append(residuals(cal, camera[~pick], robot[~pick]))
+        e = np.concatenate(errs) * 1000 if errs else np.array([np.nan])
+        table[k] = {"fits": len(errs), "mean_mm": round(float(e.mean()), 2),
+                    "p95_mm": round(float(np.percentile(e, 95)), 2)}
+    return table

@@ -15,3 +15,12 @@ def test_train_help_explains_options():
 def test_unknown_command_exits_2():
     proc = run_cli("frobnicate")
     assert proc.returncode == 2 and "No such command" in proc.stderr
+
+
+def test_a_group_alone_prints_its_help(capfd):
+    from edgepick.cli import run
+
+    for group in ("quantize", "calibrate", "data"):
+        assert run([group]) == 0
+        out, err = capfd.readouterr()
+        assert out.startswith(f"Usage: edgepick {group}") and "Commands:" in out and err == ""

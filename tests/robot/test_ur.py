@@ -180,3 +180,16 @@ def test_nothing_listening_is_exit_3_with_no_log_left(tmp_path):
     assert json.loads(out)["cycles"] == 0 and "cannot connect" in json.loads(out)["halted"]
     _only_edgepick_lines(err)
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "picks.jsonl").exists()
+
+
+def test_calibrate_collect_through_ur_rtde_on_the_controller(peer, tmp_path):
+    """The same collection against the loopback controller: real ur_rtde client, the synthetic
+    camera seeing the marker where the controller reports the TCP."""
+    from tests.conftest import run_cli
+
+    host, log = peer()
+    proc = run_cli("calibrate", "collect", "--robot", f"ur:{host}", "--camera", "synth-cell", "--poses", "6",
+                   "--speed", "0.25", "--settle", "0", "--out", str(tmp_path / "pairs.csv"), "--execute")
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["pairs"] == 6 and (tmp_path / "pairs.csv").is_file()
+    assert commands(log()).count(3) == 7  # six positions and the way back, all moveL

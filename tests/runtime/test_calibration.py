@@ -104,3 +104,27 @@ def test_read_pairs_round_trip(tmp_path):
     _write(tmp_path / "p.csv", np.hstack([cam, robot]))
     c, r = read_pairs(tmp_path / "p.csv")
     assert np.allclose(c, cam) and np.allclose(r, robot)
+
+
+def test_leave_one_out_flags_a_mis_detected_pair_and_drop_outliers_fits_without_it(tmp_path, capfd):
+    from edgepick.cli import run
+    from edgepick.runtime.calibration import leave_one_out, outliers, subset_errors, write_pairs
+
+    rng = np.random.default_rng(3)
+    cam = rng.uniform([-0.2, -0.15, 0.45], [0.2, 0.15, 0.65], (16, 3))
+    R, t = np.array([[0, -1, 0], [-1, 0, 0], [0, 0, -1]], float), np.array([0.28, 0.0, 0.7])
+    rob = cam @ R.T + t + rng.normal(0, 0.001, cam.shape)
+    rob[5] += [0.0, 0.03, 0.0]  # a marker read 3 cm off
+    loo = leave_one_out(cam, rob)
+    assert outliers(loo) == [5] and loo[5] > 0.02
+    table = subset_errors(cam, rob, [4, 12], trials=50)
+    assert set(table) == {4, 12} and table[4]["fits"] == 50
+    write_pairs(tmp_path / "p.csv", cam, rob)
+    assert run(["calibrate", str(tmp_path / "p.csv"), "--out", str(tmp_path / "all.json")]) == 0
+    kept = json.loads(capfd.readouterr().out)
+    assert run(["calibrate", str(tmp_path / "p.csv"), "--out", str(tmp_path / "drop.json"), "--drop-outliers"]) == 0
+    dropped = json.loads(capfd.readouterr().out)
+    assert kept["outliers"] == dropped["outliers"] == [6]  # 1-based, as the pairs are printed
+    assert dropped["n_pairs"] == 15 and dropped["rmse_m"] < 0.002 < kept["rmse_m"]
+    assert run(["calibrate", str(tmp_path / "p.csv"), "--out", str(tmp_path / "x.json"), "--subsets", "16"]) == 2
+    assert "fewer than the 16 given" in capfd.readouterr().err

@@ -1,0 +1,128 @@
+"""Collecting camera-to-robot pairs with the arm (`edgepick calibrate collect`): a marker on the
+tool is moved to N positions on a grid inside the envelope, and at each one the camera's 3D point
+of the marker and the arm's TCP make a pair (thesis 5.1.3, done by hand there).
+
+The plan is checked whole before the first move, as `pick` checks its plan: every position and
+the straight path to it against the safety envelope. The tool keeps one orientation (pointing
+down, the marker facing the camera above); the robot point of a pair is the TCP plus the marker's
+offset in the tool frame.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import cv2
+import numpy as np
+
+from edgepick.errors import ConfigError
+from edgepick.frames import Camera
+from edgepick.robot.base import RobotBase
+from edgepick.robot.envelope import Envelope, SafetyError
+from edgepick.runtime.marker import MarkerSpec, detect_marker
+
+TOOL_DOWN = (math.pi, 0.0, 0.0)  # rotation vector of a tool pointing straight down
+
+
+@dataclass
+class CollectConfig:
+    poses: int = 12
+    region: tuple[float, float, float, float, float, float] = (0.18, 0.38, -0.16, 0.16, 0.08, 0.24)  # x0,x1,y0,y1,z0,z1
+    offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # marker centre from the TCP, tool frame
+    orientation: tuple[float, float, float] = TOOL_DOWN
+    speed: float = 0.1
+    acc: float = 0.5
+    settle_s: float = 0.5  # wait after each move before the frame is taken
+
+    def validate(self) -> "CollectConfig":
+        if self.poses < 4:
+            raise ConfigError(f"--poses {self.poses}: a fit needs at least 4 positions")
+        x0, x1, y0, y1, z0, z1 = self.region
+        if not (x0 < x1 and y0 < y1 and z0 < z1) or not all(math.isfinite(v) for v in self.region):
+            raise ConfigError("--region XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX (metres, robot frame) needs each min below its max")
+        if not all(math.isfinite(v) and abs(v) < 0.5 for v in self.offset_m):
+            raise ConfigError("--marker-offset X,Y,Z is the marker centre from the TCP in metres (tool frame)")
+        if not (math.isfinite(self.settle_s) and 0 <= self.settle_s <= 30):
+            raise ConfigError(f"--settle {self.settle_s}: seconds in [0, 30]")
+        return self
+
+
+def plan_positions(cfg: CollectConfig) -> list[list[float]]:
+    """cfg.poses TCP poses on a grid over cfg.region: two or three heights (a fit needs the points
+    off one line; heights keep them off one plane as well), each layer in serpentine order so
+    that each move is short."""
+    x0, x1, y0, y1, z0, z1 = cfg.region
+    layers = 2 if cfg.poses < 12 else 3
+    per_layer = math.ceil(cfg.poses / layers)
+    nx = max(2, round(math.sqrt(per_layer * (x1 - x0) / (y1 - y0))))
+    ny = max(2, math.ceil(per_layer / nx))
+    cells = [(i, j) for i in range(nx) for j in range(ny)]
+    poses = []
+    for k, z in enumerate(np.linspace(z1, z0, layers)):
+        # the layer's share spread over its grid; odd layers mirrored, so that layers do not stack
+        picked = [cells[c] for c in np.unique(np.round(np.linspace(0, len(cells) - 1, min(per_layer, len(cells))))
+                                              .astype(int))]
+        picked = [(i, ny - 1 - j) if k % 2 else (i, j) for i, j in picked]
+        picked.sort(key=lambda c: (c[0], c[1] if c[0] % 2 == 0 else -c[1]))  # serpentine
+        if k % 2:
+            picked.reverse()
+        for i, j in picked:
+            x, y = x0 + (x1 - x0) * i / (nx - 1), y0 + (y1 - y0) * j / (ny - 1)
+            poses.append([float(x), float(y), float(z), *cfg.orientation])
+    return poses[:cfg.poses]
+
+
+def check_plan(poses: list[list[float]], start: list[float], envelope: Envelope) -> None:
+    """Refuse the whole plan if any pose, or the straight path to it (from START, then pose to
+    pose, and back to START), leaves the envelope; nothing has moved then."""
+    for i, pose in enumerate(poses, start=1):
+        reason = envelope.pose_reason(pose) or envelope.path_reason(start if i == 1 else poses[i - 2], pose)
+        if reason:
+            raise SafetyError(f"calibration position {i} {[round(v, 3) for v in pose[:3]]} refused: {reason}")
+    reason = envelope.path_reason(poses[-1], start)
+    if reason:
+        raise SafetyError(f"the way back to the start pose is refused: {reason}")
+
+
+def marker_point(tcp_pose: list[float], offset_m) -> np.ndarray:
+    """Robot-frame position of the marker centre: the TCP plus the offset turned by the tool's rotation."""
+    rot = cv2.Rodrigues(np.asarray(tcp_pose[3:], np.float64))[0]
+    return np.asarray(tcp_pose[:3], np.float64) + rot @ np.asarray(offset_m, np.float64)
+
+
+@dataclass
+class Collected:
+    camera: np.ndarray  # [N, 3] marker centres, camera frame
+    robot: np.ndarray  # [N, 3] marker centres, robot frame
+    positions: list[int]  # plan position (1-based) of each pair
+    skipped: list[tuple[int, str]]  # plan position and why no pair came from it
+
+
+def collect_pairs(robot: RobotBase, camera: Camera, spec: MarkerSpec, poses: list[list[float]], cfg: CollectConfig,
+                  echo: Callable[[str], None] = lambda line: None) -> Collected:
+    """Move to each pose, wait cfg.settle_s, read a frame and the TCP, and pair the marker's camera
+    point with its robot point; positions without a usable sighting are skipped. Returns to the
+    start pose at the end."""
+    start = robot.tcp_pose()
+    cam_pts, rob_pts, used, skipped = [], [], [], []
+    for i, pose in enumerate(poses, start=1):
+        robot.move_l(pose, cfg.speed, cfg.acc)
+        if cfg.settle_s:
+            time.sleep(cfg.settle_s)
+        frame = camera.read()
+        tcp = robot.tcp_pose()
+        sighting, why = detect_marker(frame, spec)
+        if sighting is None:
+            skipped.append((i, why))
+            echo(f"position {i}/{len(poses)}: skipped, {why}")
+            continue
+        cam_pts.append(sighting.point_camera_m)
+        rob_pts.append(marker_point(tcp, cfg.offset_m))
+        used.append(i)
+        echo(f"position {i}/{len(poses)}: marker at {np.round(sighting.point_camera_m, 4).tolist()} m (camera), "
+             f"{sighting.depth_pixels} depth pixels")
+    robot.move_l(start, cfg.speed, cfg.acc)
+    return Collected(np.array(cam_pts).reshape(-1, 3), np.array(rob_pts).reshape(-1, 3), used, skipped)
