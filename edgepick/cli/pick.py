@@ -101,6 +101,7 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     else:
         raise ConfigError("--calib is needed to turn camera points into robot poses")
     pipeline = Pipeline(segmenter, cal)
+    truth_cal = source.calibration() if isinstance(source, SynthCamera) and source.mount is not None else None
     cfg = PickConfig(classes=tuple(classes), choose=choose, speed=speed, acc=acc)
     if kind == "sim":
         robot = SimRobot()
@@ -118,11 +119,12 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     try:
         with source:
             if robot is None:
-                results = run_cycles(source, pipeline, None, None, cfg, cycles, log, overlay_dir, echo)
+                results = run_cycles(source, pipeline, None, None, cfg, cycles, log, overlay_dir, echo, truth_cal)
             else:
                 try:
                     with robot:
-                        results = run_cycles(source, pipeline, robot, grip, cfg, cycles, log, overlay_dir, echo)
+                        results = run_cycles(source, pipeline, robot, grip, cfg, cycles, log, overlay_dir, echo,
+                                             truth_cal)
                 except RobotError as exc:
                     if getattr(exc, "exit_code", 2) != 3:
                         raise
@@ -167,4 +169,17 @@ def _summary(results: list[dict], log_path: str | None, halted: str | None) -> d
             "halted": halted,
             "within_1cm": sum(1 for r in results if r.get("within_1cm")),
             "grasp_error_mm_median": round(1000 * sorted(errors)[len(errors) // 2], 2) if errors else None,
-            "results": results}
+            **success_summary(results), "results": results}
+
+
+def success_summary(results: list[dict]) -> dict:
+    """Grasp success over the judged cycles (the synthetic cell): count, rate and failures by kind."""
+    judged = [r["verdict"] for r in results if "verdict" in r]
+    if not judged:
+        return {}
+    failures: dict[str, int] = {}
+    for v in judged:
+        if not v["success"]:
+            failures[v["failure"]] = failures.get(v["failure"], 0) + 1
+    ok = sum(v["success"] for v in judged)
+    return {"success": ok, "success_rate": round(ok / len(judged), 4), "failures": failures}

@@ -2,7 +2,8 @@
 
 Without `execute` the plan is printed and nothing is sent. Each cycle reports the chosen
 object, the frame -> first-command latency, the outcome and, when the camera knows the
-scene's truth (synthetic), the grasp point's error (thesis criterion: within 1 cm).
+scene's truth and the cell's true calibration (the synthetic cell), the grasp point's error
+and the cycle's verdict (robot/verdict.py: success, or why not).
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ from edgepick.robot.base import RobotBase
 from edgepick.robot.envelope import Envelope
 from edgepick.robot.pick import CommandLog, PickConfig, choose_target, execute
 from edgepick.frames import Camera, Frame
+from edgepick.robot.verdict import judge
+from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.grasp import draw_overlay
 from edgepick.runtime.pipeline import Pipeline
 
@@ -34,8 +37,10 @@ def grasp_error_m(record: dict, truth: list[dict] | None) -> float | None:
 
 
 def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper, cfg: PickConfig,
-               cycles: int, log: CommandLog, overlay_dir: str | Path | None = None, echo=print) -> list[dict]:
-    """Run up to `cycles` pick cycles (robot None = plan only). Stops early when the robot halts."""
+               cycles: int, log: CommandLog, overlay_dir: str | Path | None = None, echo=print,
+               truth_cal: Calibration | None = None) -> list[dict]:
+    """Run up to `cycles` pick cycles (robot None = plan only). Stops early when the robot halts.
+    TRUTH_CAL (the synthetic cell's true calibration) lets each cycle be judged against the truth."""
     results = []
     envelope = robot.envelope if robot is not None else Envelope()
     if overlay_dir:
@@ -53,9 +58,13 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, grip
         t_plan = time.perf_counter()
         result = {"cycle": cycle, "frame": frame.name, "objects": len(seen.records), "stage_ms": seen.ms,
                   "plan_ms": round(1000 * (t_plan - t0), 2)}
+        judged = truth_cal is not None and frame.truth is not None
         if record is None:
             result.update(outcome="skipped", reason=note)
             log.write(cycle=cycle, command="none", target=None, result=f"skipped: {note}")
+            if judged:
+                wanted = [r for r in seen.records if not cfg.classes or r["class"] in cfg.classes]
+                result["verdict"] = {"success": False, "failure": "unreachable" if wanted else "no object seen"}
         else:
             err = grasp_error_m(record, frame.truth)
             result.update(target=record["class"], pixel=record["pixel"], pose_robot=record["pose_robot"],
@@ -63,6 +72,8 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, grip
                           within_1cm=None if err is None else err <= SUCCESS_M)
             if err is not None and math.isinf(err):
                 result["note"] = f"no {record['class']} in the scene's truth (false detection)"
+            if judged:
+                result["verdict"] = judge(record, frame, truth_cal)
             if robot is None:
                 result.update(outcome="planned", plan=[asdict(s) for s in plan])
             else:
@@ -79,6 +90,8 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, grip
                     result["frame_to_command_ms"] = round(1000 * (first["t"] - t0), 2)
                 result["motion_s"] = round(getattr(robot, "motion_s", 0.0) - motion0, 3)
                 result.update(outcome="done" if stopped is None else "stopped", reason=stopped)
+                if stopped is not None and judged:
+                    result["verdict"] = {**result["verdict"], "success": False, "failure": "robot stopped"}
         if overlay_dir:  # after the robot's commands: not part of the frame -> command latency
             cv2.imwrite(str(Path(overlay_dir) / f"cycle_{cycle:03d}.png"),
                         draw_overlay(frame.rgb, [record] if record else seen.records))
@@ -91,12 +104,22 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, grip
 
 def _line(r: dict) -> str:
     if r["outcome"] == "skipped":
-        return f"cycle {r['cycle']}: nothing to pick ({r['reason']})"
+        return f"cycle {r['cycle']}: nothing to pick ({r['reason']}){_verdict(r)}"
     err = "" if r.get("grasp_error_m") is None else \
         f", grasp error {1000 * r['grasp_error_m']:.1f} mm ({'within' if r['within_1cm'] else 'NOT within'} 1 cm)"
     if r.get("note"):
         err += f", {r['note']}"
     lat = f", frame->command {r['frame_to_command_ms']:.0f} ms" if "frame_to_command_ms" in r else ""
     tail = "" if r["outcome"] in ("done", "planned") else f": {r['reason']}"
-    return f"cycle {r['cycle']}: {r['target']} at {r['pixel']} -> {r['outcome']}{err}{lat}{tail}"
+    return f"cycle {r['cycle']}: {r['target']} at {r['pixel']} -> {r['outcome']}{err}{lat}{tail}{_verdict(r)}"
+
+
+def _verdict(r: dict) -> str:
+    v = r.get("verdict")
+    if v is None:
+        return ""
+    errors = [f"{1000 * v['position_error_m']:.1f} mm"] if v.get("position_error_m") is not None else []
+    errors += [f"{v['angle_error_deg']:.0f} deg"] if v.get("angle_error_deg") is not None else []
+    detail = f" ({', '.join(errors)})" if errors else ""
+    return f"; verdict: success{detail}" if v["success"] else f"; verdict: FAILED, {v['failure']}{detail}"
 

@@ -110,6 +110,7 @@ def test_hybrid_qat_from_a_kept_epoch(trained_run, small_data, tmp_path):
     assert quant["mode"] == "hybrid" and quant["qat_fraction"] == pytest.approx(p)
     assert quant["carry_optimizer"] is True and quant["freeze_at"] == pytest.approx(0.7)
     assert quant["calib_images"] == 36 and quant["hold_ranges"] is True  # default: static's ranges (all 36), held
+    assert quant["calib_method"].startswith("qat from percentile")
     assert float(meta["edgepick.train_time_s"]) == pytest.approx(result["float_phase_s"] + result["qat_phase_s"], abs=0.2)
     history = json.loads((tmp_path / "h.run" / "metrics.json").read_text())["history"]
     assert [h["epoch"] for h in history] == list(range(1, EPOCHS + 1))  # float epochs carried, then the QaT one
@@ -123,6 +124,23 @@ def test_hybrid_qat_from_a_kept_epoch(trained_run, small_data, tmp_path):
     assert ckpt["qat"]["quant"]["reduce_range"] is not None and "qat" not in ckpt["train_config"]
     with pytest.raises(CheckpointError, match="QaT run"):  # train --resume is for float runs
         train(TrainConfig(data=str(small_data), out=str(tmp_path / "h.run")), resume=True)
+
+    # held ranges: the QaT run ends with exactly the ranges that calibrating its start gives
+    from edgepick.quant.graph import prepare
+    from edgepick.quant.passes import model_images
+    from edgepick.quant.qat import activation_fake_quants, calibrate_activations, load_qat
+    from edgepick.quant.quantizer import QuantConfig
+    from edgepick.train.checkpoint import load_model, read_checkpoint
+
+    def ranges(graph) -> dict:
+        return {f"{n}.{end}": float(getattr(fq.activation_post_process, f"{end}_val"))
+                for n, fq in activation_fake_quants(graph).items() for end in ("min", "max")}
+
+    model, start = load_model(run / f"epoch_{EPOCHS - 1:03d}.pt")
+    size = tuple(start["input_size"])
+    expected = prepare(model, QuantConfig(), size, qat=True)
+    calibrate_activations(expected, model_images(small_data, "train", 36, size), hold=True)
+    assert ranges(load_qat(read_checkpoint(tmp_path / "h.run" / "last.pt"))) == pytest.approx(ranges(expected), rel=1e-5)
 
     # the file is the QaT phase's best epoch on val (best.pt); the phase time is the whole run's (last.pt)
     from edgepick.quant.passes import _finish_qat

@@ -3,14 +3,10 @@ ranges), the eval copy, carried optimizer moments, loading a checkpoint back."""
 
 from __future__ import annotations
 
-import json
-
 import pytest
 import torch
 
-from edgepick.runtime.session import Segmenter
 from edgepick.train.checkpoint import read_checkpoint
-from tests.conftest import EPOCHS
 
 
 def _prepared_qat(trained_run):
@@ -67,35 +63,6 @@ def test_calibrated_start_is_where_static_ptq_is(trained_run, small_data):
                   for name, net in {"fp32": LogitsNet(model.eval()), "qat_start": qat_start, "static": static}.items()}
     agree = {name: float((labels[name] == labels["fp32"]).float().mean()) for name in ("qat_start", "static")}
     assert agree["qat_start"] >= agree["static"] - 0.01, agree
-
-
-def test_hybrid_with_a_calibrated_start(trained_run, small_data, tmp_path):
-    """quantize_hybrid --calib-images 8 --hold-ranges: the QaT run ends with exactly the ranges that
-    calibrating its starting checkpoint on the same 8 train images gives."""
-    from edgepick.quant.graph import prepare
-    from edgepick.quant.passes import model_images, quantize_hybrid
-    from edgepick.quant.qat import load_qat
-    from edgepick.quant.qat import activation_fake_quants, calibrate_activations
-    from edgepick.quant.quantizer import QuantConfig
-    from edgepick.train.checkpoint import load_model, read_checkpoint
-
-    result = quantize_hybrid(trained_run, small_data, tmp_path / "h.onnx", 1 / EPOCHS, calib_images=8,
-                             hold_ranges=True, progress=False)
-    assert result["int8_convs"] == result["convs"] == 70
-    quant = json.loads(Segmenter(result["out"]).info.metadata["edgepick.quant"])
-    assert quant["calib_images"] == 8 and quant["hold_ranges"] is True
-    assert quant["calib_method"].startswith("qat from percentile")
-
-    def ranges(graph) -> dict:
-        return {f"{n}.{end}": float(getattr(fq.activation_post_process, f"{end}_val"))
-                for n, fq in activation_fake_quants(graph).items() for end in ("min", "max")}
-
-    model, ckpt = load_model(trained_run / f"epoch_{EPOCHS - 1:03d}.pt")
-    size = tuple(ckpt["input_size"])
-    expected = prepare(model, QuantConfig(), size, qat=True)
-    calibrate_activations(expected, model_images(small_data, "train", 8, size), hold=True)
-    trained = load_qat(read_checkpoint(tmp_path / "h.run" / "last.pt"))
-    assert ranges(trained) == pytest.approx(ranges(expected), rel=1e-5)
 
 
 @pytest.mark.parametrize("after", ["prepare", "train_switch"])

@@ -1,0 +1,65 @@
+"""Did a pick cycle succeed? The grasp success criterion of the synthetic cell
+(docs/contracts.md#grasp-success), computed from the scene's truth and the cell's true calibration.
+
+A cycle succeeds when the chosen target is a real object of its class (not a false detection),
+the commanded grasp point is within 10 mm of that object's true grasp point (thesis 5.1.5: the
+1 cm calibration budget), and, for a two-finger grasp of an object whose orientation is defined,
+the fingers close within 15 degrees of the object's true minor axis, both in the robot frame.
+The gripper per class is the thesis's: an electromagnet for bearings and disks (position only),
+two fingers for adapters and boxes.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from edgepick.frames import Frame
+from edgepick.runtime.calibration import Calibration
+from edgepick.runtime.grasp import top_down_pose
+
+POSITION_M = 0.010
+ANGLE_DEG = 15.0
+GRIPPER = {"bearing": "electromagnet", "disk": "electromagnet", "adapter": "two-finger", "box": "two-finger"}
+FAILURES = ("false detection", "position", "orientation", "unreachable", "no object seen")
+
+
+def closing_yaw_deg(pose: list[float]) -> float:
+    """The fingers' closing direction (tool x) of a top-down pose, as a yaw in (-90, 90] degrees."""
+    rot = np.asarray(pose[3:], np.float64)
+    angle = float(np.linalg.norm(rot))
+    if angle < 1e-9:
+        x = np.array([1.0, 0.0, 0.0])
+    else:
+        k = rot / angle
+        x = np.array([1.0, 0.0, 0.0]) * math.cos(angle) + np.cross(k, [1.0, 0.0, 0.0]) * math.sin(angle) \
+            + k * k[0] * (1 - math.cos(angle))
+    yaw = math.degrees(math.atan2(x[1], x[0]))
+    return (yaw + 90.0) % 180.0 - 90.0
+
+
+def yaw_difference_deg(a: float, b: float) -> float:
+    """Difference of two closing directions, which repeat every 180 degrees."""
+    d = abs(a - b) % 180.0
+    return min(d, 180.0 - d)
+
+
+def judge(record: dict, frame: Frame, truth_cal: Calibration) -> dict:
+    """The verdict on one chosen target: success, the failure (FAILURES) and the errors."""
+    same = [t for t in frame.truth or [] if t["class"] == record["class"]]
+    if not same:
+        return {"success": False, "failure": "false detection", "position_error_m": None, "angle_error_deg": None}
+    commanded = np.asarray(record["pose_robot"][:3], np.float64)
+    true_points = [truth_cal.apply(np.asarray(t["point_camera_m"], np.float64)) for t in same]
+    k = int(np.argmin([np.linalg.norm(p - commanded) for p in true_points]))
+    obj, error = same[k], float(np.linalg.norm(true_points[k] - commanded))
+    angle_error = None
+    if GRIPPER.get(record["class"]) == "two-finger" and obj.get("orientation_defined"):
+        u, v = obj["pixel"]
+        true_pose = top_down_pose(truth_cal, frame.intrinsics, u, v, obj["point_camera_m"][2], obj["angle_deg"], True)
+        angle_error = yaw_difference_deg(closing_yaw_deg(record["pose_robot"]), closing_yaw_deg(true_pose))
+    failure = "position" if error > POSITION_M else \
+        "orientation" if angle_error is not None and angle_error > ANGLE_DEG else None
+    return {"success": failure is None, "failure": failure, "position_error_m": round(error, 4),
+            "angle_error_deg": None if angle_error is None else round(angle_error, 1)}
