@@ -28,6 +28,7 @@ class Frame:
     intrinsics: Intrinsics
     name: str
     truth: list[dict] | None = None  # per-object grasp truth, when the source knows it (synthetic)
+    labels: np.ndarray | None = None  # true class ids per pixel, when the source knows them (synthetic)
 
 
 class Camera:

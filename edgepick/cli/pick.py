@@ -182,4 +182,6 @@ def success_summary(results: list[dict]) -> dict:
         if not v["success"]:
             failures[v["failure"]] = failures.get(v["failure"], 0) + 1
     ok = sum(v["success"] for v in judged)
-    return {"success": ok, "success_rate": round(ok / len(judged), 4), "failures": failures}
+    reachable = len(judged) - failures.get("unreachable", 0)
+    return {"success": ok, "success_rate": round(ok / len(judged), 4),
+            "success_rate_reachable": round(ok / reachable, 4) if reachable else None, "failures": failures}

@@ -18,6 +18,9 @@ from edgepick.robot.envelope import Envelope, SafetyError
 from edgepick.robot.motion import HOME_POSE
 
 
+OCCLUDED = 0.02  # share of an object's rim under other objects above which it is picked last
+
+
 @dataclass
 class PickConfig:
     classes: tuple[str, ...] = ()  # only these classes; empty = any
@@ -29,6 +32,7 @@ class PickConfig:
     home_pose: list[float] = field(default_factory=lambda: list(HOME_POSE))
     speed: float = 0.25
     acc: float = 1.2
+    transit_radius_m: float = 0.18  # lift -> place passes the base no closer than this (via points on this circle)
 
 
 @dataclass
@@ -42,6 +46,23 @@ def _above(pose: list[float], dz: float) -> list[float]:
     return [pose[0], pose[1], pose[2] + dz, *pose[3:]]
 
 
+def _around_the_base(a: list[float], b: list[float], cfg: PickConfig) -> list[list[float]]:
+    """Via points when the straight line A -> B would pass the base axis closer than
+    cfg.transit_radius_m (the envelope keeps the TCP out of a cylinder around it): points on that
+    circle, at most 60 degrees apart, at the higher of the two heights. None when the line is clear."""
+    ax, ay, bx, by = a[0], a[1], b[0], b[1]
+    dx, dy = bx - ax, by - ay
+    t = max(0.0, min(1.0, -(ax * dx + ay * dy) / (dx * dx + dy * dy))) if dx or dy else 0.0
+    if math.hypot(ax + t * dx, ay + t * dy) >= cfg.transit_radius_m:
+        return []
+    start, end = math.atan2(ay, ax), math.atan2(by, bx)
+    turn = (end - start + math.pi) % (2 * math.pi) - math.pi  # the shorter way round
+    n = max(1, math.ceil(abs(turn) / math.radians(60)))
+    z, r = max(a[2], b[2]), cfg.transit_radius_m
+    return [[r * math.cos(start + turn * k / (n + 1)), r * math.sin(start + turn * k / (n + 1)), z, *a[3:]]
+            for k in range(1, n + 1)]
+
+
 def plan_pick(record: dict, cfg: PickConfig) -> list[Step]:
     """The cycle's steps for one grasp record with a robot pose."""
     grasp = list(record["pose_robot"])
@@ -52,6 +73,8 @@ def plan_pick(record: dict, cfg: PickConfig) -> list[Step]:
             Step("moveL", grasp, "descend to the grasp point"),
             Step("grip", None, "close / magnet on"),
             Step("moveL", _above(grasp, cfg.lift_m), "lift"),
+            *[Step("moveL", via, "around the base") for via in _around_the_base(_above(grasp, cfg.lift_m),
+                                                                                _above(place, cfg.approach_m), cfg)],
             Step("moveL", _above(place, cfg.approach_m), "above the place pose"),
             Step("moveL", place, "place"),
             Step("release", None, "open / magnet off"),
@@ -80,7 +103,8 @@ def plan_reason(plan: list[Step], envelope: Envelope, cfg: PickConfig, start: li
 def choose_target(records: list[dict], envelope: Envelope, cfg: PickConfig,
                   start: list[float] | None = None) -> tuple[dict | None, list[Step], str]:
     """The preferred record whose whole plan, from the arm's pose `start` [default: the home
-    pose], passes the envelope; its plan, and a note."""
+    pose], passes the envelope; its plan, and a note. An object cut by the image border is not
+    chosen: its centroid is that of the part in view, not of the object."""
     start = list(cfg.home_pose) if start is None else start
     candidates = [r for r in records if not cfg.classes or r["class"] in cfg.classes]
     if not candidates:
@@ -89,8 +113,13 @@ def choose_target(records: list[dict], envelope: Envelope, cfg: PickConfig,
         candidates.sort(key=lambda r: r["depth_m"] if r.get("depth_m") is not None else math.inf)
     else:
         candidates.sort(key=lambda r: -r["area_px"])
+    # objects with nothing on top first: a partly hidden object's centroid is that of its visible part
+    candidates.sort(key=lambda r: r.get("occluded", 0.0) > OCCLUDED)
     reasons = []
     for r in candidates:
+        if r.get("partial"):
+            reasons.append(f"{r['class']}: cut by the image border")
+            continue
         if r.get("pose_robot") is None:
             reasons.append(f"{r['class']}: {r.get('reason', 'no robot pose (no calibration?)')}")
             continue

@@ -30,6 +30,8 @@ class GraspConfig:
     round_ratio: float = 0.8  # minor/major variance ratio above which there is no stable major axis
     min_depth_px: int = 10  # valid depth pixels needed for a depth estimate
     centre_fraction: float = 0.3  # depth from pixels within this share of the equivalent radius of the centroid
+    split_core: float = 0.5  # touching objects of one class: cores where the distance to the edge > this x its max
+    split_min_share: float = 0.15  # a core counts as an object when it holds this share of all cores' area
 
 
 def filter_class_masks(labels: np.ndarray, num_classes: int, cfg: GraspConfig) -> dict[int, tuple[int, int, np.ndarray]]:
@@ -50,6 +52,48 @@ def filter_class_masks(labels: np.ndarray, num_classes: int, cfg: GraspConfig) -
         m = cv2.medianBlur(m, cfg.median_ksize)
         out[int(c)] = (x0, y0, cv2.dilate(m, kernel))
     return out
+
+
+def split_touching(region: np.ndarray, cfg: GraspConfig, background: np.ndarray | None = None) -> list[np.ndarray]:
+    """One class region -> one mask per object. Touching objects of one class (two bearings side by
+    side) form one connected region whose centroid lies between them. Seeds: the region's holes when
+    it has two or more (rings: one hole each; a hole is BACKGROUND, the table, enclosed by the region
+    and other objects lying on it), else its cores, the pixels farther than
+    cfg.split_core x the region's largest distance from its edge. Each pixel goes to its nearest
+    seed; a region with one seed is returned as it is."""
+    seeds = _holes(region, cfg, background)
+    if len(seeds) < 2:
+        dist = cv2.distanceTransform(region, cv2.DIST_L2, 5)
+        seeds = _components((dist > cfg.split_core * dist.max()).view(np.uint8), cfg) if dist.max() > 0 else []
+    if len(seeds) < 2:
+        return [region]
+    to_seed = np.stack([cv2.distanceTransform(1 - seed, cv2.DIST_L2, 3) for seed in seeds])
+    nearest = np.argmin(to_seed, axis=0)
+    return [((nearest == i) & (region > 0)).view(np.uint8) for i in range(len(seeds))]
+
+
+def _components(mask: np.ndarray, cfg: GraspConfig) -> list[np.ndarray]:
+    """The connected components of MASK that hold cfg.split_min_share of its area or more."""
+    n, comp, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    return [(comp == k + 1).view(np.uint8) for k in np.flatnonzero(areas >= cfg.split_min_share * areas.sum())] \
+        if n > 2 else []
+
+
+def _holes(region: np.ndarray, cfg: GraspConfig, background: np.ndarray | None) -> list[np.ndarray]:
+    """The region's holes: table pixels (BACKGROUND; without it, all non-region pixels) not connected
+    to its bounding box's edge, large ones only."""
+    free = (region == 0) if background is None else (background & (region == 0))
+    outside = np.pad(free.view(np.uint8), 1, constant_values=1)
+    n, comp, stats, _ = cv2.connectedComponentsWithStats(outside, connectivity=4)
+    if n <= 2:
+        return []
+    edge = comp[0, 0]
+    holes = [k for k in range(1, n) if k != edge and stats[k, cv2.CC_STAT_AREA] >= 20]
+    if len(holes) < 2:
+        return []
+    mask = np.isin(comp, holes).view(np.uint8)[1:-1, 1:-1]
+    return _components(mask, cfg)
 
 
 def moments_pose(region: np.ndarray, round_ratio: float) -> tuple[float, float, float, bool, int]:
@@ -130,22 +174,50 @@ def grasp_records(labels: np.ndarray, depth: np.ndarray, intr: Intrinsics, class
                 continue
             # work on the region's bounding box, not the whole frame (this runs every frame)
             region = (comp[y:y + h, x:x + w] == k).view(np.uint8)
-            x, y = x + ox, y + oy  # crop -> frame coordinates
-            cx, cy, angle, defined, area = moments_pose(region, cfg.round_ratio)
-            cx, cy = cx + x, cy + y
-            rec: dict = {"class": classes[c], "pixel": [round(cx, 2), round(cy, 2)], "angle_deg": angle,
-                         "orientation_defined": defined, "area_px": area}
-            own = (labels[y:y + h, x:x + w] == c) & (region > 0)  # unfiltered pixels: not the dilated rim
-            z = grasp_depth(depth[y:y + h, x:x + w], own, cx - x, cy - y, area, intr.depth_scale, cfg)
-            if z is None:
-                rec.update(depth_m=None, point_camera_m=None, reason="no valid depth under the object")
-            else:
-                rec.update(depth_m=round(z, 5), point_camera_m=[round(float(v), 5) for v in deproject(intr, cx, cy, z)])
-                if calib is not None:
-                    rec["pose_robot"] = top_down_pose(calib, intr, cx, cy, z, angle, defined)
-            records.append(rec)
+            partial = x + ox == 0 or y + oy == 0 or x + ox + w == labels.shape[1] or y + oy + h == labels.shape[0]
+            background = labels[y + oy:y + oy + h, x + ox:x + ox + w] == 0
+            for part in split_touching(region, cfg, background):
+                rec = _record(part, x + ox, y + oy, c, labels, depth, intr, classes, calib, cfg)
+                if rec is not None:
+                    rec["partial"] = partial
+                    records.append(rec)
     records.sort(key=lambda r: -r["area_px"])
     return records
+
+
+def _record(region: np.ndarray, x: int, y: int, c: int, labels: np.ndarray, depth: np.ndarray, intr: Intrinsics,
+            classes, calib: Calibration | None, cfg: GraspConfig) -> dict | None:
+    """The grasp record of one object's mask REGION, whose top left is frame pixel (x, y)."""
+    h, w = region.shape
+    if cv2.countNonZero(region) < cfg.min_area_px:
+        return None
+    cx, cy, angle, defined, area = moments_pose(region, cfg.round_ratio)
+    cx, cy = cx + x, cy + y
+    rec: dict = {"class": classes[c], "pixel": [round(cx, 2), round(cy, 2)], "angle_deg": angle,
+                 "orientation_defined": defined, "area_px": area}
+    own = (labels[y:y + h, x:x + w] == c) & (region > 0)  # unfiltered pixels: not the dilated rim
+    z = grasp_depth(depth[y:y + h, x:x + w], own, cx - x, cy - y, area, intr.depth_scale, cfg)
+    if z is None:
+        rec.update(depth_m=None, point_camera_m=None, reason="no valid depth under the object")
+    else:
+        rec.update(depth_m=round(z, 5), point_camera_m=[round(float(v), 5) for v in deproject(intr, cx, cy, z)])
+        if calib is not None:
+            rec["pose_robot"] = top_down_pose(calib, intr, cx, cy, z, angle, defined)
+        rec["occluded"] = occluded_fraction(region, labels[y:y + h, x:x + w], depth[y:y + h, x:x + w], z,
+                                            intr.depth_scale)
+    return rec
+
+
+def occluded_fraction(region: np.ndarray, labels: np.ndarray, depth: np.ndarray, z: float, depth_scale: float,
+                      step_m: float = 0.005) -> float:
+    """Share of the region's rim where another object lies nearer the camera than this one (by
+    STEP_M): an object partly under another, whose visible centroid is not its own."""
+    rim = (cv2.dilate(region, np.ones((5, 5), np.uint8)) > 0) & (region == 0)
+    total = int(rim.sum())
+    if total == 0:
+        return 0.0
+    above = rim & (labels != 0) & (depth > 0) & (depth * depth_scale < z - step_m)
+    return round(int(above.sum()) / total, 3)
 
 
 def draw_overlay(rgb_or_labels: np.ndarray, records: list[dict], finger_px: float = 30.0) -> np.ndarray:

@@ -110,4 +110,4 @@ class SynthCamera(Camera):
             texture = cv2.copyMakeBorder(marker, 50, 50, 50, 50, cv2.BORDER_CONSTANT, value=255)
             draw_plate(scene.rgb, scene.depth, self.intrinsics, corners, texture,
                        np.random.default_rng([self.seed, 11, self.index]), self.tool_marker.depth_bias)
-        return Frame(scene.rgb, scene.depth, self.intrinsics, name, scene.grasps)
+        return Frame(scene.rgb, scene.depth, self.intrinsics, name, scene.grasps, scene.mask)

@@ -188,3 +188,51 @@ def test_depth_is_the_surface_under_the_centroid_when_there_is_one():
     cv2.circle(depth, (320, 240), 30, 630, -1)  # hub, 3 cm higher
     (r,) = grasp_records(labels, depth, INTR)
     assert r["depth_m"] == pytest.approx(0.630, abs=1e-3)
+
+
+@pytest.mark.parametrize("shape", ["discs", "rings", "boxes end to end"])
+def test_touching_objects_of_one_class_are_split(shape):
+    """Two objects of one class that touch form one region; each gets its own record, centred on it."""
+    labels = np.zeros((480, 640), np.uint8)
+    centres = [(250.0, 240.0), (331.0, 240.0)] if shape != "boxes end to end" else [(230.0, 240.0), (371.0, 240.0)]
+    for c in centres:
+        if shape == "boxes end to end":
+            rect(labels, BOX, c, (140, 60), 0.0)
+        else:
+            cv2.circle(labels, (int(c[0]), int(c[1])), 40, BEARING, -1)
+            if shape == "rings":
+                cv2.circle(labels, (int(c[0]), int(c[1])), 18, 0, -1)
+    records = grasp_records(labels, flat_depth(), INTR)
+    if shape == "boxes end to end":  # one straight-sided region: its core is one, nothing to split
+        assert len(records) == 1
+        return
+    assert sorted(r["pixel"][0] for r in records) == pytest.approx([c[0] for c in centres], abs=2.0)
+    assert all(r["pixel"][1] == pytest.approx(240.0, abs=1.0) for r in records)
+
+
+def test_one_object_is_not_split_and_a_cut_one_is_marked_partial():
+    labels = np.zeros((480, 640), np.uint8)
+    rect(labels, ADAPTER, (300.0, 200.0), (200, 50), 20.0)
+    cv2.circle(labels, (620, 300), 60, BEARING, -1)  # half out of the frame
+    by_class = {r["class"]: r for r in grasp_records(labels, flat_depth(), INTR)}
+    assert set(by_class) == {"adapter", "bearing"}
+    assert by_class["adapter"]["partial"] is False and by_class["bearing"]["partial"] is True
+
+
+def test_an_object_partly_under_another_is_marked_occluded():
+    """A box lying across a larger disk, 30 mm nearer the camera: the disk's rim meets the box where
+    the box is nearer; the box is not occluded, and the pick loop prefers it (robot/pick.py)."""
+    from edgepick.robot.envelope import Envelope
+    from edgepick.robot.pick import PickConfig, choose_target
+
+    labels, depth = np.zeros((480, 640), np.uint8), flat_depth(650)
+    cv2.circle(labels, (300, 240), 90, 2, -1)  # disk
+    depth[labels == 2] = 620
+    rect(labels, BOX, (390.0, 240.0), (120, 50), 0.0)  # over the disk's right edge
+    depth[labels == BOX] = 590
+    cal = Calibration(np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]), np.array([0.28, 0.0, 0.7]), 0, 0)
+    by_class = {r["class"]: r for r in grasp_records(labels, depth, INTR, calib=cal)}
+    assert by_class["disk"]["occluded"] > 0.1 and by_class["box"]["occluded"] == 0.0
+    assert by_class["disk"]["area_px"] > by_class["box"]["area_px"]
+    chosen, _, note = choose_target(list(by_class.values()), Envelope(), PickConfig())
+    assert chosen["class"] == "box", note
