@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import click
 
@@ -12,7 +13,8 @@ from edgepick.files import check_output
 
 @click.command()
 @click.argument("models", nargs=-1, required=True, type=click.Path(dir_okay=False))
-@click.option("--data", required=True, type=click.Path(file_okay=False), help="Data set (native layout) for accuracy and timing.")
+@click.option("--data", default=None, type=click.Path(file_okay=False),
+              help="Data set (native layout) for accuracy and timing (not needed with --cell).")
 @click.option("--split", default="test", show_default=True, type=click.Choice(["train", "val", "test"]))
 @click.option("--threads", default=2, show_default=True, help="onnxruntime intra-op threads for every row.")
 @click.option("--runs", default=50, show_default=True, help="Timed inferences per model (after warm-up).")
@@ -20,13 +22,20 @@ from edgepick.files import check_output
               help="Folder for table.md, table.csv, table.json and miou-latency.png.")
 @click.option("--gpu-checkpoint", default=None, type=click.Path(), help="Float RUN or checkpoint for the fp32 GPU row (needs CUDA).")
 @click.option("--no-pipeline", is_flag=True, help="Skip the Table 5.6 pipeline timing.")
+@click.option("--cell", type=int, is_flag=False, flag_value=50, default=None, metavar="N",
+              help="Instead: N executions of the whole pick loop per model in the synthetic cell (SimRobot, the same "
+                   "seeded scenes for every model; --cell alone: 50, the thesis's count): pipeline time, size and grasp "
+                   "success (docs/contracts.md#grasp-success), with a first row on the scenes' true labels.")
+@click.option("--seed", default=0, show_default=True, help="--cell: the scenes' seed.")
 @click.option("--engine", default="onnxruntime", show_default=True, type=click.Choice(["onnxruntime", "openvino"]),
               help="Inference engine for every row (openvino: the [peers] extra).")
-def bench(models: tuple[str, ...], data: str, split: str, threads: int, runs: int, out_dir: str,
-          gpu_checkpoint: str | None, no_pipeline: bool, engine: str) -> None:
+def bench(models: tuple[str, ...], data: str | None, split: str, threads: int, runs: int, out_dir: str,
+          gpu_checkpoint: str | None, no_pipeline: bool, cell: int | None, seed: int, engine: str) -> None:
     """Thesis Tables 5.5 and 5.6 for MODEL... (ONNX): pixel accuracy, mIoU, inference p50/p95 at
     fixed threads, training time (from the model's metadata), size, and the whole pipeline per
-    frame (folder frame -> labels -> grasp records). Same images for every row, one process."""
+    frame (folder frame -> labels -> grasp records). Same images for every row, one process.
+    With --cell N: Table 5.6 with its grasp success column, N pick cycles per model in the
+    synthetic cell (cell.md, cell.csv, cell.json, success-latency.png)."""
     from edgepick.bench.measure import BenchConfig, Row
     from edgepick.bench.report import HEADER_55, markdown, table55_rows
     from edgepick.bench.run import run_bench
@@ -34,6 +43,21 @@ def bench(models: tuple[str, ...], data: str, split: str, threads: int, runs: in
     check_output(out_dir, "--out", kind="dir")
     if threads < 1 or runs < 1:
         raise ConfigError("--threads and --runs must be at least 1")
+    for m in models:
+        if Path(m).suffix != ".onnx":
+            raise ConfigError(f"{m} is not an .onnx file (bench runs ONNX models through the runtime)")
+    if cell is not None:
+        from edgepick.bench.cell import HEADER, CellRow, run_cell, table
+
+        if cell < 1:
+            raise ConfigError(f"--cell {cell}: the number of executions must be at least 1")
+        result = run_cell(list(models), cell, out_dir, threads=threads, seed=seed, engine=engine,
+                          progress=lambda line: click.echo(line, err=True))
+        click.echo(markdown(HEADER, table([CellRow(**r) for r in result["rows"]])), err=True)
+        click.echo(json.dumps(result, indent=1))
+        return
+    if data is None:
+        raise ConfigError("--data is needed (the data set to measure accuracy and timing on), or --cell N")
 
     result = run_bench(list(models), data, out_dir, BenchConfig(threads=threads, runs=runs, split=split, engine=engine),
                        gpu_checkpoint=gpu_checkpoint, with_pipeline=not no_pipeline,
