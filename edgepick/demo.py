@@ -92,6 +92,7 @@ def pick_demo(workdir: Path, model: Path, cycles: int = 6) -> dict:
     from edgepick.robot.grippers import DigitalGripper
     from edgepick.robot.loop import run_cycles
     from edgepick.robot.pick import CommandLog, PickConfig
+    from edgepick.robot.verdict import summarize
     from edgepick.sim.robot import SimRobot
     from edgepick.sim.camera import SynthCamera
     from edgepick.runtime.pipeline import Pipeline
@@ -99,12 +100,13 @@ def pick_demo(workdir: Path, model: Path, cycles: int = 6) -> dict:
 
     _step(f"6/8 pick and place on the simulated UR3: {cycles} synthetic scenes, {model.name}")
     camera = SynthCamera(seed=100, mount_height_m=0.7)
-    pipeline = Pipeline(Segmenter(model, threads=2), camera.calibration())
+    truth = camera.calibration()
+    pipeline = Pipeline(Segmenter(model, threads=2), truth)
     log = CommandLog(workdir / "picks.jsonl")
     try:
         with camera, SimRobot() as robot:
             results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), PickConfig(), cycles, log,
-                                 workdir / "picks", echo=lambda line: click.echo(line, err=True))
+                                 workdir / "picks", echo=lambda line: click.echo(line, err=True), truth_cal=truth)
     finally:
         log.close()
     errors = sorted(r["grasp_error_m"] for r in results if r.get("grasp_error_m") is not None)
@@ -112,7 +114,7 @@ def pick_demo(workdir: Path, model: Path, cycles: int = 6) -> dict:
     return {"cycles": len(results), "done": sum(r["outcome"] == "done" for r in results),
             "within_1cm": sum(bool(r.get("within_1cm")) for r in results),
             "grasp_error_mm_median": round(1000 * errors[len(errors) // 2], 1) if errors else None,
-            "frame_to_command_ms_median": latency[len(latency) // 2] if latency else None,
+            **summarize(results), "frame_to_command_ms_median": latency[len(latency) // 2] if latency else None,
             "overlays": str(workdir / "picks"), "log": str(workdir / "picks.jsonl")}
 
 

@@ -41,6 +41,9 @@ def resolve(tokens: list[str]) -> tuple[click.Command, list[str]]:
     command: click.Command = cli
     rest = tokens[1:]
     while isinstance(command, click.Group) and rest and not rest[0].startswith("-"):
+        name = command.resolve_command(click.Context(command), list(rest))[0]  # a group may have a default
+        if name != rest[0]:
+            rest = [name, *rest]
         sub = command.commands.get(rest[0])
         if sub is None:
             raise AssertionError(f"`{' '.join(tokens)}`: no command {rest[0]!r} under {command.name!r}")

@@ -22,7 +22,7 @@ from edgepick.data.render import CLASSES
 from edgepick.robot.grippers import DigitalGripper
 from edgepick.robot.loop import run_cycles
 from edgepick.robot.pick import CommandLog, PickConfig
-from edgepick.robot.verdict import FAILURES
+from edgepick.robot.verdict import summarize
 from edgepick.runtime.pipeline import Pipeline
 from edgepick.runtime.session import Segmenter
 from edgepick.sim.camera import SynthCamera
@@ -59,14 +59,10 @@ def cell_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: int, 
         results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), PickConfig(), cycles,
                              CommandLog(None), echo=lambda line: None, truth_cal=truth)
     times = np.array([r["plan_ms"] for r in results])  # frame -> labels -> records -> the checked plan
-    verdicts = [r["verdict"] for r in results]
-    failures = {f: sum(v.get("failure") == f for v in verdicts) for f in (*FAILURES, "robot stopped")}
-    ok = sum(v["success"] for v in verdicts)
-    reachable = len(verdicts) - failures["unreachable"]
+    summary = summarize(results)
     return CellRow(mode, model, len(results), round(float(times.mean()), 2), round(float(times.std()), 2),
-                   round(float(np.median(times)), 2), round(float(np.percentile(times, 95)), 2), size_mb, ok,
-                   round(ok / len(verdicts), 4), round(ok / reachable, 4) if reachable else None,
-                   {k: v for k, v in failures.items() if v})
+                   round(float(np.median(times)), 2), round(float(np.percentile(times, 95)), 2), size_mb,
+                   summary["success"], summary["success_rate"], summary["success_rate_reachable"], summary["failures"])
 
 
 def run_cell(models: list[str | Path], cycles: int, out_dir: str | Path, threads: int = 2, seed: int = 0,

@@ -163,25 +163,13 @@ def check_robot(robot_spec: str) -> tuple[str, str]:
 
 
 def _summary(results: list[dict], log_path: str | None, halted: str | None) -> dict:
-    """The JSON summary `pick` prints: cycles, done, grasp error, each cycle's record."""
+    """The JSON summary `pick` prints: cycles, done, grasp error, success, each cycle's record."""
+    from edgepick.robot.verdict import summarize
+
     errors = [r["grasp_error_m"] for r in results if r.get("grasp_error_m") is not None]
     return {"cycles": len(results), "done": sum(r["outcome"] == "done" for r in results), "log": log_path,
             "halted": halted,
             "within_1cm": sum(1 for r in results if r.get("within_1cm")),
             "grasp_error_mm_median": round(1000 * sorted(errors)[len(errors) // 2], 2) if errors else None,
-            **success_summary(results), "results": results}
+            **summarize(results), "results": results}
 
-
-def success_summary(results: list[dict]) -> dict:
-    """Grasp success over the judged cycles (the synthetic cell): count, rate and failures by kind."""
-    judged = [r["verdict"] for r in results if "verdict" in r]
-    if not judged:
-        return {}
-    failures: dict[str, int] = {}
-    for v in judged:
-        if not v["success"]:
-            failures[v["failure"]] = failures.get(v["failure"], 0) + 1
-    ok = sum(v["success"] for v in judged)
-    reachable = len(judged) - failures.get("unreachable", 0)
-    return {"success": ok, "success_rate": round(ok / len(judged), 4),
-            "success_rate_reachable": round(ok / reachable, 4) if reachable else None, "failures": failures}

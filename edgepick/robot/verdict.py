@@ -63,3 +63,18 @@ def judge(record: dict, frame: Frame, truth_cal: Calibration) -> dict:
         "orientation" if angle_error is not None and angle_error > ANGLE_DEG else None
     return {"success": failure is None, "failure": failure, "position_error_m": round(error, 4),
             "angle_error_deg": None if angle_error is None else round(angle_error, 1)}
+
+
+def summarize(results: list[dict]) -> dict:
+    """Grasp success over the judged cycles (the synthetic cell): count, rate and failures by kind."""
+    judged = [r["verdict"] for r in results if "verdict" in r]
+    if not judged:
+        return {}
+    failures: dict[str, int] = {}
+    for v in judged:
+        if not v["success"]:
+            failures[v["failure"]] = failures.get(v["failure"], 0) + 1
+    ok = sum(v["success"] for v in judged)
+    reachable = len(judged) - failures.get("unreachable", 0)
+    return {"success": ok, "success_rate": round(ok / len(judged), 4),
+            "success_rate_reachable": round(ok / reachable, 4) if reachable else None, "failures": failures}
