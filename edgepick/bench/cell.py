@@ -8,14 +8,14 @@ from __future__ import annotations
 
 import csv
 import json
-import os
-import platform
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
+import onnxruntime as ort
 
+from edgepick.bench.machine import machine_line
 from edgepick.bench.measure import mode_label
 from edgepick.bench.report import markdown
 from edgepick.data.render import CLASSES
@@ -78,7 +78,7 @@ def run_cell(models: list[str | Path], cycles: int, out_dir: str | Path, threads
         rows.append(cell_row(mode_label(seg.info.metadata), str(m), Pipeline(seg, camera.calibration()), cycles, seed,
                              round(Path(m).stat().st_size / 1e6, 3)))
     context = {"title": f"Table 5.6 in the synthetic cell: {cycles} executions per model",
-               "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
+               "machine": machine_line().removeprefix("Machine: "), "onnxruntime": ort.__version__, "opencv": cv2.__version__,
                "threads": threads, "engine": engine, "scenes": f"SynthCamera seed {seed}, 640x480, {MOUNT_M} m above the table",
                "criterion": "docs/contracts.md#grasp-success"}
     return {"rows": [asdict(r) for r in rows], "reports": write_cell_reports(rows, out_dir, context)}
