@@ -22,7 +22,7 @@ from edgepick.runtime.grasp import top_down_pose
 POSITION_M = 0.010
 ANGLE_DEG = 15.0
 GRIPPER = {"bearing": "electromagnet", "disk": "electromagnet", "adapter": "two-finger", "box": "two-finger"}
-FAILURES = ("false detection", "position", "orientation", "unreachable", "no object seen")
+FAILURES = ("false detection", "position", "orientation", "unreachable", "no object seen", "robot stopped")
 
 
 def closing_yaw_deg(pose: list[float]) -> float:
@@ -70,10 +70,8 @@ def summarize(results: list[dict]) -> dict:
     judged = [r["verdict"] for r in results if "verdict" in r]
     if not judged:
         return {}
-    failures: dict[str, int] = {}
-    for v in judged:
-        if not v["success"]:
-            failures[v["failure"]] = failures.get(v["failure"], 0) + 1
+    counts = {f: sum(not v["success"] and v["failure"] == f for v in judged) for f in FAILURES}
+    failures = {f: n for f, n in counts.items() if n}  # in FAILURES' order
     ok = sum(v["success"] for v in judged)
     reachable = len(judged) - failures.get("unreachable", 0)
     return {"success": ok, "success_rate": round(ok / len(judged), 4),
