@@ -27,8 +27,9 @@ from edgepick.files import check_output
                    "seeded scenes for every model; --cell alone: 50, the thesis's count): pipeline time, size and grasp "
                    "success (docs/contracts.md#grasp-success), with a first row on the scenes' true labels.")
 @click.option("--seed", default=0, show_default=True, help="--cell: the scenes' seed.")
-@click.option("--engine", default="onnxruntime", show_default=True, type=click.Choice(["onnxruntime", "openvino"]),
-              help="Inference engine for every row (openvino: the [peers] extra).")
+@click.option("--engine", default="onnxruntime", show_default=True, type=click.Choice(["onnxruntime", "openvino", "auto"]),
+              help="Inference engine for every row (openvino: the [peers] extra; auto: the faster one here, measured "
+                   "once per model and cached).")
 def bench(models: tuple[str, ...], data: str | None, split: str, threads: int, runs: int, out_dir: str,
           gpu_checkpoint: str | None, no_pipeline: bool, cell: int | None, seed: int, engine: str) -> None:
     """Thesis Tables 5.5 and 5.6 for MODEL... (ONNX): pixel accuracy, mIoU, inference p50/p95 at

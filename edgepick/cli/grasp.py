@@ -26,8 +26,9 @@ from edgepick.files import atomic_path, check_output
               help="Mask mode: class names by id, comma-separated [default: the synthetic set's five]. "
                    "Model mode takes them from the model.")
 @click.option("--threads", default=2, show_default=True, help="Inference threads (model mode).")
-@click.option("--engine", default="onnxruntime", show_default=True, type=click.Choice(["onnxruntime", "openvino"]),
-              help="Model mode: inference engine (openvino: the [peers] extra).")
+@click.option("--engine", default="onnxruntime", show_default=True, type=click.Choice(["onnxruntime", "openvino", "auto"]),
+              help="Model mode: inference engine (openvino: the [peers] extra; auto: the faster one here, measured "
+                   "once per model and cached in ~/.cache/edgepick).")
 @click.option("--overlay", default=None, type=click.Path(dir_okay=False), help="Write a PNG with centroids, axes, fingers.")
 @click.option("--profile", is_flag=True,
               help="Print per-stage milliseconds (pre, inference, post, grasp) to stderr: median of 5 runs after one warm-up.")

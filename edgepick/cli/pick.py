@@ -56,8 +56,9 @@ def make_gripper(spec: str, robot, robot_host: str | None):
                    "discarded; edgepick reports a failure itself].")
 @click.option("--overlay-dir", default=None, type=click.Path(file_okay=False), help="Write an overlay PNG per cycle.")
 @click.option("--threads", default=2, show_default=True, help="Inference threads.")
-@click.option("--engine", default="onnxruntime", show_default=True, type=click.Choice(["onnxruntime", "openvino"]),
-              help="Inference engine (openvino: the [peers] extra).")
+@click.option("--engine", default="onnxruntime", show_default=True, type=click.Choice(["onnxruntime", "openvino", "auto"]),
+              help="Inference engine (openvino: the [peers] extra; auto: the faster one here, measured once per "
+                   "model and cached in ~/.cache/edgepick).")
 @click.option("--size", default="640x480", show_default=True, help="Camera frame size, WIDTHxHEIGHT.")
 def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: str, execute: bool, cycles: int,
          classes: tuple[str, ...], choose: str, speed: float, acc: float, log_path: str, robot_log: str | None,

@@ -7,7 +7,12 @@ and the labels back to the frame.
 
 from __future__ import annotations
 
+import hashlib
+import importlib.util
 import json
+import os
+import statistics
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,6 +21,7 @@ import numpy as np
 import onnxruntime as ort
 
 from edgepick.errors import EdgepickError
+from edgepick.files import atomic_write
 
 
 class ModelError(EdgepickError):
@@ -71,6 +77,7 @@ def read_info(session: ort.InferenceSession, path: Path) -> ModelInfo:
 
 
 ENGINES = ("onnxruntime", "openvino")
+AUTO = "auto"  # the faster of the two on this machine, measured once per model and cached
 
 
 def _openvino_runner(path: Path, threads: int):
@@ -89,21 +96,84 @@ def _openvino_runner(path: Path, threads: int):
     return lambda image: request.infer({"image": image})[output]
 
 
+def _cache_file() -> Path:
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "edgepick" / "engines.json"
+
+
+def _cpu() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return "unknown CPU"
+
+
+def _median_ms(runs: dict[str, object], image: np.ndarray, timed: int = 10, block: int = 5) -> dict[str, float]:
+    """Median milliseconds of each runner on IMAGE, timed in alternating blocks after 3 warm-up calls
+    (so that a shared machine's load drifts over both alike)."""
+    times: dict[str, list[float]] = {name: [] for name in runs}
+    for run in runs.values():
+        for _ in range(3):
+            run(image)
+    while any(len(t) < timed for t in times.values()):
+        for name, run in runs.items():
+            for _ in range(block):
+                t0 = time.perf_counter()
+                run(image)
+                times[name].append(1000 * (time.perf_counter() - t0))
+    return {name: round(statistics.median(t), 3) for name, t in times.items()}
+
+
+def choose_engine(path: Path, threads: int, ort_run, h: int, w: int) -> tuple[str, object | None, dict]:
+    """The faster engine for this model, thread count and CPU: read from the cache, or measured on a
+    blank frame and written there. Returns (engine, its OpenVINO runner or None, the record)."""
+    if importlib.util.find_spec("openvino") is None:
+        return "onnxruntime", None, {"engine": "onnxruntime", "why": "OpenVINO is not installed"}
+    key = f"{hashlib.sha256(path.read_bytes()).hexdigest()}:{threads}:{_cpu()}"
+    cache = _cache_file()
+    try:
+        known = json.loads(cache.read_text())
+    except (OSError, ValueError):
+        known = {}
+    record = known.get(key)
+    ov_run = None
+    if record is None or record.get("engine") not in ENGINES:
+        ov_run = _openvino_runner(path, threads)
+        ms = _median_ms({"onnxruntime": ort_run, "openvino": ov_run}, np.zeros((1, h, w, 3), np.uint8))
+        record = {"engine": min(ms, key=ms.get), "p50_ms": ms, "model": str(path)}
+        try:
+            atomic_write(cache, json.dumps({**known, key: record}, indent=1))
+        except OSError:
+            pass  # a read-only home: measured again next time
+    if record["engine"] == "openvino" and ov_run is None:
+        ov_run = _openvino_runner(path, threads)
+    return record["engine"], ov_run, record
+
+
 class Segmenter:
-    """Created once per model; `labels(rgb)` gives class ids at the frame's own resolution."""
+    """Created once per model; `labels(rgb)` gives class ids at the frame's own resolution.
+    ENGINE: onnxruntime, openvino (the `[peers]` extra) or auto (the faster of the two here, measured
+    once per model, thread count and CPU, cached in ~/.cache/edgepick/engines.json; onnxruntime
+    when OpenVINO is not installed)."""
 
     def __init__(self, path: str | Path, threads: int = 2, engine: str = "onnxruntime"):
         path = Path(path)
         if not path.is_file():
             raise ModelError(f"no model file at {path}")
-        if engine not in ENGINES:
-            raise ModelError(f"unknown engine {engine!r}: use {' or '.join(ENGINES)}")
-        self.path, self.engine = path, engine
+        if engine not in (*ENGINES, AUTO):
+            raise ModelError(f"unknown engine {engine!r}: use {', '.join(ENGINES)} or {AUTO}")
         self.session = _session(path, threads)  # onnxruntime also checks the contract for the other engine
         self.info = read_info(self.session, path)
         self._run = lambda image: self.session.run(["labels"], {"image": image})[0]
+        self.engine_choice = None
+        ov_run = None
+        if engine == AUTO:
+            engine, ov_run, self.engine_choice = choose_engine(path, threads, self._run, *self.info.input_size)
+        self.path, self.engine = path, engine
         if engine == "openvino":
-            self._run = _openvino_runner(path, threads)
+            self._run = ov_run or _openvino_runner(path, threads)
             self.session = None
 
     def prepare(self, rgb: np.ndarray) -> np.ndarray:

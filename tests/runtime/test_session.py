@@ -77,3 +77,31 @@ def test_openvino_engine_gives_the_same_labels(tmp_path):
 def test_unknown_engine_is_refused(tmp_path):
     with pytest.raises(ModelError, match="unknown engine"):
         Segmenter(red_channel_model(tmp_path / "m.onnx"), engine="tensorrt")
+
+
+def test_engine_auto_measures_once_per_model_and_caches(tmp_path, monkeypatch):
+    """--engine auto: the faster engine for this model, threads and CPU, measured once and read back after;
+    onnxruntime (and no cache) where OpenVINO is not installed."""
+    import importlib.util
+
+    from edgepick.runtime import session
+    from tests.runtime.test_pipeline import red_model
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    model = red_model(tmp_path / "m.onnx")
+    cache = tmp_path / "cache" / "edgepick" / "engines.json"
+    real_find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "openvino" else real_find_spec(name, *a))
+    seg = session.Segmenter(model, engine="auto")
+    assert seg.engine == "onnxruntime" and "not installed" in seg.engine_choice["why"] and not cache.exists()
+    monkeypatch.setattr(importlib.util, "find_spec", real_find_spec)
+    pytest.importorskip("openvino")
+    first = session.Segmenter(model, engine="auto")
+    (record,) = json.loads(cache.read_text()).values()
+    assert first.engine == record["engine"] == min(record["p50_ms"], key=record["p50_ms"].get)
+    assert set(record["p50_ms"]) == {"onnxruntime", "openvino"}
+    monkeypatch.setattr(session, "_median_ms", lambda *a, **k: pytest.fail("measured again"))
+    again = session.Segmenter(model, engine="auto")
+    assert again.engine == first.engine and again.labels(np.zeros((240, 320, 3), np.uint8)).shape == (240, 320)
+    with pytest.raises(session.ModelError, match="unknown engine"):
+        session.Segmenter(model, engine="fastest")
