@@ -19,6 +19,7 @@ from edgepick.robot.motion import HOME_POSE
 
 
 OCCLUDED = 0.02  # share of an object's rim under other objects above which it is picked last
+BURIED = 0.2  # ... and above which it is not picked at all: lifting it would drag what lies on it
 
 
 @dataclass
@@ -104,7 +105,8 @@ def choose_target(records: list[dict], envelope: Envelope, cfg: PickConfig,
                   start: list[float] | None = None) -> tuple[dict | None, list[Step], str]:
     """The preferred record whose whole plan, from the arm's pose `start` [default: the home
     pose], passes the envelope; its plan, and a note. An object cut by the image border is not
-    chosen: its centroid is that of the part in view, not of the object."""
+    chosen (its centroid is that of the part in view, not of the object), nor one with BURIED or
+    more of its rim under other objects."""
     start = list(cfg.home_pose) if start is None else start
     candidates = [r for r in records if not cfg.classes or r["class"] in cfg.classes]
     if not candidates:
@@ -119,6 +121,9 @@ def choose_target(records: list[dict], envelope: Envelope, cfg: PickConfig,
     for r in candidates:
         if r.get("partial"):
             reasons.append(f"{r['class']}: cut by the image border")
+            continue
+        if r.get("occluded", 0.0) >= BURIED:
+            reasons.append(f"{r['class']}: under other objects ({100 * r['occluded']:.0f}% of its rim)")
             continue
         if r.get("pose_robot") is None:
             reasons.append(f"{r['class']}: {r.get('reason', 'no robot pose (no calibration?)')}")

@@ -1,10 +1,11 @@
 """Grasp records from a label image (docs/contracts.md#grasp-record): filters, moments, robust depth, robot pose.
 
 Thesis 5.1 filters each class mask with a 3x3 median then a 5x5 dilation; each connected
-region is one object. Its centroid and major-axis angle come from image moments (eq. 5.1,
-5.2), its depth from its own valid depth pixels (a bearing's centroid falls in its hole,
-shiny metal leaves depth holes), and with a calibration its pose in the robot base frame.
-numpy + OpenCV only.
+region is one object, unless it is split at holes, notches or cores (touching objects of one
+class). Its depth comes from its own valid depth pixels (a bearing's centroid falls in its hole,
+shiny metal leaves depth holes); its centroid and major-axis angle from the image moments (eq.
+5.1, 5.2) of its top face, which leaves out the side walls a tall object shows off the optical
+axis; with a calibration, its pose in the robot base frame. numpy + OpenCV only.
 """
 
 from __future__ import annotations
@@ -32,6 +33,10 @@ class GraspConfig:
     centre_fraction: float = 0.3  # depth from pixels within this share of the equivalent radius of the centroid
     split_core: float = 0.5  # touching objects of one class: cores where the distance to the edge > this x its max
     split_min_share: float = 0.15  # a core counts as an object when it holds this share of all cores' area
+    notch_depth: float = 0.04  # objects side by side: notches deeper than this x sqrt(area) mark the seam
+    split_min_part: float = 0.25  # ... and each side of the cut holds at least this share of the region
+    split_solidity: float = 0.98  # ... and is convex (pixel count / hull area): not a notched disk cut in two
+    top_tolerance_m: float = 0.008  # an object's top face: its pixels within this depth of the top
 
 
 def filter_class_masks(labels: np.ndarray, num_classes: int, cfg: GraspConfig) -> dict[int, tuple[int, int, np.ndarray]]:
@@ -58,18 +63,60 @@ def split_touching(region: np.ndarray, cfg: GraspConfig, background: np.ndarray 
     """One class region -> one mask per object. Touching objects of one class (two bearings side by
     side) form one connected region whose centroid lies between them. Seeds: the region's holes when
     it has two or more (rings: one hole each; a hole is BACKGROUND, the table, enclosed by the region
-    and other objects lying on it), else its cores, the pixels farther than
+    and other objects lying on it), else its top faces at different heights (DEPTH_M, metres: two
+    boxes of different heights side by side), else its cores, the pixels farther than
     cfg.split_core x the region's largest distance from its edge. Each pixel goes to its nearest
     seed; a region with one seed is returned as it is."""
     seeds = _holes(region, cfg, background)
+    dist = cv2.distanceTransform(region, cv2.DIST_L2, 5)
     if len(seeds) < 2:
-        dist = cv2.distanceTransform(region, cv2.DIST_L2, 5)
+        seeds = _concavity_cut(region, cfg)
+    if len(seeds) < 2:
         seeds = _components((dist > cfg.split_core * dist.max()).view(np.uint8), cfg) if dist.max() > 0 else []
     if len(seeds) < 2:
         return [region]
     to_seed = np.stack([cv2.distanceTransform(1 - seed, cv2.DIST_L2, 3) for seed in seeds])
     nearest = np.argmin(to_seed, axis=0)
     return [((nearest == i) & (region > 0)).view(np.uint8) for i in range(len(seeds))]
+
+
+def _concavity_cut(region: np.ndarray, cfg: GraspConfig) -> list[np.ndarray]:
+    """Two convex objects side by side at one height (boxes, adapters) leave a notch on each side
+    of the seam: cut the region along the line between its two deepest notches (convexity defects
+    deeper than cfg.notch_depth x the square root of its area) when each side holds at least
+    cfg.split_min_part of it and is convex. Returns the two sides, or [] when there is no such cut."""
+    contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return []
+    contour = max(contours, key=cv2.contourArea)
+    hull = cv2.convexHull(contour, returnPoints=False)
+    if len(hull) < 4 or len(contour) < 8:
+        return []
+    try:
+        defects = cv2.convexityDefects(contour, np.sort(hull, axis=0))
+    except cv2.error:  # a self-touching contour
+        return []
+    if defects is None:
+        return []
+    area = cv2.countNonZero(region)
+    defects = defects.reshape(-1, 4)
+    deep = defects[defects[:, 3] / 256.0 > cfg.notch_depth * math.sqrt(area)]
+    if len(deep) < 2:
+        return []
+    two = deep[np.argsort(-deep[:, 3])[:2], 2]
+    p, q = (tuple(int(v) for v in contour[i, 0]) for i in two)
+    cut = region.copy()
+    cv2.line(cut, p, q, 0, 2)
+    n, comp, stats, _ = cv2.connectedComponentsWithStats(cut, connectivity=4)
+    sides = [(comp == k).view(np.uint8) for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= cfg.split_min_part * area]
+    return sides if len(sides) == 2 and all(_solidity(side) >= cfg.split_solidity for side in sides) else []
+
+
+def _solidity(mask: np.ndarray) -> float:
+    """Pixel count over the area of the convex hull of the mask's outline (~1.0 when convex)."""
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    hull = cv2.convexHull(max(contours, key=cv2.contourArea))
+    return cv2.countNonZero(mask) / max(1.0, cv2.contourArea(hull))
 
 
 def _components(mask: np.ndarray, cfg: GraspConfig) -> list[np.ndarray]:
@@ -126,13 +173,32 @@ def object_depth(depth: np.ndarray, region: np.ndarray, depth_scale: float, min_
 def grasp_depth(depth: np.ndarray, own: np.ndarray, cx: float, cy: float, area: int, depth_scale: float,
                 cfg: GraspConfig) -> float | None:
     """The surface the tool meets at the centroid: the object's own pixels near the centroid
-    (within `centre_fraction` of its equivalent radius) when enough of them have depth, else
-    all its pixels (a ring's centroid falls in its hole; a disk's lands on its raised hub)."""
-    radius = cfg.centre_fraction * math.sqrt(area / math.pi)
+    (within `centre_fraction`, then twice that, of its equivalent radius) when enough of them
+    have depth, else all its pixels (a ring's centroid falls in its hole; a disk's lands in the
+    bore of its raised hub, whose shiny top leaves few depth pixels)."""
     yy, xx = np.ogrid[:own.shape[0], :own.shape[1]]
-    near = own & ((xx - cx) ** 2 + (yy - cy) ** 2 <= radius * radius)
-    z = object_depth(depth, near, depth_scale, cfg.min_depth_px)
-    return z if z is not None else object_depth(depth, own, depth_scale, cfg.min_depth_px)
+    r2 = (xx - cx) ** 2 + (yy - cy) ** 2
+    for fraction in (cfg.centre_fraction, 2 * cfg.centre_fraction):
+        z = object_depth(depth, own & (r2 <= fraction ** 2 * area / math.pi), depth_scale, cfg.min_depth_px)
+        if z is not None:
+            return z
+    return object_depth(depth, own, depth_scale, cfg.min_depth_px)
+
+
+def top_face(depth: np.ndarray, own: np.ndarray, z_top: float, depth_scale: float,
+             cfg: GraspConfig) -> np.ndarray | None:
+    """The object's top face as a mask: the convex hull of its own pixels whose depth lies within
+    cfg.top_tolerance_m of its top Z_TOP. Seen off the optical axis a tall object shows side walls
+    on the side facing the principal point, which pull the silhouette's centroid towards it (a
+    10 cm box 200 px off-axis at 0.7 m: ~10 px, 16 mm) and skew its axis; the hull bridges the
+    depth holes of shiny tops and a ring's bore. None when too few top pixels have depth."""
+    d = depth.astype(np.float32) * depth_scale
+    top = own & (d > 0) & (np.abs(d - z_top) <= cfg.top_tolerance_m)
+    if int(top.sum()) < cfg.min_depth_px:
+        return None
+    hull = cv2.convexHull(cv2.findNonZero(top.view(np.uint8)))
+    face = cv2.fillConvexPoly(np.zeros(own.shape, np.uint8), hull, 1)
+    return face if cv2.countNonZero(face) >= cfg.min_depth_px else None
 
 
 def top_down_pose(cal: Calibration, intr: Intrinsics, cx: float, cy: float, z: float, angle_deg: float,
@@ -192,11 +258,14 @@ def _record(region: np.ndarray, x: int, y: int, c: int, labels: np.ndarray, dept
     if cv2.countNonZero(region) < cfg.min_area_px:
         return None
     cx, cy, angle, defined, area = moments_pose(region, cfg.round_ratio)
+    own = (labels[y:y + h, x:x + w] == c) & (region > 0)  # unfiltered pixels: not the dilated rim
+    z = grasp_depth(depth[y:y + h, x:x + w], own, cx, cy, area, intr.depth_scale, cfg)
+    top = None if z is None else top_face(depth[y:y + h, x:x + w], own, z, intr.depth_scale, cfg)
+    if top is not None:  # the grasp point and axis of the top face, not of the silhouette with its walls
+        cx, cy, angle, defined, _ = moments_pose(top, cfg.round_ratio)
     cx, cy = cx + x, cy + y
     rec: dict = {"class": classes[c], "pixel": [round(cx, 2), round(cy, 2)], "angle_deg": angle,
                  "orientation_defined": defined, "area_px": area}
-    own = (labels[y:y + h, x:x + w] == c) & (region > 0)  # unfiltered pixels: not the dilated rim
-    z = grasp_depth(depth[y:y + h, x:x + w], own, cx - x, cy - y, area, intr.depth_scale, cfg)
     if z is None:
         rec.update(depth_m=None, point_camera_m=None, reason="no valid depth under the object")
     else:

@@ -1,5 +1,6 @@
 """A pick's plan: the way from the object to the place pose goes round the base when the straight
-line would cut through the keep-out, and the whole plan then passes the envelope."""
+line would cut through the keep-out, and the whole plan then passes the envelope. Which object is
+chosen: free ones first, buried ones never."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import math
 import pytest
 
 from edgepick.robot.envelope import Envelope
-from edgepick.robot.pick import PickConfig, plan_pick, plan_reason
+from edgepick.robot.pick import BURIED, OCCLUDED, PickConfig, choose_target, plan_pick, plan_reason
 
 
 @pytest.mark.parametrize("x, y, vias", [(0.28, 0.0, 0), (0.10, 0.25, 3), (0.2, 0.3, 3), (0.3, 0.15, 3)])
@@ -24,3 +25,17 @@ def test_place_transit_goes_round_the_base_when_needed(x, y, vias):
     straight = [s for s in plan if s.note != "around the base"]
     if y >= 0.25:  # without the via points these plans are refused: the line cuts the base keep-out
         assert "keep-out" in plan_reason(straight, Envelope(), cfg, start=list(cfg.home_pose))
+
+
+def test_a_buried_object_is_never_chosen_and_a_partly_covered_one_last():
+    """An object with a fifth or more of its rim under others is refused (lifting it would drag what
+    lies on it; its visible centroid is not its own); one less covered is chosen after free ones."""
+    def rec(cls, area, occluded):
+        return {"class": cls, "area_px": area, "occluded": occluded, "depth_m": 0.6,
+                "pose_robot": [0.28, 0.0, 0.05, math.pi, 0.0, 0.0]}
+
+    covered, buried, free = rec("disk", 9000, (OCCLUDED + BURIED) / 2), rec("box", 8000, BURIED), rec("bearing", 500, 0.0)
+    assert choose_target([covered, buried, free], Envelope(), PickConfig())[0] is free
+    assert choose_target([covered, buried], Envelope(), PickConfig())[0] is covered
+    chosen, plan, note = choose_target([buried], Envelope(), PickConfig())
+    assert chosen is None and plan == [] and "box: under other objects (20% of its rim)" in note

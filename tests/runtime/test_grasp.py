@@ -190,24 +190,70 @@ def test_depth_is_the_surface_under_the_centroid_when_there_is_one():
     assert r["depth_m"] == pytest.approx(0.630, abs=1e-3)
 
 
-@pytest.mark.parametrize("shape", ["discs", "rings", "boxes end to end"])
+@pytest.mark.parametrize("shape", ["discs", "rings", "boxes offset", "boxes end to end"])
 def test_touching_objects_of_one_class_are_split(shape):
-    """Two objects of one class that touch form one region; each gets its own record, centred on it."""
+    """Two objects of one class that touch form one region; each gets its own record, centred on it.
+    Boxes side by side are cut between the notches at their seam; flush ones leave none to cut at."""
     labels = np.zeros((480, 640), np.uint8)
-    centres = [(250.0, 240.0), (331.0, 240.0)] if shape != "boxes end to end" else [(230.0, 240.0), (371.0, 240.0)]
+    centres = {"boxes offset": [(230.0, 240.0), (369.0, 252.0)],
+               "boxes end to end": [(230.0, 240.0), (369.0, 240.0)]}.get(shape, [(250.0, 240.0), (331.0, 240.0)])
     for c in centres:
-        if shape == "boxes end to end":
-            rect(labels, BOX, c, (140, 60), 0.0)
+        if shape.startswith("boxes"):
+            rect(labels, BOX, c, (140, 60), 0.0 if shape == "boxes end to end" else 8.0)
         else:
             cv2.circle(labels, (int(c[0]), int(c[1])), 40, BEARING, -1)
             if shape == "rings":
                 cv2.circle(labels, (int(c[0]), int(c[1])), 18, 0, -1)
     records = grasp_records(labels, flat_depth(), INTR)
-    if shape == "boxes end to end":  # one straight-sided region: its core is one, nothing to split
+    if shape == "boxes end to end":  # one straight-sided region: no notch, one core, nothing to split
         assert len(records) == 1
         return
     assert sorted(r["pixel"][0] for r in records) == pytest.approx([c[0] for c in centres], abs=2.0)
-    assert all(r["pixel"][1] == pytest.approx(240.0, abs=1.0) for r in records)
+    assert sorted(r["pixel"][1] for r in records) == pytest.approx(sorted(c[1] for c in centres), abs=1.5)
+
+
+def test_a_notched_disk_is_not_cut_in_two():
+    """A disk with two bites out of its rim (objects lying over it) has notches but is one object:
+    the sides of a cut between them would not be convex."""
+    labels = np.zeros((480, 640), np.uint8)
+    cv2.circle(labels, (320, 240), 100, 2, -1)
+    cv2.circle(labels, (320, 145), 30, 0, -1)
+    cv2.circle(labels, (320, 335), 30, 0, -1)
+    (r,) = grasp_records(labels, flat_depth(), INTR)
+    assert r["class"] == "disk"
+
+
+def test_grasp_point_is_the_top_face_centre_not_the_silhouette_centroid():
+    """A 10 cm box 150 px left of the principal point, seen from 0.7 m: its right side wall shows
+    as a band beside the top face, farther away. The grasp point is the top face's centre, and so
+    is the record's pixel; taken from the whole silhouette it would sit ~8 px (13 mm) off."""
+    labels, depth = np.zeros((480, 640), np.uint8), flat_depth(700)
+    top = (170.0, 240.0)
+    rect(labels, BOX, top, (100, 60), 0.0)
+    depth[labels == BOX] = 600
+    wall = np.zeros_like(labels)
+    rect(wall, 1, (top[0] + 58.0, top[1]), (16, 60), 0.0)  # the wall between the top and the base
+    wall &= labels == 0
+    labels[wall > 0], depth[wall > 0] = BOX, 650
+    (r,) = grasp_records(labels, depth, INTR)
+    assert r["pixel"] == pytest.approx(list(top), abs=1.0)
+    assert r["point_camera_m"] == pytest.approx(list(deproject(INTR, *top, 0.6)), abs=1.5e-3)
+    silhouette = cv2.moments((labels == BOX).view(np.uint8), binaryImage=True)
+    assert silhouette["m10"] / silhouette["m00"] - top[0] > 6.0  # what the test guards against
+
+
+def test_hub_depth_when_few_pixels_near_the_centroid_have_depth():
+    """A brake disk whose centroid falls in its hub's bore and whose shiny hub top returns depth on a
+    few pixels only: the tool still meets the hub, not the friction ring 3 cm lower."""
+    labels = np.zeros((480, 640), np.uint8)
+    cv2.circle(labels, (320, 240), 120, 2, -1)
+    depth = np.full((480, 640), 700, np.uint16)
+    depth[labels == 2] = 660  # friction ring
+    cv2.circle(depth, (320, 240), 60, 630, -1)  # hub, 3 cm higher
+    cv2.circle(depth, (320, 240), 40, 0, -1)  # no depth on most of the shiny hub...
+    cv2.circle(labels, (320, 240), 25, 0, -1)  # ... around its bore
+    (r,) = grasp_records(labels, depth, INTR)
+    assert r["depth_m"] == pytest.approx(0.630, abs=1e-3)
 
 
 def test_one_object_is_not_split_and_a_cut_one_is_marked_partial():
