@@ -77,6 +77,10 @@ def run_cell(models: list[str | Path], cycles: int, out_dir: str | Path, threads
         progress(f"cell: {Path(m).name}, {cycles} cycles ...")
         rows.append(cell_row(mode_label(seg.info.metadata), str(m), Pipeline(seg, camera.calibration()), cycles, seed,
                              round(Path(m).stat().st_size / 1e6, 3)))
+    modes = [r.mode for r in rows]
+    for r in rows:  # two models of one mode (the demo's hybrid and the reference one): name the files
+        if modes.count(r.mode) > 1:
+            r.mode = f"{r.mode} ({Path(r.model).stem})"
     context = {"title": f"Table 5.6 in the synthetic cell: {cycles} executions per model",
                "machine": machine_line().removeprefix("Machine: "), "onnxruntime": ort.__version__, "opencv": cv2.__version__,
                "threads": threads, "engine": engine, "scenes": f"SynthCamera seed {seed}, 640x480, {MOUNT_M} m above the table",

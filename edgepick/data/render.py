@@ -9,6 +9,7 @@ holes on shiny metal, at depth edges and in the left invalid band).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -68,7 +69,10 @@ class SceneRenderer:
         return pool[oy:oy + self.intr.height, ox:ox + self.intr.width]
 
     # ------------------------------------------------------------------ sampling
-    def sample_objects(self, rng: np.random.Generator, n: np.ndarray, d: float) -> list[Placed]:
+    def sample_objects(self, rng: np.random.Generator, n: np.ndarray, d: float,
+                       area: Callable[[np.ndarray], bool] | None = None) -> list[Placed]:
+        """1-4 objects on the table plane n . X = d, in view; with AREA, only where AREA(ground point,
+        camera frame) holds (a robot cell's pick area)."""
         intr = self.intr
         classes = list(OBJECT_WEIGHTS)
         probs = np.array(list(OBJECT_WEIGHTS.values()))
@@ -93,7 +97,7 @@ class SceneRenderer:
                     cand = d / (n @ ray) * ray
                 uv = cand[:2] / cand[2] * [intr.fx, intr.fy] + [intr.cx, intr.cy]
                 inside = (0.04 * intr.width < uv[0] < 0.96 * intr.width) and (0.04 * intr.height < uv[1] < 0.96 * intr.height)
-                if inside:
+                if inside and (area is None or area(cand)):
                     ground = cand
                     break
             if ground is None:
@@ -122,9 +126,10 @@ class SceneRenderer:
         x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, intr.width), min(y1, intr.height)
         return (x0, y0, x1, y1) if x1 > x0 and y1 > y0 else None
 
-    def render(self, rng: np.random.Generator, camera_height_m: float | None = None) -> Scene:
+    def render(self, rng: np.random.Generator, camera_height_m: float | None = None,
+               area: Callable[[np.ndarray], bool] | None = None) -> Scene:
         """One scene. `camera_height_m` fixes the camera straight above the table at that height
-        (a calibrated robot cell); by default height and tilt are random."""
+        (a calibrated robot cell); by default height and tilt are random. AREA: see sample_objects."""
         intr = self.intr
         h, w = intr.height, intr.width
         cam_h = rng.uniform(0.55, 0.8)
@@ -148,7 +153,7 @@ class SceneRenderer:
         label = np.zeros((h, w), np.uint8)
         inst = np.zeros((h, w), np.uint8)
 
-        placed = self.sample_objects(rng, n, d)
+        placed = self.sample_objects(rng, n, d, area)
         buffers = dict(zbuf=zbuf, albedo=albedo, normal=normal, ks=ks, shin=shin, metal=metal, label=label, inst=inst)
         footprints = [self._rasterize(p, k, n, d, ndotr, buffers) for k, p in enumerate(placed, start=1)]
 

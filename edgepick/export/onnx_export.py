@@ -7,7 +7,6 @@ the uint8 -> float cast and the ArgMax around whatever maps [0, 255] NCHW to log
 
 from __future__ import annotations
 
-import hashlib
 import json
 import warnings
 from pathlib import Path
@@ -16,7 +15,7 @@ import torch
 from torch import Tensor, nn
 
 from edgepick.errors import ConfigError
-from edgepick.files import atomic_path
+from edgepick.files import atomic_path, sha256_of
 from edgepick.export.crop_convs import crop_padded_convs
 from edgepick.export.int8_activations import integer_activations
 
@@ -46,14 +45,6 @@ class DeployNet(nn.Module):
         out = self.net(x)
         logits = out["out"] if isinstance(out, dict) else out
         return logits.argmax(1).to(torch.uint8)
-
-
-def sha256_of(path: str | Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def run_train_time_s(ckpt: dict) -> float:

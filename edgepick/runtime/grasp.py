@@ -19,6 +19,7 @@ import numpy as np
 from edgepick.errors import EdgepickError
 from edgepick.runtime.calibration import Calibration
 from edgepick.geometry import Intrinsics, deproject
+from edgepick.runtime.regions import split_touching
 
 DEFAULT_CLASSES = ("background", "bearing", "disk", "adapter", "box")
 
@@ -37,6 +38,7 @@ class GraspConfig:
     split_min_part: float = 0.25  # ... and each side of the cut holds at least this share of the region
     split_solidity: float = 0.98  # ... and is convex (pixel count / hull area): not a notched disk cut in two
     top_tolerance_m: float = 0.008  # an object's top face: its pixels within this depth of the top
+    rect_fill: float = 0.85  # a face filling this share of its minimum-area rectangle takes that rectangle's axis
 
 
 def filter_class_masks(labels: np.ndarray, num_classes: int, cfg: GraspConfig) -> dict[int, tuple[int, int, np.ndarray]]:
@@ -59,90 +61,6 @@ def filter_class_masks(labels: np.ndarray, num_classes: int, cfg: GraspConfig) -
     return out
 
 
-def split_touching(region: np.ndarray, cfg: GraspConfig, background: np.ndarray | None = None) -> list[np.ndarray]:
-    """One class region -> one mask per object. Touching objects of one class (two bearings side by
-    side) form one connected region whose centroid lies between them. Seeds: the region's holes when
-    it has two or more (rings: one hole each; a hole is BACKGROUND, the table, enclosed by the region
-    and other objects lying on it), else its top faces at different heights (DEPTH_M, metres: two
-    boxes of different heights side by side), else its cores, the pixels farther than
-    cfg.split_core x the region's largest distance from its edge. Each pixel goes to its nearest
-    seed; a region with one seed is returned as it is."""
-    seeds = _holes(region, cfg, background)
-    dist = cv2.distanceTransform(region, cv2.DIST_L2, 5)
-    if len(seeds) < 2:
-        seeds = _concavity_cut(region, cfg)
-    if len(seeds) < 2:
-        seeds = _components((dist > cfg.split_core * dist.max()).view(np.uint8), cfg) if dist.max() > 0 else []
-    if len(seeds) < 2:
-        return [region]
-    to_seed = np.stack([cv2.distanceTransform(1 - seed, cv2.DIST_L2, 3) for seed in seeds])
-    nearest = np.argmin(to_seed, axis=0)
-    return [((nearest == i) & (region > 0)).view(np.uint8) for i in range(len(seeds))]
-
-
-def _concavity_cut(region: np.ndarray, cfg: GraspConfig) -> list[np.ndarray]:
-    """Two convex objects side by side at one height (boxes, adapters) leave a notch on each side
-    of the seam: cut the region along the line between its two deepest notches (convexity defects
-    deeper than cfg.notch_depth x the square root of its area) when each side holds at least
-    cfg.split_min_part of it and is convex. Returns the two sides, or [] when there is no such cut."""
-    contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    if not contours:
-        return []
-    contour = max(contours, key=cv2.contourArea)
-    hull = cv2.convexHull(contour, returnPoints=False)
-    if len(hull) < 4 or len(contour) < 8:
-        return []
-    try:
-        defects = cv2.convexityDefects(contour, np.sort(hull, axis=0))
-    except cv2.error:  # a self-touching contour
-        return []
-    if defects is None:
-        return []
-    area = cv2.countNonZero(region)
-    defects = defects.reshape(-1, 4)
-    deep = defects[defects[:, 3] / 256.0 > cfg.notch_depth * math.sqrt(area)]
-    if len(deep) < 2:
-        return []
-    two = deep[np.argsort(-deep[:, 3])[:2], 2]
-    p, q = (tuple(int(v) for v in contour[i, 0]) for i in two)
-    cut = region.copy()
-    cv2.line(cut, p, q, 0, 2)
-    n, comp, stats, _ = cv2.connectedComponentsWithStats(cut, connectivity=4)
-    sides = [(comp == k).view(np.uint8) for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= cfg.split_min_part * area]
-    return sides if len(sides) == 2 and all(_solidity(side) >= cfg.split_solidity for side in sides) else []
-
-
-def _solidity(mask: np.ndarray) -> float:
-    """Pixel count over the area of the convex hull of the mask's outline (~1.0 when convex)."""
-    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    hull = cv2.convexHull(max(contours, key=cv2.contourArea))
-    return cv2.countNonZero(mask) / max(1.0, cv2.contourArea(hull))
-
-
-def _components(mask: np.ndarray, cfg: GraspConfig) -> list[np.ndarray]:
-    """The connected components of MASK that hold cfg.split_min_share of its area or more."""
-    n, comp, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    areas = stats[1:, cv2.CC_STAT_AREA]
-    return [(comp == k + 1).view(np.uint8) for k in np.flatnonzero(areas >= cfg.split_min_share * areas.sum())] \
-        if n > 2 else []
-
-
-def _holes(region: np.ndarray, cfg: GraspConfig, background: np.ndarray | None) -> list[np.ndarray]:
-    """The region's holes: table pixels (BACKGROUND; without it, all non-region pixels) not connected
-    to its bounding box's edge, large ones only."""
-    free = (region == 0) if background is None else (background & (region == 0))
-    outside = np.pad(free.view(np.uint8), 1, constant_values=1)
-    n, comp, stats, _ = cv2.connectedComponentsWithStats(outside, connectivity=4)
-    if n <= 2:
-        return []
-    edge = comp[0, 0]
-    holes = [k for k in range(1, n) if k != edge and stats[k, cv2.CC_STAT_AREA] >= 20]
-    if len(holes) < 2:
-        return []
-    mask = np.isin(comp, holes).view(np.uint8)[1:-1, 1:-1]
-    return _components(mask, cfg)
-
-
 def moments_pose(region: np.ndarray, round_ratio: float) -> tuple[float, float, float, bool, int]:
     """(cx, cy, angle_deg, orientation_defined, area) of a binary region from its moments."""
     m = cv2.moments(region, binaryImage=True)
@@ -156,6 +74,22 @@ def moments_pose(region: np.ndarray, round_ratio: float) -> tuple[float, float, 
     if angle <= -90.0:  # after rounding: -89.999 -> -90.0 must become 90.0
         angle += 180.0
     return cx, cy, angle, defined, area
+
+
+def rectangularity(face: np.ndarray) -> float:
+    """The face's area over that of its minimum-area rectangle: ~1 for a box's top, pi/4 for an ellipse."""
+    (_, _), (w, h), _ = cv2.minAreaRect(cv2.findNonZero(face))
+    return cv2.countNonZero(face) / max(1.0, w * h)
+
+
+def rect_axis_deg(face: np.ndarray) -> float:
+    """The long side's direction of the face's minimum-area rectangle, in (-90, 90] degrees like
+    moments_pose: a box's or adapter's axis even when a depth hole cuts a corner off its top face,
+    which tilts the moments' axis of a nearly square face by tens of degrees."""
+    (_, _), (w, h), a = cv2.minAreaRect(cv2.findNonZero(face))
+    angle = a if w >= h else a + 90.0
+    angle = (angle + 90.0) % 180.0 - 90.0
+    return round(90.0 if angle == -90.0 else angle, 2)
 
 
 def object_depth(depth: np.ndarray, region: np.ndarray, depth_scale: float, min_px: int,
@@ -242,7 +176,8 @@ def grasp_records(labels: np.ndarray, depth: np.ndarray, intr: Intrinsics, class
             region = (comp[y:y + h, x:x + w] == k).view(np.uint8)
             partial = x + ox == 0 or y + oy == 0 or x + ox + w == labels.shape[1] or y + oy + h == labels.shape[0]
             background = labels[y + oy:y + oy + h, x + ox:x + ox + w] == 0
-            for part in split_touching(region, cfg, background):
+            depth_m = depth[y + oy:y + oy + h, x + ox:x + ox + w].astype(np.float32) * intr.depth_scale
+            for part in split_touching(region, cfg, background, depth_m):
                 rec = _record(part, x + ox, y + oy, c, labels, depth, intr, classes, calib, cfg)
                 if rec is not None:
                     rec["partial"] = partial
@@ -263,6 +198,8 @@ def _record(region: np.ndarray, x: int, y: int, c: int, labels: np.ndarray, dept
     top = None if z is None else top_face(depth[y:y + h, x:x + w], own, z, intr.depth_scale, cfg)
     if top is not None:  # the grasp point and axis of the top face, not of the silhouette with its walls
         cx, cy, angle, defined, _ = moments_pose(top, cfg.round_ratio)
+        if defined and rectangularity(top) >= cfg.rect_fill:
+            angle = rect_axis_deg(top)
     cx, cy = cx + x, cy + y
     rec: dict = {"class": classes[c], "pixel": [round(cx, 2), round(cy, 2)], "angle_deg": angle,
                  "orientation_defined": defined, "area_px": area}

@@ -72,10 +72,13 @@ class SynthCamera(Camera):
     """The synthetic scene generator as a live camera; each frame carries its grasp truth.
 
     With `mount_height_m` the camera is fixed straight above the table, like a camera
-    mounted over a robot cell; `calibration()` then gives its camera-to-robot transform.
+    mounted over a robot cell; `calibration()` then gives its camera-to-robot transform, and the
+    objects lie in the cell's pick area, a tray the UR3 reaches (PICK_AREA_M, robot frame), while
+    the camera sees the table around it.
     """
 
     MOUNT_XY_M = (0.28, 0.0)  # robot-frame point under the camera centre
+    PICK_AREA_M = ((0.14, 0.38), (-0.22, 0.22))  # x and y ranges of the objects' centres (robot frame)
 
     def __init__(self, width: int = 640, height: int = 480, seed: int = 0, frames: int | None = None,
                  mount_height_m: float | None = None):
@@ -100,10 +103,17 @@ class SynthCamera(Camera):
         R = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
         return Calibration(R, np.array([*self.MOUNT_XY_M, self.mount]), 0.0, 0)
 
+    def in_pick_area(self, point_camera: np.ndarray) -> bool:
+        """Whether a table point (camera frame) lies in the cell's pick area."""
+        x, y, _ = self.calibration().apply(point_camera)
+        (x0, x1), (y0, y1) = self.PICK_AREA_M
+        return x0 <= x <= x1 and y0 <= y <= y1
+
     def read(self) -> Frame:
         if self.frames is not None and self.index >= self.frames:
             raise StopIteration
-        scene = self.renderer.render(np.random.default_rng([self.seed, 7, self.index]), camera_height_m=self.mount)
+        scene = self.renderer.render(np.random.default_rng([self.seed, 7, self.index]), camera_height_m=self.mount,
+                                     area=None if self.mount is None else self.in_pick_area)
         name = f"synth-{self.seed}-{self.index:06d}"
         self.index += 1
         if self.tool_marker is not None:

@@ -11,11 +11,13 @@ from tests.runtime.test_pipeline import red_model
 
 
 def test_cell_rows_and_files(tmp_path, capfd):
-    model = red_model(tmp_path / "red.onnx")
-    assert run(["bench", str(model), str(model), "--cell", "6", "--out", str(tmp_path / "out")]) == 0
+    model, copy = red_model(tmp_path / "red.onnx"), tmp_path / "copy.onnx"
+    copy.write_bytes(model.read_bytes())
+    assert run(["bench", str(model), str(copy), "--cell", "6", "--out", str(tmp_path / "out")]) == 0
     out, err = capfd.readouterr()
     rows = json.loads(out)["rows"]
-    assert [r["mode"] for r in rows] == ["true labels", "fp32 CPU", "fp32 CPU"] and all(r["cycles"] == 6 for r in rows)
+    assert [r["mode"] for r in rows] == ["true labels", "fp32 CPU (red)", "fp32 CPU (copy)"]  # one mode: files named
+    assert all(r["cycles"] == 6 for r in rows)
     truth, red, again = rows
     assert truth["success"] >= 3 and set(truth["failures"]) <= {"unreachable", "position", "orientation"}
     assert red["success"] + sum(red["failures"].values()) == 6

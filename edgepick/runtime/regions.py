@@ -1,0 +1,144 @@
+"""One class region -> one mask per object (docs/contracts.md#grasp-record): touching objects of one
+class form one connected region, split here at holes, at flat faces of different heights, at
+the notches of a seam, or at distance-transform cores. numpy + OpenCV only."""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+if TYPE_CHECKING:
+    from edgepick.runtime.grasp import GraspConfig
+
+
+def split_touching(region: np.ndarray, cfg: GraspConfig, background: np.ndarray | None = None,
+                   depth_m: np.ndarray | None = None) -> list[np.ndarray]:
+    """One class region -> one mask per object. Touching objects of one class (two bearings side by
+    side) form one connected region whose centroid lies between them. Seeds: the region's holes when
+    it has two or more (rings: one hole each; a hole is BACKGROUND, the table, enclosed by the region
+    and other objects lying on it), else its top faces at different heights (DEPTH_M, metres: two
+    boxes of different heights side by side), else its cores, the pixels farther than
+    cfg.split_core x the region's largest distance from its edge. Each pixel goes to its nearest
+    seed; a region with one seed is returned as it is."""
+    seeds = _holes(region, cfg, background)
+    dist = cv2.distanceTransform(region, cv2.DIST_L2, 5)
+    if len(seeds) < 2 and depth_m is not None:
+        seeds = _top_faces(region, depth_m, dist, cfg)
+    if len(seeds) < 2:
+        seeds = _concavity_cut(region, cfg)
+    if len(seeds) < 2:
+        seeds = _components((dist > cfg.split_core * dist.max()).view(np.uint8), cfg) if dist.max() > 0 else []
+    if len(seeds) < 2:
+        return [region]
+    to_seed = np.stack([cv2.distanceTransform(1 - seed, cv2.DIST_L2, 3) for seed in seeds])
+    nearest = np.argmin(to_seed, axis=0)
+    return [((nearest == i) & (region > 0)).view(np.uint8) for i in range(len(seeds))]
+
+
+def _top_faces(region: np.ndarray, depth_m: np.ndarray, dist: np.ndarray, cfg: GraspConfig) -> list[np.ndarray]:
+    """Flat faces of the region at different heights: for each peak of its depth histogram holding
+    cfg.split_min_share of its depth pixels, the connected parts at that depth that are large and
+    thick (a side wall seen at an angle is a thin band). Two faces each of whose centroid lies in
+    the other's convex hull are one object (a disk's hub inside its friction ring); faces left
+    apart are objects side by side or one on another (two boxes of different heights)."""
+    inside = (region > 0) & (depth_m > 0)
+    vals = depth_m[inside]
+    if vals.size < cfg.min_depth_px:
+        return []
+    tol = cfg.top_tolerance_m
+    counts, edges = np.histogram(vals, bins=max(1, int(np.ptp(vals) / (tol / 2)) + 1))
+    near = np.convolve(np.pad(counts, 1), np.ones(3, int), mode="valid")  # a level's pixels may straddle two bins
+    faces: list[np.ndarray] = []
+    for i in np.flatnonzero(near >= cfg.split_min_share * vals.size):
+        if (i > 0 and counts[i - 1] > counts[i]) or (i + 1 < counts.size and counts[i + 1] >= counts[i]):
+            continue  # not a peak
+        level = (edges[i] + edges[i + 1]) / 2
+        at = cv2.morphologyEx((inside & (np.abs(depth_m - level) <= tol)).view(np.uint8), cv2.MORPH_CLOSE,
+                              np.ones((5, 5), np.uint8))  # bridge depth holes
+        n, comp, stats, _ = cv2.connectedComponentsWithStats(at, connectivity=8)
+        for k in range(1, n):
+            part = (comp == k).view(np.uint8)
+            if stats[k, cv2.CC_STAT_AREA] >= cfg.split_min_share * cv2.countNonZero(region) and \
+                    cv2.distanceTransform(part, cv2.DIST_L2, 5).max() >= cfg.split_core / 2 * dist.max():
+                faces.append(part)
+    groups: list[list[int]] = []
+    for i in range(len(faces)):
+        joined = [g for g in groups if any(_nested(faces[i], faces[j]) for j in g)]
+        groups = [g for g in groups if g not in joined] + [[i] + [j for g in joined for j in g]]
+    return [np.bitwise_or.reduce([faces[j] for j in g]) for g in groups] if len(groups) > 1 else []
+
+
+def _nested(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether each mask's centroid lies in the other's convex hull (concentric parts of one object)."""
+    for one, other in ((a, b), (b, a)):
+        m = cv2.moments(one, binaryImage=True)
+        hull = cv2.convexHull(cv2.findNonZero(other))
+        if cv2.pointPolygonTest(hull, (m["m10"] / m["m00"], m["m01"] / m["m00"]), False) < 0:
+            return False
+    return True
+
+
+def _concavity_cut(region: np.ndarray, cfg: GraspConfig) -> list[np.ndarray]:
+    """Two convex objects side by side at one height (boxes, adapters) leave a notch on each side
+    of the seam: cut the region along the line between its two deepest notches (convexity defects
+    deeper than cfg.notch_depth x the square root of its area) when each side holds at least
+    cfg.split_min_part of it and is convex. Returns the two sides, or [] when there is no such cut."""
+    contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return []
+    contour = max(contours, key=cv2.contourArea)
+    hull = cv2.convexHull(contour, returnPoints=False)
+    if len(hull) < 4 or len(contour) < 8:
+        return []
+    try:
+        defects = cv2.convexityDefects(contour, np.sort(hull, axis=0))
+    except cv2.error:  # a self-touching contour
+        return []
+    if defects is None:
+        return []
+    area = cv2.countNonZero(region)
+    defects = defects.reshape(-1, 4)
+    deep = defects[defects[:, 3] / 256.0 > cfg.notch_depth * math.sqrt(area)]
+    if len(deep) < 2:
+        return []
+    two = deep[np.argsort(-deep[:, 3])[:2], 2]
+    p, q = (tuple(int(v) for v in contour[i, 0]) for i in two)
+    cut = region.copy()
+    cv2.line(cut, p, q, 0, 2)
+    n, comp, stats, _ = cv2.connectedComponentsWithStats(cut, connectivity=4)
+    sides = [(comp == k).view(np.uint8) for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= cfg.split_min_part * area]
+    return sides if len(sides) == 2 and all(_solidity(side) >= cfg.split_solidity for side in sides) else []
+
+
+def _solidity(mask: np.ndarray) -> float:
+    """Pixel count over the area of the convex hull of the mask's outline (~1.0 when convex)."""
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    hull = cv2.convexHull(max(contours, key=cv2.contourArea))
+    return cv2.countNonZero(mask) / max(1.0, cv2.contourArea(hull))
+
+
+def _components(mask: np.ndarray, cfg: GraspConfig) -> list[np.ndarray]:
+    """The connected components of MASK that hold cfg.split_min_share of its area or more."""
+    n, comp, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    return [(comp == k + 1).view(np.uint8) for k in np.flatnonzero(areas >= cfg.split_min_share * areas.sum())] \
+        if n > 2 else []
+
+
+def _holes(region: np.ndarray, cfg: GraspConfig, background: np.ndarray | None) -> list[np.ndarray]:
+    """The region's holes: table pixels (BACKGROUND; without it, all non-region pixels) not connected
+    to its bounding box's edge, large ones only."""
+    free = (region == 0) if background is None else (background & (region == 0))
+    outside = np.pad(free.view(np.uint8), 1, constant_values=1)
+    n, comp, stats, _ = cv2.connectedComponentsWithStats(outside, connectivity=4)
+    if n <= 2:
+        return []
+    edge = comp[0, 0]
+    holes = [k for k in range(1, n) if k != edge and stats[k, cv2.CC_STAT_AREA] >= 20]
+    if len(holes) < 2:
+        return []
+    mask = np.isin(comp, holes).view(np.uint8)[1:-1, 1:-1]
+    return _components(mask, cfg)

@@ -1,0 +1,66 @@
+"""Touching objects of one class split into one record each (edgepick/runtime/regions.py), seen
+through grasp_records: holes, faces at different heights, notches at a seam, cores."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from edgepick.runtime.grasp import grasp_records
+from tests.runtime.test_grasp import BEARING, BOX, INTR, flat_depth, rect
+
+
+@pytest.mark.parametrize("shape", ["discs", "rings", "boxes offset", "boxes end to end"])
+def test_touching_objects_of_one_class_are_split(shape):
+    """Two objects of one class that touch form one region; each gets its own record, centred on it.
+    Boxes side by side are cut between the notches at their seam; flush ones leave none to cut at."""
+    labels = np.zeros((480, 640), np.uint8)
+    centres = {"boxes offset": [(230.0, 240.0), (369.0, 252.0)],
+               "boxes end to end": [(230.0, 240.0), (369.0, 240.0)]}.get(shape, [(250.0, 240.0), (331.0, 240.0)])
+    for c in centres:
+        if shape.startswith("boxes"):
+            rect(labels, BOX, c, (140, 60), 0.0 if shape == "boxes end to end" else 8.0)
+        else:
+            cv2.circle(labels, (int(c[0]), int(c[1])), 40, BEARING, -1)
+            if shape == "rings":
+                cv2.circle(labels, (int(c[0]), int(c[1])), 18, 0, -1)
+    records = grasp_records(labels, flat_depth(), INTR)
+    if shape == "boxes end to end":  # one straight-sided region: no notch, one core, nothing to split
+        assert len(records) == 1
+        return
+    assert sorted(r["pixel"][0] for r in records) == pytest.approx([c[0] for c in centres], abs=2.0)
+    assert sorted(r["pixel"][1] for r in records) == pytest.approx(sorted(c[1] for c in centres), abs=1.5)
+
+
+def test_a_box_lying_on_a_larger_one_is_split_at_its_height():
+    """One box on another near its edge, both boxes: one region, but two top faces 8 cm apart in
+    depth. The upper one gets its own record, centred on its top; the disk's hub inside its ring
+    (two faces too, concentric) stays one object."""
+    labels, depth = np.zeros((480, 640), np.uint8), flat_depth(700)
+    rect(labels, BOX, (320.0, 240.0), (220, 160), 0.0)
+    depth[labels == BOX] = 640
+    upper = np.zeros_like(labels)
+    rect(upper, 1, (400.0, 215.0), (120, 90), 20.0)
+    labels[upper > 0], depth[upper > 0] = BOX, 560
+    records = grasp_records(labels, depth, INTR)
+    assert len(records) == 2
+    top = min(records, key=lambda r: r["depth_m"])
+    assert top["pixel"] == pytest.approx([400.0, 215.0], abs=1.5) and top["depth_m"] == pytest.approx(0.560, abs=1e-3)
+    disk = np.zeros_like(labels)
+    cv2.circle(disk, (320, 240), 120, 2, -1)
+    depth = flat_depth(700)
+    depth[disk > 0] = 660
+    cv2.circle(depth, (320, 240), 60, 630, -1)  # the hub
+    assert len(grasp_records(disk, depth, INTR)) == 1
+
+
+def test_a_notched_disk_is_not_cut_in_two():
+    """A disk with two bites out of its rim (objects lying over it) has notches but is one object:
+    the sides of a cut between them would not be convex."""
+    labels = np.zeros((480, 640), np.uint8)
+    cv2.circle(labels, (320, 240), 100, 2, -1)
+    cv2.circle(labels, (320, 145), 30, 0, -1)
+    cv2.circle(labels, (320, 335), 30, 0, -1)
+    (r,) = grasp_records(labels, flat_depth(), INTR)
+    assert r["class"] == "disk"
