@@ -106,17 +106,19 @@ def object_depth(depth: np.ndarray, region: np.ndarray, depth_scale: float, min_
 
 def grasp_depth(depth: np.ndarray, own: np.ndarray, cx: float, cy: float, area: int, depth_scale: float,
                 cfg: GraspConfig) -> float | None:
-    """The surface the tool meets at the centroid: the object's own pixels near the centroid
-    (within `centre_fraction`, then twice that, of its equivalent radius) when enough of them
-    have depth, else all its pixels (a ring's centroid falls in its hole; a disk's lands in the
-    bore of its raised hub, whose shiny top leaves few depth pixels)."""
+    """The surface the tool meets at the centroid: the nearer of the object's top (from all its
+    own pixels) and the surface near its centroid (within `centre_fraction`, then twice that, of
+    its equivalent radius). A disk's centroid lands on its raised hub, nearer than the friction
+    ring, whose shiny top may leave few depth pixels; a ring's centroid falls in its hole, where a
+    mask that covers the hole sees the table, farther than the ring."""
+    top = object_depth(depth, own, depth_scale, cfg.min_depth_px)
     yy, xx = np.ogrid[:own.shape[0], :own.shape[1]]
     r2 = (xx - cx) ** 2 + (yy - cy) ** 2
     for fraction in (cfg.centre_fraction, 2 * cfg.centre_fraction):
         z = object_depth(depth, own & (r2 <= fraction ** 2 * area / math.pi), depth_scale, cfg.min_depth_px)
         if z is not None:
-            return z
-    return object_depth(depth, own, depth_scale, cfg.min_depth_px)
+            return z if top is None else min(z, top)
+    return top
 
 
 def top_face(depth: np.ndarray, own: np.ndarray, z_top: float, depth_scale: float,
