@@ -93,15 +93,21 @@ def rect_axis_deg(face: np.ndarray) -> float:
 
 
 def object_depth(depth: np.ndarray, region: np.ndarray, depth_scale: float, min_px: int,
-                 percentile: float = 25.0) -> float | None:
+                 share: float = 0.08, level_m: float = 0.004) -> float | None:
     """Depth of the object's top surface (metres) from its own valid pixels, or None when too few
-    are valid. A low percentile rather than the median: a segmentation that bleeds onto the
-    table around the object (common with small models) would pull the median down to the
-    table, while the object's top is the near end of the distribution."""
-    vals = depth[(region > 0) & (depth > 0)]
+    are valid: the nearest depth level (LEVEL_M bins, three at a time) that holds SHARE of them,
+    then the 25th percentile of the pixels within 2 x LEVEL_M of its median. Not the median, nor a fixed percentile of
+    all: a mask that bleeds onto the table, or covers a ring's hole, over a shiny object that
+    returns few depth pixels may hold more table pixels than object ones."""
+    vals = depth[(region > 0) & (depth > 0)].astype(np.float64) * depth_scale
     if vals.size < min_px:
         return None
-    return float(np.percentile(vals, percentile)) * depth_scale
+    counts, edges = np.histogram(vals, bins=max(1, int(np.ptp(vals) / level_m) + 1))
+    near = np.convolve(np.pad(counts, 1), np.ones(3, int), mode="valid")
+    i = int(np.argmax(near >= max(min_px, share * vals.size)))  # near[argmax of counts] always qualifies
+    lo, hi = edges[max(i - 1, 0)], edges[min(i + 2, counts.size)]
+    level = float(np.median(vals[(vals >= lo) & (vals <= hi)]))
+    return float(np.percentile(vals[np.abs(vals - level) <= 2 * level_m], 25.0))
 
 
 def grasp_depth(depth: np.ndarray, own: np.ndarray, cx: float, cy: float, area: int, depth_scale: float,

@@ -51,21 +51,23 @@ def test_ellipse_angle_and_two_boxes_give_two_records():
     assert ell["angle_deg"] == pytest.approx(25.0, abs=1.0) and ell["pixel"] == pytest.approx([200, 200], abs=0.6)
 
 
-@pytest.mark.parametrize("hole_labelled", [False, True])
-def test_ring_depth_comes_from_the_ring_not_the_hole(hole_labelled):
-    """A bearing: the table shows through its hole. A model's mask may cover the hole too; the
-    depth is still the ring's top, not the table's."""
+@pytest.mark.parametrize("mask", ["true", "covers the hole", "bleeds onto the table"])
+def test_ring_depth_comes_from_the_ring_not_the_hole(mask):
+    """A shiny bearing: the table shows through its hole, and its ring returns depth on few pixels.
+    A model's mask may cover the hole too, or spill onto the table around the ring, so that table
+    pixels outnumber the ring's; the depth is still the ring's top."""
     labels = np.zeros((480, 640), np.uint8)
     cv2.circle(labels, (320, 240), 40, BEARING, -1)
     cv2.circle(labels, (320, 240), 20, 0, -1)
     depth = flat_depth(700)  # the table, seen through the hole
     ring = labels == BEARING
     depth[ring] = 665
-    depth[ring & (np.random.default_rng(0).random(depth.shape) < 0.4)] = 0  # shiny metal: holes
-    if hole_labelled:
-        cv2.circle(labels, (320, 240), 20, BEARING, -1)
+    shine = 0.4 if mask == "true" else 0.8
+    depth[ring & (np.random.default_rng(0).random(depth.shape) < shine)] = 0  # shiny metal: holes
+    if mask != "true":
+        cv2.circle(labels, (320, 240), 55 if mask == "bleeds onto the table" else 40, BEARING, -1)
     (r,) = grasp_records(labels, depth, INTR)
-    assert labels[240, 320] == (BEARING if hole_labelled else 0)  # the centroid lies in the hole
+    assert labels[240, 320] == (0 if mask == "true" else BEARING)  # the centroid lies in the hole
     assert r["pixel"] == pytest.approx([320, 240], abs=0.6)
     assert r["depth_m"] == pytest.approx(0.665)
     assert not r["orientation_defined"] and r["angle_deg"] == 0.0
