@@ -1,7 +1,7 @@
 """Grasp records from a label image (docs/contracts.md#grasp-record): filters, moments, robust depth, robot pose.
 
 Thesis 5.1 filters each class mask with a 3x3 median then a 5x5 dilation; each connected
-region is one object, unless it is split at holes, notches or cores (touching objects of one
+region is one object, unless it is split at holes, faces of two heights or cores (touching objects of one
 class). Its depth comes from its own valid depth pixels (a bearing's centroid falls in its hole,
 shiny metal leaves depth holes); its centroid and major-axis angle from the image moments (eq.
 5.1, 5.2) of its top face, which leaves out the side walls a tall object shows off the optical
@@ -33,10 +33,10 @@ class GraspConfig:
     min_depth_px: int = 10  # valid depth pixels needed for a depth estimate
     centre_fraction: float = 0.3  # depth from pixels within this share of the equivalent radius of the centroid
     split_core: float = 0.5  # touching objects of one class: cores where the distance to the edge > this x its max
+    hole_rim: float = 0.7  # a hole splits rings when this share of its rim is the region itself
     split_min_share: float = 0.15  # a core counts as an object when it holds this share of all cores' area
-    notch_depth: float = 0.04  # objects side by side: notches deeper than this x sqrt(area) mark the seam
-    split_min_part: float = 0.25  # ... and each side of the cut holds at least this share of the region
-    split_solidity: float = 0.98  # ... and is convex (pixel count / hull area): not a notched disk cut in two
+    face_compactness: float = 12.0  # a face at its own height: area <= this x (largest edge distance)^2,
+    #                                 i.e. at most 3x as long as wide; a side wall is a longer, thin band
     top_tolerance_m: float = 0.008  # an object's top face: its pixels within this depth of the top
     rect_fill: float = 0.85  # a face filling this share of its minimum-area rectangle takes that rectangle's axis
 

@@ -1,10 +1,9 @@
 """One class region -> one mask per object (docs/contracts.md#grasp-record): touching objects of one
-class form one connected region, split here at holes, at flat faces of different heights, at
-the notches of a seam, or at distance-transform cores. numpy + OpenCV only."""
+class form one connected region, split here at holes, at flat faces of different heights, or at
+distance-transform cores. numpy + OpenCV only."""
 
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING
 
 import cv2
@@ -24,11 +23,9 @@ def split_touching(region: np.ndarray, cfg: GraspConfig, background: np.ndarray 
     cfg.split_core x the region's largest distance from its edge. Each pixel goes to its nearest
     seed; a region with one seed is returned as it is."""
     seeds = _holes(region, cfg, background)
-    dist = cv2.distanceTransform(region, cv2.DIST_L2, 5)
+    dist = _edge_distance(region)
     if len(seeds) < 2 and depth_m is not None:
         seeds = _top_faces(region, depth_m, dist, cfg)
-    if len(seeds) < 2:
-        seeds = _concavity_cut(region, cfg)
     if len(seeds) < 2:
         seeds = _components((dist > cfg.split_core * dist.max()).view(np.uint8), cfg) if dist.max() > 0 else []
     if len(seeds) < 2:
@@ -61,8 +58,8 @@ def _top_faces(region: np.ndarray, depth_m: np.ndarray, dist: np.ndarray, cfg: G
         n, comp, stats, _ = cv2.connectedComponentsWithStats(at, connectivity=8)
         for k in range(1, n):
             part = (comp == k).view(np.uint8)
-            if stats[k, cv2.CC_STAT_AREA] >= cfg.split_min_share * cv2.countNonZero(region) and \
-                    cv2.distanceTransform(part, cv2.DIST_L2, 5).max() >= cfg.split_core / 2 * dist.max():
+            area, thick = int(stats[k, cv2.CC_STAT_AREA]), float(_edge_distance(part).max())
+            if area >= cfg.split_min_share * cv2.countNonZero(region) and area <= cfg.face_compactness * thick ** 2:
                 faces.append(part)
     groups: list[list[int]] = []
     for i in range(len(faces)):
@@ -81,43 +78,10 @@ def _nested(a: np.ndarray, b: np.ndarray) -> bool:
     return True
 
 
-def _concavity_cut(region: np.ndarray, cfg: GraspConfig) -> list[np.ndarray]:
-    """Two convex objects side by side at one height (boxes, adapters) leave a notch on each side
-    of the seam: cut the region along the line between its two deepest notches (convexity defects
-    deeper than cfg.notch_depth x the square root of its area) when each side holds at least
-    cfg.split_min_part of it and is convex. Returns the two sides, or [] when there is no such cut."""
-    contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    if not contours:
-        return []
-    contour = max(contours, key=cv2.contourArea)
-    hull = cv2.convexHull(contour, returnPoints=False)
-    if len(hull) < 4 or len(contour) < 8:
-        return []
-    try:
-        defects = cv2.convexityDefects(contour, np.sort(hull, axis=0))
-    except cv2.error:  # a self-touching contour
-        return []
-    if defects is None:
-        return []
-    area = cv2.countNonZero(region)
-    defects = defects.reshape(-1, 4)
-    deep = defects[defects[:, 3] / 256.0 > cfg.notch_depth * math.sqrt(area)]
-    if len(deep) < 2:
-        return []
-    two = deep[np.argsort(-deep[:, 3])[:2], 2]
-    p, q = (tuple(int(v) for v in contour[i, 0]) for i in two)
-    cut = region.copy()
-    cv2.line(cut, p, q, 0, 2)
-    n, comp, stats, _ = cv2.connectedComponentsWithStats(cut, connectivity=4)
-    sides = [(comp == k).view(np.uint8) for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= cfg.split_min_part * area]
-    return sides if len(sides) == 2 and all(_solidity(side) >= cfg.split_solidity for side in sides) else []
-
-
-def _solidity(mask: np.ndarray) -> float:
-    """Pixel count over the area of the convex hull of the mask's outline (~1.0 when convex)."""
-    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    hull = cv2.convexHull(max(contours, key=cv2.contourArea))
-    return cv2.countNonZero(mask) / max(1.0, cv2.contourArea(hull))
+def _edge_distance(mask: np.ndarray) -> np.ndarray:
+    """Each pixel's distance to the nearest pixel outside MASK, the crop's border counting as
+    outside (a region is worked on its bounding box, which it touches on every side)."""
+    return cv2.distanceTransform(np.pad(mask, 1), cv2.DIST_L2, 5)[1:-1, 1:-1]
 
 
 def _components(mask: np.ndarray, cfg: GraspConfig) -> list[np.ndarray]:
@@ -130,14 +94,23 @@ def _components(mask: np.ndarray, cfg: GraspConfig) -> list[np.ndarray]:
 
 def _holes(region: np.ndarray, cfg: GraspConfig, background: np.ndarray | None) -> list[np.ndarray]:
     """The region's holes: table pixels (BACKGROUND; without it, all non-region pixels) not connected
-    to its bounding box's edge, large ones only."""
+    to its bounding box's edge, large ones only, and ringed mostly (cfg.hole_rim share) by the region
+    itself: a ring's bore, even with an object lying across it, but not a pocket of table closed
+    off by a box and the objects lying around it."""
     free = (region == 0) if background is None else (background & (region == 0))
     outside = np.pad(free.view(np.uint8), 1, constant_values=1)
     n, comp, stats, _ = cv2.connectedComponentsWithStats(outside, connectivity=4)
     if n <= 2:
         return []
-    edge = comp[0, 0]
-    holes = [k for k in range(1, n) if k != edge and stats[k, cv2.CC_STAT_AREA] >= 20]
+    edge, padded = comp[0, 0], np.pad(region, 1)
+    holes = []
+    for k in range(1, n):
+        if k == edge or stats[k, cv2.CC_STAT_AREA] < 20:
+            continue
+        hole = (comp == k).view(np.uint8)
+        rim = (cv2.dilate(hole, np.ones((3, 3), np.uint8)) > 0) & (hole == 0)
+        if padded[rim].mean() >= cfg.hole_rim:
+            holes.append(k)
     if len(holes) < 2:
         return []
     mask = np.isin(comp, holes).view(np.uint8)[1:-1, 1:-1]
