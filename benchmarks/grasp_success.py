@@ -27,17 +27,22 @@ NOTE = ("The three models are `make demo`'s: 12 CPU epochs at 256x192 on 204 syn
 DEMO = ["demo-out/models/fp32.onnx", "demo-out/models/static.onnx", "demo-out/models/hybrid.onnx"]
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--models", nargs="*", default=DEMO)
+def parse_args(doc: str, models: list[str], spread: str) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap.add_argument("--models", nargs="*", default=models)
     ap.add_argument("--cycles", type=int, default=50)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--spread-seeds", default="1,2", help="other scene sets for the true-label row (the spread)")
+    ap.add_argument("--spread-seeds", default=spread, help="other scene sets for the true-label row (the spread)")
     add_output(ap)
     args = ap.parse_args()
     missing = [m for m in args.models if not Path(m).is_file()]
     if missing:
-        raise SystemExit(f"no model at {', '.join(missing)} (run `make demo` first, or pass --models)")
+        raise SystemExit(f"no model at {', '.join(missing)} (see this script's docstring for how to make them)")
+    return args
+
+
+def cell_report(args: argparse.Namespace, script: str, note: str) -> None:
+    """`bench --cell` on ARGS.models, the true-label row on the spread seeds too; printed and saved."""
     with tempfile.TemporaryDirectory() as tmp:
         run_cell(args.models, args.cycles, tmp, seed=args.seed, progress=lambda line: print(line, file=sys.stderr))
         table_md = (Path(tmp) / "cell.md").read_text()
@@ -45,7 +50,7 @@ def main() -> None:
     spread = [cell_row(f"true labels, seed {s}", "-",
                        TruthPipeline(list(CLASSES), SynthCamera(seed=s, mount_height_m=MOUNT_M).calibration()),
                        args.cycles, s, None) for s in seeds]
-    command = (f"python benchmarks/grasp_success.py --models {' '.join(args.models)} --cycles {args.cycles} "
+    command = (f"{script} --models {' '.join(args.models)} --cycles {args.cycles} "
                f"--seed {args.seed} --spread-seeds {args.spread_seeds}")
     body = table_md.split("\n", 1)[1]
     if spread:
@@ -53,7 +58,12 @@ def main() -> None:
                  + markdown(HEADER, table(spread)) + "\n")
     emit(f"# Grasp success in the synthetic cell (thesis Table 5.6), {args.cycles} executions per model\n\n"
          f"Command: `{command}` (the same as `edgepick bench MODELS --cell {args.cycles} --seed {args.seed}`)\n"
-         f"{body}\n{NOTE if args.models == DEMO else ''}", args)
+         f"{body}\n{note}", args)
+
+
+def main() -> None:
+    args = parse_args(__doc__, DEMO, "1,2")
+    cell_report(args, "python benchmarks/grasp_success.py", NOTE if args.models == DEMO else "")
 
 
 if __name__ == "__main__":
