@@ -1,11 +1,11 @@
 """Grasp records from a label image (docs/contracts.md#grasp-record): filters, moments, robust depth, robot pose.
 
 Thesis 5.1 filters each class mask with a 3x3 median then a 5x5 dilation; each connected
-region is one object, unless it is split at holes, faces of two heights or cores (touching objects of one
-class). Its depth comes from its own valid depth pixels (a bearing's centroid falls in its hole,
-shiny metal leaves depth holes); its centroid and major-axis angle from the image moments (eq.
-5.1, 5.2) of its top face, which leaves out the side walls a tall object shows off the optical
-axis; with a calibration, its pose in the robot base frame. numpy + OpenCV only.
+region is one object, unless regions.py splits it (touching objects of one class). Its depth
+comes from its own valid depth pixels (a bearing's centroid falls in its hole, shiny metal leaves
+depth holes); its centroid and major-axis angle from the image moments (eq. 5.1, 5.2) of its top
+face, which leaves out the side walls a tall object shows off the optical axis; with a
+calibration, its pose in the robot base frame. numpy + OpenCV only.
 """
 
 from __future__ import annotations
@@ -96,9 +96,9 @@ def object_depth(depth: np.ndarray, region: np.ndarray, depth_scale: float, min_
                  share: float = 0.08, level_m: float = 0.004) -> float | None:
     """Depth of the object's top surface (metres) from its own valid pixels, or None when too few
     are valid: the nearest depth level (LEVEL_M bins, three at a time) that holds SHARE of them,
-    then the 25th percentile of the pixels within 2 x LEVEL_M of its median. Not the median, nor a fixed percentile of
-    all: a mask that bleeds onto the table, or covers a ring's hole, over a shiny object that
-    returns few depth pixels may hold more table pixels than object ones."""
+    then the 25th percentile of the pixels within 2 x LEVEL_M of its median. Not the median, nor
+    a fixed percentile of all: a mask that bleeds onto the table, or covers a ring's hole, over a
+    shiny object that returns few depth pixels may hold more table pixels than object ones."""
     vals = depth[(region > 0) & (depth > 0)].astype(np.float64) * depth_scale
     if vals.size < min_px:
         return None

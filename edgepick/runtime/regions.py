@@ -25,7 +25,7 @@ def split_touching(region: np.ndarray, cfg: GraspConfig, background: np.ndarray 
     seeds = _holes(region, cfg, background)
     dist = _edge_distance(region)
     if len(seeds) < 2 and depth_m is not None:
-        seeds = _top_faces(region, depth_m, dist, cfg)
+        seeds = _top_faces(region, depth_m, cfg)
     if len(seeds) < 2:
         seeds = _components((dist > cfg.split_core * dist.max()).view(np.uint8), cfg) if dist.max() > 0 else []
     if len(seeds) < 2:
@@ -35,19 +35,20 @@ def split_touching(region: np.ndarray, cfg: GraspConfig, background: np.ndarray 
     return [((nearest == i) & (region > 0)).view(np.uint8) for i in range(len(seeds))]
 
 
-def _top_faces(region: np.ndarray, depth_m: np.ndarray, dist: np.ndarray, cfg: GraspConfig) -> list[np.ndarray]:
+def _top_faces(region: np.ndarray, depth_m: np.ndarray, cfg: GraspConfig) -> list[np.ndarray]:
     """Flat faces of the region at different heights: for each peak of its depth histogram holding
     cfg.split_min_share of its depth pixels, the connected parts at that depth that are large and
-    thick (a side wall seen at an angle is a thin band). Two faces each of whose centroid lies in
-    the other's convex hull are one object (a disk's hub inside its friction ring); faces left
-    apart are objects side by side or one on another (two boxes of different heights)."""
+    compact (cfg.face_compactness: a side wall seen at an angle is a long, thin band). Two faces
+    each of whose centroid lies in the other's convex hull are one object (a disk's hub inside its
+    friction ring); faces left apart are objects side by side or one on another (two boxes of
+    different heights)."""
     inside = (region > 0) & (depth_m > 0)
     vals = depth_m[inside]
     if vals.size < cfg.min_depth_px:
         return []
     tol = cfg.top_tolerance_m
     counts, edges = np.histogram(vals, bins=max(1, int(np.ptp(vals) / (tol / 2)) + 1))
-    near = np.convolve(np.pad(counts, 1), np.ones(3, int), mode="valid")  # a level's pixels may straddle two bins
+    near = np.convolve(np.pad(counts, 1), np.ones(3, int), mode="valid")  # a level may straddle two bins
     faces: list[np.ndarray] = []
     for i in np.flatnonzero(near >= cfg.split_min_share * vals.size):
         if (i > 0 and counts[i - 1] > counts[i]) or (i + 1 < counts.size and counts[i + 1] >= counts[i]):
