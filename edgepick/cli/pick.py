@@ -32,8 +32,9 @@ def make_gripper(spec: str, robot, robot_host: str | None):
 
 
 @click.command()
-@click.option("--model", required=True, type=click.Path(dir_okay=False),
-              help="Segmentation ONNX (docs/contracts.md#onnx-model).")
+@click.option("--model", default=None, type=click.Path(dir_okay=False),
+              help="Segmentation ONNX (docs/contracts.md#onnx-model) [default with a synthetic camera: the shipped "
+                   "reference model, edgepick/reference/MODEL_CARD.md; a real camera needs a model of its own].")
 @click.option("--camera", default="synth-cell", show_default=True,
               help="synth-cell[:SEED] (synthetic camera over a calibrated cell), synth, dir:PATH or realsense[:SERIAL].")
 @click.option("--robot", "robot_spec", default="sim", show_default=True, help="sim, or ur:HOST for a UR3 over ur_rtde.")
@@ -90,6 +91,7 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     if robot_log:
         check_output(robot_log, "--robot-log")
     width, height = parse_size(size)
+    model = model or _reference_for(camera)
     segmenter = Segmenter(model, threads=threads, engine=engine)
     unknown = [c for c in classes if c not in segmenter.info.classes]
     if unknown:
@@ -133,7 +135,7 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
                 halted = halted or robot.halted
     finally:
         log.close()
-    summary = _summary(results, log_path if log.path and log.path.exists() else None, halted)
+    summary = _summary(results, model, log_path if log.path and log.path.exists() else None, halted)
     click.echo(json.dumps(summary, indent=1))
     if halted:
         click.echo(f"edgepick: error: robot halted: {halted} ({summary['done']} of {cycles} cycles done)", err=True)
@@ -163,14 +165,27 @@ def check_robot(robot_spec: str) -> tuple[str, str]:
     return kind, host
 
 
-def _summary(results: list[dict], log_path: str | None, halted: str | None) -> dict:
-    """The JSON summary `pick` prints: cycles, done, grasp error, success, each cycle's record."""
+def _summary(results: list[dict], model: str, log_path: str | None, halted: str | None) -> dict:
+    """The JSON summary `pick` prints: the model, cycles, done, grasp error, success, each cycle's record."""
     from edgepick.robot.verdict import summarize
 
     errors = [r["grasp_error_m"] for r in results if r.get("grasp_error_m") is not None]
-    return {"cycles": len(results), "done": sum(r["outcome"] == "done" for r in results), "log": log_path,
+    return {"model": model, "cycles": len(results), "done": sum(r["outcome"] == "done" for r in results),
+            "log": log_path,
             "halted": halted,
             "within_1cm": sum(1 for r in results if r.get("within_1cm")),
             "grasp_error_mm_median": round(1000 * sorted(errors)[len(errors) // 2], 2) if errors else None,
             **summarize(results), "results": results}
 
+
+def _reference_for(camera: str) -> str:
+    """The shipped reference model, for a synthetic camera only: it has seen synthetic scenes alone."""
+    from edgepick.reference import reference_model
+
+    if not camera.startswith("synth"):
+        raise ConfigError(f"--model is needed with --camera {camera}: the shipped reference model knows only "
+                          "synthetic scenes; train one on your own data")
+    found = reference_model()
+    if found is None:
+        raise ConfigError("--model is needed: this install has no reference model (edgepick/reference/)")
+    return str(found)

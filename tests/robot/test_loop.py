@@ -85,3 +85,18 @@ def test_pick_needs_a_calibration_for_a_folder_camera(tmp_path):
     cam = capture(tmp_path / "cap", [(160, 120)])
     proc = run_cli("pick", "--model", str(red_model(tmp_path / "m.onnx")), "--camera", f"dir:{cam}")
     assert proc.returncode == 2 and "--calib" in proc.stderr
+
+
+def test_pick_defaults_to_the_reference_model_on_a_synthetic_camera_only(tmp_path, capfd):
+    """No --model: the synthetic cell runs with the shipped reference model; a real (folder) camera
+    is refused in one line, before any work, as the reference model has seen synthetic scenes only."""
+    from edgepick.cli import run
+    from edgepick.reference import reference_model
+
+    assert run(["pick", "--cycles", "2", "--log", str(tmp_path / "l.jsonl")]) == 0
+    out, _ = capfd.readouterr()
+    summary = json.loads(out)
+    assert summary["model"] == str(reference_model()) and summary["cycles"] == 2
+    assert run(["pick", "--camera", f"dir:{tmp_path}", "--log", str(tmp_path / "m.jsonl")]) == 2
+    err = capfd.readouterr().err
+    assert "--model is needed with --camera dir:" in err and not (tmp_path / "m.jsonl").exists()
