@@ -15,7 +15,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from grasp_success import cell_report, parse_args  # noqa: E402
 
 NOTE = ("The models: `bash benchmarks/reference_model.sh` (edgepick/reference/MODEL_CARD.md: data seed, "
-        "training command, test-split metrics); the shipped int8 file is one of the int8 rows.\n")
+        "training command, test-split metrics); the shipped int8 file is the hybrid-QaT row.\n")
 RUN = "reference-run/models"
 
 

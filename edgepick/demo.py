@@ -101,9 +101,8 @@ def quantize_demo(workdir: Path, epochs: int) -> dict:
 def pick_demo(workdir: Path, model: Path, cycles: int = PICK_CYCLES) -> dict:
     """Pick cycles on SimRobot: a synthetic camera over a calibrated cell, the int8 model, a magnet."""
     from edgepick.robot.grippers import DigitalGripper
-    from edgepick.robot.loop import run_cycles
+    from edgepick.robot.loop import cycles_summary, run_cycles
     from edgepick.robot.pick import CommandLog, PickConfig
-    from edgepick.robot.verdict import summarize
     from edgepick.sim.robot import SimRobot
     from edgepick.sim.camera import SynthCamera
     from edgepick.runtime.pipeline import Pipeline
@@ -120,13 +119,8 @@ def pick_demo(workdir: Path, model: Path, cycles: int = PICK_CYCLES) -> dict:
                                  workdir / "picks", echo=lambda line: click.echo(line, err=True), truth_cal=truth)
     finally:
         log.close()
-    errors = sorted(r["grasp_error_m"] for r in results if r.get("grasp_error_m") is not None)
-    latency = sorted(r["frame_to_command_ms"] for r in results if "frame_to_command_ms" in r)
-    return {"model": str(model), "cycles": len(results), "done": sum(r["outcome"] == "done" for r in results),
-            "within_1cm": sum(bool(r.get("within_1cm")) for r in results),
-            "grasp_error_mm_median": round(1000 * errors[len(errors) // 2], 1) if errors else None,
-            **summarize(results), "frame_to_command_ms_median": latency[len(latency) // 2] if latency else None,
-            "overlays": str(workdir / "picks"), "log": str(workdir / "picks.jsonl")}
+    return {"model": str(model), **cycles_summary(results), "overlays": str(workdir / "picks"),
+            "log": str(workdir / "picks.jsonl")}
 
 
 def bench_demo(workdir: Path, models: list[Path], reference: Path | None) -> str:

@@ -76,7 +76,7 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     """
     from edgepick.cli.cameras import open_camera
     from edgepick.robot.base import RobotError
-    from edgepick.robot.loop import run_cycles
+    from edgepick.robot.loop import cycles_summary, run_cycles
     from edgepick.robot.pick import CommandLog, PickConfig
     from edgepick.runtime.calibration import Calibration
     from edgepick.runtime.pipeline import Pipeline
@@ -135,7 +135,8 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
                 halted = halted or robot.halted
     finally:
         log.close()
-    summary = _summary(results, model, log_path if log.path and log.path.exists() else None, halted)
+    summary = {"model": model, **cycles_summary(results), "halted": halted,
+               "log": log_path if log.path and log.path.exists() else None, "results": results}
     click.echo(json.dumps(summary, indent=1))
     if halted:
         click.echo(f"edgepick: error: robot halted: {halted} ({summary['done']} of {cycles} cycles done)", err=True)
@@ -163,19 +164,6 @@ def check_robot(robot_spec: str) -> tuple[str, str]:
     if kind not in ("sim", "ur") or (kind == "ur" and not host):
         raise ConfigError(f"unknown robot {robot_spec!r}: use sim or ur:HOST")
     return kind, host
-
-
-def _summary(results: list[dict], model: str, log_path: str | None, halted: str | None) -> dict:
-    """The JSON summary `pick` prints: the model, cycles, done, grasp error, success, each cycle's record."""
-    from edgepick.robot.verdict import summarize
-
-    errors = [r["grasp_error_m"] for r in results if r.get("grasp_error_m") is not None]
-    return {"model": model, "cycles": len(results), "done": sum(r["outcome"] == "done" for r in results),
-            "log": log_path,
-            "halted": halted,
-            "within_1cm": sum(1 for r in results if r.get("within_1cm")),
-            "grasp_error_mm_median": round(1000 * sorted(errors)[len(errors) // 2], 2) if errors else None,
-            **summarize(results), "results": results}
 
 
 def _reference_for(camera: str) -> str:

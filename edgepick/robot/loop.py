@@ -19,7 +19,7 @@ from edgepick.robot.base import RobotBase
 from edgepick.robot.envelope import Envelope
 from edgepick.robot.pick import CommandLog, PickConfig, choose_target, execute
 from edgepick.frames import Camera, Frame
-from edgepick.robot.verdict import judge
+from edgepick.robot.verdict import judge, summarize
 from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.grasp import draw_overlay
 from edgepick.runtime.pipeline import Pipeline
@@ -100,6 +100,21 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, grip
         if robot is not None and robot.halted:
             break  # the caller reports it once
     return results
+
+
+def cycles_summary(results: list[dict]) -> dict:
+    """What `pick` and the demo report over their cycles: count, done, within 1 cm, median grasp
+    error and frame -> command latency, and (synthetic cell) grasp success and failures by kind."""
+    def median(values: list[float]) -> float | None:
+        return sorted(values)[len(values) // 2] if values else None
+
+    error = median([r["grasp_error_m"] for r in results if r.get("grasp_error_m") is not None])
+    return {"cycles": len(results), "done": sum(r["outcome"] == "done" for r in results),
+            "within_1cm": sum(bool(r.get("within_1cm")) for r in results),
+            "grasp_error_mm_median": None if error is None else round(1000 * error, 2),
+            **summarize(results),
+            "frame_to_command_ms_median": median([r["frame_to_command_ms"] for r in results
+                                                  if "frame_to_command_ms" in r])}
 
 
 def _line(r: dict) -> str:
