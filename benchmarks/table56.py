@@ -2,7 +2,7 @@
 hybrid-QaT files, 50 executions each of the whole pick cycle in the synthetic cell, with the scenes'
 true labels as the first row (the grasp step's own ceiling) and on further scene sets (the spread).
 
-    bash benchmarks/reference_model.sh reference-run      # makes the three files (about an hour on 2 cores)
+    bash benchmarks/reference_model.sh reference-run      # makes the three files (about 15 minutes on one GPU)
     python benchmarks/table56.py --models reference-run/models/{fp32,static,hybrid}.onnx --save
 """
 
@@ -15,7 +15,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from grasp_success import cell_report, parse_args  # noqa: E402
 
 NOTE = ("The models: `bash benchmarks/reference_model.sh` (edgepick/reference/MODEL_CARD.md: data seed, "
-        "training command, test-split metrics); the shipped int8 file is the hybrid-QaT row.\n")
+        "training command, test-split metrics); the shipped int8 file is the static row.\n")
 RUN = "reference-run/models"
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import replace
+from typing import Callable
 
 import numpy as np
 import torch
@@ -46,6 +47,14 @@ def activation_fake_quants(prepared: torch.nn.Module) -> dict[str, torch.nn.Modu
             if isinstance(m, FakeQuantizeBase) and not m.is_per_channel}
 
 
+def _observing(observer: Callable[[torch.Tensor], object]) -> Callable:
+    """A forward pre-hook that shows a module's input to OBSERVER (on the CPU) and leaves the input
+    as it is: a pre-hook that returns a value replaces the input, here with a CPU copy."""
+    def hook(module: torch.nn.Module, args: tuple) -> None:
+        observer(args[0].detach().float().cpu())
+    return hook
+
+
 def calibrate_activations(prepared: torch.fx.GraphModule, images: list[np.ndarray], percentile: float = 99.99,
                           hold: bool = False) -> int:
     """Set every activation fake-quant of the QaT graph PREPARED (in training mode) to the
@@ -57,8 +66,7 @@ def calibrate_activations(prepared: torch.fx.GraphModule, images: list[np.ndarra
     observers = {name: PercentileObserver(percentile=percentile, eps=2 ** -12, dtype=torch.quint8,
                                           quant_min=fq.activation_post_process.quant_min,
                                           quant_max=fq.activation_post_process.quant_max) for name, fq in targets.items()}
-    hooks = [fq.register_forward_pre_hook(lambda mod, args, o=observers[name]: o(args[0].detach().float().cpu()))
-             for name, fq in targets.items()]
+    hooks = [fq.register_forward_pre_hook(_observing(observers[name])) for name, fq in targets.items()]
     device = next(prepared.parameters()).device
     prepared.apply(disable_fake_quant)
     prepared.apply(disable_observer)

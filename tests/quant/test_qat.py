@@ -65,6 +65,20 @@ def test_calibrated_start_is_where_static_ptq_is(trained_run, small_data):
     assert agree["qat_start"] >= agree["static"] - 0.01, agree
 
 
+def test_calibration_hook_leaves_the_input_alone():
+    """The calibration's pre-hook shows each input to its observer (on the CPU) without replacing it:
+    an observer returns its input, and a pre-hook that returns that CPU copy moved a GPU graph's
+    activations to the CPU (onto the wrong device for the next op)."""
+    from edgepick.quant.qat import _observing
+
+    seen = []
+    module = torch.nn.Identity()
+    module.register_forward_pre_hook(_observing(lambda t: seen.append(t) or t))
+    x = torch.arange(4, dtype=torch.float64)
+    assert module(x) is x
+    assert seen[0].dtype == torch.float32 and torch.equal(seen[0], x.float())
+
+
 @pytest.mark.parametrize("after", ["prepare", "train_switch"])
 def test_qat_graph_keeps_the_models_batchnorm_eps(after):
     """torchao's QaT rewrites reset BatchNorm to eps 1e-5; MobileNetV3's is 1e-3. With fake-quant off,
