@@ -20,7 +20,7 @@ RUN = "reference-run/models"
 
 
 def main() -> None:
-    args = parse_args(__doc__, [f"{RUN}/fp32.onnx", f"{RUN}/static.onnx", f"{RUN}/hybrid.onnx"], "1,2,3,4")
+    args = parse_args(__doc__, [f"{RUN}/fp32.onnx", f"{RUN}/static.onnx", f"{RUN}/hybrid.onnx"], "1,2,3,4,5,6,7,8,9")
     cell_report(args, "python benchmarks/table56.py", NOTE)
 
 

@@ -1,9 +1,10 @@
 """One class region -> one mask per object (docs/contracts.md#grasp-record): touching objects of one
-class form one connected region, split here at holes, at flat faces of different heights, or at
-distance-transform cores. numpy + OpenCV only."""
+class form one connected region, split here at holes, at flat faces of different heights, at the
+notches of a seam, or at distance-transform cores. numpy + OpenCV only."""
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
 import cv2
@@ -19,13 +20,16 @@ def split_touching(region: np.ndarray, cfg: GraspConfig, background: np.ndarray 
     side) form one connected region whose centroid lies between them. Seeds: the region's holes when
     it has two or more (rings: one hole each; a hole is BACKGROUND, the table, enclosed by the region
     and other objects lying on it), else its top faces at different heights (DEPTH_M, metres: two
-    boxes of different heights side by side), else its cores, the pixels farther than
+    boxes of different heights side by side), else the two sides of a cut between the two deepest
+    notches of its outline (two boxes side by side at one height), else its cores, the pixels farther than
     cfg.split_core x the region's largest distance from its edge. Each pixel goes to its nearest
     seed; a region with one seed is returned as it is."""
     seeds = _holes(region, cfg, background)
     dist = _edge_distance(region)
     if len(seeds) < 2 and depth_m is not None:
         seeds = _top_faces(region, depth_m, cfg)
+    if len(seeds) < 2:
+        seeds = _notch_cut(region, cfg)
     if len(seeds) < 2:
         seeds = _components((dist > cfg.split_core * dist.max()).view(np.uint8), cfg) if dist.max() > 0 else []
     if len(seeds) < 2:
@@ -77,6 +81,44 @@ def _nested(a: np.ndarray, b: np.ndarray) -> bool:
         if cv2.pointPolygonTest(hull, (m["m10"] / m["m00"], m["m01"] / m["m00"]), False) < 0:
             return False
     return True
+
+
+def _notch_cut(region: np.ndarray, cfg: GraspConfig) -> list[np.ndarray]:
+    """Two convex objects side by side at one height (boxes, adapters) leave a notch on each side
+    of their seam: cut the region along the line between its two deepest notches (convexity defects
+    deeper than cfg.notch_depth x the square root of its area) when each side holds cfg.split_min_part
+    of it or more and is convex (cfg.split_solidity). Returns the two sides, or [] when there is no such cut."""
+    contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return []
+    contour = max(contours, key=cv2.contourArea)
+    hull = cv2.convexHull(contour, returnPoints=False)
+    if len(hull) < 4 or len(contour) < 8:
+        return []
+    try:
+        defects = cv2.convexityDefects(contour, np.sort(hull, axis=0))
+    except cv2.error:  # a self-touching outline
+        return []
+    if defects is None:
+        return []
+    area = cv2.countNonZero(region)
+    defects = defects.reshape(-1, 4)
+    deep = defects[defects[:, 3] / 256.0 > cfg.notch_depth * math.sqrt(area)]  # depths are fixed-point, 8 bits
+    if len(deep) < 2:
+        return []
+    p, q = (tuple(int(v) for v in contour[i, 0]) for i in deep[np.argsort(-deep[:, 3])[:2], 2])
+    cut = region.copy()
+    cv2.line(cut, p, q, 0, 2)
+    n, comp, stats, _ = cv2.connectedComponentsWithStats(cut, connectivity=4)
+    sides = [(comp == k).view(np.uint8) for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= cfg.split_min_part * area]
+    return sides if len(sides) == 2 and all(_solidity(side) >= cfg.split_solidity for side in sides) else []
+
+
+def _solidity(mask: np.ndarray) -> float:
+    """Pixel count over the area of the convex hull of the mask's outline (~1.0 when convex)."""
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    hull = cv2.convexHull(max(contours, key=cv2.contourArea))
+    return cv2.countNonZero(mask) / max(1.0, cv2.contourArea(hull))
 
 
 def _edge_distance(mask: np.ndarray) -> np.ndarray:

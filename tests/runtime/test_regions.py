@@ -14,8 +14,8 @@ from tests.runtime.test_grasp import BEARING, BOX, INTR, flat_depth, rect
 @pytest.mark.parametrize("shape", ["discs", "rings", "boxes offset", "boxes end to end"])
 def test_touching_objects_of_one_class_are_split(shape):
     """Two objects of one class that touch form one region; each gets its own record, centred on it.
-    Boxes side by side at one height are not split: nothing in their labels or depth marks the seam
-    (a cut between the notches of the outline splits a model's wobbly mask of one box as often)."""
+    Boxes side by side at one height are cut between the notches at their seam; flush ones leave
+    none to cut at."""
     labels = np.zeros((480, 640), np.uint8)
     centres = {"boxes offset": [(230.0, 240.0), (369.0, 252.0)],
                "boxes end to end": [(230.0, 240.0), (369.0, 240.0)]}.get(shape, [(250.0, 240.0), (331.0, 240.0)])
@@ -27,7 +27,7 @@ def test_touching_objects_of_one_class_are_split(shape):
             if shape == "rings":
                 cv2.circle(labels, (int(c[0]), int(c[1])), 18, 0, -1)
     records = grasp_records(labels, flat_depth(), INTR)
-    if shape.startswith("boxes"):  # one region, one core, one height: nothing to split at
+    if shape == "boxes end to end":  # one straight-sided region: no notch, one core, one height
         assert len(records) == 1
         return
     assert sorted(r["pixel"][0] for r in records) == pytest.approx([c[0] for c in centres], abs=2.0)
@@ -57,7 +57,8 @@ def test_a_box_lying_on_a_larger_one_is_split_at_its_height():
 
 
 def test_a_notched_disk_is_not_cut_in_two():
-    """A disk with two bites out of its rim (objects lying over it) is one object: one core."""
+    """A disk with two bites out of its rim (objects lying over it) is one object: the notches are
+    there, but the sides of a cut between them would not be convex."""
     labels = np.zeros((480, 640), np.uint8)
     cv2.circle(labels, (320, 240), 100, 2, -1)
     cv2.circle(labels, (320, 145), 30, 0, -1)
