@@ -35,7 +35,7 @@ class GraspConfig:
     split_core: float = 0.5  # touching objects of one class: cores where the distance to the edge > this x its max
     hole_rim: float = 0.7  # a hole splits rings when this share of its rim is the region itself
     split_min_share: float = 0.15  # a core counts as an object when it holds this share of all cores' area
-    notch_depth: float = 0.05  # objects side by side at one height: notches deeper than this x sqrt(area) mark a seam
+    notch_depth: float = 0.07  # objects side by side at one height: notches deeper than this x sqrt(area) mark a seam
     split_min_part: float = 0.25  # ... when each side of the cut holds at least this share of the region
     split_solidity: float = 0.98  # ... and is convex (pixels / hull area): not a disk with bites out of its rim
     face_compactness: float = 12.0  # a face at its own height: area <= this x (largest edge distance)^2,

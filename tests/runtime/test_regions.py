@@ -17,7 +17,7 @@ def test_touching_objects_of_one_class_are_split(shape):
     Boxes side by side at one height are cut between the notches at their seam; flush ones leave
     none to cut at."""
     labels = np.zeros((480, 640), np.uint8)
-    centres = {"boxes offset": [(230.0, 240.0), (369.0, 252.0)],
+    centres = {"boxes offset": [(230.0, 240.0), (369.0, 270.0)],
                "boxes end to end": [(230.0, 240.0), (369.0, 240.0)]}.get(shape, [(250.0, 240.0), (331.0, 240.0)])
     for c in centres:
         if shape.startswith("boxes"):
