@@ -5,8 +5,8 @@
 #
 #   bash benchmarks/reference_model.sh [WORK]      # WORK defaults to reference-run/
 #
-# About 15 minutes on one H100 (the float run: 45 epochs of 4000 scenes, ~14 s each; static PTQ
-# about a minute; hybrid-QaT two more epochs). Every setting is an environment variable. Without a
+# On one H100 the data, the float run (45 epochs of 4000 scenes, ~14.5 s each) and static PTQ take
+# about 12 minutes; hybrid-QaT then trains two QaT epochs. Every setting is an environment variable. Without a
 # GPU, a smaller run fits in an hour on 2 cores and picks far worse (MODEL_CARD.md, "Limits"):
 #   DEVICE=cpu EPOCHS=45 EPOCH_IMAGES=400 SIZE=320x240 SPLITS=2000,200,100 BATCH=8 bash benchmarks/reference_model.sh
 # Then Table 5.6 in the cell:

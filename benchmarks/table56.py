@@ -2,7 +2,7 @@
 hybrid-QaT files, 50 executions each of the whole pick cycle in the synthetic cell, with the scenes'
 true labels as the first row (the grasp step's own ceiling) and on further scene sets (the spread).
 
-    bash benchmarks/reference_model.sh reference-run      # makes the three files (about 15 minutes on one GPU)
+    bash benchmarks/reference_model.sh reference-run      # makes the three files on one GPU (MODEL_CARD.md)
     python benchmarks/table56.py --models reference-run/models/{fp32,static,hybrid}.onnx --save
 """
 
