@@ -19,7 +19,7 @@ import numpy as np
 from edgepick.errors import EdgepickError
 from edgepick.runtime.calibration import Calibration
 from edgepick.geometry import Intrinsics, deproject
-from edgepick.runtime.regions import split_touching
+from edgepick.runtime.regions import depth_holes, split_touching
 
 DEFAULT_CLASSES = ("background", "bearing", "disk", "adapter", "box")
 
@@ -131,16 +131,21 @@ def grasp_depth(depth: np.ndarray, own: np.ndarray, cx: float, cy: float, area: 
 
 
 def top_face(depth: np.ndarray, own: np.ndarray, z_top: float, depth_scale: float,
-             cfg: GraspConfig) -> np.ndarray | None:
+             cfg: GraspConfig, with_holes: bool = False) -> np.ndarray | None:
     """The object's top face as a mask: the convex hull of its own pixels whose depth lies within
     cfg.top_tolerance_m of its top Z_TOP. Seen off the optical axis a tall object shows side walls
     on the side facing the principal point, which pull the silhouette's centroid towards it (a
     10 cm box 200 px off-axis at 0.7 m: ~10 px, 16 mm) and skew its axis; the hull bridges the
-    depth holes of shiny tops and a ring's bore. None when too few top pixels have depth."""
+    depth holes of shiny tops and a ring's bore. WITH_HOLES adds its blobs with no depth reading
+    (regions.depth_holes), for the axis: a black adapter may return depth on a third of its top,
+    whose hull is no longer its shape. Not for the centroid: a disk's friction ring would pull that
+    of its raised hub. None when too few top pixels have depth."""
     d = depth.astype(np.float32) * depth_scale
     top = own & (d > 0) & (np.abs(d - z_top) <= cfg.top_tolerance_m)
     if int(top.sum()) < cfg.min_depth_px:
         return None
+    if with_holes:
+        top = top | (depth_holes(own, d) > 0)
     hull = cv2.convexHull(cv2.findNonZero(top.view(np.uint8)))
     face = cv2.fillConvexPoly(np.zeros(own.shape, np.uint8), hull, 1)
     return face if cv2.countNonZero(face) >= cfg.min_depth_px else None
@@ -209,8 +214,9 @@ def _record(region: np.ndarray, x: int, y: int, c: int, labels: np.ndarray, dept
     top = None if z is None else top_face(depth[y:y + h, x:x + w], own, z, intr.depth_scale, cfg)
     if top is not None:  # the grasp point and axis of the top face, not of the silhouette with its walls
         cx, cy, angle, defined, _ = moments_pose(top, cfg.round_ratio)
-        if defined and rectangularity(top) >= cfg.rect_fill:
-            angle = rect_axis_deg(top)
+        axis = top_face(depth[y:y + h, x:x + w], own, z, intr.depth_scale, cfg, with_holes=True) if defined else None
+        if axis is not None and rectangularity(axis) >= cfg.rect_fill:
+            angle = rect_axis_deg(axis)
     cx, cy = cx + x, cy + y
     rec: dict = {"class": classes[c], "pixel": [round(cx, 2), round(cy, 2)], "angle_deg": angle,
                  "orientation_defined": defined, "area_px": area}

@@ -20,17 +20,19 @@ def split_touching(region: np.ndarray, cfg: GraspConfig, background: np.ndarray 
     side) form one connected region whose centroid lies between them. Seeds: the region's holes when
     it has two or more (rings: one hole each; a hole is BACKGROUND, the table, enclosed by the region
     and other objects lying on it), else its top faces at different heights (DEPTH_M, metres: two
-    boxes of different heights side by side), else the two sides of a cut between the two deepest
-    notches of its outline (two boxes side by side at one height), else its cores, the pixels farther than
-    cfg.split_core x the region's largest distance from its edge. Each pixel goes to its nearest
-    seed; a region with one seed is returned as it is."""
-    seeds = _holes(region, cfg, background)
-    dist = _edge_distance(region)
+    boxes of different heights side by side); a region with holes but not two large ones is one
+    ring (a disk whose rim other objects cover in places, its bolt holes) and goes no further; else the two sides of a cut between the two
+    deepest notches of its outline (two boxes side by side at one height), else its cores, the pixels
+    farther than cfg.split_core x the region's largest distance from its edge. Each pixel goes to its
+    nearest seed; a region with one seed is returned as it is."""
+    holes = _holes(region, cfg, background)
+    seeds = [h for h in holes if cv2.countNonZero(h) >= cfg.split_min_share * sum(map(cv2.countNonZero, holes))]
     if len(seeds) < 2 and depth_m is not None:
         seeds = _top_faces(region, depth_m, cfg)
-    if len(seeds) < 2:
+    if len(seeds) < 2 and not holes:
         seeds = _notch_cut(region, cfg)
-    if len(seeds) < 2:
+    if len(seeds) < 2 and not holes:
+        dist = _edge_distance(region)
         seeds = _components((dist > cfg.split_core * dist.max()).view(np.uint8), cfg) if dist.max() > 0 else []
     if len(seeds) < 2:
         return [region]
@@ -60,17 +62,27 @@ def _top_faces(region: np.ndarray, depth_m: np.ndarray, cfg: GraspConfig) -> lis
         level = (edges[i] + edges[i + 1]) / 2
         at = cv2.morphologyEx((inside & (np.abs(depth_m - level) <= tol)).view(np.uint8), cv2.MORPH_CLOSE,
                               np.ones((5, 5), np.uint8))  # bridge depth holes
-        n, comp, stats, _ = cv2.connectedComponentsWithStats(at, connectivity=8)
+        # blobs with no depth (shiny metal, a black part) join the parts they lie between: one
+        # object's top broken by depth holes is one face; two objects at one height, with the table
+        # between them, are two.
+        n, comp, stats, _ = cv2.connectedComponentsWithStats(at | depth_holes(region, depth_m), connectivity=8)
         for k in range(1, n):
             part = (comp == k).view(np.uint8)
-            area, thick = int(stats[k, cv2.CC_STAT_AREA]), float(_edge_distance(part).max())
-            if area >= cfg.split_min_share * cv2.countNonZero(region) and area <= cfg.face_compactness * thick ** 2:
-                faces.append(part)
+            area, thick = cv2.countNonZero(part & at), float(_edge_distance(part).max())
+            if area >= cfg.split_min_share * cv2.countNonZero(region) and stats[k, cv2.CC_STAT_AREA] <= \
+                    cfg.face_compactness * thick ** 2:
+                faces.append(part & at)
     groups: list[list[int]] = []
     for i in range(len(faces)):
         joined = [g for g in groups if any(_nested(faces[i], faces[j]) for j in g)]
         groups = [g for g in groups if g not in joined] + [[i] + [j for g in joined for j in g]]
     return [np.bitwise_or.reduce([faces[j] for j in g]) for g in groups] if len(groups) > 1 else []
+
+
+def depth_holes(mask: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """MASK's pixels with no depth reading, in blobs of 5x5 or more (uint8 0/1): the holes a shiny
+    or black surface leaves, not the thin lines of missing depth along every object's outline."""
+    return cv2.morphologyEx(((mask > 0) & (depth <= 0)).view(np.uint8), cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
 
 
 def _nested(a: np.ndarray, b: np.ndarray) -> bool:
@@ -139,7 +151,7 @@ def _holes(region: np.ndarray, cfg: GraspConfig, background: np.ndarray | None) 
     """The region's holes: table pixels (BACKGROUND; without it, all non-region pixels) not connected
     to its bounding box's edge, large ones only, and ringed mostly (cfg.hole_rim share) by the region
     itself: a ring's bore, even with an object lying across it, but not a pocket of table closed
-    off by a box and the objects lying around it."""
+    off by a box and the objects lying around it. One mask per hole, in the region's frame."""
     free = (region == 0) if background is None else (background & (region == 0))
     outside = np.pad(free.view(np.uint8), 1, constant_values=1)
     n, comp, stats, _ = cv2.connectedComponentsWithStats(outside, connectivity=4)
@@ -154,7 +166,4 @@ def _holes(region: np.ndarray, cfg: GraspConfig, background: np.ndarray | None) 
         rim = (cv2.dilate(hole, np.ones((3, 3), np.uint8)) > 0) & (hole == 0)
         if padded[rim].mean() >= cfg.hole_rim:
             holes.append(k)
-    if len(holes) < 2:
-        return []
-    mask = np.isin(comp, holes).view(np.uint8)[1:-1, 1:-1]
-    return _components(mask, cfg)
+    return [(comp == k).view(np.uint8)[1:-1, 1:-1] for k in holes]

@@ -82,3 +82,35 @@ def test_a_box_is_not_split_at_pockets_of_table_or_at_its_side_wall():
     depth[(wall > 0) & (labels == BOX)] = 650
     records = [r for r in grasp_records(labels, depth, INTR) if r["class"] == "box"]
     assert len(records) == 1 and records[0]["depth_m"] == pytest.approx(0.600, abs=1e-3)
+
+
+def test_a_ring_with_objects_over_its_rim_stays_one_object():
+    """A disk with its bore and two bearings lying over its rim, left and right: the band between
+    bore and rim breaks in two, but a region ringed around one bore is one object, not two cores."""
+    labels = np.zeros((480, 640), np.uint8)
+    cv2.circle(labels, (320, 240), 110, 2, -1)
+    cv2.circle(labels, (320, 240), 35, 0, -1)
+    for x in (215, 425):
+        cv2.circle(labels, (x, 240), 45, BEARING, -1)
+    disks = [r for r in grasp_records(labels, flat_depth(), INTR) if r["class"] == "disk"]
+    assert len(disks) == 1 and disks[0]["pixel"] == pytest.approx([320.0, 240.0], abs=1.5)
+
+
+def test_a_top_broken_by_depth_holes_is_one_face():
+    """A shiny box whose top returns no depth along a band across it is one object (its two halves
+    lie at one height, joined by the band); two boxes at one height whose mask bridges the table
+    between them are two."""
+    labels, depth = np.zeros((480, 640), np.uint8), flat_depth(700)
+    rect(labels, BOX, (320.0, 240.0), (160, 100), 20.0)
+    depth[labels == BOX] = 600
+    band = np.zeros_like(labels)
+    rect(band, 1, (320.0, 240.0), (16, 200), 20.0)
+    depth[(band > 0) & (labels == BOX)] = 0
+    (r,) = grasp_records(labels, depth, INTR)
+    assert r["pixel"] == pytest.approx([320.0, 240.0], abs=1.5)
+    labels, depth = np.zeros((480, 640), np.uint8), flat_depth(700)
+    for x in (250.0, 390.0):
+        rect(labels, BOX, (x, 240.0), (110, 100), 0.0)
+    depth[labels == BOX] = 600
+    labels[200:280, 300:341] = BOX  # the mask spills over the table between them, which keeps its depth
+    assert sorted(r["pixel"][0] for r in grasp_records(labels, depth, INTR)) == pytest.approx([250.0, 390.0], abs=3.0)
