@@ -41,6 +41,8 @@ class GraspConfig:
     face_compactness: float = 12.0  # a face at its own height: area <= this x (largest edge distance)^2,
     #                                 i.e. at most 3x as long as wide; a side wall is a longer, thin band
     top_tolerance_m: float = 0.008  # an object's top face: its pixels within this depth of the top
+    stray_gap_px: int = 15  # ... less the groups of them farther than this - 1 pixels from the others
+    stray_share: float = 0.1  # ... that hold less than this share of them: a mask spilling onto a neighbour
     rect_fill: float = 0.85  # a face filling this share of its minimum-area rectangle takes that rectangle's axis
 
 
@@ -136,14 +138,21 @@ def top_face(depth: np.ndarray, own: np.ndarray, z_top: float, depth_scale: floa
     cfg.top_tolerance_m of its top Z_TOP. Seen off the optical axis a tall object shows side walls
     on the side facing the principal point, which pull the silhouette's centroid towards it (a
     10 cm box 200 px off-axis at 0.7 m: ~10 px, 16 mm) and skew its axis; the hull bridges the
-    depth holes of shiny tops and a ring's bore. WITH_HOLES adds its blobs with no depth reading
-    (regions.depth_holes), for the axis: a black adapter may return depth on a third of its top,
-    whose hull is no longer its shape. Not for the centroid: a disk's friction ring would pull that
-    of its raised hub. None when too few top pixels have depth."""
+    depth holes of shiny tops and a ring's bore. Groups of those pixels apart from the rest
+    (cfg.stray_gap_px) and small (cfg.stray_share) are left out: a mask that spills onto a neighbour
+    whose top lies at the same height would stretch the hull to it. WITH_HOLES adds the blobs with
+    no depth reading (regions.depth_holes), for the axis: a black adapter may return depth on a
+    third of its top, whose hull is no longer its shape. Not for the centroid: a disk's friction
+    ring would pull that of its raised hub. None when too few top pixels have depth."""
     d = depth.astype(np.float32) * depth_scale
     top = own & (d > 0) & (np.abs(d - z_top) <= cfg.top_tolerance_m)
     if int(top.sum()) < cfg.min_depth_px:
         return None
+    k = cfg.stray_gap_px
+    n, groups = cv2.connectedComponents(cv2.dilate(top.view(np.uint8), np.ones((k, k), np.uint8)), connectivity=8)
+    if n > 2:
+        counts = np.bincount(groups[top], minlength=n)
+        top &= np.isin(groups, np.flatnonzero((counts >= cfg.stray_share * counts.sum()) | (counts == counts.max())))
     if with_holes:
         top = top | (depth_holes(own, d) > 0)
     hull = cv2.convexHull(cv2.findNonZero(top.view(np.uint8)))

@@ -243,6 +243,20 @@ def test_grasp_point_is_the_top_face_centre_not_the_silhouette_centroid():
     assert silhouette["m10"] / silhouette["m00"] - top[0] > 6.0  # what the test guards against
 
 
+def test_grasp_point_ignores_a_mask_spilling_onto_a_neighbour_at_the_same_height():
+    """A model's box mask that runs along a strip of table onto a patch of a neighbouring object
+    whose top lies at the box's height: the patch is at the top's depth but apart from the top
+    face and small, so the face's hull does not reach out to it."""
+    labels, depth = np.zeros((480, 640), np.uint8), flat_depth(700)
+    rect(labels, BOX, (320.0, 240.0), (120, 80), 0.0)
+    depth[labels == BOX] = 600
+    labels[236:244, 380:420] = BOX  # the strip, over the table
+    labels[230:250, 420:440] = BOX  # the neighbour's patch, at the box's height
+    depth[230:250, 420:440] = 600
+    (r,) = grasp_records(labels, depth, INTR)
+    assert r["pixel"] == pytest.approx([320.0, 240.0], abs=1.0)
+
+
 def test_hub_depth_when_few_pixels_near_the_centroid_have_depth():
     """A brake disk whose centroid falls in its hub's bore and whose shiny hub top returns depth on a
     few pixels only: the tool still meets the hub, not the friction ring 3 cm lower."""
