@@ -132,18 +132,15 @@ def grasp_depth(depth: np.ndarray, own: np.ndarray, cx: float, cy: float, area: 
     return top
 
 
-def top_face(depth: np.ndarray, own: np.ndarray, z_top: float, depth_scale: float,
-             cfg: GraspConfig, with_holes: bool = False) -> np.ndarray | None:
-    """The object's top face as a mask: the convex hull of its own pixels whose depth lies within
-    cfg.top_tolerance_m of its top Z_TOP. Seen off the optical axis a tall object shows side walls
-    on the side facing the principal point, which pull the silhouette's centroid towards it (a
-    10 cm box 200 px off-axis at 0.7 m: ~10 px, 16 mm) and skew its axis; the hull bridges the
-    depth holes of shiny tops and a ring's bore. Groups of those pixels apart from the rest
-    (cfg.stray_gap_px) and small (cfg.stray_share) are left out: a mask that spills onto a neighbour
-    whose top lies at the same height would stretch the hull to it. WITH_HOLES adds the blobs with
-    no depth reading (regions.depth_holes), for the axis: a black adapter may return depth on a
-    third of its top, whose hull is no longer its shape. Not for the centroid: a disk's friction
-    ring would pull that of its raised hub. None when too few top pixels have depth."""
+def top_pixels(depth: np.ndarray, own: np.ndarray, z_top: float, depth_scale: float,
+               cfg: GraspConfig) -> np.ndarray | None:
+    """The object's top face, as its own pixels whose depth lies within cfg.top_tolerance_m of its
+    top Z_TOP (bool mask), or None when too few have depth. Seen off the optical axis a tall object
+    shows side walls on the side facing the principal point, which pull the silhouette's centroid
+    towards it (a 10 cm box 200 px off-axis at 0.7 m: ~10 px, 16 mm) and skew its axis. Groups of
+    those pixels apart from the rest (cfg.stray_gap_px) and small (cfg.stray_share) are left out:
+    a mask that spills onto a neighbour whose top lies at the same height would stretch the face
+    to it."""
     d = depth.astype(np.float32) * depth_scale
     top = own & (d > 0) & (np.abs(d - z_top) <= cfg.top_tolerance_m)
     if int(top.sum()) < cfg.min_depth_px:
@@ -153,11 +150,14 @@ def top_face(depth: np.ndarray, own: np.ndarray, z_top: float, depth_scale: floa
     if n > 2:
         counts = np.bincount(groups[top], minlength=n)
         top &= np.isin(groups, np.flatnonzero((counts >= cfg.stray_share * counts.sum()) | (counts == counts.max())))
-    if with_holes:
-        top = top | (depth_holes(own, d) > 0)
-    hull = cv2.convexHull(cv2.findNonZero(top.view(np.uint8)))
-    face = cv2.fillConvexPoly(np.zeros(own.shape, np.uint8), hull, 1)
-    return face if cv2.countNonZero(face) >= cfg.min_depth_px else None
+    return top
+
+
+def hull_mask(pixels: np.ndarray) -> np.ndarray:
+    """The filled convex hull of PIXELS (uint8 0/1): it bridges the depth holes of a shiny top and
+    a ring's bore."""
+    hull = cv2.convexHull(cv2.findNonZero(pixels.view(np.uint8)))
+    return cv2.fillConvexPoly(np.zeros(pixels.shape, np.uint8), hull, 1)
 
 
 def top_down_pose(cal: Calibration, intr: Intrinsics, cx: float, cy: float, z: float, angle_deg: float,
@@ -220,10 +220,13 @@ def _record(region: np.ndarray, x: int, y: int, c: int, labels: np.ndarray, dept
     cx, cy, angle, defined, area = moments_pose(region, cfg.round_ratio)
     own = (labels[y:y + h, x:x + w] == c) & (region > 0)  # unfiltered pixels: not the dilated rim
     z = grasp_depth(depth[y:y + h, x:x + w], own, cx, cy, area, intr.depth_scale, cfg)
-    top = None if z is None else top_face(depth[y:y + h, x:x + w], own, z, intr.depth_scale, cfg)
-    if top is not None:  # the grasp point and axis of the top face, not of the silhouette with its walls
-        cx, cy, angle, defined, _ = moments_pose(top, cfg.round_ratio)
-        axis = top_face(depth[y:y + h, x:x + w], own, z, intr.depth_scale, cfg, with_holes=True) if defined else None
+    pixels = None if z is None else top_pixels(depth[y:y + h, x:x + w], own, z, intr.depth_scale, cfg)
+    if pixels is not None:  # the grasp point and axis of the top face, not of the silhouette with its walls
+        cx, cy, angle, defined, _ = moments_pose(hull_mask(pixels), cfg.round_ratio)
+        # the axis counts the top's blobs with no depth reading as top: a black adapter may return
+        # depth on a third of its top, whose hull is no longer its shape (not for the centroid: a
+        # disk's shiny friction ring would pull that of its raised hub)
+        axis = hull_mask(pixels | (depth_holes(own, depth[y:y + h, x:x + w]) > 0)) if defined else None
         if axis is not None and rectangularity(axis) >= cfg.rect_fill:
             angle = rect_axis_deg(axis)
     cx, cy = cx + x, cy + y

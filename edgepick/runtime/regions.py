@@ -21,12 +21,14 @@ def split_touching(region: np.ndarray, cfg: GraspConfig, background: np.ndarray 
     it has two or more (rings: one hole each; a hole is BACKGROUND, the table, enclosed by the region
     and other objects lying on it), else its top faces at different heights (DEPTH_M, metres: two
     boxes of different heights side by side); a region with holes but not two large ones is one
-    ring (a disk whose rim other objects cover in places, its bolt holes) and goes no further; else the two sides of a cut between the two
-    deepest notches of its outline (two boxes side by side at one height), else its cores, the pixels
-    farther than cfg.split_core x the region's largest distance from its edge. Each pixel goes to its
-    nearest seed; a region with one seed is returned as it is."""
+    ring (a disk whose rim other objects cover in places, with its bolt holes) and goes no further;
+    else the two sides of a cut between the two deepest notches of its outline (two boxes side by
+    side at one height), else its cores, the pixels farther than cfg.split_core x the region's
+    largest distance from its edge. Each pixel goes to its nearest seed; a region with one seed is
+    returned as it is."""
     holes = _holes(region, cfg, background)
-    seeds = [h for h in holes if cv2.countNonZero(h) >= cfg.split_min_share * sum(map(cv2.countNonZero, holes))]
+    hole_area = sum(cv2.countNonZero(h) for h in holes)
+    seeds = [h for h in holes if cv2.countNonZero(h) >= cfg.split_min_share * hole_area]
     if len(seeds) < 2 and depth_m is not None:
         seeds = _top_faces(region, depth_m, cfg)
     if len(seeds) < 2 and not holes:
