@@ -38,6 +38,8 @@ class GraspConfig:
     notch_depth: float = 0.07  # objects side by side at one height: notches deeper than this x sqrt(area) mark a seam
     split_min_part: float = 0.25  # ... when each side of the cut holds at least this share of the region
     split_solidity: float = 0.98  # ... and is convex (pixels / hull area): not a disk with bites out of its rim
+    deep_notch: float = 0.15  # ... or, when both notches are deeper than this x sqrt(area),
+    split_solidity_deep: float = 0.95  # ... nearly convex: a model's mask rounds the corners at the seam
     face_compactness: float = 12.0  # a face at its own height: area <= this x (largest edge distance)^2,
     #                                 i.e. at most 3x as long as wide; a side wall is a longer, thin band
     top_tolerance_m: float = 0.008  # an object's top face: its pixels within this depth of the top

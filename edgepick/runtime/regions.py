@@ -32,7 +32,7 @@ def split_touching(region: np.ndarray, cfg: GraspConfig, background: np.ndarray 
     if len(seeds) < 2 and depth_m is not None:
         seeds = _top_faces(region, depth_m, cfg)
     if len(seeds) < 2 and not holes:
-        seeds = _notch_cut(region, cfg)
+        seeds = _notch_cut(region, cfg, depth_m)
     if len(seeds) < 2 and not holes:
         dist = _edge_distance(region)
         seeds = _components((dist > cfg.split_core * dist.max()).view(np.uint8), cfg) if dist.max() > 0 else []
@@ -97,11 +97,14 @@ def _nested(a: np.ndarray, b: np.ndarray) -> bool:
     return True
 
 
-def _notch_cut(region: np.ndarray, cfg: GraspConfig) -> list[np.ndarray]:
+def _notch_cut(region: np.ndarray, cfg: GraspConfig, depth_m: np.ndarray | None = None) -> list[np.ndarray]:
     """Two convex objects side by side at one height (boxes, adapters) leave a notch on each side
     of their seam: cut the region along the line between its two deepest notches (convexity defects
     deeper than cfg.notch_depth x the square root of its area) when each side holds cfg.split_min_part
-    of it or more and is convex (cfg.split_solidity). Returns the two sides, or [] when there is no such cut."""
+    of it or more and is convex (cfg.split_solidity). A model's mask rounds the corners at a seam, so
+    when both notches are deep (cfg.deep_notch) and open onto the table (DEPTH_M, metres: farther
+    than the region, not an object lying over its rim) the sides need only be nearly convex
+    (cfg.split_solidity_deep). Returns the two sides, or [] when there is no such cut."""
     contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     if not contours:
         return []
@@ -120,12 +123,31 @@ def _notch_cut(region: np.ndarray, cfg: GraspConfig) -> list[np.ndarray]:
     deep = defects[defects[:, 3] / 256.0 > cfg.notch_depth * math.sqrt(area)]  # depths are fixed-point, 8 bits
     if len(deep) < 2:
         return []
-    p, q = (tuple(int(v) for v in contour[i, 0]) for i in deep[np.argsort(-deep[:, 3])[:2], 2])
+    two = deep[np.argsort(-deep[:, 3])[:2]]
+    p, q = (tuple(int(v) for v in contour[i, 0]) for i in two[:, 2])
     cut = region.copy()
     cv2.line(cut, p, q, 0, 2)
     n, comp, stats, _ = cv2.connectedComponentsWithStats(cut, connectivity=4)
     sides = [(comp == k).view(np.uint8) for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= cfg.split_min_part * area]
-    return sides if len(sides) == 2 and all(_solidity(side) >= cfg.split_solidity for side in sides) else []
+    convex = cfg.split_solidity
+    if two[:, 3].min() / 256.0 > cfg.deep_notch * math.sqrt(area) and depth_m is not None and \
+            all(_opens_onto_table(region, contour, d, depth_m, cfg) for d in two):
+        convex = cfg.split_solidity_deep
+    return sides if len(sides) == 2 and all(_solidity(side) >= convex for side in sides) else []
+
+
+def _opens_onto_table(region: np.ndarray, contour: np.ndarray, defect: np.ndarray, depth_m: np.ndarray,
+                      cfg: GraspConfig, below_m: float = 0.01) -> bool:
+    """Whether the notch of DEFECT (start, end, deepest point, depth) shows a surface at least
+    BELOW_M farther from the camera than the region's own: the table between two objects, not an
+    object lying over the region's rim."""
+    start, end = int(defect[0]), int(defect[1])
+    arc = contour[start:end + 1] if start <= end else np.concatenate([contour[start:], contour[:end + 1]])
+    pocket = cv2.fillPoly(np.zeros(region.shape, np.uint8), [arc], 1).astype(bool) & (region == 0) & (depth_m > 0)
+    own = (region > 0) & (depth_m > 0)
+    if pocket.sum() < cfg.min_depth_px or own.sum() < cfg.min_depth_px:
+        return False
+    return float(np.median(depth_m[pocket])) > float(np.median(depth_m[own])) + below_m
 
 
 def _solidity(mask: np.ndarray) -> float:
