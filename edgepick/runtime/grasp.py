@@ -45,6 +45,9 @@ class GraspConfig:
     top_tolerance_m: float = 0.008  # an object's top face: its pixels within this depth of the top
     stray_gap_px: int = 15  # ... less the groups of them farther than this - 1 pixels from the others
     stray_share: float = 0.1  # ... that hold less than this share of them: a mask spilling onto a neighbour
+    partial_contact: float = 0.3  # cut by the image border: meets it along this x sqrt(area) pixels or more; a
+    #                               shorter cut (an object a few pixels over the edge, a mask bleeding to it)
+    #                               moves the centroid by 2 px or less
     rect_fill: float = 0.85  # a face filling this share of its minimum-area rectangle takes that rectangle's axis
 
 
@@ -66,6 +69,13 @@ def filter_class_masks(labels: np.ndarray, num_classes: int, cfg: GraspConfig) -
         m = cv2.medianBlur(m, cfg.median_ksize)
         out[int(c)] = (x0, y0, cv2.dilate(m, kernel))
     return out
+
+
+def border_contact(region: np.ndarray, x: int, y: int, frame_hw: tuple[int, int]) -> int:
+    """How many of REGION's pixels (its top left at frame pixel (x, y)) lie on the frame's edge."""
+    h, w = region.shape
+    return (int(region[:, 0].sum()) if x == 0 else 0) + (int(region[0, :].sum()) if y == 0 else 0) + \
+        (int(region[:, -1].sum()) if x + w == frame_hw[1] else 0) + (int(region[-1, :].sum()) if y + h == frame_hw[0] else 0)
 
 
 def moments_pose(region: np.ndarray, round_ratio: float) -> tuple[float, float, float, bool, int]:
@@ -201,13 +211,13 @@ def grasp_records(labels: np.ndarray, depth: np.ndarray, intr: Intrinsics, class
                 continue
             # work on the region's bounding box, not the whole frame (this runs every frame)
             region = (comp[y:y + h, x:x + w] == k).view(np.uint8)
-            partial = x + ox == 0 or y + oy == 0 or x + ox + w == labels.shape[1] or y + oy + h == labels.shape[0]
             background = labels[y + oy:y + oy + h, x + ox:x + ox + w] == 0
             depth_m = depth[y + oy:y + oy + h, x + ox:x + ox + w].astype(np.float32) * intr.depth_scale
             for part in split_touching(region, cfg, background, depth_m):
                 rec = _record(part, x + ox, y + oy, c, labels, depth, intr, classes, calib, cfg)
-                if rec is not None:
-                    rec["partial"] = partial
+                if rec is not None:  # cut by the image border: its centroid is that of the part in view
+                    rec["partial"] = border_contact(part, x + ox, y + oy, labels.shape) >= \
+                        cfg.partial_contact * math.sqrt(rec["area_px"])
                     records.append(rec)
     records.sort(key=lambda r: -r["area_px"])
     return records

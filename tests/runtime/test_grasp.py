@@ -280,6 +280,24 @@ def test_one_object_is_not_split_and_a_cut_one_is_marked_partial():
     assert by_class["adapter"]["partial"] is False and by_class["bearing"]["partial"] is True
 
 
+@pytest.mark.parametrize("case, partial", [("a mask bleeding to the border", False),
+                                           ("a disk at the border", False),
+                                           ("a disk a third over the border", True)])
+def test_only_an_object_cut_by_the_border_along_a_real_stretch_is_partial(case, partial):
+    """A partial object is not picked (its centroid is that of the part in view). A region that
+    meets the border along a few pixels is not one: a model's mask that bleeds from an object near
+    the edge to it, or a disk whose mask (dilated by the filters) runs a few pixels over the edge,
+    which moves its centroid by under a pixel."""
+    labels = np.zeros((480, 640), np.uint8)
+    if case == "a mask bleeding to the border":
+        rect(labels, BOX, (560.0, 240.0), (140, 90), 0.0)  # its right side 10 px from the edge
+        labels[236:240, 625:] = BOX
+    else:
+        cv2.circle(labels, (553 if case == "a disk at the border" else 600, 240), 85, 2, -1)  # 553: its rim 1 px from the edge
+    (r,) = grasp_records(labels, flat_depth(), INTR)
+    assert r["partial"] is partial
+
+
 def test_an_object_partly_under_another_is_marked_occluded():
     """A box lying across a larger disk, 30 mm nearer the camera: the disk's rim meets the box where
     the box is nearer; the box is not occluded, and the pick loop prefers it (robot/pick.py)."""
