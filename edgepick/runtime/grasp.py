@@ -74,8 +74,9 @@ def filter_class_masks(labels: np.ndarray, num_classes: int, cfg: GraspConfig) -
 def border_contact(region: np.ndarray, x: int, y: int, frame_hw: tuple[int, int]) -> int:
     """How many of REGION's pixels (its top left at frame pixel (x, y)) lie on the frame's edge."""
     h, w = region.shape
-    return (int(region[:, 0].sum()) if x == 0 else 0) + (int(region[0, :].sum()) if y == 0 else 0) + \
-        (int(region[:, -1].sum()) if x + w == frame_hw[1] else 0) + (int(region[-1, :].sum()) if y + h == frame_hw[0] else 0)
+    edges = ((x == 0, region[:, 0]), (y == 0, region[0, :]), (x + w == frame_hw[1], region[:, -1]),
+             (y + h == frame_hw[0], region[-1, :]))
+    return sum(int(line.sum()) for on_edge, line in edges if on_edge)
 
 
 def moments_pose(region: np.ndarray, round_ratio: float) -> tuple[float, float, float, bool, int]:

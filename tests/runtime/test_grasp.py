@@ -293,7 +293,8 @@ def test_only_an_object_cut_by_the_border_along_a_real_stretch_is_partial(case, 
         rect(labels, BOX, (560.0, 240.0), (140, 90), 0.0)  # its right side 10 px from the edge
         labels[236:240, 625:] = BOX
     else:
-        cv2.circle(labels, (553 if case == "a disk at the border" else 600, 240), 85, 2, -1)  # 553: its rim 1 px from the edge
+        x = 553 if case == "a disk at the border" else 600  # 553: its rim 1 px from the edge
+        cv2.circle(labels, (x, 240), 85, 2, -1)
     (r,) = grasp_records(labels, flat_depth(), INTR)
     assert r["partial"] is partial
 
