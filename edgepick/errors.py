@@ -17,3 +17,12 @@ class ConfigError(EdgepickError):
 
 class CheckpointError(EdgepickError):
     """A checkpoint or model file is missing, unreadable or incompatible."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP (`timeout`, systemd, a closed terminal), raised as Ctrl-C's KeyboardInterrupt
+    is, so that every clean-up that Ctrl-C runs runs for them too; the CLI exits with 128 + the signal."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum

@@ -6,13 +6,19 @@ and the runtime commands start fast and work on the torch-free base install.
 
 Exit status (docs/contracts.md#command-line): 0 done; 2 a user's error (one line on stderr,
 nothing half-written left behind); 3 the robot halted or its link failed (`pick`); 130
-interrupted; 1 anything else (a bug: the traceback is printed).
+interrupted (Ctrl-C), 143 terminated (SIGTERM), 129 hung up (SIGHUP), each after the same clean-up;
+1 anything else (a bug: the traceback is printed).
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
+import re
+import signal
 import sys
+import threading
 import warnings
 
 import click
@@ -25,7 +31,7 @@ from edgepick.cli.grasp import grasp
 from edgepick.cli.pick import pick
 from edgepick.cli.quant import export_cmd, quantize
 from edgepick.cli.train import demo, eval_cmd, train
-from edgepick.errors import EdgepickError
+from edgepick.errors import EdgepickError, Terminated
 
 EXIT_USER_ERROR = 2
 EXIT_ROBOT_HALTED = 3
@@ -44,7 +50,7 @@ def cli() -> None:
     The path: data synth -> train -> eval (-> quantize -> export -> grasp/pick -> bench).
     `edgepick demo` runs the main job end to end on synthetic data.
     Exit status: 0 done, 2 a mistake in the input (one line on stderr), 3 the robot halted
-    or its link failed, 130 interrupted, 1 a bug (with its traceback).
+    or its link failed, 130 interrupted (143 on SIGTERM), 1 a bug (with its traceback).
     """
 
 
@@ -69,6 +75,44 @@ def quiet_dependencies() -> None:
         pass
 
 
+# thread-count variables that OpenMP (libgomp, loaded with torch) reads: it prints its own line
+# for a value it cannot use, before edgepick could say anything
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def sanitize_thread_variables() -> None:
+    """Drop a thread-count variable that is not one or more positive whole numbers ("4" or
+    OpenMP's nested "4,2"), with edgepick's own one-line warning instead of libgomp's."""
+    for name in THREAD_VARIABLES:
+        value = os.environ.get(name)
+        if value is None or re.fullmatch(r"\s*[1-9]\d*(\s*,\s*[1-9]\d*)*\s*", value):
+            continue
+        del os.environ[name]
+        click.echo(f"edgepick: warning: {name}={value!r} is not a positive whole number; ignored (the "
+                   "libraries choose their thread counts)", err=True)
+
+
+@contextlib.contextmanager
+def signals_as_interrupts():
+    """SIGTERM and SIGHUP raise Terminated (a KeyboardInterrupt) in the main thread, so a command
+    cleans up for them as for Ctrl-C; a second one while cleaning up is ignored."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame) -> None:
+        for sig in (signal.SIGTERM, signal.SIGHUP):
+            signal.signal(sig, signal.SIG_IGN)
+        raise Terminated(signum)
+
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGTERM, signal.SIGHUP)}
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
 def _fail(message: str, code: int) -> int:
     lines = [line.strip() for line in str(message).splitlines() if line.strip()]
     click.echo(f"edgepick: error: {lines[0] if lines else 'failed'}", err=True)  # one line, always
@@ -88,9 +132,18 @@ def _click_message(exc: click.ClickException) -> str:
 def run(args: list[str] | None = None) -> int:
     """Run one edgepick command line (None: sys.argv) and return its exit status, having said
     any failure a user can cause in one line on stderr. A bug still raises, with its traceback."""
+    sanitize_thread_variables()
     quiet_dependencies()
+    with signals_as_interrupts():
+        return _run(args)
+
+
+def _run(args: list[str] | None) -> int:
     try:
-        cli.main(args, prog_name="edgepick", standalone_mode=False)
+        # make_context + invoke rather than cli.main: main turns an interrupt into click's Abort and
+        # prints a blank line, losing which signal it was
+        with cli.make_context("edgepick", list(sys.argv[1:] if args is None else args)) as ctx:
+            cli.invoke(ctx)
     except EdgepickError as exc:
         return _fail(str(exc), getattr(exc, "exit_code", EXIT_USER_ERROR))
     except click.exceptions.Abort:
@@ -103,6 +156,9 @@ def run(args: list[str] | None = None) -> int:
         return 0
     except click.ClickException as exc:
         return _fail(_click_message(exc), exc.exit_code)
+    except Terminated as exc:
+        click.echo(f"edgepick: terminated ({signal.Signals(exc.signum).name})", err=True)
+        return 128 + exc.signum
     except KeyboardInterrupt:
         click.echo("edgepick: interrupted", err=True)
         return EXIT_INTERRUPTED
