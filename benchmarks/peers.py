@@ -1,7 +1,8 @@
 """The same float model quantized by the tools people use instead, side by side in one run:
 onnxruntime's `quantize_static` with its defaults and with its best CPU settings (QDQ, U8S8,
-per-channel, reduce-range), NNCF on OpenVINO (with OpenVINO's fp32 as that engine's baseline),
-and edgepick's static pass (run by onnxruntime, and by OpenVINO). mIoU, agreement with fp32,
+per-channel, reduce-range), NNCF on OpenVINO (with OpenVINO's fp32, run in f32, as that engine's
+baseline, and a bf16 row on CPUs where OpenVINO runs bf16: AMX or avx512_bf16), and edgepick's
+static pass (run by onnxruntime, and by OpenVINO). mIoU, agreement with fp32,
 latency on the same threads and images, size. The model's input size is its run's (train it at
 640x480 for the thesis's size).
 
@@ -27,7 +28,7 @@ from _common import add_output, machine_line, emit, interleaved_times  # noqa: E
 
 from edgepick.data.native import NativeDataset  # noqa: E402
 from edgepick.metrics import confusion_matrix, segmentation_metrics  # noqa: E402
-from edgepick.runtime.session import Segmenter  # noqa: E402
+from edgepick.runtime.session import Segmenter, openvino_config  # noqa: E402
 
 
 class OrtModel:
@@ -40,13 +41,21 @@ class OrtModel:
 
 
 class OpenVinoModel:
-    def __init__(self, model, threads: int, size: tuple[int, int]):
+    """A model compiled by OpenVINO for the CPU, float parts in PRECISION (f32, as the runtime's
+    `--engine openvino`, unless asked)."""
+
+    def __init__(self, model, threads: int, size: tuple[int, int], precision: str = "f32"):
         import openvino as ov
 
-        self.compiled = ov.Core().compile_model(model, "CPU", {"INFERENCE_NUM_THREADS": threads,
-                                                              "PERFORMANCE_HINT": "LATENCY"})
+        self.compiled = ov.Core().compile_model(model, "CPU", openvino_config(threads, precision))
         self.request = self.compiled.create_infer_request()
         self.size = size
+
+    def runs_in_bf16(self) -> bool:
+        """Whether OpenVINO really runs the float parts in bf16 (it falls back to f32 on CPUs without it)."""
+        import openvino as ov
+
+        return self.compiled.get_property("INFERENCE_PRECISION_HINT") == ov.Type.bf16
 
     def infer(self, image: np.ndarray) -> np.ndarray:
         return self.request.infer({0: image})[self.compiled.output(0)][0].astype(np.uint8)
@@ -157,6 +166,9 @@ def main() -> None:
         ours = Path(edgepick_static(args.run, args.data, work / "edgepick.onnx", calib_images=args.calib_images,
                                     progress=False)["out"])
 
+        # OpenVINO's own default for a float model on CPUs with AMX or avx512_bf16: a row only where it is bf16
+        bf16 = OpenVinoModel(ov.Core().read_model(str(fp32)), args.threads, size, precision="bf16")
+
         def mb(*paths: Path) -> float:
             return round(sum(p.stat().st_size for p in paths) / 1e6, 2)
 
@@ -165,6 +177,7 @@ def main() -> None:
                 ("onnxruntime quantize_static, QDQ U8S8 per-channel reduce-range", OrtModel(ort_best, args.threads),
                  mb(ort_best)),
                 ("fp32 (OpenVINO)", OpenVinoModel(ov.Core().read_model(str(fp32)), args.threads, size), mb(fp32)),
+                *([("bf16 (OpenVINO)", bf16, mb(fp32))] if bf16.runs_in_bf16() else []),
                 ("NNCF + OpenVINO", OpenVinoModel(ov_int8, args.threads, size), mb(work / "nncf.xml", work / "nncf.bin")),
                 ("edgepick static (onnxruntime)", OrtModel(ours, args.threads), mb(ours)),
                 ("edgepick static (OpenVINO)", OpenVinoModel(ov.Core().read_model(str(ours)), args.threads, size),

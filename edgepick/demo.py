@@ -13,11 +13,12 @@ static, QaT from scratch and hybrid-QaT 1/5/10%).
 from __future__ import annotations
 
 import json
-import shutil
 import time
 from pathlib import Path
 
 import click
+
+from edgepick.files import output_dir
 
 
 CELL_CYCLES = 20  # pick cycles per model for the demo's grasp success column (bench --cell)
@@ -29,16 +30,19 @@ def _step(title: str) -> None:
 
 
 def run_demo(workdir: Path, scenes: int = 204, epochs: int = 12, size: tuple[int, int] = (192, 256)) -> dict:
-    """Run the demo in WORKDIR (recreated) and print a summary; returns it."""
+    """Run the demo in WORKDIR and print a summary; returns it. WORKDIR must be new, empty or an
+    earlier demo's (emptied first); an interrupted demo leaves it empty (files.output_dir)."""
+    with output_dir(workdir, "demo", fresh=True):
+        return _run_demo(workdir, scenes, epochs, size)
+
+
+def _run_demo(workdir: Path, scenes: int, epochs: int, size: tuple[int, int]) -> dict:
     from edgepick.data.preview import contact_sheet
     from edgepick.data.synth import SynthConfig, synthesize
     from edgepick.evaluation import evaluate
     from edgepick.reference import reference_model
     from edgepick.train.loop import TrainConfig, train
 
-    if workdir.exists():
-        shutil.rmtree(workdir)
-    workdir.mkdir(parents=True)
     t0 = time.perf_counter()
     _step(f"1/8 synthesize {scenes} RGB-D scenes (640x480)")
     synth = synthesize(workdir / "data", SynthConfig(scenes=scenes, seed=0))

@@ -56,13 +56,13 @@ def _special(mode: int) -> str | None:
     return None
 
 
-def _lstat(path: str | Path) -> os.stat_result | None:
+def _lstat(path: str | Path, label: str = "") -> os.stat_result | None:
     try:
         return os.lstat(path)
     except (FileNotFoundError, NotADirectoryError):
         return None
     except OSError as exc:  # a loop or a name too long on the way
-        raise ConfigError(f"{path}: {exc.strerror}") from None
+        raise ConfigError(f"{label or path}: {exc.strerror} (at {path})") from None
 
 
 def _within(path: str, folder: str) -> bool:
@@ -106,15 +106,16 @@ def _check_names(path: Path, label: str, existing: Path) -> None:
 
 
 def _check_inputs(path: Path, label: str, kind: str, inputs: tuple) -> None:
-    """An output may not be one of the command's inputs, overwrite a file inside an input folder,
-    or be a folder that holds an input."""
+    """An output may not be one of the command's inputs (or another of its outputs), overwrite a
+    file inside an input folder, or be a folder that holds an input."""
     real = os.path.realpath(path)
     for given in inputs:
-        if given is None or not os.path.exists(given):
+        if given is None or not os.fspath(given).strip():
             continue
         source = os.path.realpath(given)
         if real == source:
-            raise ConfigError(f"{label} is also an input of this command ({given}); write the output elsewhere")
+            raise ConfigError(f"{label} is the same path as {given}, an input or another output of this command; "
+                              "write the output elsewhere")
         if kind == "file" and os.path.isdir(source) and _within(real, source) and os.path.lexists(path):
             raise ConfigError(f"{label} would overwrite a file of the input {given}; write the output elsewhere")
         if kind == "dir" and _within(source, real):
@@ -138,10 +139,10 @@ def check_output(path: str | Path, option: str = "--out", kind: str = "file", su
     if suffixes and path.suffix.lower() not in suffixes:
         raise ConfigError(f"{label}: must end in {' or '.join(suffixes)}")
     parent = path.absolute().parent
-    while _lstat(parent) is None:
+    while _lstat(parent, label) is None:
         parent = parent.parent
     _check_names(path, label, parent if os.path.isdir(parent) else Path("/"))
-    st = _lstat(path)
+    st = _lstat(path, label)
     if st is not None:
         if stat.S_ISLNK(st.st_mode):
             target = os.readlink(path)
@@ -207,8 +208,8 @@ def atomic_write(path: str | Path, data: str | bytes) -> Path:
 
 @contextlib.contextmanager
 def atomic_dir(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary sibling folder of PATH; on success it becomes PATH (an existing PATH
-    is replaced only then), on failure it is removed with everything in it."""
+    """Yield a temporary sibling folder of PATH; on success it becomes PATH, which must be new or
+    an empty folder (nothing else is ever replaced); on failure it is removed with everything in it."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.partial-", dir=path.parent))

@@ -15,6 +15,7 @@ import numpy as np
 
 from edgepick.errors import EdgepickError
 from edgepick.geometry import Intrinsics
+from edgepick.schema import Where, as_dict, as_list, as_number, as_numbers, as_str, field, read_json
 
 
 class CameraError(EdgepickError):
@@ -73,3 +74,21 @@ def read_depth(path: str | Path) -> np.ndarray:
     if depth is None or depth.ndim != 2 or depth.dtype != np.uint16:
         raise CameraError(f"cannot read {path} as a single-channel uint16 depth image")
     return depth
+
+
+def read_grasps(path: str | Path) -> dict[str, list[dict]]:
+    """A split's grasps.json: scene id -> the grasp truth of each object, the fields that judging
+    and drawing read checked (class, pixel, angle_deg, point_camera_m, orientation_defined)."""
+    where = Where(str(path))
+    scenes = as_dict(read_json(path, "grasp truth"), where)
+    for sid, objects in scenes.items():
+        for i, obj in enumerate(as_list(objects, where.at(sid))):
+            at = where.at(sid).at(i)
+            as_dict(obj, at)
+            as_str(field(obj, "class", at), at.at("class"))
+            as_numbers(field(obj, "pixel", at), at.at("pixel"), 2)
+            as_number(field(obj, "angle_deg", at), at.at("angle_deg"))
+            as_numbers(field(obj, "point_camera_m", at), at.at("point_camera_m"), 3)
+            if not isinstance(obj.get("orientation_defined", True), bool):
+                at.at("orientation_defined").fail("must be true or false")
+    return scenes

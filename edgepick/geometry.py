@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
-from edgepick.errors import EdgepickError
+from edgepick.schema import Where, as_dict, as_number, field, read_json
 
 # A RealSense D415 colour stream at 640x480 has fx ~ fy ~ 615 px.
 D415_FOCAL_640 = 615.0
@@ -33,26 +32,27 @@ class Intrinsics:
         return cls(width, height, f, f, (width - 1) / 2.0, (height - 1) / 2.0)
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Intrinsics":
-        try:
-            intr = cls(int(d["width"]), int(d["height"]), float(d["fx"]), float(d["fy"]),
-                       float(d["cx"]), float(d["cy"]), float(d.get("depth_scale", 0.001)))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise EdgepickError(f"intrinsics need width, height, fx, fy, cx, cy: {exc}") from None
-        vals = [intr.fx, intr.fy, intr.cx, intr.cy, intr.depth_scale]
-        if intr.width <= 0 or intr.height <= 0 or not all(np.isfinite(vals)) or intr.fx <= 0 or intr.fy <= 0:
-            raise EdgepickError("intrinsics must have positive size and focal lengths and finite values")
-        if intr.depth_scale <= 0:
-            raise EdgepickError(f"intrinsics depth_scale {intr.depth_scale}: must be positive (metres per depth "
-                                "unit, e.g. 0.001 for millimetres)")
-        return intr
+    def from_dict(cls, d: dict, where: Where | None = None) -> "Intrinsics":
+        """Intrinsics from their JSON object, every field checked (WHERE names the file in errors)."""
+        where = where or Where("intrinsics")
+        d = as_dict(d, where)
+        size = {k: as_number(field(d, k, where), where.at(k), integer=True, minimum=1, maximum=65535)
+                for k in ("width", "height")}
+        focal = {k: as_number(field(d, k, where), where.at(k), above=0) for k in ("fx", "fy")}
+        centre = {k: as_number(field(d, k, where), where.at(k)) for k in ("cx", "cy")}
+        scale = as_number(field(d, "depth_scale", where, 0.001), where.at("depth_scale"), above=0)
+        return cls(size["width"], size["height"], float(focal["fx"]), float(focal["fy"]), float(centre["cx"]),
+                   float(centre["cy"]), float(scale))
 
     @classmethod
     def load(cls, path: str | Path) -> "Intrinsics":
-        try:
-            return cls.from_dict(json.loads(Path(path).read_text()))
-        except (OSError, json.JSONDecodeError) as exc:
-            raise EdgepickError(f"cannot read intrinsics file {path}: {exc}") from None
+        """intrinsics.json (docs/contracts.md#intrinsics-and-calibration), or a data set's meta.json,
+        whose "intrinsics" entry holds the same object."""
+        value = read_json(path, "intrinsics file")
+        where = Where(str(path))
+        if isinstance(value, dict) and "intrinsics" in value and "fx" not in value:  # a data set's meta.json
+            return cls.from_dict(value["intrinsics"], where.at("intrinsics"))
+        return cls.from_dict(value, where)
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -140,13 +140,14 @@ def as_str(value: Any, where: Where, choices: tuple[str, ...] = ()) -> str:
 
 
 def as_list(value: Any, where: Where, length: int | None = None, min_length: int = 0) -> list:
-    if not isinstance(value, list):
+    """A list (or tuple) of LENGTH items, or of MIN_LENGTH or more."""
+    if not isinstance(value, (list, tuple)):
         where.fail(f"must be a list, got {describe(value)}")
     if length is not None and len(value) != length:
         where.fail(f"must be a list of {length}, got {len(value)}")
     if len(value) < min_length:
         where.fail(f"must list at least {min_length}, got {len(value)}")
-    return value
+    return list(value)
 
 
 def as_numbers(value: Any, where: Where, length: int, **limits: Any) -> list[float]:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from tests.conftest import REPO
 
-GROUND = {"errors", "files", "progress", "geometry", "frames", "metrics"}
+GROUND = {"errors", "files", "progress", "geometry", "frames", "metrics", "schema"}
 
 
 def _imports() -> dict[str, set[str]]:

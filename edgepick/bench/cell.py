@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 from dataclasses import asdict, dataclass, field
+from itertools import cycle
 from pathlib import Path
 
 import cv2
@@ -17,14 +19,14 @@ import onnxruntime as ort
 
 from edgepick.bench.machine import machine_line
 from edgepick.bench.measure import mode_label
-from edgepick.bench.report import markdown
+from edgepick.bench.report import draw_axes, markdown
 from edgepick.data.render import CLASSES
 from edgepick.robot.grippers import DigitalGripper
 from edgepick.robot.loop import run_cycles
 from edgepick.robot.pick import CommandLog, PickConfig
 from edgepick.robot.verdict import summarize
 from edgepick.runtime.pipeline import Pipeline
-from edgepick.runtime.session import Segmenter
+from edgepick.runtime.session import Segmenter, check_model
 from edgepick.sim.camera import SynthCamera
 from edgepick.sim.oracle import TruthPipeline
 from edgepick.sim.robot import SimRobot
@@ -69,6 +71,8 @@ def run_cell(models: list[str | Path], cycles: int, out_dir: str | Path, threads
              engine: str = "onnxruntime", progress=print) -> dict:
     """The true-label row, then each model's, over the same CYCLES scenes; writes cell.md/.csv/.json
     and success-latency.png in OUT_DIR."""
+    for m in models:  # every model's contract before the first cycle
+        check_model(m)
     camera = SynthCamera(640, 480, seed=seed, mount_height_m=MOUNT_M)
     progress(f"cell: true labels, {cycles} cycles ...")
     rows = [cell_row("true labels", "-", TruthPipeline(list(CLASSES), camera.calibration()), cycles, seed, None)]
@@ -112,22 +116,69 @@ def write_cell_reports(rows: list[CellRow], out_dir: str | Path, context: dict) 
     return {k: str(v) for k, v in paths.items()}
 
 
-def _plot(rows: list[CellRow], path: Path, w: int = 800, h: int = 420) -> None:
-    """Grasp success (%) per row as bars, each labelled with its pipeline p50."""
+FONT, SCALE = cv2.FONT_HERSHEY_SIMPLEX, 0.45
+TRUTH_GREY = (128, 128, 128)  # the true-label row: the grasp step's ceiling, timed without a model
+COLOURS = [(200, 80, 30), (30, 140, 30), (30, 30, 200), (160, 30, 160), (0, 140, 200), (40, 90, 160)]
+
+
+def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> int:
+    return max(0, min(a[2], b[2]) - max(a[0], b[0])) * max(0, min(a[3], b[3]) - max(a[1], b[1]))
+
+
+def _place_labels(points: list[tuple[int, int]], sizes: list[tuple[int, int]],
+                  frame: tuple[int, int, int, int]) -> list[tuple[int, int, int, int]]:
+    """A box (x0, y0, x1, y1) per label of size (w, h) beside its point: inside FRAME, clear of the labels
+    placed before it and of every point, shifted up or down by whole lines when the spot beside it is taken
+    (the least crowded spot nearest the point when none is clear)."""
+    left, right, top, bottom = frame
+    marks = [(x - 7, y - 7, x + 8, y + 8) for x, y in points]
+    placed: list[tuple[int, int, int, int]] = []
+    for (x, y), (tw, th) in zip(points, sizes):
+        best, best_cost = None, None
+        for k in range(2 * len(points) + 1):
+            shift = (k + 1) // 2 * (-1 if k % 2 else 1) * (th + 4)  # 0, -1, +1, -2, +2 ... lines
+            y0 = y - th // 2 + shift
+            if y0 < top + 2 or y0 + th > bottom - 2:
+                continue
+            for x0 in (x + 10, x - 10 - tw):
+                x0 = min(max(x0, left + 2), right - 2 - tw)
+                box = (x0, y0, x0 + tw, y0 + th)
+                cost = sum(_overlap(box, b) for b in placed + marks)
+                if best_cost is None or cost < best_cost:
+                    best, best_cost = box, cost
+            if best_cost == 0:
+                break
+        placed.append(best or (x + 10, y - th // 2, x + 10 + tw, y - th // 2 + th))  # a frame too short for a line
+    return placed
+
+
+def _plot(rows: list[CellRow], path: Path, w: int = 800,
+          h: int = 520) -> list[tuple[tuple[int, int], tuple[int, int, int, int]]]:
+    """Grasp success (%) against pipeline p50 (ms), one point per row labelled with its full mode, the
+    true-label row in grey. Returns each row's point and label box (x0, y0, x1, y1) in pixels."""
+    labels = [cv2.getTextSize(r.mode, FONT, SCALE, 1) for r in rows]
+    sizes = [(tw, th + base) for (tw, th), base in labels]
+    w = max([w] + [tw + 80 + 30 + 40 for tw, _ in sizes])  # room for the longest label beside any point
     img = np.full((h, w, 3), 255, np.uint8)
-    left, bottom, top = 60, h - 70, 30
-    bar = max(20, (w - left - 30) // max(1, len(rows)) - 20)
-    black = (0, 0, 0)
-    for pct in range(0, 101, 20):
-        y = int(bottom - pct / 100 * (bottom - top))
-        cv2.line(img, (left, y), (w - 20, y), (210, 210, 210), 1)
-        cv2.putText(img, str(pct), (20, y + 5), cv2.FONT_HERSHEY_SIMPLEX, 0.45, black, 1)
-    for i, r in enumerate(rows):
-        x = left + 15 + i * (bar + 20)
-        y = int(bottom - r.success_rate * (bottom - top))
-        cv2.rectangle(img, (x, y), (x + bar, bottom), (200, 120, 40) if i else (120, 120, 120), -1)
-        cv2.putText(img, r.mode[:14], (x, bottom + 20), cv2.FONT_HERSHEY_SIMPLEX, 0.42, black, 1, cv2.LINE_AA)
-        cv2.putText(img, f"{r.p50_ms:.0f} ms", (x, bottom + 40), cv2.FONT_HERSHEY_SIMPLEX, 0.42, black, 1, cv2.LINE_AA)
-    cv2.putText(img, "grasp success (%)", (10, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, black, 1, cv2.LINE_AA)
+    frame = (80, w - 30, 40, h - 60)
+    span = max([r.p50_ms for r in rows] + [0.1]) * 1.1  # round ticks from 0 to just past the slowest row
+    unit = 10 ** math.floor(math.log10(span / 5))
+    step = next(m * unit for m in (1, 2, 5, 10) if m * unit >= span / 5)
+    xticks = [k * step for k in range(math.ceil(span / step) + 1)]
+    px = draw_axes(img, frame, (0.0, xticks[-1]), (-5.0, 105.0), xticks, list(range(0, 101, 20)), ("{:g}", "{:.0f}"),
+                   ("pipeline p50 (ms)", "grasp success (%)"))
+    points = [px(r.p50_ms, 100 * r.success_rate) for r in rows]
+    boxes = _place_labels(points, sizes, frame)
+    colours = cycle(COLOURS)
+    colour = [TRUTH_GREY if r.model == "-" else next(colours) for r in rows]  # model "-": the true-label row
+    for (x, y), box, c in zip(points, boxes, colour):
+        if not box[1] <= y <= box[3]:  # a label moved off its point's line: a leader to its nearest edge
+            cv2.line(img, (x, y), (min(max(x, box[0]), box[2]), min(max(y, box[1]), box[3])), c, 1, cv2.LINE_AA)
+    for (x, y), c in zip(points, colour):
+        cv2.circle(img, (x, y), 6, c, -1, cv2.LINE_AA)
+    for r, box, c, ((_, th), _) in zip(rows, boxes, colour, labels):  # on white, above the leaders that cross
+        cv2.rectangle(img, (box[0] - 1, box[1] - 1), (box[2] + 1, box[3] + 1), (255, 255, 255), -1)
+        cv2.putText(img, r.mode, (box[0], box[1] + th), FONT, SCALE, c, 1, cv2.LINE_AA)
     if not cv2.imwrite(str(path), img):
         raise OSError(f"could not write {path}")
+    return list(zip(points, boxes))

@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import json
 from pathlib import Path
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -51,6 +52,33 @@ def markdown(header: list[str], body: list[list[str]]) -> str:
     return "\n".join(lines)
 
 
+def draw_axes(img: np.ndarray, frame: tuple[int, int, int, int], xlim: tuple[float, float],
+              ylim: tuple[float, float], xticks: list[float], yticks: list[float], formats: tuple[str, str],
+              titles: tuple[str, str]) -> Callable[[float, float], tuple[int, int]]:
+    """Grid, tick labels, frame and axis titles of a chart in FRAME (left, right, top, bottom) of IMG;
+    returns the data -> pixel mapping, for the bench's PNGs (OpenCV only, no plotting library)."""
+    h, w = img.shape[:2]
+    left, right, top, bottom = frame
+    (x0, x1), (y0, y1) = xlim, ylim
+
+    def px(x: float, y: float) -> tuple[int, int]:
+        return (int(left + (x - x0) / (x1 - x0) * (right - left)), int(bottom - (y - y0) / (y1 - y0) * (bottom - top)))
+
+    black, grey = (0, 0, 0), (200, 200, 200)
+    for gx in xticks:
+        cv2.line(img, px(gx, y0), px(gx, y1), grey, 1)
+        cv2.putText(img, formats[0].format(gx), (px(gx, y0)[0] - 12, bottom + 20), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
+                    black, 1)
+    for gy in yticks:
+        cv2.line(img, px(x0, gy), px(x1, gy), grey, 1)
+        cv2.putText(img, formats[1].format(gy), (left - 60, px(x0, gy)[1] + 5), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
+                    black, 1)
+    cv2.rectangle(img, (left, top), (right, bottom), black, 1)
+    cv2.putText(img, titles[0], (w // 2 - 80, h - 15), cv2.FONT_HERSHEY_SIMPLEX, 0.55, black, 1)
+    cv2.putText(img, titles[1], (10, top - 15), cv2.FONT_HERSHEY_SIMPLEX, 0.55, black, 1)
+    return px
+
+
 def plot(rows: list[Row], path: Path, size: tuple[int, int] = (800, 520)) -> None:
     """mIoU (%) against inference p50 (ms), one labelled point per row."""
     w, h = size
@@ -60,20 +88,8 @@ def plot(rows: list[Row], path: Path, size: tuple[int, int] = (800, 520)) -> Non
     xs, ys = [p[0] for p in pts] or [0.0], [p[1] for p in pts] or [0.0]
     x0, x1 = 0.0, max(xs) * 1.15 + 1e-6
     y0, y1 = max(0.0, min(ys) - 5), min(100.0, max(ys) + 5) + 1e-6
-
-    def px(x: float, y: float) -> tuple[int, int]:
-        return (int(left + (x - x0) / (x1 - x0) * (right - left)), int(bottom - (y - y0) / (y1 - y0) * (bottom - top)))
-
-    black, grey = (0, 0, 0), (200, 200, 200)
-    for k in range(6):  # grid and tick labels
-        gx, gy = x0 + k * (x1 - x0) / 5, y0 + k * (y1 - y0) / 5
-        cv2.line(img, px(gx, y0), px(gx, y1), grey, 1)
-        cv2.line(img, px(x0, gy), px(x1, gy), grey, 1)
-        cv2.putText(img, f"{gx:.0f}", (px(gx, y0)[0] - 12, bottom + 20), cv2.FONT_HERSHEY_SIMPLEX, 0.45, black, 1)
-        cv2.putText(img, f"{gy:.1f}", (left - 60, px(x0, gy)[1] + 5), cv2.FONT_HERSHEY_SIMPLEX, 0.45, black, 1)
-    cv2.rectangle(img, (left, top), (right, bottom), black, 1)
-    cv2.putText(img, "inference p50 (ms)", (w // 2 - 80, h - 15), cv2.FONT_HERSHEY_SIMPLEX, 0.55, black, 1)
-    cv2.putText(img, "mIoU (%)", (10, top - 15), cv2.FONT_HERSHEY_SIMPLEX, 0.55, black, 1)
+    px = draw_axes(img, (left, right, top, bottom), (x0, x1), (y0, y1), [x0 + k * (x1 - x0) / 5 for k in range(6)],
+                   [y0 + k * (y1 - y0) / 5 for k in range(6)], ("{:.0f}", "{:.1f}"), ("inference p50 (ms)", "mIoU (%)"))
     colours = [(200, 80, 30), (30, 140, 30), (30, 30, 200), (160, 30, 160), (0, 140, 200), (90, 90, 90)]
     for i, (x, y, label) in enumerate(pts):
         c = colours[i % len(colours)]

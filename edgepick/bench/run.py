@@ -2,18 +2,18 @@
 
 from __future__ import annotations
 
-import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
 import onnxruntime as ort
 
+from edgepick.bench.machine import machine_line
 from edgepick.bench.measure import BenchConfig, Row, bench_model, order_key
 from edgepick.bench.report import write_reports
 from edgepick.data.native import NativeDataset
 from edgepick.errors import ConfigError
+from edgepick.runtime.session import check_model
 
 
 def gpu_row(checkpoint: str | Path, data: str | Path, images: list[np.ndarray], cfg: BenchConfig) -> Row | None:
@@ -63,6 +63,8 @@ def run_bench(models: list[str | Path], data: str | Path, out_dir: str | Path, c
     for m in models:
         if Path(m).suffix != ".onnx":
             raise ConfigError(f"{m} is not an .onnx file (bench runs ONNX models through the runtime)")
+    for m in models:  # every model's contract before the first is measured
+        check_model(m)
     ds = NativeDataset.open(data, cfg.split)
     images = [ds.rgb(sid) for sid in ds.ids[:cfg.latency_images]]
     rows = []
@@ -77,7 +79,8 @@ def run_bench(models: list[str | Path], data: str | Path, out_dir: str | Path, c
         progress(f"bench {Path(m).name} ...")
         rows.append(bench_model(m, data, images, cfg, with_pipeline))
     rows.sort(key=order_key)
-    context = {"title": title, "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
+    gpu = next((r.device for r in rows if r.device != "cpu"), None)  # the fp32 GPU row's card, when there is one
+    context = {"title": title, "machine": machine_line(gpu).removeprefix("Machine: "),  # as in `bench --cell`
                "engine": cfg.engine, "onnxruntime": ort.__version__, "threads": cfg.threads,
                "runs": f"{cfg.runs} timed inferences after {cfg.warmup} warm-up, cycling {len(images)} {cfg.split} images",
                "accuracy": f"{len(ds)} {cfg.split} images of {data}", **({"note": "; ".join(notes)} if notes else {})}

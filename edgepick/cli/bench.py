@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from edgepick.errors import ConfigError
-from edgepick.files import check_output
+from edgepick.files import check_output, output_dir
 
 
 @click.command()
@@ -19,7 +19,8 @@ from edgepick.files import check_output
 @click.option("--threads", default=2, show_default=True, help="onnxruntime intra-op threads for every row.")
 @click.option("--runs", default=50, show_default=True, help="Timed inferences per model (after warm-up).")
 @click.option("--out", "out_dir", default="bench-out", show_default=True, type=click.Path(file_okay=False),
-              help="Folder for table.md, table.csv, table.json and miou-latency.png.")
+              help="Folder for table.md, table.csv, table.json and miou-latency.png (cell.* and success-latency.png "
+                   "with --cell): new, empty, or one bench made before (its files of the same names are replaced).")
 @click.option("--gpu-checkpoint", default=None, type=click.Path(), help="Float RUN or checkpoint for the fp32 GPU row (needs CUDA).")
 @click.option("--no-pipeline", is_flag=True, help="Skip the Table 5.6 pipeline timing.")
 @click.option("--cell", type=int, is_flag=False, flag_value=50, default=None, metavar="N",
@@ -41,28 +42,33 @@ def bench(models: tuple[str, ...], data: str | None, split: str, threads: int, r
     from edgepick.bench.report import HEADER_55, markdown, table55_rows
     from edgepick.bench.run import run_bench
 
-    check_output(out_dir, "--out", kind="dir")
+    check_output(out_dir, "--out", kind="dir", inputs=(*models, data), reuse="bench")
     if threads < 1 or runs < 1:
         raise ConfigError("--threads and --runs must be at least 1")
+    if seed < 0:
+        raise ConfigError(f"--seed {seed}: must be 0 or positive")
     for m in models:
-        if Path(m).suffix != ".onnx":
+        if Path(m).suffix.lower() != ".onnx":
             raise ConfigError(f"{m} is not an .onnx file (bench runs ONNX models through the runtime)")
     if cell is not None:
         from edgepick.bench.cell import HEADER, CellRow, run_cell, table
 
         if cell < 1:
             raise ConfigError(f"--cell {cell}: the number of executions must be at least 1")
-        result = run_cell(list(models), cell, out_dir, threads=threads, seed=seed, engine=engine,
-                          progress=lambda line: click.echo(line, err=True))
+        with output_dir(out_dir, "bench"):
+            result = run_cell(list(models), cell, out_dir, threads=threads, seed=seed, engine=engine,
+                              progress=lambda line: click.echo(line, err=True))
         click.echo(markdown(HEADER, table([CellRow(**r) for r in result["rows"]])), err=True)
         click.echo(json.dumps(result, indent=1))
         return
     if data is None:
         raise ConfigError("--data is needed (the data set to measure accuracy and timing on), or --cell N")
 
-    result = run_bench(list(models), data, out_dir, BenchConfig(threads=threads, runs=runs, split=split, engine=engine),
-                       gpu_checkpoint=gpu_checkpoint, with_pipeline=not no_pipeline,
-                       progress=lambda line: click.echo(line, err=True))
+    with output_dir(out_dir, "bench"):
+        result = run_bench(list(models), data, out_dir, BenchConfig(threads=threads, runs=runs, split=split,
+                                                                    engine=engine),
+                           gpu_checkpoint=gpu_checkpoint, with_pipeline=not no_pipeline,
+                           progress=lambda line: click.echo(line, err=True))
     rows = [Row(**r) for r in result["rows"]]
     click.echo(markdown(HEADER_55, table55_rows(rows)), err=True)
     click.echo(json.dumps(result, indent=1))

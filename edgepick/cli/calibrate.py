@@ -45,6 +45,11 @@ def _floats(text: str, count: int, option: str) -> tuple[float, ...]:
     return values
 
 
+def _mm(metres: float) -> str:
+    """A leave-one-out error in millimetres, or '-' where there is none (the other pairs are collinear)."""
+    return "-" if math.isnan(metres) else f"{metres * 1000:.2f}"
+
+
 @calibrate.command("fit")
 @click.argument("pairs", type=click.Path(dir_okay=False))
 @click.option("--out", required=True, type=click.Path(dir_okay=False),
@@ -66,8 +71,8 @@ def fit(pairs: str, out: str, max_rmse: float, drop_outliers: bool, subsets: str
     refuses coincident or collinear points, and a fit too poor to be a measurement (mixed
     units, a mirrored axis, pairs of different points).
     """
-    from edgepick.runtime.calibration import (diagnose, kabsch, leave_one_out, outliers, read_pairs, residuals,
-                                              subset_errors)
+    from edgepick.runtime.calibration import (check_subset_sizes, diagnose, kabsch, leave_one_out, outliers,
+                                              read_pairs, residuals, subset_errors)
 
     if not (math.isfinite(max_rmse) and max_rmse > 0):
         raise ConfigError(f"--max-rmse {max_rmse}: must be a positive number of millimetres")
@@ -75,13 +80,15 @@ def fit(pairs: str, out: str, max_rmse: float, drop_outliers: bool, subsets: str
         sizes = sorted({int(v) for v in subsets.split(",") if v.strip()})
     except ValueError:
         raise ConfigError(f"--subsets {subsets}: give comma-separated pair counts, e.g. 4,14,24") from None
-    check_output(out, "--out")
+    check_output(out, "--out", inputs=(pairs,))
     camera, robot = read_pairs(pairs)
+    check_subset_sizes(sizes, len(camera))
     cal = kabsch(camera, robot)
     loo = leave_one_out(camera, robot) if len(camera) > 4 else None
     flagged = outliers(loo) if loo is not None else []
+    flagged_set = set(flagged)
     if drop_outliers and flagged:
-        keep = [i for i in range(len(camera)) if i not in flagged]
+        keep = [i for i in range(len(camera)) if i not in flagged_set]
         click.echo(f"dropping {len(flagged)} outlier pair(s): {', '.join(str(i + 1) for i in flagged)}", err=True)
         cal = kabsch(camera[keep], robot[keep])
         camera_fit, robot_fit = camera[keep], robot[keep]
@@ -89,8 +96,8 @@ def fit(pairs: str, out: str, max_rmse: float, drop_outliers: bool, subsets: str
         camera_fit, robot_fit = camera, robot
     diagnose(cal, camera_fit, robot_fit, max_rmse / 1000)
     for i, err in enumerate(residuals(cal, camera, robot)):
-        held = f"   leave-one-out {loo[i] * 1000:7.2f} mm" if loo is not None else ""
-        flag = "   outlier" + (" (dropped)" if drop_outliers else "") if i in flagged else ""
+        held = f"   leave-one-out {_mm(loo[i]):>7} mm" if loo is not None else ""
+        flag = "   outlier" + (" (dropped)" if drop_outliers else "") if i in flagged_set else ""
         click.echo(f"pair {i + 1:3d}: residual {err * 1000:7.2f} mm{held}{flag}", err=True)
     click.echo(f"RMSE {cal.rmse_m * 1000:.2f} mm over {cal.n_pairs} pairs", err=True)
     table = subset_errors(camera_fit, robot_fit, sizes) if sizes else {}
@@ -99,7 +106,8 @@ def fit(pairs: str, out: str, max_rmse: float, drop_outliers: bool, subsets: str
                    f"({row['fits']} fits)", err=True)
     cal.save(out)
     result = {"out": out, **cal.to_dict(), "outliers": [i + 1 for i in flagged],
-              "leave_one_out_mm": [round(e * 1000, 2) for e in loo] if loo is not None else None}
+              "leave_one_out_mm": [None if math.isnan(e) else round(e * 1000, 2) for e in loo] if loo is not None
+              else None}
     if table:
         result["subsets"] = {str(k): v for k, v in table.items()}
     emit(result)
@@ -144,6 +152,7 @@ def collect(robot_spec: str, camera: str, marker_spec: str, marker_offset: str, 
     from edgepick.robot.handeye import CollectConfig, check_plan, collect_pairs, plan_positions
     from edgepick.robot.motion import HOME_POSE
     from edgepick.runtime.calibration import kabsch, write_pairs
+    from edgepick.runtime.camera import FolderCamera
     from edgepick.runtime.marker import MarkerSpec
     from edgepick.sim.camera import SynthCamera, ToolMarker
     from edgepick.sim.robot import SimRobot
@@ -159,9 +168,10 @@ def collect(robot_spec: str, camera: str, marker_spec: str, marker_offset: str, 
     cfg = CollectConfig(poses=poses, offset_m=_floats(marker_offset, 3, "--marker-offset"), settle_s=settle,
                         speed=speed, **({"region": _floats(region, 6, "--region")} if region else {}))
     cfg.validate()
-    check_output(out, "--out")
-    if robot_log:
-        check_output(robot_log, "--robot-log")
+    folder = camera.partition(":")[2] if camera.startswith("dir:") else None  # the frames it reads
+    check_output(out, "--out", inputs=(folder,))
+    if robot_log is not None:
+        check_output(robot_log, "--robot-log", inputs=(folder, out))
     width, height = parse_size(size)
     plan = plan_positions(cfg)
     if kind == "ur" and not execute:
@@ -178,6 +188,9 @@ def collect(robot_spec: str, camera: str, marker_spec: str, marker_offset: str, 
 
         robot = URRobot(host, envelope=envelope, debug_log=robot_log)
     source = open_camera(camera, width, height)
+    if isinstance(source, FolderCamera) and not source.loop and len(source.names) < len(plan):
+        raise ConfigError(f"--camera {camera}: {len(source.names)} frames for {len(plan)} positions; give one frame "
+                          "per position (or fewer --poses)")
     echo = lambda line: click.echo(line, err=True)  # noqa: E731
     with source, robot:
         check_plan(plan, robot.tcp_pose(), envelope)

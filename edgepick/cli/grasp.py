@@ -57,8 +57,9 @@ def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, d
         raise ConfigError("--model needs --rgb, the colour image to segment")
     if mask_path and rgb_path:
         raise ConfigError("--rgb goes with --model; mask mode reads the labels from --mask")
-    if overlay:
-        check_output(overlay, "--overlay", suffixes=(".png", ".jpg", ".jpeg"))
+    if overlay is not None:
+        check_output(overlay, "--overlay", suffixes=(".png", ".jpg", ".jpeg"),
+                     inputs=(mask_path, model_path, rgb_path, depth_path, intrinsics, calib))
     if classes is not None and model_path:
         raise ConfigError("--classes is for mask mode; a model carries its own class names")
     names = [c.strip() for c in classes.split(",")] if classes is not None else list(DEFAULT_CLASSES)
@@ -91,7 +92,7 @@ def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, d
             timings.append({"grasp": 1000 * (time.perf_counter() - t0)})
         timings = timings[1:]
         picture = labels
-    if overlay:
+    if overlay is not None:
         with atomic_path(overlay) as tmp:
             if not cv2.imwrite(str(tmp), draw_overlay(picture, records)):
                 raise ConfigError(f"cannot write overlay {overlay}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import sys
@@ -10,25 +11,38 @@ import click
 
 from edgepick.cli.options import parse_size
 from edgepick.errors import ConfigError
-from edgepick.files import check_output
+from edgepick.files import check_output, output_dir
 
 
-def make_gripper(spec: str, robot, robot_host: str | None):
-    """'digital:N' (standard output N), 'tool:N' (tool output N) or 'rg2[:HOST]'."""
-    from edgepick.robot.grippers import DigitalGripper, RG2Gripper
+def check_gripper(spec: str, robot_host: str | None) -> tuple[str, int | str]:
+    """Parse --gripper before anything starts: ('digital' or 'tool', N) for an output the arm has
+    (the limits of RobotBase.set_digital_out), or ('rg2', HOST)."""
+    from edgepick.robot.base import output_reason
 
     kind, _, arg = spec.partition(":")
     if kind in ("digital", "tool"):
         try:
-            return DigitalGripper(robot, int(arg), tool=kind == "tool")
+            index = int(arg)
         except ValueError:
-            raise ConfigError(f"--gripper {spec}: the output must be a number, e.g. digital:0") from None
+            raise ConfigError(f"--gripper {spec}: the output must be a number, e.g. {kind}:0") from None
+        reason = output_reason(index, tool=kind == "tool")
+        if reason:
+            raise ConfigError(f"--gripper {spec}: the {reason}")
+        return kind, index
     if kind == "rg2":
         host = arg or robot_host
         if not host:
             raise ConfigError("--gripper rg2 needs the robot's host (rg2:HOST, or --robot ur:HOST)")
-        return RG2Gripper(host)
-    raise ConfigError(f"unknown gripper {spec!r}: use digital:N, tool:N or rg2[:HOST]")
+        return kind, host
+    raise ConfigError(f"--gripper {spec}: unknown gripper; use digital:N, tool:N or rg2[:HOST]")
+
+
+def make_gripper(spec: tuple[str, int | str], robot) -> "DigitalGripper | RG2Gripper":  # noqa: F821
+    """The gripper of a checked spec (check_gripper); a digital one drives ROBOT's output."""
+    from edgepick.robot.grippers import DigitalGripper, RG2Gripper
+
+    kind, arg = spec
+    return RG2Gripper(arg) if kind == "rg2" else DigitalGripper(robot, arg, tool=kind == "tool")
 
 
 @click.command()
@@ -75,7 +89,7 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     stop, lost link) or cannot be reached, it says so and the exit status is 3.
     """
     from edgepick.cli.cameras import open_camera
-    from edgepick.robot.base import RobotError
+    from edgepick.robot.base import RobotError, RobotUnreachable
     from edgepick.robot.loop import cycles_summary, run_cycles
     from edgepick.robot.pick import CommandLog, PickConfig
     from edgepick.runtime.calibration import Calibration
@@ -85,11 +99,12 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     from edgepick.sim.robot import SimRobot
 
     kind, host = _check_motion(cycles, speed, acc, robot_spec)
-    check_output(log_path, "--log")
-    if overlay_dir:
-        check_output(overlay_dir, "--overlay-dir", kind="dir")
-    if robot_log:
-        check_output(robot_log, "--robot-log")
+    gripper_spec = check_gripper(gripper, host or None)
+    check_output(log_path, "--log", inputs=(model, calib))
+    if overlay_dir is not None:
+        check_output(overlay_dir, "--overlay-dir", kind="dir", inputs=(model, calib), reuse="pick")
+    if robot_log is not None:
+        check_output(robot_log, "--robot-log", inputs=(model, calib, log_path))
     width, height = parse_size(size)
     model = model or _reference_for(camera)
     segmenter = Segmenter(model, threads=threads, engine=engine)
@@ -115,23 +130,25 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     else:
         robot = None
         click.echo(f"plan only: nothing is sent to {host} (add --execute to move the arm)", err=True)
-    grip = make_gripper(gripper, robot, host or None) if robot is not None else None
+    grip = make_gripper(gripper_spec, robot) if robot is not None else None
     log = CommandLog(log_path)
     echo = lambda line: click.echo(line, err=True)  # noqa: E731
-    results, halted = [], None
+    results, halted, unreachable = [], None, False
+    overlays = output_dir(overlay_dir, "pick") if overlay_dir is not None else contextlib.nullcontext()
     try:
-        with source:
+        with overlays, source:
             if robot is None:
                 results = run_cycles(source, pipeline, None, None, cfg, cycles, log, overlay_dir, echo, truth_cal)
             else:
                 try:
+                    grip.probe()  # a gripper that cannot be reached is found before the arm is sent anything
                     with robot:
                         results = run_cycles(source, pipeline, robot, grip, cfg, cycles, log, overlay_dir, echo,
                                              truth_cal)
                 except RobotError as exc:
                     if getattr(exc, "exit_code", 2) != 3:
                         raise
-                    halted = str(exc)
+                    halted, unreachable = str(exc), isinstance(exc, RobotUnreachable)
                 halted = halted or robot.halted
     finally:
         log.close()
@@ -139,7 +156,8 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
                "log": log_path if log.path and log.path.exists() else None, "results": results}
     click.echo(json.dumps(summary, indent=1))
     if halted:
-        click.echo(f"edgepick: error: robot halted: {halted} ({summary['done']} of {cycles} cycles done)", err=True)
+        message = halted if unreachable else f"robot halted: {halted} ({summary['done']} of {cycles} cycles done)"
+        click.echo(f"edgepick: error: {message}", err=True)
         sys.exit(3)
 
 

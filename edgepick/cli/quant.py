@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from edgepick.cli.options import emit, epoch_subset, with_options
+from edgepick.errors import ConfigError
 from edgepick.files import check_output
 
 
@@ -19,8 +20,8 @@ def _quant_config(calib_method: str = "percentile", percentile: float = 99.99, r
                        weight_averaging=weight_averaging)
 
 
-def _check_onnx_out(out: str) -> None:
-    check_output(out, "--out", suffixes=(".onnx",))
+def _check_onnx_out(out: str, *inputs: str | None) -> None:
+    check_output(out, "--out", suffixes=(".onnx",), inputs=inputs)
 
 
 common = [
@@ -61,7 +62,7 @@ def export_cmd(checkpoint: str, out: str) -> None:
     uint8 `labels` out, normalisation and colour space in the graph, edgepick.* metadata."""
     from edgepick.export.onnx_export import export_checkpoint
 
-    _check_onnx_out(out)
+    _check_onnx_out(out, checkpoint)
     emit(export_checkpoint(checkpoint, out))
 
 
@@ -94,7 +95,9 @@ def quantize_static_cmd(checkpoint: str, data_dir: str, calib_images: int | None
     """Static post-training quantization of a float checkpoint (BN folded, ranges calibrated)."""
     from edgepick.quant.passes import quantize_static
 
-    _check_onnx_out(out)
+    _check_onnx_out(out, checkpoint, data_dir)
+    if seed < 0:
+        raise ConfigError(f"--seed {seed}: must be 0 or positive")
     cfg = _quant_config(calib_method, percentile, reduce_range, keep_float)
     if max_miou_drop is not None:
         from edgepick.quant.inspect import quantize_accuracy_aware
@@ -117,6 +120,8 @@ def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int | Non
     the drift it adds; the worst layers are the --keep-float candidates. JSON on stdout."""
     from edgepick.quant.inspect import inspect
 
+    if top < 0:
+        raise ConfigError(f"--top {top}: the number of rows must be 0 or more")
     report = inspect(checkpoint, data_dir, _quant_config(calib_method, reduce_range=reduce_range), calib_images, images)
     by_name = {r["layer"]: r for r in report["layers"]}
     click.echo(f"logits SQNR {report['logits_sqnr_db']} dB, labels equal to fp32: {report['label_agreement']}", err=True)
@@ -151,11 +156,13 @@ def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int,
     from edgepick.quant.passes import quantize_qat
     from edgepick.train.loop import TrainConfig
 
-    _check_onnx_out(out)
+    _check_onnx_out(out, data_dir)
+    if seed < 0:
+        raise ConfigError(f"--seed {seed}: must be 0 or positive")
     input_hw = model_size(size)
     check_data_orientation(data_dir, input_hw)
     run = run_dir or str(Path(out).with_suffix(".run"))
-    check_output(run, "--run", kind="dir")
+    check_output(run, "--run", kind="dir", inputs=(data_dir, out))
     cfg = TrainConfig(data=data_dir, out=run, arch=arch, epochs=epochs, batch_size=batch_size, lr=lr,
                       size=input_hw, device=device, seed=seed, epoch_images=epoch_images,
                       val_images=val_images)
@@ -194,8 +201,8 @@ def quantize_hybrid_cmd(run: str, data_dir: str, qat_fraction: float, qat_run: s
     takes a float RUN's best.pt. Reports the wall time of each phase."""
     from edgepick.quant.passes import quantize_hybrid
 
-    _check_onnx_out(out)
-    check_output(qat_run or str(Path(out).with_suffix(".run")), "--run", kind="dir")
+    _check_onnx_out(out, run, data_dir)
+    check_output(qat_run or str(Path(out).with_suffix(".run")), "--run", kind="dir", inputs=(run, data_dir, out))
     cfg = _quant_config(reduce_range=reduce_range, keep_float=keep_float, weight_averaging=weight_averaging)
     emit(quantize_hybrid(run, data_dir, out, qat_fraction, cfg, qat_run=qat_run, freeze_at=freeze_at,
                           carry_optimizer=not fresh_optimizer, calib_images=calib_images, hold_ranges=hold_ranges,

@@ -40,19 +40,35 @@ def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, 
           epoch_images: int, val_images: int, workers: int, seed: int, resume: bool) -> None:
     """Train a float DeepLabV3 on DATA (CPU, one GPU with bf16 AMP, or DDP under torchrun).
 
-    Keeps best.pt (by validation mIoU), last.pt and epoch_NNN.pt for --keep-epochs, and
-    metrics.json with per-epoch loss, pixel accuracy, mIoU, per-class IoU and timings.
+    \b
+    RUN holds, after each epoch:
+      last.pt        weights, AdamW and schedule state: what --resume continues from
+      best.pt        the weights of the epoch with the best validation mIoU (what export and
+                     quantize static take), without the optimizer state: a third of last.pt
+      epoch_NNN.pt   copies of last.pt at --keep-epochs (hybrid-QaT's switch points)
+      metrics.json   per-epoch loss, pixel accuracy, mIoU, per-class IoU and timings
     Multi-GPU: torchrun --nproc_per_node N -m edgepick train DATA --out RUN ...
+    --resume continues RUN on DATA (the same data set, at any path) after a kill.
     """
     from edgepick.train.loop import TrainConfig
     from edgepick.train.loop import train as run_train
+    from edgepick.train.setup import dist_env
 
+    dist_env()
     try:
         keep = sorted({int(v) for v in keep_epochs.split(",") if v.strip()})
     except ValueError:
         raise ConfigError(f"--keep-epochs must be comma-separated integers, got {keep_epochs!r}") from None
+    if epochs is not None:
+        outside = [e for e in keep if not 1 <= e <= epochs]
+        if outside:
+            raise ConfigError(f"--keep-epochs {outside[0]}: not an epoch of the budget (1..{epochs})")
+    if seed < 0:
+        raise ConfigError(f"--seed {seed}: must be 0 or positive")
     input_hw = model_size(size)
-    check_output(out, "--out", kind="dir")
+    if not resume and (Path(out) / "last.pt").exists():
+        raise ConfigError(f"--out {out} already holds a training run; pass --resume or choose a new --out")
+    check_output(out, "--out", kind="dir", inputs=(data_dir,), reuse="train" if resume else None)
     if not resume:
         check_data_orientation(data_dir, input_hw)
     cfg = TrainConfig(data=data_dir, out=out, arch=arch, variant=variant, epochs=epochs if epochs is not None else (0 if resume else 100),
@@ -74,27 +90,31 @@ def eval_cmd(model: str, data_dir: str, split: str, out: str | None) -> None:
     """Pixel accuracy, per-class IoU, mIoU and confusion matrix of MODEL (checkpoint, RUN or ONNX) as JSON."""
     from edgepick.evaluation import evaluate
 
-    if out:
-        check_output(out, "--out")
+    if out is not None:
+        check_output(out, "--out", inputs=(model, data_dir))
     result = evaluate(model, data_dir, split)
-    if out:
+    if out is not None:
         atomic_write(out, json.dumps(result, indent=1))
     emit(result)
 
 
 
 @click.command()
-@click.option("--workdir", default="demo-out", show_default=True, type=click.Path(file_okay=False))
+@click.option("--workdir", default="demo-out", show_default=True, type=click.Path(file_okay=False),
+              help="Folder for everything the demo makes. A new or empty folder, or one an earlier demo made (its "
+                   "old contents are removed first); any other folder is refused, as is the working folder.")
 @click.option("--scenes", default=204, show_default=True, help="Synthetic scenes to make.")
 @click.option("--epochs", default=12, show_default=True, help="CPU training epochs.")
 def demo(workdir: str, scenes: int, epochs: int) -> None:
-    """The main job on an embedded default: synth data, train a small model on CPU, evaluate."""
+    """The main job on an embedded default, about 10 minutes on 2 cores: synthetic data, a small
+    CPU training run, evaluation, fp32/static/hybrid-QaT ONNX files, pick cycles on the simulated
+    robot, and the bench tables (thesis Tables 5.5 and 5.6)."""
     from edgepick.demo import run_demo
 
     if epochs < 2:
         raise ConfigError(f"--epochs {epochs}: the demo needs at least 2 (its hybrid-QaT continues from epoch N-1)")
     if scenes < 30:
         raise ConfigError(f"--scenes {scenes}: the demo needs at least 30 (train, val and test splits)")
-    check_output(workdir, "--workdir", kind="dir")
+    check_output(workdir, "--workdir", kind="dir", reuse="demo")
     run_demo(Path(workdir), scenes=scenes, epochs=epochs)
 

@@ -1,15 +1,19 @@
 """`edgepick data import FORMAT SRC OUT`: Cityscapes, BOP (LineMOD) and CVAT segmentation
 exports converted into the native layout (docs/contracts.md#data-set-layout), so train/quantize/bench take them.
 
-Everything is checked while converting; the output goes to a temporary folder beside OUT
-that is renamed into place at the end, so a malformed tree leaves nothing half-imported.
-numpy + OpenCV only.
+Every file is checked while converting: BOP's scene files field by field (edgepick.data.bop),
+the labelmap, and each image's kind, size and integrity; a malformed one ends as one line that
+names it. The output goes to a temporary folder beside OUT that is renamed into place at the
+end, so a malformed tree leaves nothing half-imported. numpy + OpenCV only.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import os
+import sys
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,9 +21,11 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from edgepick.data.bop import BopImage, bop_scenes, object_name, read_scene
 from edgepick.data.native import IGNORE, SPLITS, atomic_folder
 from edgepick.errors import DatasetError
 from edgepick.geometry import Intrinsics
+from edgepick.schema import read_text
 
 FORMATS = ("cityscapes", "bop", "cvat")
 
@@ -35,8 +41,9 @@ CITYSCAPES = [
 ]
 # The 30 classes of the Cityscapes benchmark are ids 4..33; ids 0..3 are outside the labelled area.
 CITYSCAPES_30_FIRST_ID = 4
-LINEMOD_NAMES = ["ape", "benchvise", "bowl", "cam", "can", "cat", "cup", "driller", "duck", "eggbox", "glue",
-                 "holepuncher", "iron", "lamp", "phone"]
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
+# libjpeg's warnings about damaged data: the image decodes, with grey where the data is missing
+JPEG_DAMAGE = ("Premature end of JPEG file", "Corrupt JPEG data")
 
 
 @dataclass
@@ -59,8 +66,8 @@ class NativeWriter:
 
     def add(self, split: str, rgb: np.ndarray, mask: np.ndarray, depth_mm: np.ndarray | None, name: str) -> None:
         if rgb.shape[:2] != mask.shape or (depth_mm is not None and depth_mm.shape != mask.shape):
-            raise DatasetError(f"{name}: image {rgb.shape[1]}x{rgb.shape[0]}, label {mask.shape[::-1]}"
-                               + ("" if depth_mm is None else f" and depth {depth_mm.shape[::-1]}") + " differ in size")
+            raise DatasetError(f"{name}: image {_size(rgb)}, label {_size(mask)}"
+                               + ("" if depth_mm is None else f" and depth {_size(depth_mm)}") + " differ in size")
         sid = f"{self.counts[split]:06d}"
         self.counts[split] += 1
         base = self.tmp / split
@@ -102,10 +109,37 @@ def assign_splits(names: list[str], fractions: tuple[float, float, float]) -> di
             for i, name in enumerate(order)}
 
 
+def _size(img: np.ndarray) -> str:
+    return f"{img.shape[1]}x{img.shape[0]}"
+
+
+def _imread(path: Path, flags: int) -> tuple[np.ndarray | None, list[str]]:
+    """cv2.imread, and what its decoders wrote on stderr meanwhile (kept off the user's terminal:
+    edgepick says what is wrong with the file itself)."""
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (AttributeError, OSError, ValueError):  # no stderr to keep clean
+        return cv2.imread(str(path), flags), []
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 2)
+        try:
+            img = cv2.imread(str(path), flags)
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        sink.seek(0)
+        said = sink.read().decode("utf-8", "replace")
+    return img, [line.strip() for line in said.splitlines() if line.strip()]
+
+
 def _read(path: Path, flags: int, what: str) -> np.ndarray:
-    img = cv2.imread(str(path), flags)
-    if img is None:
-        raise DatasetError(f"cannot read {what} {path}")
+    """An image, or a one-line error: missing, not an image, or damaged (a JPEG cut short decodes
+    with a grey bottom half; it is refused rather than imported so)."""
+    img, said = _imread(path, flags)
+    damage = next((line for line in said if line.startswith(JPEG_DAMAGE)), None)
+    if img is None or damage:
+        raise DatasetError(f"cannot read {what} {path}" + (f": {damage}" if damage else ""))
     return img
 
 
@@ -143,46 +177,36 @@ def import_cityscapes(src: Path, writer: NativeWriter, cfg: ImportConfig) -> tup
             raise DatasetError(f"label file missing for {img.name}: {label}")
         ids = _read(label, cv2.IMREAD_UNCHANGED, "label image")
         if ids.ndim != 2:
-            raise DatasetError(f"{label} must be a single-channel labelIds image")
-        if ids.dtype != np.uint8 or int(ids.max()) > 33:
+            raise DatasetError(f"{label} must be a single-channel labelIds image, not a colour one")
+        if ids.dtype != np.uint8:
+            raise DatasetError(f"{label} is a {ids.dtype.itemsize * 8}-bit image; labelIds images are 8-bit")
+        if int(ids.max()) > 33:
             raise DatasetError(f"{label} holds label id {int(ids.max())}, outside Cityscapes' 0..33")
-        writer.add(split, _rgb(img), lut[ids], None, str(img.relative_to(src)))
+        rgb = _rgb(img)
+        if rgb.shape[:2] != ids.shape:
+            raise DatasetError(f"{img} is {_size(rgb)}, its labels {label} {_size(ids)}: they differ in size")
+        writer.add(split, rgb, lut[ids], None, str(img.relative_to(src)))
     return classes, None, {"format": "cityscapes", "classes": cfg.cityscapes_classes, "test_from": "val"}
 
 
 # ----------------------------------------------------------------------------------- BOP
-def _bop_scenes(src: Path) -> list[Path]:
-    """Scene folders (with scene_gt.json) under a BOP split folder, or a data set root."""
-    if (src / "scene_gt.json").is_file():
-        return [src]
-    scenes = sorted(p.parent for p in src.glob("*/scene_gt.json"))
-    return scenes or sorted(p.parent for p in src.glob("*/*/scene_gt.json"))
-
-
 def import_bop(src: Path, writer: NativeWriter, cfg: ImportConfig) -> tuple[list[str], Intrinsics, dict]:
     """rgb/, depth/, mask_visib/<im>_<k>.png, scene_gt.json (obj_id per gt), scene_camera.json
-    (cam_K, depth_scale in mm per unit). One class per object id; depth converted to mm."""
-    scenes = _bop_scenes(src)
+    (cam_K, depth_scale in mm per unit). One class per object id; depth converted to mm.
+    Every scene's JSON is checked (edgepick.data.bop) before the first image is converted."""
+    scenes = bop_scenes(src)
     if not scenes:
         raise DatasetError(f"{src} holds no BOP scene (a folder with scene_gt.json)")
-    entries, obj_ids = [], set()
-    for scene in scenes:
-        try:
-            gt = json.loads((scene / "scene_gt.json").read_text())
-            cams = json.loads((scene / "scene_camera.json").read_text())
-        except (OSError, json.JSONDecodeError) as exc:
-            raise DatasetError(f"{scene}: unreadable scene_gt.json or scene_camera.json: {exc}") from None
-        for im, objs in gt.items():
-            if im not in cams:
-                raise DatasetError(f"{scene}/scene_camera.json has no entry for image {im}")
-            obj_ids |= {int(o["obj_id"]) for o in objs}
-            entries.append((scene, int(im), objs, cams[im]))
-    ordered = sorted(obj_ids)
-    names = [LINEMOD_NAMES[i - 1] if 1 <= i <= len(LINEMOD_NAMES) else f"obj_{i:06d}" for i in ordered]
+    entries: list[BopImage] = [image for scene in scenes for image in read_scene(scene)]
+    ordered = sorted({obj for image in entries for obj in image.obj_ids})
+    if len(ordered) >= IGNORE:
+        raise DatasetError(f"{src} holds {len(ordered)} object ids; a mask holds at most {IGNORE - 1} classes "
+                           f"besides the background ({IGNORE} marks ignored pixels)")
     class_of = {obj: k + 1 for k, obj in enumerate(ordered)}
     intr = None
-    splits = assign_splits([f"{scene.name}/{im:06d}" for scene, im, _, _ in entries], cfg.split_fractions)
-    for scene, im, objs, cam in tqdm(entries, desc="bop", unit="img", disable=None):
+    splits = assign_splits([f"{e.scene.name}/{e.im:06d}" for e in entries], cfg.split_fractions)
+    for entry in tqdm(entries, desc="bop", unit="img", disable=None):
+        scene, im, K = entry.scene, entry.im, entry.cam_K
         name = f"{scene.name}/{im:06d}"
         rgb_path = next((p for p in (scene / "rgb" / f"{im:06d}.png", scene / "rgb" / f"{im:06d}.jpg") if p.is_file()),
                         None)
@@ -190,9 +214,6 @@ def import_bop(src: Path, writer: NativeWriter, cfg: ImportConfig) -> tuple[list
             raise DatasetError(f"{scene}/rgb has no image {im:06d}.png or .jpg")
         rgb = _rgb(rgb_path)
         h, w = rgb.shape[:2]
-        K = np.asarray(cam.get("cam_K", []), float).reshape(-1)
-        if K.size != 9:
-            raise DatasetError(f"{scene}/scene_camera.json: image {im} has no 3x3 cam_K")
         this = Intrinsics(w, h, K[0], K[4], K[2], K[5], 0.001)
         if intr is None:
             intr = this
@@ -200,66 +221,106 @@ def import_bop(src: Path, writer: NativeWriter, cfg: ImportConfig) -> tuple[list
                 (intr.fx, intr.fy, intr.cx, intr.cy), (this.fx, this.fy, this.cx, this.cy))) > 0.5:
             raise DatasetError(f"{name}: camera differs from the first image's; import one camera at a time")
         mask = np.zeros((h, w), np.uint8)
-        for k, obj in enumerate(objs):
+        for k, obj_id in enumerate(entry.obj_ids):
             visib = scene / "mask_visib" / f"{im:06d}_{k:06d}.png"
-            m = _read(visib, cv2.IMREAD_GRAYSCALE, "visible-mask") if visib.is_file() else None
-            if m is None:
+            if not visib.is_file():
                 raise DatasetError(f"mask file missing: {visib}")
+            m = _read(visib, cv2.IMREAD_GRAYSCALE, "visible-mask")
             if m.shape != (h, w):
-                raise DatasetError(f"{visib} is {m.shape[1]}x{m.shape[0]}, the image {w}x{h}")
-            mask[m > 0] = class_of[int(obj["obj_id"])]
+                raise DatasetError(f"{visib} is {_size(m)}, the image {w}x{h}")
+            mask[m > 0] = class_of[obj_id]
         depth_mm = None
         depth_path = scene / "depth" / f"{im:06d}.png"
         if depth_path.is_file():
             raw = _read(depth_path, cv2.IMREAD_UNCHANGED, "depth image")
             if raw.ndim != 2 or raw.dtype != np.uint16:
                 raise DatasetError(f"{depth_path} must be a single-channel uint16 depth image")
-            scale = float(cam.get("depth_scale", 1.0))  # BOP: millimetres per unit
-            depth_mm = np.clip(np.round(raw.astype(np.float64) * scale), 0, 65535).astype(np.uint16)
+            if raw.shape != (h, w):
+                raise DatasetError(f"{depth_path} is {_size(raw)}, the image {w}x{h}")
+            # BOP: millimetres per unit
+            depth_mm = np.clip(np.round(raw.astype(np.float64) * entry.depth_scale), 0, 65535).astype(np.uint16)
         writer.add(splits[name], rgb, mask, depth_mm, name)
-    return ["background", *names], intr, {"format": "bop", "obj_ids": ordered}
+    return ["background", *map(object_name, ordered)], intr, {"format": "bop", "obj_ids": ordered}
 
 
 # ---------------------------------------------------------------------------------- CVAT
 def read_labelmap(path: Path) -> list[tuple[str, tuple[int, int, int]]]:
-    """CVAT / Pascal VOC labelmap.txt: `name:r,g,b:parts:actions` per line."""
+    """CVAT / Pascal VOC labelmap.txt: `name:r,g,b:parts:actions` per line, each name once and
+    each colour channel 0..255."""
     if not path.is_file():
         raise DatasetError(f"{path.parent} has no labelmap.txt (CVAT 'Segmentation mask 1.1' export)")
-    out = []
-    for n, line in enumerate(path.read_text().splitlines(), start=1):
-        if not line.strip() or line.startswith("#"):
+    out, line_of = [], {}
+    for n, line in enumerate(read_text(path, "labelmap").splitlines(), start=1):
+        if not line.strip() or line.lstrip().startswith("#"):
             continue
+        parts = line.split(":")
         try:
-            name, colour = line.split(":")[:2]
-            rgb = tuple(int(v) for v in colour.split(","))
-            assert len(rgb) == 3 and all(0 <= v <= 255 for v in rgb)
-        except (ValueError, AssertionError):
-            raise DatasetError(f"{path}:{n}: expected 'name:r,g,b::', got {line!r}") from None
-        out.append((name.strip(), rgb))
+            rgb = tuple(int(v) for v in parts[1].split(","))
+        except (IndexError, ValueError):
+            rgb = ()
+        if len(rgb) != 3:
+            raise DatasetError(f"{path}:{n}: expected 'name:r,g,b::', got {line!r}")
+        if not all(0 <= v <= 255 for v in rgb):
+            raise DatasetError(f"{path}:{n}: colour {','.join(map(str, rgb))} is outside 0..255")
+        name = parts[0].strip()
+        if not name:
+            raise DatasetError(f"{path}:{n}: the label has no name, got {line!r}")
+        if name in line_of:
+            raise DatasetError(f"{path}:{n}: lists the label {name!r} twice (first on line {line_of[name]})")
+        line_of[name] = n
+        out.append((name, rgb))
     if not out:
         raise DatasetError(f"{path} lists no labels")
     return out
 
 
+def _images_by_stem(image_dir: Path) -> dict[str, list[Path]]:
+    """The image files of IMAGE_DIR by name without suffix (a.jpg and a.png both under 'a')."""
+    found: dict[str, list[Path]] = {}
+    try:
+        for p in sorted(image_dir.iterdir()):
+            if p.suffix.lower() in IMAGE_SUFFIXES:
+                found.setdefault(p.stem, []).append(p)
+    except OSError as exc:
+        raise DatasetError(f"cannot list the image folder {image_dir}: {exc.strerror or exc}") from None
+    return found
+
+
+def _colour_mask(mpath: Path) -> np.ndarray:
+    """A CVAT mask as an [H, W, 3] int32 RGB array: 8-bit colour (grey or with alpha is taken too)."""
+    raw = _read(mpath, cv2.IMREAD_UNCHANGED, "mask")
+    if raw.dtype != np.uint8:
+        raise DatasetError(f"{mpath} is a {raw.dtype.itemsize * 8}-bit image; CVAT masks are 8-bit colour PNGs")
+    bgr = cv2.cvtColor(raw, cv2.COLOR_GRAY2BGR) if raw.ndim == 2 else raw[..., :3]
+    return bgr[..., ::-1].astype(np.int32)
+
+
 def import_cvat(src: Path, writer: NativeWriter, cfg: ImportConfig) -> tuple[list[str], Intrinsics | None, dict]:
     """labelmap.txt + SegmentationClass/*.png colour masks, images from SRC/JPEGImages or --images,
     depth from --depth (uint16 PNGs with the images' names) with --intrinsics."""
-    labels = read_labelmap(src / "labelmap.txt")
+    labelmap = src / "labelmap.txt"
+    labels = read_labelmap(labelmap)
     names = [n for n, _ in labels]
     if "background" in names:  # class 0 is background, as the runtime expects
         labels.insert(0, labels.pop(names.index("background")))
     else:
         labels.insert(0, ("background", (0, 0, 0)))
+    if len(labels) > IGNORE:
+        raise DatasetError(f"{labelmap} lists {len(names)} labels; a mask holds at most {IGNORE} classes, the "
+                           f"background included ({IGNORE} marks ignored pixels)")
     classes = [n for n, _ in labels]
-    colour_key = {r * 65536 + g * 256 + b: k for k, (_, (r, g, b)) in enumerate(labels)}
-    if len(colour_key) != len(labels):
-        raise DatasetError(f"{src}/labelmap.txt gives two labels the same colour")
+    colour_key: dict[int, int] = {}
+    for k, (name, (r, g, b)) in enumerate(labels):
+        other = colour_key.setdefault(r * 65536 + g * 256 + b, k)
+        if other != k:
+            raise DatasetError(f"{labelmap} gives {classes[other]!r} and {name!r} the same colour {r},{g},{b}")
     masks = sorted((src / "SegmentationClass").glob("*.png"))
     if not masks:
         raise DatasetError(f"{src} has no SegmentationClass/*.png masks")
     image_dir = Path(cfg.images) if cfg.images else src / "JPEGImages"
     if not image_dir.is_dir():
         raise DatasetError(f"no image folder {image_dir}: export with images or give --images DIR")
+    images = _images_by_stem(image_dir)
     depth_dir = Path(cfg.depth) if cfg.depth else None
     intr = None
     if depth_dir is not None:
@@ -269,23 +330,27 @@ def import_cvat(src: Path, writer: NativeWriter, cfg: ImportConfig) -> tuple[lis
             raise DatasetError("--depth needs --intrinsics (intrinsics.json of the depth camera)")
         intr = Intrinsics.load(cfg.intrinsics)
     splits = assign_splits([m.stem for m in masks], cfg.split_fractions)
+    lut_keys = np.array(sorted(colour_key))
+    lut = np.array([colour_key[int(k)] for k in lut_keys], np.uint8)
     for mpath in tqdm(masks, desc="cvat", unit="img", disable=None):
         stem = mpath.stem
-        img_path = next((p for p in sorted(image_dir.glob(f"{stem}.*")) if p.suffix.lower() in
-                         (".png", ".jpg", ".jpeg", ".bmp")), None)
-        if img_path is None:
+        found = images.get(stem, [])
+        if not found:
             raise DatasetError(f"no image for mask {mpath.name} in {image_dir}")
-        rgb = _rgb(img_path)
-        colour = _read(mpath, cv2.IMREAD_COLOR, "mask")[..., ::-1].astype(np.int32)
+        if len(found) > 1:
+            raise DatasetError(f"{mpath} has {len(found)} images of its name, {' and '.join(map(str, found))}; "
+                               "keep one of them")
+        rgb = _rgb(found[0])
+        colour = _colour_mask(mpath)
+        if colour.shape[:2] != rgb.shape[:2]:
+            raise DatasetError(f"{mpath} is {_size(colour)}, its image {found[0]} {_size(rgb)}: they differ in size")
         key = colour[..., 0] * 65536 + colour[..., 1] * 256 + colour[..., 2]
-        found = np.unique(key)
-        unknown = [k for k in found if int(k) not in colour_key]
+        unknown = [int(k) for k in np.unique(key) if int(k) not in colour_key]
         if unknown:
-            k = int(unknown[0])
-            raise DatasetError(f"{mpath.name} has colour {(k >> 16, (k >> 8) & 255, k & 255)} that labelmap.txt "
+            k = unknown[0]
+            raise DatasetError(f"{mpath} has colour {(k >> 16, (k >> 8) & 255, k & 255)} that labelmap.txt "
                                "does not list")
-        lut_keys = np.array(sorted(colour_key))
-        mask = np.array([colour_key[int(k)] for k in lut_keys], np.uint8)[np.searchsorted(lut_keys, key)]
+        mask = lut[np.searchsorted(lut_keys, key)]
         depth_mm = None
         if depth_dir is not None:
             dpath = depth_dir / f"{stem}.png"
@@ -295,8 +360,7 @@ def import_cvat(src: Path, writer: NativeWriter, cfg: ImportConfig) -> tuple[lis
             if raw.ndim != 2 or raw.dtype != np.uint16:
                 raise DatasetError(f"{dpath} must be a single-channel uint16 depth image")
             if (raw.shape[1], raw.shape[0]) != (intr.width, intr.height):
-                raise DatasetError(f"{dpath} is {raw.shape[1]}x{raw.shape[0]}, the intrinsics "
-                                   f"{intr.width}x{intr.height}")
+                raise DatasetError(f"{dpath} is {_size(raw)}, the intrinsics {intr.width}x{intr.height}")
             depth_mm = np.clip(np.round(raw * (cfg.depth_scale_m * 1000.0)), 0, 65535).astype(np.uint16)
         writer.add(splits[stem], rgb, mask, depth_mm, mpath.name)
     if intr is not None:

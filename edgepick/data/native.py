@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -14,6 +13,8 @@ import numpy as np
 from edgepick.errors import ConfigError, DatasetError
 from edgepick.files import atomic_dir
 from edgepick.geometry import Intrinsics
+from edgepick.frames import read_grasps
+from edgepick.schema import Where, as_dict, as_names, as_number, field, read_json
 
 SPLITS = ("train", "val", "test")
 IGNORE = 255  # mask value of pixels that are neither trained on nor scored (e.g. Cityscapes' void)
@@ -32,16 +33,9 @@ class NativeDataset:
     @classmethod
     def open(cls, root: str | Path, split: str) -> "NativeDataset":
         root = Path(root)
-        meta_path = root / "meta.json"
-        if not meta_path.is_file():
+        if not (root / "meta.json").is_file():
             raise DatasetError(f"{root} is not an edgepick data set (no meta.json)")
-        try:
-            meta = json.loads(meta_path.read_text())
-            classes = [str(c) for c in meta["classes"]]
-        except (json.JSONDecodeError, KeyError, TypeError) as exc:
-            raise DatasetError(f"{meta_path} is unreadable or has no class list: {exc}") from None
-        if len(classes) < 2:
-            raise DatasetError(f"{meta_path} must list at least 2 classes")
+        meta = read_meta(root)
         if split not in SPLITS:
             raise DatasetError(f"unknown split {split!r}; choose one of {', '.join(SPLITS)}")
         rgb_dir, mask_dir = root / split / "rgb", root / split / "mask"
@@ -55,8 +49,7 @@ class NativeDataset:
                                "the data set looks half-written")
         if not ids:
             raise DatasetError(f"{root}/{split} holds no images")
-        intr = Intrinsics.from_dict(meta["intrinsics"]) if "intrinsics" in meta else None
-        return cls(root, split, classes, ids, intr)
+        return cls(root, split, meta.classes, ids, meta.intrinsics)
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -99,9 +92,34 @@ class NativeDataset:
             raise DatasetError(f"cannot read depth {self._path('depth', sid)}")
         return self._same_size("depth", sid, d)
 
-    def grasps(self) -> dict:
+    def grasps(self) -> dict[str, list[dict]]:
+        """The split's grasp truth by scene id (synthetic data sets), or {} when it has none."""
         path = self.root / self.split / "grasps.json"
-        return json.loads(path.read_text()) if path.is_file() else {}
+        return read_grasps(path) if path.is_file() else {}
+
+
+@dataclass(frozen=True)
+class DatasetMeta:
+    """What DATA/meta.json says (docs/contracts.md#data-set-layout)."""
+
+    classes: list[str]
+    intrinsics: Intrinsics | None
+
+
+def read_meta(root: str | Path) -> DatasetMeta:
+    """DATA/meta.json, checked: at least 2 distinct class names, optional intrinsics and depth scale."""
+    path = Path(root) / "meta.json"
+    where = Where(str(path))
+    meta = as_dict(read_json(path, "data set meta"), where)
+    classes = as_names(field(meta, "classes", where), where.at("classes"), min_length=2)
+    if len(classes) > IGNORE:
+        where.at("classes").fail(f"lists {len(classes)} classes; masks are uint8 with {IGNORE} = ignored, so at "
+                                 f"most {IGNORE}")
+    intr = meta.get("intrinsics")
+    intr = Intrinsics.from_dict(intr, where.at("intrinsics")) if intr is not None else None
+    if "depth_scale" in meta:
+        as_number(meta["depth_scale"], where.at("depth_scale"), above=0)
+    return DatasetMeta(classes, intr)
 
 
 @contextmanager

@@ -11,7 +11,6 @@ import json
 import multiprocessing
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -26,6 +25,8 @@ from edgepick.progress import progress as progress_bar
 
 SPLITS = ("train", "val", "test")
 GENERATOR_VERSION = 1
+BYTES_PER_PIXEL = 2.2  # a scene's RGB, depth and mask PNGs per pixel: 1.9 at 640x480, 2.1 at 320x240, rounded up
+MAX_SCENES = 1_000_000  # the thesis's set is 5100; beyond this the job list alone fills the memory
 
 
 @dataclass
@@ -70,7 +71,25 @@ def _keep_freed_memory() -> bool:
         return False
 
 
+def _end_with_parent() -> None:
+    """Linux: the kernel sends this process SIGTERM when the process that started it dies, so a
+    worker never outlives a killed `data synth` (prctl PR_SET_PDEATHSIG)."""
+    import ctypes
+    import ctypes.util
+    import signal
+
+    try:
+        ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").prctl(1, int(signal.SIGTERM))
+    except (OSError, AttributeError):
+        pass
+
+
 def _init_worker() -> None:
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the parent stops the workers
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    _end_with_parent()
     cv2.setNumThreads(1)  # one process per core: no nested thread pools
     _keep_freed_memory()
 
@@ -115,18 +134,22 @@ def synthesize(out: str | Path, config: SynthConfig, progress: bool = True) -> d
             pool = None
         else:
             # spawn, not fork: a fork after OpenCV's thread pool has run in this process deadlocks
-            pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                       initializer=_init_worker)
-            results = pool.map(_render_one, jobs, chunksize=4)
+            pool = multiprocessing.get_context("spawn").Pool(workers, initializer=_init_worker)
+            results = pool.imap(_render_one, jobs, chunksize=4)
         try:
             for split, sid, g, info in results:
                 grasps[split][sid] = g
                 scenes[split][sid] = info
                 bar.update()
+        except BaseException:
+            if pool is not None:  # an error, Ctrl-C or SIGTERM: stop the workers now, not after their queue
+                pool.terminate()
+            raise
         finally:
             bar.close()
             if pool is not None:
-                pool.shutdown(cancel_futures=True)
+                pool.close()
+                pool.join()
         elapsed = time.perf_counter() - t0
         intr = Intrinsics.d415(config.width, config.height)
         for split in SPLITS:

@@ -108,7 +108,7 @@ def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: tu
     import onnx
 
     path = Path(path)
-    if path.suffix != ".onnx":
+    if path.suffix.lower() != ".onnx":
         raise ConfigError(f"--out must name an .onnx file, got {path}")
     unknown = [p for p in passes if p not in EXPORT_PASSES]
     if unknown:

@@ -254,6 +254,9 @@ def load_backbone_weights(model: DeepLabV3, path: str) -> int:
     except Exception as exc:  # noqa: BLE001 - any unreadable file is the user's
         raise CheckpointError(f"cannot read backbone weights {path}: {exc}") from None
     state = state.get("model", state) if isinstance(state, dict) else state
+    if not isinstance(state, dict) or not all(isinstance(k, str) and torch.is_tensor(v) for k, v in state.items()):
+        raise CheckpointError(f"{path} is not a state dict (parameter names to tensors), so it holds no backbone "
+                              "weights")
     target = model.backbone.state_dict()
     picked = {}
     for key, val in state.items():

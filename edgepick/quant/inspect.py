@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import operator
 import shutil
+import sys
 import tempfile
 import warnings
 from pathlib import Path
@@ -21,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from edgepick.data.native import NativeDataset
 from edgepick.errors import ConfigError
 from edgepick.export.onnx_export import LogitsNet
 from edgepick.models.deeplabv3 import trim_dilated_convs
@@ -29,6 +31,7 @@ from edgepick.quant.quantizer import QuantConfig, module_path
 from edgepick.progress import progress as progress_bar
 
 CONV = torch.ops.aten.conv2d.default
+COMPARED_IMAGES = 8  # val images inspect compares fp32 and int8 on, by default
 BATCH_NORMS = {torch.ops.aten.batch_norm.default, torch.ops.aten._native_batch_norm_legit_no_training.default}
 
 
@@ -119,12 +122,14 @@ def ranked(report: dict) -> list[str]:
 
 
 def inspect(checkpoint: str | Path, data: str | Path, config: QuantConfig | None = None, calib_images: int | None = None,
-            images: int = 8, seed: int = 0, progress: bool = True) -> dict:
-    """Calibrate a static int8 model (in memory) and compare it layer by layer with fp32 on val images."""
-    from edgepick.quant.passes import check_classes, model_images
+            images: int = COMPARED_IMAGES, seed: int = 0, progress: bool = True) -> dict:
+    """Calibrate a static int8 model (in memory) and compare it layer by layer with fp32 on IMAGES val images."""
+    from edgepick.quant.passes import check_classes, check_image_count, model_images
     from edgepick.train.checkpoint import load_model
 
     config = (config or QuantConfig()).validate()
+    check_image_count(data, "train", calib_images)
+    check_image_count(data, "val", images, "val images to compare (--images)")
     model, ckpt = load_model(checkpoint)
     check_classes(ckpt, data)
     size = tuple(ckpt["input_size"])
@@ -134,7 +139,7 @@ def inspect(checkpoint: str | Path, data: str | Path, config: QuantConfig | None
         for rgb in progress_bar(model_images(data, "train", calib_images, size, seed), desc="calibrate", unit="img",
                                 enabled=progress):
             prepared(as_input(rgb))
-    report = compare(float_gm, convert(prepared), model_images(data, "val", images, size, seed))
+    report = compare(float_gm, convert(prepared), model_images(data, "val", images, size, seed, "val images"))
     report["ranked"] = ranked(report)
     return report
 
@@ -149,16 +154,24 @@ def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str |
     from edgepick.export.onnx_export import export_checkpoint
     from edgepick.quant.passes import quantize_static
 
-    if max_drop_pp < 0:
-        raise ConfigError("--max-miou-drop must be >= 0 (percentage points)")
+    if not (math.isfinite(max_drop_pp) and max_drop_pp >= 0):
+        raise ConfigError(f"--max-miou-drop {max_drop_pp}: must be a number of percentage points, 0 or more")
+    if max_float_layers < 1:
+        raise ConfigError(f"--max-float-layers {max_float_layers}: must be at least 1")
     config = (config or QuantConfig()).validate()
-    if Path(out).suffix != ".onnx":
+    if Path(out).suffix.lower() != ".onnx":
         raise ConfigError(f"--out must name an .onnx file, got {out}")
+    check_image_count(data, "train", calib_images)
+    n_val = len(NativeDataset.open(data, "val"))
+    if n_val < COMPARED_IMAGES:
+        print(f"edgepick: warning: {data}/val has {n_val} images; the val mIoU that --max-miou-drop compares moves "
+              "in coarse steps on so few", file=sys.stderr, flush=True)
     work = Path(tempfile.mkdtemp(prefix="accuracy-aware-"))
     try:
         fp32 = export_checkpoint(checkpoint, work / "fp32.onnx")["out"]
         base = evaluate(fp32, data, "val", progress=False)["miou"]
-        candidates = ranked(inspect(checkpoint, data, config, calib_images, progress=progress))
+        candidates = ranked(inspect(checkpoint, data, config, calib_images, min(COMPARED_IMAGES, n_val),
+                                    progress=progress))
         keep = list(config.keep_float)
         steps, best = [], None
         while True:

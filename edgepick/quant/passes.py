@@ -27,20 +27,29 @@ from edgepick.quant.graph import QuantizationError, as_input, check_keep_float, 
 from edgepick.quant.qat import load_qat, qat_config, train_qat
 from edgepick.quant.quantizer import QuantConfig, count_quant_nodes
 from edgepick.train.checkpoint import is_qat_checkpoint, load_model, read_checkpoint
+from edgepick.schema import Where, field
 from edgepick.train.loop import TrainConfig
 
 DEFAULT_CALIB_IMAGES = 64  # or the whole train split when it is smaller
 
 
-def model_images(data: str | Path, split: str, count: int | None, size: tuple[int, int], seed: int = 0) -> list[np.ndarray]:
+def check_image_count(data: str | Path, split: str, count: int | None, what: str = "calibration images") -> int:
+    """COUNT (None: DEFAULT_CALIB_IMAGES, or all if fewer), refused when DATA/<split> has fewer."""
+    n = len(NativeDataset.open(data, split))
+    count = min(DEFAULT_CALIB_IMAGES, n) if count is None else count
+    if count < 1:
+        raise ConfigError(f"the number of {what} must be at least 1")
+    if n < count:
+        raise ConfigError(f"asked for {count} {what}, but {data}/{split} has only {n}")
+    return count
+
+
+def model_images(data: str | Path, split: str, count: int | None, size: tuple[int, int], seed: int = 0,
+                 what: str = "calibration images") -> list[np.ndarray]:
     """COUNT images of DATA/<split> (None: DEFAULT_CALIB_IMAGES, or all if fewer), chosen with
     SEED, area-resized to the model's (H, W)."""
     ds = NativeDataset.open(data, split)
-    count = min(DEFAULT_CALIB_IMAGES, len(ds)) if count is None else count
-    if count < 1:
-        raise ConfigError("the number of calibration images must be at least 1")
-    if len(ds) < count:
-        raise ConfigError(f"asked for {count} calibration images, but {data}/{split} has only {len(ds)}")
+    count = check_image_count(data, split, count, what)
     ids = [ds.ids[i] for i in sorted(np.random.default_rng(seed).choice(len(ds), count, replace=False))]
     h, w = size
     return [cv2.resize(ds.rgb(i), (w, h), interpolation=cv2.INTER_AREA) for i in ids]
@@ -81,6 +90,10 @@ def quantize_static(checkpoint: str | Path, data: str | Path, out: str | Path, c
     calibrated on CALIB_IMAGES train images (None: 64, or all if fewer) with config.calib_method;
     writes an int8 ONNX after the ONNX graph passes EXPORT_PASSES (all by default)."""
     config = (config or QuantConfig()).validate()
+    if seed < 0:
+        raise ConfigError(f"--seed {seed}: must be 0 or positive")
+    _check_out(out)
+    check_image_count(data, "train", calib_images)
     model, ckpt = load_model(checkpoint)
     check_classes(ckpt, data)
     size = tuple(ckpt["input_size"])
@@ -110,6 +123,8 @@ def _finish_qat(run: Path, data: str | Path, out: str | Path, quant: dict, progr
     last epoch is not always the best one) and export it, with the whole run's phase times."""
     last = read_checkpoint(run / "last.pt")
     ckpt = read_checkpoint(run / "best.pt") if (run / "best.pt").is_file() else last
+    _stage(f"rebuild the fake-quant graph of QaT epoch {ckpt['epoch']} (the best on val) and convert it to int8",
+           progress)
     prepared = load_qat(ckpt)
     converted = convert(prepared)
     size = tuple(ckpt["input_size"])
@@ -135,6 +150,8 @@ def quantize_qat(train_config: TrainConfig, out: str | Path, config: QuantConfig
     epoch, then an int8 ONNX at OUT."""
     config = (config or QuantConfig()).validate()
     _check_out(out)
+    _stage("prepare the fake-quant graph (torch.export: up to a minute on a CPU), then train every epoch with it",
+           progress)
     train_qat(train_config, config, progress=progress)
     return _finish_qat(Path(train_config.out), train_config.data, out, _qat_quant("qat", 1.0, config),
                        progress=progress)
@@ -173,7 +190,11 @@ def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_frac
     # load the epoch checkpoint -> prepare -> calibrate -> fit (train_qat) -> convert -> export (_finish_qat)
     start, cfg = _switch_point(Path(run), data, qat_fraction)
     cfg = replace(cfg, data=str(data), out=str(qat_run), keep_epochs=[], device=device)
+    _stage(f"continue {run} from epoch {start['epoch']} of {cfg.epochs}"
+           + (f"; draw {calib_images} train images for the starting activation ranges" if calib_images else ""),
+           progress)
     images = model_images(data, "train", calib_images, cfg.size, cfg.seed) if calib_images else None
+    _stage("prepare the fake-quant graph (torch.export: up to a minute on a CPU), then train the QaT epochs", progress)
     train_qat(cfg, config, start=start, carry_optimizer=carry_optimizer, freeze_at=freeze_at, calib_images=images,
               hold_ranges=hold_ranges, progress=progress)
     quant = {**_qat_quant("hybrid", qat_fraction, config), "freeze_at": freeze_at, "carry_optimizer": carry_optimizer,
@@ -189,7 +210,8 @@ def _switch_point(run: Path, data: str | Path, qat_fraction: float) -> tuple[dic
     if is_qat_checkpoint(last):
         raise CheckpointError(f"{run} is a QaT run; hybrid-QaT starts from a float run")
     check_classes(last, data)
-    cfg = TrainConfig.from_dict(last["train_config"])
+    where = Where(last["path"])
+    cfg = TrainConfig.from_dict(field(last, "train_config", where), where.at("train_config"))
     switch = round((1.0 - qat_fraction) * cfg.epochs)
     if switch >= cfg.epochs:
         raise ConfigError(f"--qat-fraction {qat_fraction} of {cfg.epochs} epochs is less than one epoch")
@@ -200,5 +222,5 @@ def _switch_point(run: Path, data: str | Path, qat_fraction: float) -> tuple[dic
 
 
 def _check_out(out: str | Path) -> None:
-    if Path(out).suffix != ".onnx":
+    if Path(out).suffix.lower() != ".onnx":
         raise ConfigError(f"--out must name an .onnx file, got {out}")

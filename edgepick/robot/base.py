@@ -3,8 +3,9 @@
 `RobotBase` checks each target, and moveL's straight path to it from the arm's pose, against
 the envelope BEFORE anything is sent, checks each command's result and the safety status
 AFTER it, and once a protective/emergency stop or a lost link has been seen it sends nothing
-more. As a context manager it always stops and
-disconnects on the way out. Subclasses implement the `_`-prefixed transport methods only.
+more. Beside the envelope, a moveL target must pass the controller's own safety limits
+(`_within_limits`, ur_rtde's isPoseWithinSafetyLimits on a UR). As a context manager it always
+stops and disconnects on the way out. Subclasses implement the `_`-prefixed transport methods only.
 """
 
 from __future__ import annotations
@@ -13,7 +14,13 @@ import math
 from dataclasses import dataclass
 
 from edgepick.errors import EdgepickError
-from edgepick.robot.envelope import Envelope
+from edgepick.robot.envelope import Envelope, SafetyError
+
+DIGITAL_OUTPUTS = {False: 8, True: 2}  # a UR3's standard outputs 0-7 and tool outputs 0-1
+# the controller's safety modes (RTDE safety_mode) in which the arm does not move
+STOP_MODES = {3: "PROTECTIVE_STOP", 4: "RECOVERY", 5: "SAFEGUARD_STOP", 6: "SYSTEM_EMERGENCY_STOP",
+              7: "ROBOT_EMERGENCY_STOP", 8: "VIOLATION", 9: "FAULT", 12: "AUTOMATIC_MODE_SAFEGUARD_STOP",
+              13: "SYSTEM_THREE_POSITION_ENABLING_STOP"}
 
 
 class RobotError(EdgepickError):
@@ -32,20 +39,37 @@ class RobotUnreachable(RobotError):
     exit_code = 3
 
 
+def output_reason(index: int, tool: bool) -> str | None:
+    """Why digital output INDEX (standard, or tool) does not exist on the arm, or None."""
+    limit = DIGITAL_OUTPUTS[tool]
+    if 0 <= index < limit:
+        return None
+    return f"{'tool' if tool else 'standard'} digital output {index} does not exist (0..{limit - 1})"
+
+
 @dataclass
 class SafetyStatus:
+    """What the controller reports after each command: link, stop flags and safety mode."""
+
     connected: bool
     protective_stop: bool = False
     emergency_stop: bool = False
+    safety_mode: int | None = None  # the controller's own safety mode, when it reports one
 
     def problem(self) -> str | None:
+        """Why the robot takes no more commands (with the controller's safety mode), or None."""
         if not self.connected:
             return "link to the robot lost"
+        mode = STOP_MODES.get(self.safety_mode)
         if self.emergency_stop:
-            return "emergency stop"
-        if self.protective_stop:
-            return "protective stop"
-        return None
+            words = "emergency stop"
+        elif self.protective_stop:
+            words = "protective stop"
+        elif mode:
+            words = "safety stop"
+        else:
+            return None
+        return f"{words} (controller safety mode {mode})" if mode else words
 
 
 class RobotBase:
@@ -58,6 +82,7 @@ class RobotBase:
         self.sent: list[str] = []  # names of the commands that reached the transport
         self.on_send = None  # optional callback, called as each command goes out (latency probes)
         self.last_target: list[float] | None = None  # where the last moveL went: the next one's path start
+        self._limits_verdicts: dict[tuple[float, ...], bool] = {}  # the controller's answers, by pose
 
     # -- transport (subclasses) ---------------------------------------------------------------
     def _connect(self) -> None:
@@ -79,6 +104,10 @@ class RobotBase:
         raise NotImplementedError
 
     def _status(self) -> SafetyStatus:
+        raise NotImplementedError
+
+    def _within_limits(self, pose: list[float]) -> bool:
+        """The controller's own verdict on a TCP pose: inside its safety limits (and reachable)."""
         raise NotImplementedError
 
     def tcp_pose(self) -> list[float]:
@@ -120,13 +149,34 @@ class RobotBase:
                 return None
         return self.last_target
 
+    def halt(self, reason: str) -> None:
+        """Take no more commands from now on, e.g. after the gripper failed mid-pick."""
+        self.halted = self.halted or reason
+
+    def limits_reason(self, pose: list[float]) -> str | None:
+        """Why the controller's own safety limits refuse this TCP target, or None. Asks the
+        controller once per pose of a run (nothing moves: the plan's check and the moveL's own
+        ask once between them, and the place and home poses once a run); the envelope is checked
+        separately."""
+        target = [float(v) for v in pose]
+        key = tuple(round(v, 6) for v in target)
+        if key not in self._limits_verdicts:
+            self._limits_verdicts[key] = bool(self._within_limits(target))
+        if self._limits_verdicts[key]:
+            return None
+        return f"({', '.join(f'{v:.3f}' for v in target[:3])}) is outside the controller's safety limits"
+
     def move_l(self, pose: list[float], speed: float | None = None, acc: float | None = None) -> None:
+        """Move the TCP in a straight line, after the envelope and the controller's limits allow it."""
         speed = self.envelope.max_speed if speed is None else speed
         acc = self.envelope.max_acc if acc is None else acc
         self.envelope.check_move_l(pose, speed, acc, start=self._path_start())
         self._before("moveL")
-        self._send("moveL")
         target = [float(v) for v in pose]
+        reason = self.limits_reason(target)
+        if reason:
+            raise SafetyError(f"refused moveL: {reason}")
+        self._send("moveL")
         try:
             self._after("moveL", self._move_l(target, speed, acc))
         except BaseException:
@@ -144,9 +194,9 @@ class RobotBase:
         self._after("moveJ", self._move_j([float(v) for v in q], speed, acc))
 
     def set_digital_out(self, index: int, value: bool, tool: bool = False) -> None:
-        limit = 2 if tool else 8
-        if not 0 <= index < limit:
-            raise RobotError(f"{'tool' if tool else 'standard'} digital output {index} does not exist (0..{limit - 1})")
+        reason = output_reason(index, tool)
+        if reason:
+            raise RobotError(reason)
         self._before("setDigitalOut")
         self._send("setDigitalOut")
         self._after("setDigitalOut", self._set_digital_out(index, bool(value), tool))

@@ -1,5 +1,8 @@
 """Grippers: a digital output (the thesis's electromagnet for bearings and disks) and the
-OnRobot RG2 through its URCap's XML-RPC service on the robot (port 41414)."""
+OnRobot RG2 through its URCap's XML-RPC service on the robot (port 41414).
+
+`probe()` finds a gripper that cannot be reached before the arm is sent anything; an RG2 that
+does not answer raises RobotUnreachable (exit status 3 on the command line)."""
 
 from __future__ import annotations
 
@@ -7,16 +10,28 @@ import http.client
 import socket
 import xmlrpc.client
 
-from edgepick.robot.base import RobotBase, RobotError
+from edgepick.robot.base import RobotBase, RobotError, RobotUnreachable, output_reason
 
 RG2_PORT = 41414
+
+
+class GripperFailed(RobotError):
+    """The gripper answered with a fault: what it holds is unknown, so the run ends as a halt."""
+
+    exit_code = 3  # docs/contracts.md#command-line
 
 
 class DigitalGripper:
     """Magnet/vacuum on a standard (0-7) or tool (0-1) digital output: grip = on, release = off."""
 
     def __init__(self, robot: RobotBase, index: int, tool: bool = False):
+        reason = output_reason(index, tool)
+        if reason:
+            raise RobotError(reason)
         self.robot, self.index, self.tool = robot, index, tool
+
+    def probe(self) -> None:
+        """Nothing to ask: the output exists (checked above) and is driven through the arm's own link."""
 
     def open(self) -> None:
         self.robot.set_digital_out(self.index, False, self.tool)
@@ -48,21 +63,30 @@ class RG2Gripper:
             raise RobotError(f"RG2 opening {open_width_m} m outside (0, 0.11]")
         if not 3.0 <= force_n <= 40.0:
             raise RobotError(f"RG2 force {force_n} N outside [3, 40]")
+        self.where = f"{host}:{port}"
         self.url = f"http://{host}:{port}/RPC2"
         self.proxy = xmlrpc.client.ServerProxy(self.url, transport=_TimeoutTransport(timeout_s))
         self.open_width_m, self.force_n, self.tool_index = open_width_m, force_n, tool_index
 
-    def _grip(self, width_m: float) -> None:
+    def _rpc(self, name: str, *args):
+        """Call the URCap's NAME: a fault is GripperFailed, no answer at all is RobotUnreachable."""
         try:
-            self.proxy.rg_grip(float(width_m * 1000.0), float(self.force_n), int(self.tool_index), True, False, False)
+            return getattr(self.proxy, name)(*args)
+        except xmlrpc.client.Fault as exc:
+            raise GripperFailed(f"the RG2 gripper at {self.where} refused {name}: {exc.faultString}") from None
         except (OSError, socket.timeout, http.client.HTTPException, xmlrpc.client.Error) as exc:
-            raise RobotError(f"RG2 gripper at {self.url} does not answer: {exc}") from None
+            why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc) or type(exc).__name__
+            raise RobotUnreachable(f"cannot reach the RG2 gripper at {self.where}: {why}") from None
+
+    def _grip(self, width_m: float) -> None:
+        self._rpc("rg_grip", float(width_m * 1000.0), float(self.force_n), int(self.tool_index), True, False, False)
 
     def width_m(self) -> float:
-        try:
-            return float(self.proxy.rg_get_width(int(self.tool_index))) / 1000.0
-        except (OSError, socket.timeout, http.client.HTTPException, xmlrpc.client.Error) as exc:
-            raise RobotError(f"RG2 gripper at {self.url} does not answer: {exc}") from None
+        return float(self._rpc("rg_get_width", int(self.tool_index))) / 1000.0
+
+    def probe(self) -> None:
+        """Ask the RG2 its opening: raises RobotUnreachable when nothing answers."""
+        self.width_m()
 
     def open(self) -> None:
         self._grip(self.open_width_m)

@@ -19,12 +19,13 @@ import cv2
 import numpy as np
 
 from edgepick.errors import ConfigError
-from edgepick.frames import Camera
+from edgepick.frames import Camera, CameraError
 from edgepick.robot.base import RobotBase
 from edgepick.robot.envelope import Envelope, SafetyError
 from edgepick.runtime.marker import MarkerSpec, detect_marker
 
 TOOL_DOWN = (math.pi, 0.0, 0.0)  # rotation vector of a tool pointing straight down
+MAX_POSES = 1000  # a quarter of an hour of arm time at the default --settle and --speed; a fit needs tens
 
 
 @dataclass
@@ -47,7 +48,29 @@ class CollectConfig:
             raise ConfigError("--marker-offset X,Y,Z is the marker centre from the TCP in metres (tool frame)")
         if not (math.isfinite(self.settle_s) and 0 <= self.settle_s <= 30):
             raise ConfigError(f"--settle {self.settle_s}: seconds in [0, 30]")
+        if not (math.isfinite(self.speed) and self.speed > 0 and math.isfinite(self.acc) and self.acc > 0):
+            raise ConfigError(f"--speed {self.speed}: must be a positive number of m/s")
+        if self.poses > MAX_POSES:
+            each = self.seconds_per_position()
+            raise ConfigError(f"--poses {self.poses}: at most {MAX_POSES} (each position takes about {each:.1f} s, "
+                              f"its move at --speed {self.speed:g} plus --settle {self.settle_s:g}: "
+                              f"{_duration(self.poses * each)} in all)")
         return self
+
+    def seconds_per_position(self) -> float:
+        """A rough time per position: the moveL over one grid step (accelerating at acc to speed and
+        back) and the settle wait; the frame and the marker detection are not counted."""
+        x0, x1, y0, y1, _, _ = self.region
+        layers = 2 if self.poses < 12 else 3
+        step = math.sqrt((x1 - x0) * (y1 - y0) / math.ceil(self.poses / layers))  # the grid's spacing
+        ramp = self.speed ** 2 / self.acc  # the distance spent speeding up and slowing down
+        move = step / self.speed + self.speed / self.acc if step >= ramp else 2 * math.sqrt(step / self.acc)
+        return move + self.settle_s
+
+
+def _duration(seconds: float) -> str:
+    """'12 min' or '1,234 h'."""
+    return f"{seconds / 60:.0f} min" if seconds < 5400 else f"{seconds / 3600:,.0f} h"
 
 
 def plan_positions(cfg: CollectConfig) -> list[list[float]]:
@@ -105,14 +128,19 @@ def collect_pairs(robot: RobotBase, camera: Camera, spec: MarkerSpec, poses: lis
                   echo: Callable[[str], None] = lambda line: None) -> Collected:
     """Move to each pose, wait cfg.settle_s, read a frame and the TCP, and pair the marker's camera
     point with its robot point; positions without a usable sighting are skipped. Returns to the
-    start pose at the end."""
+    start pose at the end, also when the camera runs out of frames (then a CameraError)."""
     start = robot.tcp_pose()
     cam_pts, rob_pts, used, skipped = [], [], [], []
     for i, pose in enumerate(poses, start=1):
         robot.move_l(pose, cfg.speed, cfg.acc)
         if cfg.settle_s:
             time.sleep(cfg.settle_s)
-        frame = camera.read()
+        try:
+            frame = camera.read()
+        except StopIteration:  # a folder of frames used up
+            robot.move_l(start, cfg.speed, cfg.acc)
+            raise CameraError(f"the camera has no frame left for position {i} of {len(poses)}; give one frame per "
+                              "position") from None
         tcp = robot.tcp_pose()
         sighting, why = detect_marker(frame, spec)
         if sighting is None:

@@ -39,10 +39,13 @@ def grasp_error_m(record: dict, truth: list[dict] | None) -> float | None:
 def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper, cfg: PickConfig,
                cycles: int, log: CommandLog, overlay_dir: str | Path | None = None, echo=print,
                truth_cal: Calibration | None = None) -> list[dict]:
-    """Run up to `cycles` pick cycles (robot None = plan only). Stops early when the robot halts.
-    TRUTH_CAL (the synthetic cell's true calibration) lets each cycle be judged against the truth."""
+    """Run up to `cycles` pick cycles (robot None = plan only). Stops early when the robot halts
+    (a failed gripper halts it too). Each plan passes the envelope and, with a robot, the
+    controller's own safety limits before its first command. TRUTH_CAL (the synthetic cell's true
+    calibration) lets each cycle be judged against the truth."""
     results = []
     envelope = robot.envelope if robot is not None else Envelope()
+    limits = robot.limits_reason if robot is not None else None  # plan only: no controller to ask
     if overlay_dir:
         Path(overlay_dir).mkdir(parents=True, exist_ok=True)
     for cycle in range(1, cycles + 1):
@@ -54,7 +57,7 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, grip
         start = robot.tcp_pose() if robot is not None else None  # plan only: from the home pose
         t0 = time.perf_counter()
         seen = pipeline(frame)
-        record, plan, note = choose_target(seen.records, envelope, cfg, start)
+        record, plan, note = choose_target(seen.records, envelope, cfg, start, limits)
         t_plan = time.perf_counter()
         result = {"cycle": cycle, "frame": frame.name, "objects": len(seen.records), "stage_ms": seen.ms,
                   "plan_ms": round(1000 * (t_plan - t0), 2)}

@@ -1,7 +1,8 @@
 """The pick-and-place cycle (thesis 5.2): choose a target among the grasp records, plan
 approach -> open -> descend -> grip -> lift -> place -> release -> home, check EVERY pose of
-the plan and the straight path to it against the envelope before the first command, then
-execute with a JSON-lines log.
+the plan and the straight path to it against the envelope (and, with an arm connected, every
+pose against the controller's own safety limits) before the first command, then execute with a
+JSON-lines log.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO
+from typing import IO, Callable
 
 from edgepick.robot.base import RobotBase, RobotError
 from edgepick.robot.envelope import Envelope, SafetyError
@@ -83,10 +84,12 @@ def plan_pick(record: dict, cfg: PickConfig) -> list[Step]:
             Step("moveL", list(cfg.home_pose), "home")]
 
 
-def plan_reason(plan: list[Step], envelope: Envelope, cfg: PickConfig, start: list[float] | None = None) -> str | None:
-    """Why the plan is refused: the speed, the first target outside the envelope, or the first
+def plan_reason(plan: list[Step], envelope: Envelope, cfg: PickConfig, start: list[float] | None = None,
+                limits: Callable[[list[float]], str | None] | None = None) -> str | None:
+    """Why the plan is refused: the speed, the first target outside the envelope, the first
     moveL whose straight path (from `start`, the arm's pose, then from each target) is not
-    allowed. None when every step passes."""
+    allowed, or the first target that LIMITS (the controller's safety limits, asked once the
+    envelope passes) refuses. None when every step passes."""
     speed = envelope.speed_reason(cfg.speed, cfg.acc)
     if speed:
         return speed
@@ -98,15 +101,20 @@ def plan_reason(plan: list[Step], envelope: Envelope, cfg: PickConfig, start: li
             if reason:
                 return f"{step.note}: {reason}"
             previous = step.target
+    targets = [step for step in plan if step.target is not None] if limits is not None else []
+    for step in targets:
+        reason = limits(step.target)
+        if reason:
+            return f"{step.note}: {reason}"
     return None
 
 
-def choose_target(records: list[dict], envelope: Envelope, cfg: PickConfig,
-                  start: list[float] | None = None) -> tuple[dict | None, list[Step], str]:
+def choose_target(records: list[dict], envelope: Envelope, cfg: PickConfig, start: list[float] | None = None,
+                  limits: Callable[[list[float]], str | None] | None = None) -> tuple[dict | None, list[Step], str]:
     """The preferred record whose whole plan, from the arm's pose `start` [default: the home
-    pose], passes the envelope; its plan, and a note. An object cut by the image border is not
-    chosen (its centroid is that of the part in view, not of the object), nor one with BURIED or
-    more of its rim under other objects."""
+    pose], passes the envelope and LIMITS (see plan_reason); its plan, and a note. An object cut
+    by the image border is not chosen (its centroid is that of the part in view, not of the
+    object), nor one with BURIED or more of its rim under other objects."""
     start = list(cfg.home_pose) if start is None else start
     candidates = [r for r in records if not cfg.classes or r["class"] in cfg.classes]
     if not candidates:
@@ -129,7 +137,7 @@ def choose_target(records: list[dict], envelope: Envelope, cfg: PickConfig,
             reasons.append(f"{r['class']}: {r.get('reason', 'no robot pose (no calibration?)')}")
             continue
         plan = plan_pick(r, cfg)
-        reason = plan_reason(plan, envelope, cfg, start)
+        reason = plan_reason(plan, envelope, cfg, start, limits)
         if reason is None:
             return r, plan, "ok"
         reasons.append(f"{r['class']}: {reason}")
@@ -150,6 +158,7 @@ class CommandLog:
         self.records.append(entry)
         if self.path is not None:
             if self.file is None:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
                 self.file = open(self.path, "a")
             self.file.write(json.dumps(entry) + "\n")
             self.file.flush()
@@ -162,7 +171,8 @@ class CommandLog:
 
 def execute(plan: list[Step], robot: RobotBase, gripper, log: CommandLog, cycle: int, cfg: PickConfig) -> str | None:
     """Run the plan; returns None when every step was carried out, else the reason it stopped.
-    Any robot error ends the cycle and leaves the arm stopped; a halt sends nothing more."""
+    Any robot error ends the cycle and leaves the arm stopped; a halt sends nothing more. A
+    gripper that fails halts the robot too: what it holds, or not, is unknown."""
     for step in plan:
         try:
             if step.command == "moveL":
@@ -172,6 +182,8 @@ def execute(plan: list[Step], robot: RobotBase, gripper, log: CommandLog, cycle:
         except (RobotError, SafetyError) as exc:
             log.write(cycle=cycle, command=step.command, target=step.target, note=step.note, result=f"error: {exc}")
             robot.stop()
+            if step.command != "moveL":
+                robot.halt(str(exc))
             return str(exc)
         log.write(cycle=cycle, command=step.command, target=step.target, note=step.note, result="ok")
     return None

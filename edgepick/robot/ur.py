@@ -6,8 +6,8 @@ the link is gone. So the three interfaces live in a child process; this side tal
 through a pipe with a timeout on every call, and kills it when it stops answering. The
 child's stdout/stderr (ur_rtde's C++ client prints "Reconnecting..." and socket errors there)
 go to a debug file on request, else nowhere: edgepick reports a failure once, in its own
-words. Nothing touches the network before `connect()`; every command passes the envelope
-first (RobotBase).
+words. Nothing touches the network before `connect()`; every moveL passes the envelope and
+the controller's own safety limits (isPoseWithinSafetyLimits) first (RobotBase).
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ import multiprocessing as mp
 import os
 import time
 
+from edgepick.errors import ConfigError
 from edgepick.robot.base import RobotBase, RobotError, RobotHalted, RobotUnreachable, SafetyStatus
 from edgepick.robot.envelope import Envelope
 from edgepick.robot.motion import motion_time
@@ -27,7 +28,9 @@ STALE_S = 0.5  # no new RTDE sample for this long = the link is gone (the stream
 
 def _own_output(debug_log: str | None) -> None:
     """Point this process's file descriptors 1 and 2 (the C++ client's as well as Python's) at
-    the debug log, or at the null device."""
+    the debug log (its missing folders are created), or at the null device."""
+    if debug_log:
+        os.makedirs(os.path.dirname(os.path.abspath(debug_log)), exist_ok=True)
     fd = os.open(debug_log or os.devnull, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o666)
     os.dup2(fd, 1)
     os.dup2(fd, 2)
@@ -35,7 +38,11 @@ def _own_output(debug_log: str | None) -> None:
 
 
 def _worker(conn, host: str, debug_log: str | None = None) -> None:  # runs in the child process
-    _own_output(debug_log)
+    try:
+        _own_output(debug_log)
+    except OSError as exc:
+        conn.send(("log", f"--robot-log {debug_log} cannot be written: {exc.strerror or exc}"))
+        return
     try:
         import rtde_control
         import rtde_io
@@ -81,7 +88,10 @@ def _worker(conn, host: str, debug_log: str | None = None) -> None:  # runs in t
                 conn.send(("ok", bool(sent) and bool(receive.getActualDigitalOutputBits() >> bit & 1) == value))
             elif op == "status":
                 time.sleep(0.02)  # let at least one sample arrive
-                conn.send(("ok", (fresh(), bool(receive.isProtectiveStopped()), bool(receive.isEmergencyStopped()))))
+                conn.send(("ok", (fresh(), bool(receive.isProtectiveStopped()), bool(receive.isEmergencyStopped()),
+                                  int(receive.getSafetyMode()))))
+            elif op == "pose_ok":
+                conn.send(("ok", bool(control.isPoseWithinSafetyLimits(list(args[0])))))
             elif op == "tcp":
                 conn.send(("ok", list(receive.getActualTCPPose())))
             elif op == "disconnect":
@@ -137,16 +147,21 @@ class URRobot(RobotBase):
         self.pipe, child = ctx.Pipe()
         self.proc = ctx.Process(target=_worker, args=(child, self.host, self.debug_log), daemon=True)
         self.proc.start()
+        child.close()  # the worker holds the only other end: its exit reads as EOF here at once
         if not self.pipe.poll(self.connect_timeout_s):
             self._kill()
-            raise RobotUnreachable(f"no answer from a UR controller at {self.host} within {self.connect_timeout_s:.0f} s")
+            raise RobotUnreachable(f"cannot reach the robot at {self.host}: no answer from a UR controller within "
+                                   f"{self.connect_timeout_s:.0f} s")
         try:
             status, value = self.pipe.recv()
         except EOFError:
-            status, value = "error", "the ur_rtde worker died"
-        if status == "error":
+            self.proc.join(5)
+            status, value = "error", f"the ur_rtde worker stopped (exit status {self.proc.exitcode})"
+        if status != "ok":
             self._kill()
-            raise RobotUnreachable(f"cannot connect to the UR controller at {self.host}: {value}")
+            if status == "log":
+                raise ConfigError(value)
+            raise RobotUnreachable(f"cannot reach the robot at {self.host}: {value}")
 
     def _disconnect(self) -> None:
         if not self.lost:
@@ -181,15 +196,22 @@ class URRobot(RobotBase):
         value = self._call("status", timeout=2.0)
         if value is None:
             return SafetyStatus(connected=False)
-        fresh, protective, emergency = value
+        fresh, protective, emergency, mode = value
         if not fresh:
             self.lost = True
             self._kill()
-        return SafetyStatus(connected=fresh, protective_stop=protective, emergency_stop=emergency)
+        return SafetyStatus(connected=fresh, protective_stop=protective, emergency_stop=emergency, safety_mode=mode)
+
+    def _within_limits(self, pose: list[float]) -> bool:
+        ok = self._call("pose_ok", pose, timeout=2.0)
+        if ok is None:
+            self.halt("link to the robot lost")
+            raise RobotHalted("link to the robot lost")
+        return ok
 
     def tcp_pose(self) -> list[float]:
         pose = self._call("tcp", timeout=2.0)
         if pose is None:
-            self.halted = self.halted or "link to the robot lost"
+            self.halt("link to the robot lost")
             raise RobotHalted("link to the robot lost")
         return pose

@@ -8,6 +8,7 @@ are refused with one clear sentence, since a fit through them would be silently 
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 from dataclasses import dataclass
@@ -17,6 +18,7 @@ import numpy as np
 
 from edgepick.errors import EdgepickError
 from edgepick.files import atomic_write
+from edgepick.schema import Where, as_dict, as_list, as_number, as_numbers, field, read_json, read_text
 
 HEADER = ["cam_x", "cam_y", "cam_z", "robot_x", "robot_y", "robot_z"]
 MIN_PAIRS = 4
@@ -45,17 +47,18 @@ class Calibration:
 
     @classmethod
     def load(cls, path: str | Path) -> "Calibration":
-        try:
-            d = json.loads(Path(path).read_text())
-            R = np.asarray(d["R"], dtype=np.float64)
-            t = np.asarray(d["t"], dtype=np.float64)
-        except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
-            raise CalibrationError(f"cannot read calibration {path}: {exc}") from None
-        if R.shape != (3, 3) or t.shape != (3,) or not (np.isfinite(R).all() and np.isfinite(t).all()):
-            raise CalibrationError(f"calibration {path} needs a finite 3x3 R and a 3-vector t")
+        """Read a calib.json, every field checked: a malformed file is one line naming the file and
+        the field, never a transform taken as if fine."""
+        where = Where(str(path))
+        d = as_dict(read_json(path, "calibration"), where)
+        rows = as_list(field(d, "R", where), where.at("R"), length=3)
+        R = np.array([as_numbers(row, where.at("R").at(i), 3) for i, row in enumerate(rows)], np.float64)
+        t = np.array(as_numbers(field(d, "t", where), where.at("t"), 3), np.float64)
+        rmse = float(as_number(d["rmse_m"], where.at("rmse_m"), minimum=0)) if "rmse_m" in d else float("nan")
+        n_pairs = int(as_number(d["n_pairs"], where.at("n_pairs"), integer=True, minimum=0)) if "n_pairs" in d else 0
         if np.abs(R @ R.T - np.eye(3)).max() > 1e-4 or abs(np.linalg.det(R) - 1) > 1e-4:
             raise CalibrationError(f"calibration {path}: R is not a proper rotation (R R^T != I or det != +1)")
-        return cls(R, t, float(d.get("rmse_m", float("nan"))), int(d.get("n_pairs", 0)))
+        return cls(R, t, rmse, n_pairs)
 
 
 MAX_COORD_M = 10.0  # no camera point or arm position of a picking cell is this far away
@@ -63,37 +66,39 @@ MAX_RMSE_M = 0.02  # a fit worse than this is a mistake in the pairs, not a meas
 
 
 def read_pairs(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """pairs.csv -> (camera points [N, 3], robot points [N, 3]), in metres."""
+    """pairs.csv -> (camera points [N, 3], robot points [N, 3]), in metres. Any content that is not
+    that (binary, another encoding, a broken CSV, a row of the wrong length) is one line naming the
+    file and the line."""
+    text = read_text(path, "pairs file")
     try:
-        with open(path, newline="") as f:
-            rows = list(csv.reader(f))
-    except OSError as exc:
-        raise CalibrationError(f"cannot read {path}: {exc.strerror}") from None
-    if not rows or [c.strip() for c in rows[0]] != HEADER:
-        raise CalibrationError(f"{path} must start with the header {','.join(HEADER)}")
+        rows = list(csv.reader(io.StringIO(text, newline="")))
+    except csv.Error as exc:
+        raise CalibrationError(f"pairs file {path} is not a CSV file: {exc}") from None
+    if not rows or [c.strip().lower() for c in rows[0]] != HEADER:
+        raise CalibrationError(f"pairs file {path} must start with the header {','.join(HEADER)}")
     values = []
     for i, row in enumerate(rows[1:], start=2):
         if not any(c.strip() for c in row):
             continue
+        if len(row) != 6:
+            raise CalibrationError(f"pairs file {path} line {i}: expected 6 values, got {len(row)}")
         try:
             vals = [float(c) for c in row]
         except ValueError:
-            raise CalibrationError(f"{path} line {i}: not six numbers") from None
-        if len(vals) != 6:
-            raise CalibrationError(f"{path} line {i}: expected 6 values, got {len(vals)}")
+            raise CalibrationError(f"pairs file {path} line {i}: not six numbers") from None
         if not all(math.isfinite(v) for v in vals):
-            raise CalibrationError(f"{path} line {i}: NaN or infinite value")
+            raise CalibrationError(f"pairs file {path} line {i}: NaN or infinite value")
         if max(abs(v) for v in vals) > MAX_COORD_M:
-            raise CalibrationError(f"{path} line {i}: a coordinate beyond {MAX_COORD_M:.0f} m; pairs are in metres "
-                                   "(millimetres given?)")
+            raise CalibrationError(f"pairs file {path} line {i}: a coordinate beyond {MAX_COORD_M:.0f} m; pairs are "
+                                   "in metres (millimetres given?)")
         values.append(vals)
     arr = np.array(values, dtype=np.float64).reshape(-1, 6)
     return arr[:, :3], arr[:, 3:]
 
 
 def _check_spread(points: np.ndarray, name: str) -> None:
-    rounded = {tuple(np.round(p, 6)) for p in points}
-    if len(rounded) < len(points):
+    rounded = np.round(points, 6) + 0.0  # + 0.0: -0.0 and 0.0 are one position
+    if len(np.unique(rounded, axis=0)) < len(points):
         raise CalibrationError(f"two {name} points coincide; every pair must be a distinct position")
     s = np.linalg.svd(points - points.mean(0), compute_uv=False)
     if s[0] < 1e-6 or s[1] / s[0] < 1e-3:
@@ -164,23 +169,67 @@ def write_pairs(path: str | Path, camera: np.ndarray, robot: np.ndarray) -> None
 def leave_one_out(camera: np.ndarray, robot: np.ndarray) -> np.ndarray:
     """Each pair's error (m) under the fit of all the OTHER pairs: what the calibration would get
     wrong at that point had it not been measured (a mis-detected pair stands out here, while the
-    full fit spreads its error over every residual)."""
+    full fit spreads its error over every residual). NaN for a pair without which the others are
+    collinear: no fit, so no error.
+
+    The same as kabsch on each N-1 pairs, in closed form: the sums a fit needs (of c r^T, c, r)
+    less pair i, and all N 3x3 SVDs at once, so thousands of pairs take milliseconds."""
     camera, robot = np.asarray(camera, np.float64), np.asarray(robot, np.float64)
-    keep = np.ones(len(camera), bool)
-    errors = np.empty(len(camera))
-    for i in range(len(camera)):
-        keep[i] = False
-        cal = kabsch(camera[keep], robot[keep])
-        errors[i] = float(np.linalg.norm(cal.apply(camera[i]) - robot[i]))
-        keep[i] = True
+    if camera.shape != robot.shape or camera.ndim != 2 or camera.shape[1] != 3:
+        raise CalibrationError("camera and robot points must be two [N, 3] arrays of the same length")
+    if len(camera) <= MIN_PAIRS:
+        raise CalibrationError(f"leave-one-out needs at least {MIN_PAIRS + 1} point pairs, got {len(camera)}")
+    if not (np.isfinite(camera).all() and np.isfinite(robot).all()):
+        raise CalibrationError("point pairs contain NaN or infinite values")
+    _check_spread(camera, "camera")
+    _check_spread(robot, "robot")
+    n = len(camera)
+    c, r = camera - camera.mean(0), robot - robot.mean(0)  # centred, so that no precision is lost to far points
+    mean_c, mean_r = (c.sum(0) - c) / (n - 1), (r.sum(0) - r) / (n - 1)  # [N, 3]: the means without pair i
+    H = c.T @ r - _outer(c, r) - (n - 1) * _outer(mean_c, mean_r)  # [N, 3, 3]: each one's cross-covariance
+    U, _, Vt = np.linalg.svd(H)
+    V, Ut = np.swapaxes(Vt, 1, 2), np.swapaxes(U, 1, 2)
+    d = np.where(np.linalg.det(V @ Ut) < 0, -1.0, 1.0)
+    R = V @ (np.stack([np.ones(n), np.ones(n), d], 1)[:, :, None] * Ut)  # V diag(1, 1, d) U^T
+    predicted = np.einsum("nij,nj->ni", R, c - mean_c) + mean_r
+    errors = np.linalg.norm(predicted - r, axis=1)
+    errors[_collinear_without_each(c) | _collinear_without_each(r)] = np.nan
     return errors
+
+
+def _outer(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """[N, 3, 3]: a_i b_i^T for each row i."""
+    return a[:, :, None] * b[:, None, :]
+
+
+def _collinear_without_each(points: np.ndarray) -> np.ndarray:
+    """[N] bool: whether the points other than point i are collinear (_check_spread's test, on the
+    scatter matrix of those N-1 points)."""
+    n = len(points)
+    mean = (points.sum(0) - points) / (n - 1)
+    scatter = points.T @ points - _outer(points, points) - (n - 1) * _outer(mean, mean)
+    s = np.sqrt(np.clip(np.linalg.eigvalsh(scatter)[:, ::-1], 0, None))  # singular values, largest first
+    return (s[:, 0] < 1e-6) | (s[:, 1] < 1e-3 * s[:, 0])
 
 
 def outliers(loo: np.ndarray, factor: float = 4.0, floor_m: float = 0.01) -> list[int]:
     """Pairs whose leave-one-out error is more than FACTOR times the median and above FLOOR_M (the
-    1 cm the thesis budgets for calibration: below it a pair is noise, not a mis-detection)."""
-    bound = max(factor * float(np.median(loo)), floor_m)
+    1 cm the thesis budgets for calibration: below it a pair is noise, not a mis-detection). A NaN
+    error (no fit without that pair) is neither counted in the median nor flagged."""
+    loo = np.asarray(loo, np.float64)
+    known = loo[np.isfinite(loo)]
+    if not len(known):
+        return []
+    bound = max(factor * float(np.median(known)), floor_m)
     return [i for i, e in enumerate(loo) if e > bound]
+
+
+def check_subset_sizes(sizes: list[int], n_pairs: int) -> None:
+    """Refuse a --subsets size that cannot be fitted (below MIN_PAIRS) or measured (no pair left out)."""
+    for k in sizes:
+        if not MIN_PAIRS <= k < n_pairs:
+            raise CalibrationError(f"--subsets {k}: a subset needs {MIN_PAIRS} or more pairs and fewer than the "
+                                   f"{n_pairs} given (the rest measure it)")
 
 
 def subset_errors(camera: np.ndarray, robot: np.ndarray, sizes: list[int], trials: int = 200,
@@ -190,10 +239,8 @@ def subset_errors(camera: np.ndarray, robot: np.ndarray, sizes: list[int], trial
     camera, robot = np.asarray(camera, np.float64), np.asarray(robot, np.float64)
     rng = np.random.default_rng(seed)
     table = {}
+    check_subset_sizes(sizes, len(camera))
     for k in sizes:
-        if not MIN_PAIRS <= k < len(camera):
-            raise CalibrationError(f"--subsets {k}: a subset needs {MIN_PAIRS} or more pairs and fewer than the "
-                                   f"{len(camera)} given (the rest measure it)")
         errs = []
         for _ in range(trials):
             pick = np.zeros(len(camera), bool)

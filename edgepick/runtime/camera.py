@@ -8,12 +8,11 @@ source from a --camera spec.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
-from edgepick.frames import Camera, CameraError, Frame, read_depth, read_rgb
+from edgepick.frames import Camera, CameraError, Frame, read_depth, read_grasps, read_rgb
 from edgepick.geometry import Intrinsics
 
 
@@ -34,7 +33,7 @@ class FolderCamera(Camera):
         if (path / "intrinsics.json").is_file():
             self.intrinsics = Intrinsics.load(path / "intrinsics.json")
         elif meta_file.is_file():
-            self.intrinsics = Intrinsics.from_dict(json.loads(meta_file.read_text())["intrinsics"])
+            self.intrinsics = Intrinsics.load(meta_file)  # a data set's split: its meta.json's intrinsics
         else:
             raise CameraError(f"{path} has no intrinsics.json (nor a data set's meta.json beside it)")
         rgb = sorted((path / "rgb").glob("*.png")) if (path / "rgb").is_dir() else []
@@ -45,7 +44,7 @@ class FolderCamera(Camera):
             raise CameraError(f"{path}/depth lacks {len(missing)} frame(s) that rgb/ has, e.g. {missing[0]}")
         self.names = [p.stem for p in rgb]
         grasps = path / "grasps.json"
-        self.truth = json.loads(grasps.read_text()) if grasps.is_file() else {}
+        self.truth = read_grasps(grasps) if grasps.is_file() else {}
         self.index = 0
 
     def read(self) -> Frame:

@@ -22,6 +22,7 @@ import onnxruntime as ort
 
 from edgepick.errors import EdgepickError
 from edgepick.files import atomic_write
+from edgepick.schema import Where, as_names, as_numbers
 
 
 class ModelError(EdgepickError):
@@ -40,9 +41,10 @@ class ModelInfo:
     metadata: dict[str, str]
 
 
-def _session(path: Path, threads: int) -> ort.InferenceSession:
+def _session(path: Path, threads: int, optimize: bool = True) -> ort.InferenceSession:
     opts = ort.SessionOptions()
-    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL if optimize else \
+        ort.GraphOptimizationLevel.ORT_DISABLE_ALL
     opts.intra_op_num_threads = threads
     opts.inter_op_num_threads = 1
     opts.log_severity_level = 3
@@ -53,6 +55,15 @@ def _session(path: Path, threads: int) -> ort.InferenceSession:
         raise ModelError(f"onnxruntime cannot load {path}: {first}") from None
 
 
+def check_model(path: str | Path) -> ModelInfo:
+    """A model's contract checked without preparing it to run (no graph optimisation): what a
+    command that takes several models checks for each before working on the first."""
+    path = Path(path)
+    if not path.is_file():
+        raise ModelError(f"no model file at {path}")
+    return read_info(_session(path, 1, optimize=False), path)
+
+
 def read_info(session: ort.InferenceSession, path: Path) -> ModelInfo:
     """The checks of docs/contracts.md#onnx-model: uint8 [1,H,W,3] `image` in, uint8 [1,H,W] `labels` out,
     edgepick metadata."""
@@ -60,11 +71,15 @@ def read_info(session: ort.InferenceSession, path: Path) -> ModelInfo:
     missing = [k for k in REQUIRED_KEYS if k not in meta]
     if missing:
         raise ModelError(f"{path} is not an edgepick model: metadata {', '.join(missing)} missing")
+    where = Where(str(path))
     try:
         classes = json.loads(meta["edgepick.classes"])
-        h, w = (int(v) for v in json.loads(meta["edgepick.input_size"]))
-    except (ValueError, TypeError):
-        raise ModelError(f"{path} has unreadable edgepick metadata") from None
+        size = json.loads(meta["edgepick.input_size"])
+    except ValueError:
+        raise ModelError(f"{path} has unreadable edgepick metadata (edgepick.classes and edgepick.input_size are "
+                         "JSON)") from None
+    classes = as_names(classes, where.at("edgepick.classes"), min_length=2)
+    h, w = as_numbers(size, where.at("edgepick.input_size"), 2, integer=True, minimum=1, maximum=8192)
     inputs, outputs = session.get_inputs(), {o.name: o for o in session.get_outputs()}
     if len(inputs) != 1 or inputs[0].name != "image" or inputs[0].type != "tensor(uint8)" \
             or list(inputs[0].shape) != [1, h, w, 3]:
@@ -80,16 +95,26 @@ ENGINES = ("onnxruntime", "openvino")
 AUTO = "auto"  # the faster of the two on this machine, measured once per model and cached
 
 
+def openvino_config(threads: int, precision: str = "f32") -> dict[str, object]:
+    """OpenVINO CPU compile settings: THREADS threads, latency first, the model's float parts run in
+    PRECISION ("f32" unless asked; "bf16" is only for benchmarks that name it)."""
+    # Without INFERENCE_PRECISION_HINT, OpenVINO runs float models in bf16 on CPUs with AMX or
+    # avx512_bf16: an fp32 model would give other labels than its precision says. f32 holds for
+    # int8 models too: their int8 ops run in int8 either way, and their float parts (the logits the
+    # labels are taken from, and the layers `quantize static --max-miou-drop` kept float because
+    # int8 drifted there) then match the onnxruntime run the model's mIoU was measured with.
+    return {"INFERENCE_NUM_THREADS": threads, "PERFORMANCE_HINT": "LATENCY", "INFERENCE_PRECISION_HINT": precision}
+
+
 def _openvino_runner(path: Path, threads: int):
-    """OpenVINO's CPU plugin on the same ONNX file (the optional `[peers]` extra); the two engines
-    are compared by benchmarks/peers.py (benchmarks/results/peers/)."""
+    """OpenVINO's CPU plugin on the same ONNX file (the optional `[peers]` extra), float parts in f32;
+    the two engines are compared by benchmarks/peers.py (benchmarks/results/peers/)."""
     try:
         import openvino as ov
     except ImportError:
         raise ModelError("the openvino engine needs the peers extra: pip install 'edgepick[peers]'") from None
     try:
-        compiled = ov.Core().compile_model(str(path), "CPU", {"INFERENCE_NUM_THREADS": threads,
-                                                             "PERFORMANCE_HINT": "LATENCY"})
+        compiled = ov.Core().compile_model(str(path), "CPU", openvino_config(threads))
     except Exception as exc:  # noqa: BLE001 - OpenVINO raises RuntimeError subclasses
         raise ModelError(f"OpenVINO cannot compile {path}: {str(exc).strip().splitlines()[0]}") from None
     request, output = compiled.create_infer_request(), compiled.output("labels")

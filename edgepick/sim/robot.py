@@ -1,7 +1,8 @@
 """SimRobot: the `Robot` protocol in-process, with UR3 limits and simulated motion time.
 
 No network, nothing moves. It can be told to raise a protective stop or lose its link on a
-given motion command, so the pick loop's stop handling is testable without an arm.
+given motion command, or to refuse targets beyond an x as a controller's safety limits would,
+so the pick loop's stop and refusal handling is testable without an arm.
 """
 
 from __future__ import annotations
@@ -12,12 +13,18 @@ from edgepick.robot.base import RobotBase, SafetyStatus
 from edgepick.robot.envelope import Envelope
 from edgepick.robot.motion import HOME_POSE, motion_time
 
+PROTECTIVE_STOP_MODE = 3  # the controller's safety mode during a protective stop
 
 
 class SimRobot(RobotBase):
+    """An in-process UR3 behind the same guard as URRobot; its only limits are the envelope's
+    (and x <= refuse_poses_beyond_x, when given)."""
+
     def __init__(self, envelope: Envelope | None = None, start_pose: list[float] | None = None,
-                 protective_stop_on: int | None = None, drop_link_on: int | None = None):
+                 protective_stop_on: int | None = None, drop_link_on: int | None = None,
+                 refuse_poses_beyond_x: float | None = None):
         super().__init__(envelope)
+        self.refuse_poses_beyond_x = refuse_poses_beyond_x
         self.pose = list(start_pose or HOME_POSE)
         self.q = [0.0, -1.57, 1.57, -1.57, -1.57, 0.0]
         self.outputs = {False: [False] * 8, True: [False] * 2}  # standard, tool
@@ -39,7 +46,7 @@ class SimRobot(RobotBase):
             return False
         self.pose[:3] = [(a + b) / 2 for a, b in zip(self.pose[:3], target[:3])]
         if self.moves == self.protective_stop_on:
-            self.state.protective_stop = True
+            self.state.protective_stop, self.state.safety_mode = True, PROTECTIVE_STOP_MODE
         else:
             self.state.connected = False
         return True
@@ -67,6 +74,9 @@ class SimRobot(RobotBase):
 
     def _status(self) -> SafetyStatus:
         return self.state
+
+    def _within_limits(self, pose: list[float]) -> bool:
+        return self.refuse_poses_beyond_x is None or pose[0] <= self.refuse_poses_beyond_x
 
     def tcp_pose(self) -> list[float]:
         return list(self.pose)

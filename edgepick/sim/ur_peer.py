@@ -4,7 +4,8 @@
 It carries out the register protocol of ur_rtde's control script (moveJ, moveL, stopL, the
 safety-limit query, stop script), the IO interface's digital outputs, and moves a UR3 TCP at
 the commanded speed. It can raise a protective stop or drop every link halfway through the
-N-th motion. Every command it receives is appended to a JSON-lines log. Run it as its own
+N-th motion, and answer the safety-limit query (isPoseWithinSafetyLimits) with "no" for poses
+beyond a given x. Every command it receives is appended to a JSON-lines log. Run it as its own
 process (ur_rtde's constructors hold the GIL):
 
     python -m edgepick.sim.ur_peer --host 127.0.0.5 --lifetime 60 [--protective-stop-on-move 2]
@@ -154,13 +155,18 @@ class Controller:
                 self.motion = None
                 self.out_int[0] = DONE
             elif cmd == CMD_POSE_OK:
-                self.out_int[1] = int(reachable(d[:6]))
+                self.out_int[1] = int(self.within_limits(d[:6]))
                 self.out_int[0] = DONE
             elif cmd == CMD_STOP_SCRIPT:
                 self.motion = None
                 self.runtime = RUNTIME_STOPPED
             else:
                 self.out_int[0] = DONE
+
+    def within_limits(self, pose: list[float]) -> bool:
+        """The answer to the safety-limit query: within the UR3's reach, and not beyond --refuse-poses-beyond-x."""
+        beyond = self.args.refuse_poses_beyond_x
+        return reachable(pose) and (beyond is None or pose[0] <= beyond)
 
     def _start_motion(self, cmd: int, d: list[float]) -> None:
         target, speed, acc = d[:6], max(d[6], 1e-6), max(d[7], 1e-6)
@@ -332,6 +338,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--lifetime", type=float, default=60.0, help="seconds before the peer exits on its own")
     ap.add_argument("--protective-stop-on-move", type=int, default=0, help="raise a protective stop halfway through move N")
     ap.add_argument("--drop-on-move", type=int, default=0, help="close every link halfway through move N")
+    ap.add_argument("--refuse-poses-beyond-x", type=float, default=None, metavar="X",
+                    help="answer the safety-limit query with 'outside' for a pose whose x is above X (metres)")
     ap.add_argument("--time-scale", type=float, default=1.0, help="motion time factor (0.1 = ten times faster)")
     ap.add_argument("--log", default=None, help="JSON-lines log of every command received")
     ap.add_argument("--start-joints", type=float, nargs=6, default=START_JOINTS, metavar="Q",

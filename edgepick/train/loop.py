@@ -29,9 +29,12 @@ import torch.nn.functional as F
 
 from edgepick.data.native import NativeDataset
 from edgepick.errors import CheckpointError, ConfigError
+from edgepick.files import mark
 from edgepick.metrics import segmentation_metrics
 from edgepick.models.deeplabv3 import DeepLabV3, ModelConfig, build_model, load_backbone_weights
 from edgepick.progress import progress as progress_bar
+from edgepick.schema import Where, as_dict, as_list, as_number, as_numbers, as_str
+from edgepick.schema import field as required_field
 from edgepick.train.checkpoint import is_qat_checkpoint, model_meta, read_checkpoint, save_atomic
 from edgepick.train.data import IGNORE, augment, class_weights
 from edgepick.train.setup import device_for, dist_env, log, logits, make_loaders, validate
@@ -61,11 +64,40 @@ class TrainConfig:
     class_weighting: bool = True
 
     @classmethod
-    def from_dict(cls, values: dict) -> "TrainConfig":
-        """The config a checkpoint recorded (keys an older edgepick wrote and this one has no use for are dropped)."""
-        known = {f.name for f in fields(cls)}
-        values = {k: v for k, v in values.items() if k in known}
-        return cls(**{**values, "size": tuple(values["size"])})
+    def from_dict(cls, values: dict, where: Where | None = None) -> "TrainConfig":
+        """The config a checkpoint recorded, each field's type checked (WHERE names the file in
+        errors; keys an older edgepick wrote and this one has no use for are dropped)."""
+        where = where or Where("train_config")
+        values = as_dict(values, where)
+        checked = {}
+        for f in fields(cls):
+            if f.name not in values:
+                if f.name in ("data", "out"):
+                    required_field(values, f.name, where)  # says which is missing
+                continue
+            checked[f.name] = _typed(values[f.name], f.type, where.at(f.name))
+        return cls(**checked)
+
+
+def _typed(value: object, kind: str, where: Where) -> object:
+    """One recorded TrainConfig field, checked against its annotation."""
+    if kind == "str | None" and value is None:
+        return None
+    if kind in ("str", "str | None"):
+        return as_str(value, where)
+    if kind == "bool":
+        if not isinstance(value, bool):
+            where.fail("must be true or false")
+        return value
+    if kind == "int":
+        return as_number(value, where, integer=True)
+    if kind == "float":
+        return float(as_number(value, where))
+    if kind == "tuple[int, int]":
+        return tuple(as_numbers(value, where, 2, integer=True, minimum=1))
+    if kind == "list[int]":
+        return [as_number(v, where.at(i), integer=True) for i, v in enumerate(as_list(value, where))]
+    raise TypeError(f"no check for a TrainConfig field of type {kind}")  # a new field needs one here
 
 
 class Hooks:
@@ -102,6 +134,11 @@ def check_config(cfg: TrainConfig, world: int = 1) -> None:
         raise ConfigError("--epoch-images and --val-images must be 0 (all) or positive")
     if cfg.epoch_images and world > 1:
         raise ConfigError("--epoch-images is for single-process runs (DDP shards the whole split)")
+    if cfg.seed < 0:
+        raise ConfigError(f"--seed {cfg.seed}: must be 0 or positive")
+    outside = [e for e in cfg.keep_epochs if not 1 <= e <= cfg.epochs]
+    if outside:
+        raise ConfigError(f"--keep-epochs {outside[0]}: not an epoch of this run's budget (1..{cfg.epochs})")
 
 
 def model_config(cfg: TrainConfig, classes: list[str]) -> ModelConfig:
@@ -141,10 +178,27 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
         last = read_checkpoint(last_path)
         if is_qat_checkpoint(last):
             raise CheckpointError(f"{cfg.out} is a QaT run; run its quantize command again to start it anew")
-        epochs = cfg.epochs  # 0: keep the run's own epoch budget
-        cfg = TrainConfig.from_dict(last["train_config"])
+        epochs, data = cfg.epochs, cfg.data  # epochs 0: keep the run's own epoch budget
+        where = Where(last["path"])
+        cfg = TrainConfig.from_dict(required_field(last, "train_config", where), where.at("train_config"))
         cfg.epochs = max(epochs or cfg.epochs, last["epoch"])
+        cfg.data = data  # the data set given now (a run moves with its data): checked to be the same one
+        check_same_data(last, data)
     return fit(cfg, new_model(cfg), resume=last, progress=progress)
+
+
+def check_same_data(last: dict, data: str) -> None:
+    """Refuse to resume RUN on a data set other than the one it was trained on: other class names,
+    or (runs that recorded it) images of another size."""
+    train_ds = NativeDataset.open(data, "train")
+    if train_ds.classes != last["classes"]:
+        raise ConfigError(f"DATA {data} has the classes {train_ds.classes}, the run to resume was trained on "
+                          f"{last['classes']}; give the run's own data set")
+    recorded = last.get("data_image_size")
+    if recorded is not None and list(train_ds.rgb(train_ds.ids[0]).shape[:2]) != list(recorded):
+        h, w = recorded
+        raise ConfigError(f"DATA {data} holds images of another size than the {w}x{h} the run was trained on; "
+                          "give the run's own data set")
 
 
 def carry_optimizer_state(opt: torch.optim.Optimizer, model: torch.nn.Module, start: dict, prefix: str = "") -> int:
@@ -225,7 +279,7 @@ def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, st
         log(f"resuming {out} after epoch {state['epoch']}", rank)
     ddp = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
     meta = {**model_meta(model_config(cfg, classes), classes, cfg.size), "train_config": asdict(cfg),
-            "world_size": world}
+            "world_size": world, "data_image_size": list(train_ds.rgb(train_ds.ids[0]).shape[:2])}
     gen = torch.Generator().manual_seed(cfg.seed * 1000 + state["epoch"] + rank)
     hooks.begin(model, device, state["phase_start"] * steps_per_epoch, cfg.epochs * steps_per_epoch)
 
@@ -297,19 +351,24 @@ def _record(epoch: int, m: dict, loss_sum: float, seen: int, train_s: float, epo
             "images_per_s": round(seen / train_s, 2)}
 
 
+RESUME_ONLY = ("optimizer", "scheduler")  # what only --resume and hybrid-QaT read
+
+
 def _save(out: Path, cfg: TrainConfig, state: dict, record: dict, ckpt: dict, device: str, world: int) -> None:
     """last.pt (atomically), best.pt if validation mIoU improved, epoch_NNN.pt if kept, metrics.json."""
     improved = (record["miou"] or 0.0) > state["best_miou"]
     if improved:
         state["best_miou"] = record["miou"] or 0.0
-    out.mkdir(parents=True, exist_ok=True)  # only now: a failed first epoch leaves no RUN behind
+    if not out.is_dir():  # only now: a failed first epoch leaves no RUN behind
+        out.mkdir(parents=True)
+        mark(out, "train")
     last_path = out / "last.pt"
     save_atomic({**ckpt, **state}, last_path)
-    copies = (["best.pt"] if improved else []) + ([f"epoch_{record['epoch']:03d}.pt"]
-                                                 if record["epoch"] in cfg.keep_epochs else [])
-    for name in copies:
-        shutil.copyfile(last_path, out / f".{name}.tmp")
-        os.replace(out / f".{name}.tmp", out / name)
+    if improved:  # the weights to export and quantize: no optimizer state (a third of last.pt's size)
+        save_atomic({k: v for k, v in {**ckpt, **state}.items() if k not in RESUME_ONLY}, out / "best.pt")
+    if record["epoch"] in cfg.keep_epochs:  # a hybrid-QaT switch point: it carries the AdamW moments on
+        shutil.copyfile(last_path, out / ".epoch.tmp")
+        os.replace(out / ".epoch.tmp", out / f"epoch_{record['epoch']:03d}.pt")
     summary = {"epochs": record["epoch"], "best_miou": state["best_miou"],
                "train_time_s": round(state["train_time_s"], 2), "device": device, "world_size": world,
                "arch": cfg.arch, "size": list(cfg.size), "history": state["history"]}

@@ -6,6 +6,9 @@ from __future__ import annotations
 import csv
 import json
 
+import cv2
+
+from edgepick.bench import cell
 from edgepick.cli import run
 from tests.runtime.test_pipeline import red_model
 
@@ -38,3 +41,29 @@ def test_cell_bad_input(tmp_path, capfd):
     err = capfd.readouterr().err
     assert "--cell 0" in err and "--data is needed" in err
     assert not (tmp_path / "o").exists()
+
+
+def test_success_latency_is_a_scatter_with_every_label_in_full(tmp_path):
+    """success-latency.png: x the pipeline p50, y grasp success, one point per row with its whole mode
+    label beside it, inside the image and clear of the other labels (two models on one spot here), the
+    true-label row in grey."""
+    def row(mode, model, p50, success):
+        return cell.CellRow(mode, model, 20, p50, 1.0, p50, p50 * 1.2, None, success, success / 20, success / 20)
+
+    rows = [row("true labels", "-", 6.0, 19), row("static (deeplabv3-mobilenetv3-640x480-static-int8)", "a", 95.0, 16),
+            row("static (static)", "b", 96.0, 16), row("fp32 CPU", "c", 180.0, 10)]
+    layout = cell._plot(rows, tmp_path / "s.png")
+    png = cv2.imread(str(tmp_path / "s.png"))
+    h, w = png.shape[:2]
+    ink = png.min(axis=2) < 180  # text and points; the grey grid is lighter
+    boxes = [box for _, box in layout]
+    for r, (x0, y0, x1, y1) in zip(rows, boxes):
+        assert x1 - x0 == cv2.getTextSize(r.mode, cell.FONT, cell.SCALE, 1)[0][0]  # the whole label's width
+        assert 0 <= x0 and x1 < w and 0 <= y0 and y1 < h
+        assert ink[y0:y1, x0:x0 + 4].any() and ink[y0:y1, x1 - 6:x1].any()  # drawn to its last letter
+    assert all(cell._overlap(a, b) == 0 for i, a in enumerate(boxes) for b in boxes[i + 1:])
+    (truth, ref, static, fp32) = [point for point, _ in layout]
+    assert truth[0] < ref[0] < static[0] < fp32[0]  # slower further right
+    assert fp32[1] > static[1] == ref[1] > truth[1]  # higher success higher
+    b, g, r = (int(v) for v in png[truth[1], truth[0]])
+    assert b == g == r < 200  # the true-label row in grey

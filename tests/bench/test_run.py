@@ -8,6 +8,7 @@ import pytest
 
 pytest.importorskip("onnx")
 
+from edgepick.bench.machine import machine_line  # noqa: E402
 from edgepick.data.synth import SynthConfig, synthesize  # noqa: E402
 from edgepick.runtime.grasp import DEFAULT_CLASSES  # noqa: E402
 from tests.conftest import run_cli  # noqa: E402
@@ -48,6 +49,9 @@ def test_bench_rows_columns_and_files(tmp_path, data):
     for kind in ("md", "csv", "json", "png"):
         assert (tmp_path / "out").joinpath(result["reports"][kind]).exists()
     assert "Table 5.6" in (tmp_path / "out" / "table.md").read_text()
+    machine = machine_line().removeprefix("Machine: ")  # CPU model, int8 flags, cores: the cell table's line
+    assert json.loads((tmp_path / "out" / "table.json").read_text())["context"]["machine"] == machine
+    assert f"- machine: {machine}\n" in (tmp_path / "out" / "table.md").read_text()
 
 
 @pytest.mark.parametrize("case, message", [("not-onnx", "not an .onnx"), ("foreign", "not an edgepick model"),

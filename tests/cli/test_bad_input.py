@@ -107,7 +107,7 @@ CASES = [
     (["calibrate", "{W}/pairs.csv", "--out", "{F}/c.json"], "is a file, not a folder"),
     (["calibrate", "{W}/pairs.csv", "--out", "{W}/c.json", "--max-rmse", "0"], "--max-rmse"),
     # grasp
-    ([*G[:5], "--intrinsics", "{W}/intr0.json"], "depth_scale 0.0"),
+    ([*G[:5], "--intrinsics", "{W}/intr0.json"], "depth_scale must be above 0"),
     ([*G[:3], "--depth", "{W}/depth8.png", *G[5:]], "uint16"),
     ([*G, "--overlay", "{W}/o"], "must end in .png"),
     ([*G, "--classes", ""], "--classes ''"),
@@ -152,13 +152,17 @@ def test_a_mistake_is_one_line_exit_2_and_nothing_written(ws, capfd, monkeypatch
     monkeypatch.chdir(ws["W"])  # a default output (picks.jsonl) would land here
     before = _tree(ws["W"]), _tree(ws["D"])
     code = run([_fill(a, ws) for a in args])
-    out, err = capfd.readouterr()
+    assert_refused(code, *capfd.readouterr(), message)
+    assert (_tree(ws["W"]), _tree(ws["D"])) == before, "something was written"
+
+
+def assert_refused(code: int, out: str, err: str, message: str) -> None:
+    """Exit 2, one line on stderr that is edgepick's and holds MESSAGE, nothing on stdout."""
     lines = [line for line in err.splitlines() if line.strip()]
     assert code == 2, err
     assert len(lines) == 1 and lines[0].startswith("edgepick: error: "), err
     assert message in lines[0], lines[0]
     assert out == ""
-    assert (_tree(ws["W"]), _tree(ws["D"])) == before, "something was written"
 
 
 @pytest.fixture(scope="module")

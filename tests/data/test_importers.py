@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
+from edgepick.cli import run
 from edgepick.data.importers import ImportConfig, assign_splits, import_dataset
 from edgepick.data.native import IGNORE, NativeDataset
 from edgepick.errors import DatasetError
@@ -152,6 +153,167 @@ def test_cvat_unknown_colour_is_refused(tmp_path):
     proc = run_cli("data", "import", "cvat", str(src), str(tmp_path / "out"))
     assert proc.returncode == 2 and "(3, 2, 1)" in proc.stderr and "does not list" in proc.stderr
     assert not (tmp_path / "out").exists() and not list(tmp_path.glob(".out.partial-*"))
+
+
+def test_cvat_file_names_with_glob_characters_find_their_images(tmp_path):
+    src = cvat_tree(tmp_path / "cvat", names=("a[1]", "b*", "c?", "d"))
+    summary = import_dataset("cvat", src, tmp_path / "out")
+    assert sum(summary["splits"].values()) == 4
+
+
+# ------------------------------------------------------------------------ malformed content
+# Each bad tree: the CLI says one line naming the file and the field, exits 2, and leaves no OUT.
+GT, CAM = "test/000002/scene_gt.json", "test/000002/scene_camera.json"
+MASK, JPEG = "SegmentationClass/c.png", "JPEGImages/c.png"
+DELETE = object()
+
+
+def _set(path, keys, value):
+    """Change one value of a JSON file (DELETE removes it)."""
+    data = json.loads(path.read_text())
+    node = data
+    for key in keys[:-1]:
+        node = node[key]
+    if value is DELETE:
+        del node[keys[-1]]
+    else:
+        node[keys[-1]] = value
+    path.write_text(json.dumps(data))
+
+
+def _rename(path, old, new):
+    data = json.loads(path.read_text())
+    data[new] = data.pop(old)
+    path.write_text(json.dumps(data))
+
+
+def _labelmap(text):
+    return lambda src: (src / "labelmap.txt").write_text(text)
+
+
+def _first(src, pattern):
+    return sorted(src.rglob(pattern))[0]
+
+
+def _cut_jpeg(path):
+    """PATH replaced by a JPEG of the same name whose second half is missing (a copy cut short)."""
+    img = (np.random.default_rng(0).random((H, W, 3)) * 255).astype(np.uint8)
+    ok, data = cv2.imencode(".jpg", img)
+    path.unlink()
+    path.with_suffix(".jpg").write_bytes(data.tobytes()[: len(data) // 2])
+
+
+BAD = [
+    # BOP scene_gt.json
+    ("bop", lambda s: (s / GT).write_text("[]"), ["scene_gt.json", "must be a JSON object"]),
+    ("bop", lambda s: _set(s / GT, ["0", 0, "obj_id"], "5"), ["scene_gt.json", "image 0[0].obj_id", "number"]),
+    ("bop", lambda s: _set(s / GT, ["0", 1, "obj_id"], DELETE), ["scene_gt.json", "image 0[1]", "'obj_id'"]),
+    ("bop", lambda s: _set(s / GT, ["1", 0, "obj_id"], 0), ["scene_gt.json", "image 1[0].obj_id", "1 or more"]),
+    ("bop", lambda s: _set(s / GT, ["1", 0, "obj_id"], 2.5), ["scene_gt.json", "obj_id", "whole number"]),
+    ("bop", lambda s: _set(s / GT, ["1", 0, "obj_id"], True), ["scene_gt.json", "obj_id", "number"]),
+    ("bop", lambda s: _set(s / GT, ["2"], {"obj_id": 5}), ["scene_gt.json", "image 2", "must be a list"]),
+    ("bop", lambda s: _set(s / GT, ["2"], [5]), ["scene_gt.json", "image 2[0]", "JSON object"]),
+    ("bop", lambda s: _rename(s / GT, "3", "three"), ["scene_gt.json", "image id 'three'", "whole number"]),
+    ("bop", lambda s: _rename(s / GT, "3", "-3"), ["scene_gt.json", "image id '-3'", "whole number"]),
+    ("bop", lambda s: _rename(s / GT, "3", "01"), ["scene_gt.json", "image 1 twice"]),
+    ("bop", lambda s: (s / GT).write_bytes(b"\x89PNG\r\n\x1a\n\0\0\0\rIHDR"), ["scene_gt.json", "not a text file"]),
+    ("bop", lambda s: (s / GT).write_bytes('{"0": [{"obj_id": 5, "note": "café"}]}'.encode("latin-1")),
+     ["scene_gt.json", "not UTF-8"]),
+    ("bop", lambda s: (s / GT).write_text('{"0": [{"obj_id": 5'), ["scene_gt.json", "not valid JSON"]),
+    # BOP scene_camera.json
+    ("bop", lambda s: (s / CAM).write_bytes(b"\0\1\2\3"), ["scene_camera.json", "not a text file"]),
+    ("bop", lambda s: (s / CAM).write_bytes(b'{"0": {"cam_K": "\xff\xfe"}}'), ["scene_camera.json", "not UTF-8"]),
+    ("bop", lambda s: (s / CAM).unlink(), ["scene_camera.json", "cannot read"]),
+    ("bop", lambda s: (s / CAM).write_text("[1, 2]"), ["scene_camera.json", "must be a JSON object"]),
+    ("bop", lambda s: _set(s / CAM, ["2"], DELETE), ["scene_camera.json", "no entry for image 2"]),
+    ("bop", lambda s: _set(s / CAM, ["2"], [572.4]), ["scene_camera.json", "image 2", "JSON object"]),
+    ("bop", lambda s: _set(s / CAM, ["0", "depth_scale"], float("nan")), ["scene_camera.json", "NaN"]),
+    ("bop", lambda s: _set(s / CAM, ["1", "depth_scale"], -0.1), ["scene_camera.json", "image 1.depth_scale",
+                                                                  "above 0"]),
+    ("bop", lambda s: _set(s / CAM, ["1", "depth_scale"], 0), ["scene_camera.json", "depth_scale", "above 0"]),
+    ("bop", lambda s: _set(s / CAM, ["1", "depth_scale"], "0.1"), ["scene_camera.json", "depth_scale", "number"]),
+    ("bop", lambda s: _set(s / CAM, ["0", "cam_K"], "572.4 0 15.5 0 573.6 11.5 0 0 1"),
+     ["scene_camera.json", "image 0.cam_K", "must be a list"]),
+    ("bop", lambda s: _set(s / CAM, ["0", "cam_K", 4], float("nan")), ["scene_camera.json", "NaN"]),
+    ("bop", lambda s: _set(s / CAM, ["0", "cam_K", 4], None), ["scene_camera.json", "cam_K[4]", "number"]),
+    ("bop", lambda s: _set(s / CAM, ["0", "cam_K", 8], DELETE), ["scene_camera.json", "cam_K", "list of 9"]),
+    ("bop", lambda s: _set(s / CAM, ["3", "cam_K", 0], -572.4), ["scene_camera.json", "image 3.cam_K", "focal"]),
+    ("bop", lambda s: _set(s / CAM, ["3", "cam_K"], [572.4, 0, 0, 0, 573.6, 0, 15.5, 11.5, 1]),
+     ["scene_camera.json", "image 3.cam_K", "row by row"]),
+    ("bop", lambda s: _set(s / CAM, ["3"], {"depth_scale": 0.1}), ["scene_camera.json", "image 3", "'cam_K'"]),
+    # BOP images
+    ("bop", lambda s: _cut_jpeg(s / "test/000002/rgb/000001.png"), ["000001.jpg", "Premature end of JPEG file"]),
+    ("bop", lambda s: (s / "test/000002/mask_visib/000001_000000.png").write_bytes(b"\x89PNG\r\n"),
+     ["000001_000000.png", "cannot read"]),
+    ("bop", lambda s: cv2.imwrite(str(s / "test/000002/depth/000002.png"), np.zeros((H, W), np.uint8)),
+     ["000002.png", "uint16"]),
+    ("bop", lambda s: cv2.imwrite(str(s / "test/000002/depth/000002.png"), np.zeros((H // 2, W), np.uint16)),
+     ["depth/000002.png", f"the image {W}x{H}"]),
+    ("bop", lambda s: _set(s / GT, ["0"], [{"obj_id": i} for i in range(1, 256)]), ["255 object ids"]),
+    # CVAT labelmap.txt
+    ("cvat", _labelmap("box:256,50,83::\nbearing:51,221,255::\n"), ["labelmap.txt:1", "0..255"]),
+    ("cvat", _labelmap("box:-1,50,83::\nbearing:51,221,255::\n"), ["labelmap.txt:1", "0..255"]),
+    ("cvat", _labelmap("box:250,50::\n"), ["labelmap.txt:1", "name:r,g,b"]),
+    ("cvat", _labelmap("box\n"), ["labelmap.txt:1", "name:r,g,b"]),
+    ("cvat", _labelmap(":250,50,83::\n"), ["labelmap.txt:1", "no name"]),
+    ("cvat", _labelmap("box:250,50,83::\nbox:51,221,255::\n"), ["labelmap.txt:2", "'box' twice"]),
+    ("cvat", _labelmap("box:250,50,83::\nbearing:250,50,83::\n"), ["labelmap.txt", "same colour"]),
+    ("cvat", _labelmap("# nothing\n"), ["labelmap.txt", "lists no labels"]),
+    ("cvat", _labelmap("".join(f"l{i}:{i // 256},{i % 256},1::\n" for i in range(300))), ["labelmap.txt", "300 labels"]),
+    ("cvat", lambda s: (s / "labelmap.txt").write_bytes(b"\0\0\0\0PK\3\4"), ["labelmap", "not a text file"]),
+    ("cvat", lambda s: (s / "labelmap.txt").write_bytes("caf\xe9:1,2,3::\n".encode("latin-1")),
+     ["labelmap", "not UTF-8"]),
+    # CVAT images and masks
+    ("cvat", lambda s: write_rgb(s / "JPEGImages" / "c.jpg"), ["c.png", "c.jpg", "SegmentationClass/c.png"]),
+    ("cvat", lambda s: (s / JPEG).write_bytes(b"GIF89a"), ["JPEGImages/c.png", "cannot read image"]),
+    ("cvat", lambda s: _cut_jpeg(s / JPEG), ["JPEGImages/c.jpg", "Premature end of JPEG file"]),
+    ("cvat", lambda s: (s / MASK).write_bytes(b""), ["SegmentationClass/c.png", "cannot read mask"]),
+    ("cvat", lambda s: cv2.imwrite(str(s / MASK), np.zeros((H, W, 3), np.uint16)), ["c.png", "16-bit"]),
+    ("cvat", lambda s: cv2.imwrite(str(s / MASK), np.zeros((H // 2, W, 3), np.uint8)), ["c.png", "differ in size"]),
+    ("cvat", lambda s: cv2.imwrite(str(s.parent / "depth" / "c.png"), np.zeros((H, W), np.uint8)),
+     ["depth/c.png", "uint16"]),
+    # the depth camera's intrinsics (read by edgepick.geometry.Intrinsics.load)
+    ("cvat", lambda s: (s.parent / "intr.json").write_text('{"width": 32, "height": 24, "fx": inf, "fy": 30, '
+                                                             '"cx": 15.5, "cy": 11.5}'), ["intr.json"]),
+    ("cvat", lambda s: _set(s.parent / "intr.json", ["fx"], float("inf")), ["intr.json"]),
+    ("cvat", lambda s: (s.parent / "intr.json").write_bytes(b'{"width": "\xff"}'), ["intr.json"]),
+    # Cityscapes
+    ("cityscapes", lambda s: cv2.imwrite(str(_first(s / "gtFine", "*.png")), np.zeros((H, W), np.uint16)),
+     ["_gtFine_labelIds.png", "16-bit"]),
+    ("cityscapes", lambda s: cv2.imwrite(str(_first(s / "gtFine", "*.png")), np.zeros((H, W, 3), np.uint8)),
+     ["_gtFine_labelIds.png", "single-channel"]),
+    ("cityscapes", lambda s: cv2.imwrite(str(_first(s / "gtFine", "*.png")), np.full((H, W), 40, np.uint8)),
+     ["_gtFine_labelIds.png", "label id 40"]),
+    ("cityscapes", lambda s: _first(s / "gtFine", "*.png").write_bytes(b"\x89PNG\r\n\x1a\n"),
+     ["_gtFine_labelIds.png", "cannot read label image"]),
+    ("cityscapes", lambda s: _first(s / "leftImg8bit", "*.png").write_bytes(b"\xff\xd8\xff\xe0"),
+     ["_leftImg8bit.png", "cannot read image"]),
+    ("cityscapes", lambda s: cv2.imwrite(str(_first(s / "gtFine", "*.png")), np.zeros((H, W // 2), np.uint8)),
+     ["_leftImg8bit.png", "differ in size"]),
+]
+TREES = {"bop": lambda t: bop_tree(t / "lm"), "cvat": lambda t: cvat_tree(t / "cvat"),
+         "cityscapes": lambda t: cityscapes_tree(t / "cs")}
+
+
+@pytest.mark.parametrize("fmt, damage, needles", BAD, ids=[f"{f}-{i}-{n[-1][:24]}" for i, (f, _, n) in enumerate(BAD)])
+def test_malformed_content_is_one_line_exit_2_and_nothing_left(tmp_path, capfd, fmt, damage, needles):
+    src = TREES[fmt](tmp_path)
+    damage(src)
+    extra = (["--depth", str(tmp_path / "depth"), "--intrinsics", str(tmp_path / "intr.json"), "--depth-scale",
+              "0.00025"] if fmt == "cvat" else [])
+    capfd.readouterr()
+    code = run(["data", "import", fmt, str(src), str(tmp_path / "out"), *extra])
+    out, err = capfd.readouterr()
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code == 2, err
+    assert len(lines) == 1 and lines[0].startswith("edgepick: error: "), err
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+    assert not (tmp_path / "out").exists() and not list(tmp_path.glob(".out.partial-*"))
+
+
+def test_there_are_at_least_20_bad_trees():
+    assert len(BAD) >= 20 and {f for f, _, _ in BAD} == set(TREES)
 
 
 def test_import_refuses_unknown_format_missing_source_and_bad_splits(tmp_path):

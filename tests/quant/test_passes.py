@@ -179,3 +179,19 @@ def test_eval_refuses_an_onnx_that_is_not_ours(tmp_path, small_data):
     path = red_channel_model(tmp_path / "x.onnx", meta={"producer": "someone"})
     proc = run_cli("eval", str(path), str(small_data))
     assert proc.returncode == 2 and "not an edgepick model" in proc.stderr and proc.stderr.count("\n") == 1
+
+
+def test_an_upper_case_onnx_suffix_is_taken_by_every_check_alike(tmp_path):
+    """`--out q.ONNX` passes the CLI's check, the pass's own and the exporter's: never refused
+    after calibration for a suffix the first check took."""
+    import torch
+
+    from edgepick.errors import ConfigError
+    from edgepick.export.onnx_export import export_onnx
+    from edgepick.files import check_output
+    from edgepick.quant.passes import _check_out
+
+    check_output(tmp_path / "q.ONNX", "--out", suffixes=(".onnx",))
+    _check_out(tmp_path / "q.ONNX")
+    with pytest.raises(ConfigError, match="unknown export pass"):  # past the suffix check, before any export
+        export_onnx(torch.nn.Identity(), tmp_path / "q.ONNX", {}, (32, 32), passes=("nope",))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import socket
 import threading
 import time
@@ -9,9 +10,12 @@ from xmlrpc.server import SimpleXMLRPCServer
 
 import pytest
 
-from edgepick.robot.base import RobotError
+from edgepick.robot.base import RobotError, RobotHalted, RobotUnreachable
 from edgepick.robot.grippers import DigitalGripper, RG2Gripper
+from edgepick.robot.pick import CommandLog, PickConfig, execute, plan_pick
 from edgepick.sim.robot import SimRobot
+
+RECORD = {"class": "box", "area_px": 900, "depth_m": 0.62, "pose_robot": [0.3, -0.05, 0.06, math.pi, 0.0, 0.0]}
 
 
 @pytest.fixture()
@@ -29,13 +33,18 @@ def rg2_service():
     server.register_function(lambda tool: state["width"], "rg_get_width")
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
-    yield server.server_address[1], calls
+    yield server.server_address[1], calls, server
+    stop(server)
+
+
+def stop(server: SimpleXMLRPCServer) -> None:
+    """Shut the service down and close its socket: from then on a connection is refused."""
     server.shutdown()
     server.server_close()
 
 
 def test_rg2_open_and_grip_send_millimetres_and_newtons(rg2_service):
-    port, calls = rg2_service
+    port, calls, _ = rg2_service
     g = RG2Gripper("127.0.0.1", port=port, open_width_m=0.08, force_n=25.0)
     g.open()
     assert g.width_m() == pytest.approx(0.08)
@@ -49,9 +58,10 @@ def test_rg2_that_does_not_answer_is_a_clear_error():
     silent.bind(("127.0.0.1", 0))
     silent.listen(1)  # accepts the connection, never replies
     try:
-        g = RG2Gripper("127.0.0.1", port=silent.getsockname()[1], timeout_s=0.5)
+        port = silent.getsockname()[1]
+        g = RG2Gripper("127.0.0.1", port=port, timeout_s=0.5)
         t0 = time.monotonic()
-        with pytest.raises(RobotError, match="does not answer"):
+        with pytest.raises(RobotUnreachable, match=f"^cannot reach the RG2 gripper at 127.0.0.1:{port}: timed out$"):
             g.grip()
         assert time.monotonic() - t0 < 5
     finally:
@@ -60,8 +70,31 @@ def test_rg2_that_does_not_answer_is_a_clear_error():
     closed.bind(("127.0.0.1", 0))
     port = closed.getsockname()[1]
     closed.close()  # nothing listens: connection refused
-    with pytest.raises(RobotError, match="does not answer"):
+    with pytest.raises(RobotUnreachable, match=f"at 127.0.0.1:{port}: Connection refused$"):
         RG2Gripper("127.0.0.1", port=port).open()
+    with pytest.raises(RobotUnreachable, match="^cannot reach the RG2 gripper at rg2.invalid:41414: "):
+        RG2Gripper("rg2.invalid").probe()  # a name that does not resolve
+
+
+def test_probe_asks_the_rg2_its_opening(rg2_service):
+    port, calls, _ = rg2_service
+    RG2Gripper("127.0.0.1", port=port).probe()
+    assert calls == []  # a question only: the fingers do not move
+
+
+def test_an_rg2_lost_mid_cycle_halts_the_robot(rg2_service):
+    """The RG2 answers the probe, then goes away: the cycle ends at the gripper step, the arm is
+    stopped and takes no more commands (what it holds is unknown)."""
+    port, _, server = rg2_service
+    gripper = RG2Gripper("127.0.0.1", port=port, timeout_s=1.0)
+    gripper.probe()
+    stop(server)
+    with SimRobot() as robot:
+        reason = execute(plan_pick(RECORD, PickConfig()), robot, gripper, CommandLog(None), 1, PickConfig())
+        assert reason == f"cannot reach the RG2 gripper at 127.0.0.1:{port}: Connection refused"
+        assert robot.halted == reason and robot.sent == ["moveL"]  # the approach, then nothing
+        with pytest.raises(RobotHalted):
+            robot.move_l(PickConfig().home_pose)
 
 
 def test_rg2_refuses_impossible_settings():
@@ -69,6 +102,12 @@ def test_rg2_refuses_impossible_settings():
         RG2Gripper("127.0.0.1", open_width_m=0.2)
     with pytest.raises(RobotError, match="force"):
         RG2Gripper("127.0.0.1", force_n=80)
+
+
+@pytest.mark.parametrize("index, tool", [(8, False), (-1, False), (2, True)])
+def test_a_digital_gripper_on_an_output_the_arm_lacks_is_refused(index, tool):
+    with pytest.raises(RobotError, match="does not exist"):
+        DigitalGripper(SimRobot(), index, tool)
 
 
 def test_digital_gripper_drives_its_output():

@@ -103,3 +103,41 @@ def test_plan_only_sends_nothing_to_a_real_robot(tmp_path, capfd):
         for s in listeners:
             s.close()
     assert not (tmp_path / "pairs.csv").exists()
+
+
+def test_more_poses_than_the_cap_are_refused_saying_how_long_they_would_take():
+    from edgepick.errors import ConfigError
+    from edgepick.robot.handeye import MAX_POSES
+
+    assert CollectConfig(poses=MAX_POSES).validate().poses == MAX_POSES
+    with pytest.raises(ConfigError, match=r"--poses 1000000000: at most 1000 \(each position takes about 0\.5 s, "
+                                          r"its move at --speed 0\.1 plus --settle 0\.5: [\d,]+ h in all\)"):
+        CollectConfig(poses=1_000_000_000).validate()
+    slow = CollectConfig(poses=MAX_POSES + 1, settle_s=5.0, speed=0.01)
+    assert slow.seconds_per_position() > 5.0
+    with pytest.raises(ConfigError, match=r"at most 1000 .* --speed 0\.01 plus --settle 5: [\d,]+ h in all"):
+        slow.validate()
+
+
+def test_a_camera_that_runs_out_of_frames_ends_collecting_in_one_line_back_at_the_start(tmp_path):
+    import cv2
+
+    from edgepick.frames import CameraError
+    from edgepick.geometry import Intrinsics
+    from edgepick.robot.handeye import collect_pairs
+    from edgepick.runtime.camera import FolderCamera
+    from edgepick.runtime.marker import MarkerSpec
+    from edgepick.sim.robot import SimRobot
+
+    for sub in ("rgb", "depth"):
+        (tmp_path / sub).mkdir()
+    (tmp_path / "intrinsics.json").write_text(json.dumps(Intrinsics.d415(320, 240).to_dict()))
+    for i in range(2):
+        cv2.imwrite(str(tmp_path / "rgb" / f"{i}.png"), np.full((240, 320, 3), 128, np.uint8))
+        cv2.imwrite(str(tmp_path / "depth" / f"{i}.png"), np.full((240, 320), 600, np.uint16))
+    cfg = CollectConfig(poses=4, settle_s=0)
+    with FolderCamera(tmp_path) as camera, SimRobot(Envelope()) as robot:
+        start = robot.tcp_pose()
+        with pytest.raises(CameraError, match="no frame left for position 3 of 4"):
+            collect_pairs(robot, camera, MarkerSpec.parse("aruco:4X4_50:7"), plan_positions(cfg), cfg)
+        assert robot.tcp_pose() == pytest.approx(start)

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import os
+import threading
 
 import cv2
 import numpy as np
@@ -100,3 +102,85 @@ def test_pick_defaults_to_the_reference_model_on_a_synthetic_camera_only(tmp_pat
     assert run(["pick", "--camera", f"dir:{tmp_path}", "--log", str(tmp_path / "m.jsonl")]) == 2
     err = capfd.readouterr().err
     assert "--model is needed with --camera dir:" in err and not (tmp_path / "m.jsonl").exists()
+
+
+def _run(capfd, *args: str) -> tuple[int, str, str]:
+    """`edgepick ARGS` in this process: exit status, stdout, stderr."""
+    from edgepick.cli import run
+
+    code = run(list(args))
+    out, err = capfd.readouterr()
+    return code, out, err
+
+
+@pytest.mark.parametrize("robot", [["--robot", "sim"], ["--robot", "ur:127.0.0.9"]])  # the second: plan only
+@pytest.mark.parametrize("spec, message", [("digital:99", "the standard digital output 99 does not exist (0..7)"),
+                                           ("digital:-1", "the standard digital output -1 does not exist (0..7)"),
+                                           ("tool:5", "the tool digital output 5 does not exist (0..1)"),
+                                           ("tool:2", "the tool digital output 2 does not exist (0..1)"),
+                                           ("digital:one", "the output must be a number, e.g. digital:0"),
+                                           ("tool:", "the output must be a number, e.g. tool:0")])
+def test_a_gripper_output_the_arm_lacks_is_refused_before_anything_starts(tmp_path, capfd, robot, spec, message):
+    """Refused in one line naming --gripper before the model or the camera is opened (neither
+    exists here), in a plan-only run too."""
+    code, out, err = _run(capfd, "pick", "--model", str(tmp_path / "none.onnx"), "--camera", f"dir:{tmp_path}/none",
+                          "--calib", str(tmp_path / "none.json"), *robot, "--gripper", spec,
+                          "--log", str(tmp_path / "l.jsonl"))
+    assert code == 2 and out == ""
+    assert err.splitlines() == [f"edgepick: error: --gripper {spec}: {message}"]
+    assert not (tmp_path / "l.jsonl").exists()
+
+
+@pytest.mark.parametrize("host", ["rg2.invalid", "127.0.0.254"])  # does not resolve; nothing listens
+def test_an_rg2_that_cannot_be_reached_is_a_halt_before_the_first_motion(tmp_path, capfd, host):
+    code, out, err = _run(capfd, "pick", "--model", str(red_model(tmp_path / "m.onnx")), "--camera",
+                          f"dir:{capture(tmp_path / 'cap', [(160, 120)])}", "--calib", str(_calib(tmp_path)),
+                          "--gripper", f"rg2:{host}", "--log", str(tmp_path / "l.jsonl"))
+    assert code == 3, err
+    assert err.splitlines() == [err.strip()] and err.startswith(f"edgepick: error: cannot reach the RG2 gripper at "
+                                                                f"{host}:41414: ")
+    summary = json.loads(out)
+    assert summary["halted"] in err and summary["cycles"] == 0 and not (tmp_path / "l.jsonl").exists()
+
+
+@pytest.fixture()
+def rg2_that_faults_on_grip():
+    """An RG2 URCap stand-in on a loopback address at the RG2's own port: it answers the probe and
+    opens, and answers a grip with a fault. Yields its host."""
+    from xmlrpc.server import SimpleXMLRPCServer
+
+    host = f"127.0.41.{20 + os.getpid() % 200}"
+    server = SimpleXMLRPCServer((host, 41414), logRequests=False, allow_none=True)
+
+    def rg_grip(width, force, tool, blocking, depth_comp, popup):
+        if width == 0.0:
+            raise RuntimeError("no gripper on the tool flange")
+        return True
+
+    server.register_function(rg_grip)
+    server.register_function(lambda tool: 100.0, "rg_get_width")
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    yield host
+    server.shutdown()
+    server.server_close()
+
+
+def test_a_gripper_failure_mid_cycle_ends_pick_as_a_halt(tmp_path, capfd, rg2_that_faults_on_grip):
+    host = rg2_that_faults_on_grip
+    code, out, err = _run(capfd, "pick", "--model", str(red_model(tmp_path / "m.onnx")), "--camera",
+                          f"dir:{capture(tmp_path / 'cap', [(160, 120), (140, 100)])}", "--calib",
+                          str(_calib(tmp_path)), "--gripper", f"rg2:{host}", "--cycles", "2",
+                          "--log", str(tmp_path / "l.jsonl"))
+    assert code == 3, err
+    summary = json.loads(out)
+    (result,) = summary["results"]  # the second cycle never started
+    assert result["outcome"] == "stopped" and f"the RG2 gripper at {host}:41414 refused rg_grip" in result["reason"]
+    assert err.splitlines()[-1].startswith(f"edgepick: error: robot halted: the RG2 gripper at {host}:41414 refused "
+                                           "rg_grip: ")
+    log = [json.loads(line) for line in (tmp_path / "l.jsonl").read_text().splitlines()]
+    assert [e["command"] for e in log] == ["moveL", "open", "moveL", "grip"]  # nothing after the failed grip
+
+
+def _calib(tmp_path):
+    (tmp_path / "calib.json").write_text(json.dumps(CALIB))
+    return tmp_path / "calib.json"

@@ -5,18 +5,22 @@ from __future__ import annotations
 import json
 import math
 import os
+import signal
+import socket
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
 
 pytest.importorskip("rtde_control")
 
-from edgepick.robot.base import RobotError, RobotHalted  # noqa: E402
+from edgepick.errors import ConfigError  # noqa: E402
+from edgepick.robot.base import RobotError, RobotHalted, RobotUnreachable  # noqa: E402
 from edgepick.robot.envelope import SafetyError  # noqa: E402
 from edgepick.robot.grippers import DigitalGripper  # noqa: E402
-from edgepick.robot.pick import CommandLog, PickConfig, execute, plan_pick  # noqa: E402
+from edgepick.robot.pick import CommandLog, PickConfig, choose_target, execute, plan_pick  # noqa: E402
 from edgepick.robot.ur import URRobot  # noqa: E402
 from tests.conftest import REPO  # noqa: E402
 
@@ -65,7 +69,8 @@ def test_connect_move_and_digital_output(peer):
         gripper.grip()
         assert any(e.get("event") == "digital_out" and e["bits"] == 1 << 17 for e in log())
         gripper.release()
-    assert commands(log())[:2] == [3, 1] and commands(log())[-1] == 255  # moveL, moveJ ... stop script
+    # the safety-limit query, moveL, moveJ ... stop script
+    assert commands(log())[:3] == [36, 3, 1] and commands(log())[-1] == 255
 
 
 def test_a_full_pick_cycle_on_the_controller(peer, tmp_path):
@@ -85,6 +90,8 @@ def test_a_stop_mid_move_ends_the_cycle_and_nothing_more_is_sent(peer, fault, wo
     with URRobot(host, command_margin_s=3.0) as robot:
         reason = execute(plan, robot, DigitalGripper(robot, 0), CommandLog(None), 1, PickConfig())
         assert reason and word in reason
+        if word == "protective stop":  # in the controller's own words too
+            assert "protective stop (controller safety mode PROTECTIVE_STOP)" in reason
         assert robot.sent == ["moveL", "setDigitalOut", "moveL"]
         with pytest.raises(RobotHalted):
             robot.move_l([0.3, 0.0, 0.2, *DOWN])
@@ -92,7 +99,7 @@ def test_a_stop_mid_move_ends_the_cycle_and_nothing_more_is_sent(peer, fault, wo
     entries = log()
     event = next(i for i, e in enumerate(entries) if e.get("event") in ("protective_stop", "link_dropped"))
     assert [e for e in entries[event:] if "cmd" in e] == []  # nothing reached the controller after the stop
-    assert commands(entries) == [3, 3]
+    assert commands(entries) == [36, 3, 36, 3]  # each moveL after its safety-limit query
 
 
 def test_out_of_envelope_target_is_refused_before_anything_is_sent(peer):
@@ -106,11 +113,80 @@ def test_out_of_envelope_target_is_refused_before_anything_is_sent(peer):
     assert commands(log()) == [33, 255]  # only the exit: stopL, then stop the control script
 
 
+def test_a_pose_outside_the_controllers_safety_limits_is_refused_before_the_move(peer):
+    """ur_rtde's isPoseWithinSafetyLimits, asked before each moveL and for a pick's whole plan:
+    a target the controller refuses is not sent, and a plan with one is not started."""
+    host, log = peer("--refuse-poses-beyond-x", "0.28")
+    with URRobot(host) as robot:
+        with pytest.raises(SafetyError, match=r"refused moveL: \(0.300, 0.000, 0.200\) is outside the controller's "
+                                              "safety limits"):
+            robot.move_l([0.3, 0.0, 0.2, *DOWN])
+        assert robot.sent == [] and not robot.halted
+        record, plan, note = choose_target([RECORD], robot.envelope, PickConfig(), robot.tcp_pose(),
+                                           robot.limits_reason)
+        assert record is None and "approach above the object: (0.300, -0.050, 0.140) is outside the controller's " \
+            "safety limits" in note
+        robot.move_l([0.25, 0.0, 0.2, *DOWN])  # within the limits: carried out
+    assert 3 in commands(log()) and commands(log())[:2] == [36, 36]  # refused target: no moveL after its query
+    assert [e["values"][0] for e in log() if e.get("cmd") == 3] == [0.25]
+
+
 def test_refused_connection_is_a_clear_error():
     t0 = time.monotonic()
-    with pytest.raises(RobotError, match="cannot connect to the UR controller at 127.0.0.254"):
+    with pytest.raises(RobotUnreachable, match="cannot reach the robot at 127.0.0.254: .*Could not connect"):
         URRobot("127.0.0.254").connect()
     assert time.monotonic() - t0 < 20
+
+
+def test_a_worker_that_dies_while_connecting_is_noticed_at_once():
+    """The ur_rtde worker killed while it waits on a controller that accepts and never answers: an
+    end of the pipe, not the 15 s connect timeout."""
+    host = f"127.0.0.{20 + (os.getpid() + 7) % 230}"
+    silent = socket.socket()
+    silent.bind((host, 30004))
+    silent.listen(4)  # accepts the RTDE connection, never replies
+    robot, failed = URRobot(host, connect_timeout_s=15.0), []
+
+    def connect() -> None:
+        try:
+            robot.connect()
+        except RobotError as exc:
+            failed.append(exc)
+
+    thread = threading.Thread(target=connect)
+    thread.start()
+    try:
+        deadline = time.monotonic() + 10
+        while (robot.proc is None or robot.proc.pid is None) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(1.0)  # the worker is waiting on the silent controller
+        t0 = time.monotonic()
+        os.kill(robot.proc.pid, signal.SIGKILL)
+        thread.join(20)
+        assert time.monotonic() - t0 < 3
+    finally:
+        silent.close()
+    (exc,) = failed
+    assert isinstance(exc, RobotUnreachable)
+    assert str(exc).startswith(f"cannot reach the robot at {host}: the ur_rtde worker stopped")
+
+
+def test_an_unwritable_robot_log_is_one_line_about_the_file(tmp_path, capfd):
+    """ur_rtde's output file cannot be opened (here: it is a folder): said at once, in one line that
+    names --robot-log, with no traceback from the worker and no attempt to reach the robot."""
+    t0 = time.monotonic()
+    with pytest.raises(ConfigError, match=f"--robot-log {tmp_path} cannot be written: Is a directory"):
+        URRobot("127.0.0.254", debug_log=str(tmp_path)).connect()
+    assert time.monotonic() - t0 < 5
+    assert "Traceback" not in capfd.readouterr().err
+
+
+def test_the_robot_log_folder_is_made_when_missing(peer, tmp_path):
+    host, _ = peer()
+    debug_log = tmp_path / "logs" / "today" / "rtde.log"
+    with URRobot(host, debug_log=str(debug_log)) as robot:
+        robot.move_l([0.25, 0.0, 0.2, *DOWN])
+    assert debug_log.is_file()
 
 
 def test_pick_command_executes_on_the_controller(peer, tmp_path):
@@ -177,9 +253,30 @@ def test_nothing_listening_is_exit_3_with_no_log_left(tmp_path):
     proc = _pick_cli(tmp_path, "127.0.0.254")
     out, err = proc.communicate(timeout=30)
     assert proc.returncode == 3, err
-    assert json.loads(out)["cycles"] == 0 and "cannot connect" in json.loads(out)["halted"]
+    assert json.loads(out)["cycles"] == 0 and "cannot reach the robot at 127.0.0.254" in json.loads(out)["halted"]
     _only_edgepick_lines(err)
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "picks.jsonl").exists()
+    assert err.startswith("edgepick: error: cannot reach the robot at 127.0.0.254: ")  # it never connected
+
+
+def test_an_rg2_that_cannot_be_reached_stops_pick_before_the_arm_is_sent_anything(peer, tmp_path, capfd):
+    pytest.importorskip("onnx")
+    from edgepick.cli import run
+    from tests.robot.test_loop import CALIB, capture
+    from tests.runtime.test_pipeline import red_model
+
+    host, log = peer()
+    cam = capture(tmp_path / "cap", [(160, 120)])
+    (tmp_path / "calib.json").write_text(json.dumps(CALIB))
+    code = run(["pick", "--model", str(red_model(tmp_path / "m.onnx")), "--camera", f"dir:{cam}", "--calib",
+                str(tmp_path / "calib.json"), "--robot", f"ur:{host}", "--execute", "--gripper", "rg2:rg2.invalid",
+                "--log", str(tmp_path / "picks.jsonl")])
+    out, err = capfd.readouterr()
+    assert code == 3, err
+    assert err.splitlines() == [err.strip()] and err.startswith("edgepick: error: cannot reach the RG2 gripper at "
+                                                                "rg2.invalid:41414: ")
+    assert json.loads(out)["halted"].startswith("cannot reach the RG2 gripper") and json.loads(out)["cycles"] == 0
+    assert [e for e in log() if "cmd" in e or e.get("event") == "script"] == []  # the arm was sent nothing
 
 
 def test_calibrate_collect_through_ur_rtde_on_the_controller(peer, tmp_path):

@@ -128,3 +128,163 @@ def test_leave_one_out_flags_a_mis_detected_pair_and_drop_outliers_fits_without_
     assert dropped["n_pairs"] == 15 and dropped["rmse_m"] < 0.002 < kept["rmse_m"]
     assert run(["calibrate", str(tmp_path / "p.csv"), "--out", str(tmp_path / "x.json"), "--subsets", "16"]) == 2
     assert "fewer than the 16 given" in capfd.readouterr().err
+
+
+def _loop_leave_one_out(cam, rob, which=None):
+    """The definition: kabsch on every N-1 pairs (NaN where those cannot be fitted)."""
+    which = range(len(cam)) if which is None else which
+    errors = []
+    for i in which:
+        keep = np.arange(len(cam)) != i
+        try:
+            cal = kabsch(cam[keep], rob[keep])
+        except CalibrationError:
+            errors.append(np.nan)
+            continue
+        errors.append(float(np.linalg.norm(cal.apply(cam[i]) - rob[i])))
+    return np.array(errors)
+
+
+@given(st.integers(0, 10_000), st.integers(5, 40), st.sampled_from([0.0, 0.001, 0.01, 0.1]))
+@settings(max_examples=60, deadline=None)
+def test_leave_one_out_equals_a_refit_without_each_pair(seed, n, noise):
+    from edgepick.runtime.calibration import leave_one_out
+
+    cam, rob, _, _ = _pairs(np.random.default_rng(seed), n, noise)
+    rob[0] += 0.05  # a mis-detected pair as well
+    assert np.allclose(leave_one_out(cam, rob), _loop_leave_one_out(cam, rob), rtol=0, atol=1e-9)
+
+
+def test_leave_one_out_of_3000_pairs_agrees_with_refits():
+    from edgepick.runtime.calibration import leave_one_out
+
+    cam, rob, _, _ = _pairs(np.random.default_rng(7), 3000, noise=0.002)
+    rob[123] += [0.0, 0.0, 0.04]
+    loo = leave_one_out(cam, rob)
+    some = [0, 1, 123, 1500, 2999]
+    assert loo.shape == (3000,) and np.allclose(loo[some], _loop_leave_one_out(cam, rob, some), rtol=0, atol=1e-9)
+
+
+def test_a_pair_without_which_the_rest_are_collinear_has_no_leave_one_out_error():
+    from edgepick.runtime.calibration import leave_one_out, outliers
+
+    cam = np.array([[0.0, 0, 0.5], [0.1, 0, 0.5], [0.2, 0, 0.5], [0.3, 0, 0.5], [0.1, 0.1, 0.6]])
+    rob = cam @ np.diag([1.0, -1, -1]) + [0.3, 0.0, 0.7]
+    loo = leave_one_out(cam, rob)
+    assert np.isnan(loo[4]) and np.isfinite(loo[:4]).all() and loo[:4].max() < 1e-9
+    assert np.isnan(_loop_leave_one_out(cam, rob)[4])
+    assert outliers(loo) == []
+
+
+def test_outliers_skip_nan_and_still_flag_the_rest():
+    from edgepick.runtime.calibration import outliers
+
+    assert outliers(np.array([0.001, 0.002, np.nan, 0.0015, 0.05])) == [4]
+    assert outliers(np.array([np.nan] * 5)) == []
+
+
+def test_subset_errors_of_3000_pairs():
+    from edgepick.runtime.calibration import subset_errors
+
+    cam, rob, _, _ = _pairs(np.random.default_rng(8), 3000, noise=0.001)
+    table = subset_errors(cam, rob, [4, 2999], trials=20)
+    assert table[4]["fits"] == table[2999]["fits"] == 20 and table[2999]["mean_mm"] < table[4]["mean_mm"]
+
+
+GOOD = "\n".join([",".join(HEADER), "0.1,0.2,0.5,0.3,0.1,0.2", "0.2,0.1,0.6,0.2,0.3,0.1"]) + "\n"
+
+
+@pytest.mark.parametrize("content, needle", [
+    (b"\x89PNG\r\n\x1a\n\0\0\0\rIHDR", "not a text file"),
+    (("# Kalibrierung f\u00fcr Zelle 3\n" + GOOD).encode("latin-1"), "not UTF-8"),
+    (GOOD.encode() + b"0.1," + b"1" * 200_000 + b"\n", "not a CSV file"),
+    (GOOD.encode() + b"0.1,0.2,0.5,0.3,0.1,0.2,\n", "line 4: expected 6 values, got 7"),
+    (GOOD.encode() + b"0.1,0.2,0.5\n", "line 4: expected 6 values, got 3"),
+    (GOOD.encode() + b"0.1,0.2,0.5,0.3,,0.2\n", "line 4: not six numbers"),
+    (GOOD.encode() + b"0.1,0.2,\"0.5\n0.3\",0.1,0.2,0.3\n", "line 4: not six numbers"),
+    (b"", "must start with the header"),
+    (b"x,y,z,a,b,c\n", "must start with the header"),
+])
+def test_read_pairs_refuses_any_other_content_in_one_line(tmp_path, content, needle):
+    from edgepick.errors import EdgepickError
+
+    (tmp_path / "p.csv").write_bytes(content)
+    with pytest.raises(EdgepickError) as info:
+        read_pairs(tmp_path / "p.csv")
+    message = str(info.value)
+    assert needle in message and str(tmp_path / "p.csv") in message and "\n" not in message
+
+
+def test_read_pairs_takes_a_spreadsheet_header_with_bom_case_and_spaces(tmp_path):
+    header = " CAM_X, Cam_Y ,cam_z,ROBOT_X,robot_y , robot_z"
+    (tmp_path / "p.csv").write_bytes(("\ufeff" + header + "\r\n" + GOOD.split("\n", 1)[1].replace("\n", "\r\n"))
+                                     .encode())
+    cam, rob = read_pairs(tmp_path / "p.csv")
+    assert cam.shape == rob.shape == (2, 3) and cam[1].tolist() == [0.2, 0.1, 0.6]
+
+
+@given(st.binary(max_size=300) | st.text(alphabet=",.-0123456789eEnaif \"\r\n\0", max_size=300))
+@settings(max_examples=300, deadline=None)
+def test_read_pairs_of_any_content_gives_pairs_or_one_line(content):
+    import tempfile
+
+    from edgepick.errors import EdgepickError
+
+    with tempfile.TemporaryDirectory() as folder:
+        path = f"{folder}/p.csv"
+        with open(path, "wb") as f:
+            f.write((",".join(HEADER) + "\n").encode() + (content if isinstance(content, bytes) else content.encode()))
+        try:
+            cam, rob = read_pairs(path)
+        except EdgepickError as exc:
+            assert "\n" not in str(exc) and path in str(exc)
+        else:
+            assert cam.shape == rob.shape and cam.shape[1] == 3 and np.isfinite(cam).all()
+
+
+CALIB = {"R": [[0, -1, 0], [-1, 0, 0], [0, 0, -1]], "t": [0.28, 0.0, 0.7], "rmse_m": 0.001, "n_pairs": 12}
+DROP = object()  # a field left out of the file
+
+
+def _calib(**change) -> str:
+    return json.dumps({k: v for k, v in {**CALIB, **change}.items() if v is not DROP})
+
+
+@pytest.mark.parametrize("content, needle", [
+    (b"\0\1\2binary", "not a text file"),
+    ("R \u00e9".encode("latin-1"), "not UTF-8"),
+    (b'{"R": NaN}', "not valid JSON"),
+    (b"[1, 2]", "must be a JSON object"),
+    (_calib(R="identity"), "R must be a list, got the string 'identity'"),
+    (_calib(R=[[1, 0, 0], [0, 1, 0]]), "R must be a list of 3, got 2"),
+    (_calib(R=[[1, 0, 0], [0, 1, 0], [0, 0, "1"]]), "R[2][2] must be a number"),
+    (_calib(R=[[1, 0, 0], [0, 1, 0], [0, 0, 1]]).replace("1]]", "1e400]]"), "R[2][2] must be a finite number"),
+    (_calib(t=None), "t must be a list, got null"),
+    (_calib(t=[0, 0]), "t must be a list of 3"),
+    (_calib(n_pairs="12"), "n_pairs must be a number, got the string '12'"),
+    (_calib(n_pairs=-3), "n_pairs must be 0 or more"),
+    (_calib(n_pairs=4.5), "n_pairs must be a whole number"),
+    (_calib(n_pairs=True), "n_pairs must be a number, got true"),
+    (_calib(rmse_m=-0.001), "rmse_m must be 0 or more"),
+    (_calib(rmse_m=[0.1]), "rmse_m must be a number"),
+    (_calib(rmse_m=None), "rmse_m must be a number, got null"),
+    (_calib(R=DROP), "has no field 'R'"),
+    (_calib(R=np.diag([1, 1, -1]).tolist()), "not a proper rotation"),
+])
+def test_calibration_load_refuses_malformed_files_naming_file_and_field(tmp_path, content, needle):
+    from edgepick.errors import EdgepickError
+
+    path = tmp_path / "calib.json"
+    path.write_bytes(content if isinstance(content, bytes) else content.encode())
+    with pytest.raises(EdgepickError) as info:
+        Calibration.load(path)
+    message = str(info.value)
+    assert needle in message and str(path) in message and "\n" not in message
+
+
+def test_calibration_load_reads_a_good_file_and_one_without_the_optional_fields(tmp_path):
+    (tmp_path / "a.json").write_text(json.dumps(CALIB))
+    (tmp_path / "b.json").write_text(json.dumps({"R": CALIB["R"], "t": CALIB["t"]}))
+    a, b = Calibration.load(tmp_path / "a.json"), Calibration.load(tmp_path / "b.json")
+    assert a.n_pairs == 12 and a.rmse_m == 0.001 and b.n_pairs == 0 and np.isnan(b.rmse_m)
+    assert np.allclose(a.apply([0.0, 0.0, 0.5]), [0.28, 0.0, 0.2])

@@ -105,3 +105,32 @@ def test_engine_auto_measures_once_per_model_and_caches(tmp_path, monkeypatch):
     assert again.engine == first.engine and again.labels(np.zeros((240, 320, 3), np.uint8)).shape == (240, 320)
     with pytest.raises(session.ModelError, match="unknown engine"):
         session.Segmenter(model, engine="fastest")
+
+
+def compile_spy(monkeypatch) -> list:
+    """Records the config and the compiled model of every OpenVINO CPU compile from here on."""
+    ov = pytest.importorskip("openvino")
+    compiled = []
+    real = ov.Core.compile_model
+
+    def spy(self, model, device=None, config=None, *args, **kwargs):
+        compiled.append((config or {}, real(self, model, device, config, *args, **kwargs)))
+        return compiled[-1][1]
+
+    monkeypatch.setattr(ov.Core, "compile_model", spy)
+    return compiled
+
+
+@pytest.mark.parametrize("precision", ["fp32", "int8"])
+def test_openvino_engine_runs_float_parts_in_f32(tmp_path, monkeypatch, precision):
+    """OpenVINO runs float models in bf16 on CPUs with AMX or avx512_bf16 unless told f32: the runtime
+    tells it, for fp32 models and for the float parts of int8 ones."""
+    import openvino as ov
+
+    compiled = compile_spy(monkeypatch)
+    meta = {"edgepick.classes": json.dumps(["background", "a", "b"]), "edgepick.input_size": json.dumps([8, 12]),
+            "edgepick.colorspace": "rgb", "edgepick.precision": precision}
+    Segmenter(red_channel_model(tmp_path / "m.onnx", meta=meta), threads=1, engine="openvino")
+    ((config, model),) = compiled
+    assert config["INFERENCE_PRECISION_HINT"] == "f32"
+    assert model.get_property("INFERENCE_PRECISION_HINT") == ov.Type.f32

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from edgepick.robot.base import RobotError, RobotHalted
+from edgepick.robot.base import RobotError, RobotHalted, SafetyStatus
 from edgepick.robot.envelope import SafetyError
 from edgepick.robot.grippers import DigitalGripper
 from edgepick.robot.pick import CommandLog, PickConfig, choose_target, execute, plan_pick
@@ -59,13 +59,43 @@ def test_a_stop_mid_move_ends_the_cycle_and_nothing_more_is_sent(fault):
     with robot:
         plan = plan_pick(RECORD, PickConfig())
         reason = execute(plan, robot, DigitalGripper(robot, 0), log, 1, PickConfig())
-        assert reason and ("protective stop" in reason or "link" in reason)
+        assert reason and ("protective stop (controller safety mode PROTECTIVE_STOP)" in reason or "link" in reason)
         sent = list(robot.sent)
         assert sent == ["moveL", "setDigitalOut", "moveL"]  # approach, open, descend: then nothing
         with pytest.raises(RobotHalted):
             robot.move_l([0.3, 0.0, 0.2, *DOWN])
         assert robot.sent == sent
     assert [e["result"][:5] for e in log.records] == ["ok", "ok", "error"]
+
+
+def test_a_target_beyond_the_controllers_limits_is_refused_with_nothing_sent():
+    """The same hook as a UR controller's isPoseWithinSafetyLimits: a single moveL is refused
+    before it is sent, and a plan with such a target is not chosen."""
+    robot = SimRobot(refuse_poses_beyond_x=0.28)
+    with robot:
+        with pytest.raises(SafetyError, match=r"refused moveL: \(0.300, 0.000, 0.200\) is outside the "
+                                              "controller's safety limits"):
+            robot.move_l([0.3, 0.0, 0.2, *DOWN])
+        assert robot.sent == [] and robot.tcp_pose() == SimRobot().tcp_pose()
+        record, plan, note = choose_target([RECORD], robot.envelope, PickConfig(), limits=robot.limits_reason)
+        assert record is None and note == "box: approach above the object: (0.300, -0.050, 0.140) is outside the " \
+            "controller's safety limits"
+        near = {**RECORD, "pose_robot": [0.25, -0.05, 0.06, *DOWN]}
+        assert choose_target([RECORD, near], robot.envelope, PickConfig(), limits=robot.limits_reason)[0] is near
+
+
+@pytest.mark.parametrize("status, problem", [
+    (SafetyStatus(True, protective_stop=True, safety_mode=3),
+     "protective stop (controller safety mode PROTECTIVE_STOP)"),
+    (SafetyStatus(True, emergency_stop=True, safety_mode=7),
+     "emergency stop (controller safety mode ROBOT_EMERGENCY_STOP)"),
+    (SafetyStatus(True, safety_mode=9), "safety stop (controller safety mode FAULT)"),
+    (SafetyStatus(True, safety_mode=5), "safety stop (controller safety mode SAFEGUARD_STOP)"),
+    (SafetyStatus(True, protective_stop=True), "protective stop"),
+    (SafetyStatus(True, safety_mode=2), None),  # reduced mode: the arm still moves
+    (SafetyStatus(False, safety_mode=1), "link to the robot lost")])
+def test_a_halt_names_the_controllers_safety_mode(status, problem):
+    assert status.problem() == problem
 
 
 def test_target_choice_skips_unreachable_and_depthless_objects():

@@ -2,6 +2,7 @@
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -79,11 +80,26 @@ def test_resume_after_kill_loses_at_most_one_epoch(small_data, tmp_path):
     proc.wait()
     done = read_checkpoint(run / "last.pt")["epoch"]
     assert 1 <= done < 4
-    resumed = run_cli("train", str(small_data), "--out", str(run), "--resume", check=True)
+    other = tmp_path / "other"  # the same images under other class names: not the run's data set
+    shutil.copytree(small_data, other)
+    meta = json.loads((other / "meta.json").read_text())
+    (other / "meta.json").write_text(json.dumps({**meta, "classes": meta["classes"][:-1] + ["crate"]}))
+    refused = run_cli("train", str(other), "--out", str(run), "--resume")
+    assert refused.returncode == 2 and "give the run's own data set" in refused.stderr, refused.stderr
+    moved = tmp_path / "elsewhere" / "data"  # the data set moved; resumed from another folder, by a relative path
+    shutil.copytree(small_data, moved)
+    resumed = subprocess.run([sys.executable, "-m", "edgepick", "train", "data", "--out", str(run), "--resume"],
+                             cwd=moved.parent, capture_output=True, text=True, timeout=600,
+                             env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
     assert f"resuming {run} after epoch {done}" in resumed.stderr
     history = json.loads((run / "metrics.json").read_text())["history"]
     assert [h["epoch"] for h in history] == [1, 2, 3, 4]
-    assert read_checkpoint(run / "last.pt")["epoch"] == 4
+    last = read_checkpoint(run / "last.pt")
+    assert last["epoch"] == 4 and last["train_config"]["data"] == "data"
+    best = read_checkpoint(run / "best.pt")  # what export and quantize take: no optimizer state
+    assert "optimizer" not in best and "optimizer" in last
+    assert (run / "best.pt").stat().st_size < 0.5 * (run / "last.pt").stat().st_size
 
 
 def test_ddp_two_cpu_processes_with_gloo(small_data, tmp_path):

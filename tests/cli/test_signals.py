@@ -1,0 +1,117 @@
+"""SIGTERM (what `timeout`, systemd and a closing terminal send) is an interrupt like Ctrl-C: each
+long command, stopped half-way, exits 128 + 15 with nothing half-written left behind, and
+`data synth` stops its worker processes within seconds, for SIGTERM and for a terminal's Ctrl-C.
+
+Each command runs as a user starts it (a subprocess in its own session, like a job in a shell);
+the signal goes out once the command is visibly at work (its temporary output has appeared).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import REPO
+
+START_S = 240  # a loaded 2-core machine starts Python and torch slowly
+
+
+def _start(*args: str, cwd: Path = REPO) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "edgepick", *args], cwd=cwd, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            # a shell that runs the suite in the background ignores SIGINT, and children
+                            # inherit that: give the child the default disposition, as a terminal would
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+
+
+def _wait_for(proc: subprocess.Popen, ready, what: str) -> None:
+    deadline = time.monotonic() + START_S
+    while time.monotonic() < deadline and proc.poll() is None and not ready():
+        time.sleep(0.05)
+    if proc.poll() is not None:
+        raise AssertionError(f"the command ended before {what}: {proc.stderr.read()[-2000:]}")
+    assert ready(), f"no sign of {what} within {START_S} s"
+
+
+def _group_alive(pgid: int) -> bool:
+    try:
+        os.killpg(pgid, 0)
+        return True
+    except ProcessLookupError:
+        return False
+
+
+def _stop(proc: subprocess.Popen, sig: int, group: bool = False) -> tuple[int, str, float]:
+    """Send SIG (to the whole session's group, as a terminal's Ctrl-C does, when GROUP) and wait
+    until every process of the group is gone; returns the exit status, stderr and the seconds taken."""
+    t0 = time.monotonic()
+    if group:
+        os.killpg(proc.pid, sig)
+    else:
+        proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    while _group_alive(proc.pid) and time.monotonic() - t0 < 30:
+        time.sleep(0.05)
+    return proc.returncode, err, time.monotonic() - t0
+
+
+def _partial(folder: Path, pattern: str) -> list[Path]:
+    return list(folder.glob(pattern))
+
+
+@pytest.mark.parametrize("sig, group, code", [(signal.SIGTERM, False, 143), (signal.SIGINT, True, 130)],
+                         ids=["SIGTERM", "Ctrl-C to the group"])
+def test_data_synth_with_workers_stops_them_within_5_s_and_leaves_nothing(tmp_path, sig, group, code):
+    proc = _start("data", "synth", str(tmp_path / "data"), "--scenes", "3000", "--workers", "2", "--size", "320x240")
+    _wait_for(proc, lambda: sum(len(list(p.glob("*/rgb/*.png"))) for p in _partial(tmp_path, ".data.partial-*")) >= 4,
+              "scenes being written")
+    status, err, seconds = _stop(proc, sig, group)
+    assert status == code, err
+    assert seconds <= 5, f"the workers took {seconds:.1f} s to stop"
+    assert not _group_alive(proc.pid), "a worker process outlived data synth"
+    assert list(tmp_path.iterdir()) == []
+    assert "Traceback" not in err and err.strip().splitlines()[-1].startswith("edgepick: ")
+
+
+def test_data_capture_terminated_leaves_no_folder(tmp_path):
+    proc = _start("data", "capture", str(tmp_path / "cap"), "--camera", "synth", "--count", "50", "--interval", "0.5",
+                  "--size", "160x120")
+    _wait_for(proc, lambda: any(len(list(p.glob("rgb/*.png"))) for p in _partial(tmp_path, ".cap.partial-*")),
+              "frames being written")
+    status, err, _ = _stop(proc, signal.SIGTERM)
+    assert status == 143, err
+    assert err.strip().splitlines()[-1] == "edgepick: terminated (SIGTERM)"
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_export_terminated_leaves_no_file(tmp_path, trained_run):
+    proc = _start("export", str(trained_run), "--out", str(tmp_path / "m.onnx"))
+    _wait_for(proc, lambda: bool(_partial(tmp_path, ".m.*.tmp.onnx")), "the export's temporary file")
+    status, err, _ = _stop(proc, signal.SIGTERM)
+    assert status == 143, err
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_train_terminated_in_its_first_epoch_leaves_no_run(tmp_path, small_data):
+    proc = _start("train", str(small_data), "--out", str(tmp_path / "run"), "--size", "96x64", "--epochs", "50",
+                  "--epoch-images", "4000", "--device", "cpu")  # an epoch long enough to report progress within it
+    _wait_for(proc, lambda: "epoch 1/50:" in (proc.stderr.readline() or ""), "the first epoch's progress line")
+    status, err, _ = _stop(proc, signal.SIGTERM)
+    assert status == 143, err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_demo_terminated_removes_the_folder_it_made(tmp_path):
+    proc = _start("demo", "--workdir", str(tmp_path / "demo"), "--scenes", "30", "--epochs", "2")
+    _wait_for(proc, lambda: bool(_partial(tmp_path / "demo", ".data.partial-*")), "the demo's data being written")
+    status, err, _ = _stop(proc, signal.SIGTERM)
+    assert status == 143, err
+    assert list(tmp_path.iterdir()) == []

@@ -1,0 +1,72 @@
+"""edgepick/train/checkpoint.py: a checkpoint's description is checked when it is read, so that a
+bogus or foreign file is one line naming the field, whatever it holds."""
+
+from __future__ import annotations
+
+import copy
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+torch = pytest.importorskip("torch")
+
+from edgepick.errors import EdgepickError  # noqa: E402
+from edgepick.train.checkpoint import read_checkpoint  # noqa: E402
+from edgepick.train.loop import TrainConfig  # noqa: E402
+from tests.test_schema import _paths, json_values  # noqa: E402
+
+GOOD = {"model": {"backbone.0.0.weight": torch.zeros(2, 3, 1, 1)},
+        "model_config": {"arch": "mobilenetv3", "num_classes": 3, "output_stride": 16, "colorspace": "rgb",
+                         "aux_loss": False, "bn_momentum": 0.1, "variant": "standard"},
+        "classes": ["background", "a", "b"], "input_size": [96, 128], "colorspace": "rgb", "epoch": 3,
+        "history": [{"epoch": 1, "miou": 0.5}], "train_time_s": 12.5,
+        "train_config": {"data": "d", "out": "r", "epochs": 10, "size": [96, 128], "lr": 0.001, "keep_epochs": [9]}}
+
+
+@st.composite
+def mutated_checkpoint(draw):
+    ckpt = copy.deepcopy(GOOD)
+    path = draw(st.sampled_from([p for p in _paths({k: v for k, v in ckpt.items() if k != "model"}) if p]))
+    parent = ckpt
+    for key in path[:-1]:
+        parent = parent[key]
+    if draw(st.booleans()):
+        del parent[path[-1]]
+    else:
+        parent[path[-1]] = draw(json_values)
+    return ckpt
+
+
+def test_a_good_checkpoint_reads_and_its_train_config_too(tmp_path):
+    torch.save(GOOD, tmp_path / "c.pt")
+    ckpt = read_checkpoint(tmp_path / "c.pt")
+    assert ckpt["path"] == str(tmp_path / "c.pt")
+    assert TrainConfig.from_dict(ckpt["train_config"]).size == (96, 128)
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(ckpt=mutated_checkpoint())
+def test_any_mutated_description_reads_or_is_one_line(tmp_path, ckpt):
+    torch.save(ckpt, tmp_path / "c.pt")
+    try:
+        read = read_checkpoint(tmp_path / "c.pt")
+        if "train_config" in read:
+            TrainConfig.from_dict(read["train_config"])
+    except EdgepickError as exc:
+        assert "\n" not in str(exc) and str(exc).strip(), str(exc)
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"input_size": [31, 33]}, "input_size[0] must be 32 or more"),
+    ({"input_size": [36, 44]}, "44x36 (WIDTHxHEIGHT) must have sides that are multiples of 8"),
+    ({"input_size": [96.5, 128]}, "input_size[0] must be a whole number"),
+    ({"classes": "abc"}, "classes must be a list"),
+    ({"model_config": {**GOOD["model_config"], "arch": "unet"}}, "model_config.arch must be one of"),
+    ({"model": [1]}, "model must be a state dict"),
+])
+def test_the_field_at_fault_is_named(tmp_path, change, message):
+    torch.save({**GOOD, **change}, tmp_path / "c.pt")
+    with pytest.raises(EdgepickError) as info:
+        read_checkpoint(tmp_path / "c.pt")
+    assert message in str(info.value) and str(info.value).startswith(str(tmp_path / "c.pt"))
