@@ -1,6 +1,7 @@
-"""edgepick/schema.py and every reader built on it: fed mutated files (random bytes, cut short, a
-field replaced by any JSON value, NaN and infinities, a field removed), each reader gives a valid
-result or edgepick's one-line error, never another exception."""
+"""edgepick/schema.py and every reader built on it (data set meta, intrinsics, grasp truth,
+calibration, pairs, BOP scene files; checkpoints in tests/train/test_checkpoint.py): fed mutated
+files (random bytes, cut short, a field replaced by any JSON value, NaN and infinities, a field
+removed), each reader gives a valid result or edgepick's one-line error, never another exception."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from edgepick.data.bop import read_scene
 from edgepick.data.native import read_meta
 from edgepick.errors import EdgepickError
 from edgepick.frames import read_grasps
@@ -107,6 +109,20 @@ def test_grasp_truth(tmp_path, content):
 def test_calibration(tmp_path, content):
     (tmp_path / "calib.json").write_bytes(content)
     _one_line_or_value(Calibration.load, tmp_path / "calib.json")
+
+
+SCENE_GT = {"0": [{"obj_id": 1, "cam_R_m2c": [1, 0, 0, 0, 1, 0, 0, 0, 1], "cam_t_m2c": [0, 0, 600]}],
+            "1": [{"obj_id": 2}, {"obj_id": 1}]}
+SCENE_CAMERA = {"0": {"cam_K": [572.4, 0, 325.3, 0, 573.6, 242.0, 0, 0, 1], "depth_scale": 1.0},
+                "1": {"cam_K": [572.4, 0, 325.3, 0, 573.6, 242.0, 0, 0, 1], "depth_scale": 0.1}}
+
+
+@SETTINGS
+@given(gt=mutated(SCENE_GT), camera=mutated(SCENE_CAMERA), which=st.sampled_from(["gt", "camera", "both"]))
+def test_bop_scene_files(tmp_path, gt, camera, which):
+    (tmp_path / "scene_gt.json").write_bytes(gt if which != "camera" else json.dumps(SCENE_GT).encode())
+    (tmp_path / "scene_camera.json").write_bytes(camera if which != "gt" else json.dumps(SCENE_CAMERA).encode())
+    _one_line_or_value(lambda p: read_scene(p.parent), tmp_path / "scene_gt.json")
 
 
 @SETTINGS

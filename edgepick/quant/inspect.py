@@ -152,7 +152,7 @@ def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str |
     are float. Writes the best file found at OUT and reports every step."""
     from edgepick.evaluation import evaluate
     from edgepick.export.onnx_export import export_checkpoint
-    from edgepick.quant.passes import quantize_static
+    from edgepick.quant.passes import check_image_count, quantize_static
 
     if not (math.isfinite(max_drop_pp) and max_drop_pp >= 0):
         raise ConfigError(f"--max-miou-drop {max_drop_pp}: must be a number of percentage points, 0 or more")

@@ -362,13 +362,18 @@ def _save(out: Path, cfg: TrainConfig, state: dict, record: dict, ckpt: dict, de
     if not out.is_dir():  # only now: a failed first epoch leaves no RUN behind
         out.mkdir(parents=True)
         mark(out, "train")
-    last_path = out / "last.pt"
-    save_atomic({**ckpt, **state}, last_path)
+    # last.pt goes last: a run killed in between resumes from the epoch before and writes the others again
+    full = {**ckpt, **state}
     if improved:  # the weights to export and quantize: no optimizer state (a third of last.pt's size)
-        save_atomic({k: v for k, v in {**ckpt, **state}.items() if k not in RESUME_ONLY}, out / "best.pt")
+        save_atomic({k: v for k, v in full.items() if k not in RESUME_ONLY}, out / "best.pt")
+    last_path = out / "last.pt"
     if record["epoch"] in cfg.keep_epochs:  # a hybrid-QaT switch point: it carries the AdamW moments on
-        shutil.copyfile(last_path, out / ".epoch.tmp")
-        os.replace(out / ".epoch.tmp", out / f"epoch_{record['epoch']:03d}.pt")
+        kept = out / f"epoch_{record['epoch']:03d}.pt"
+        save_atomic(full, kept)
+        shutil.copyfile(kept, out / ".last.pt.tmp")
+        os.replace(out / ".last.pt.tmp", last_path)
+    else:
+        save_atomic(full, last_path)
     summary = {"epochs": record["epoch"], "best_miou": state["best_miou"],
                "train_time_s": round(state["train_time_s"], 2), "device": device, "world_size": world,
                "arch": cfg.arch, "size": list(cfg.size), "history": state["history"]}

@@ -402,8 +402,11 @@ def test_an_existing_folder_holding_the_users_files_is_never_removed(tmp_path, c
     monkeypatch.chdir(tmp_path)
     for args in (["demo", "--workdir", "mine"], ["data", "synth", "mine", "--scenes", "3"],
                  ["bench", "x.onnx", "--cell", "1", "--out", "mine"], ["train", "d", "--out", "mine"],
+                 ["pick", "--overlay-dir", "mine"], ["data", "import", "cvat", "src", "mine"],
+                 ["data", "capture", "mine", "--camera", "synth"], ["quantize", "qat", "--data", "d", "--out",
+                                                                     "q.onnx", "--run", "mine"],
                  ["demo", "--workdir", "."], ["demo", "--workdir", ".."], ["data", "synth", "."]):
         assert run(args) == 2, args
         assert (notes / "notes.txt").read_text() == "the user's"
     err = capfd.readouterr().err
-    assert "was not made by edgepick demo" in err and "working folder" in err
+    assert "was not made by edgepick demo" in err and "was not made by edgepick pick" in err and "working folder" in err

@@ -55,7 +55,7 @@ def test_pick_cycles_on_the_sim_robot(tmp_path):
     log = [json.loads(line) for line in (tmp_path / "log.jsonl").read_text().splitlines()]
     assert len(log) == 20 and {e["result"] for e in log} == {"ok"}
     assert [e["command"] for e in log[:4]] == ["moveL", "open", "moveL", "grip"]
-    assert sorted(p.name for p in (tmp_path / "ov").iterdir()) == ["cycle_001.png", "cycle_002.png"]
+    assert sorted(p.name for p in (tmp_path / "ov").iterdir()) == [".edgepick", "cycle_001.png", "cycle_002.png"]
     assert "no more frames" in proc.stderr
 
 
