@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import click
 
@@ -51,29 +50,7 @@ def data_synth(out: str, scenes: int, splits: str | None, size: str, seed: int, 
     if scenes < 3:
         raise ConfigError("--scenes must be at least 3 (one per split)")
     cfg = SynthConfig(scenes=scenes, width=width, height=height, seed=seed, splits=split_counts, workers=workers)
-    check_room(cfg, out)
     emit(synthesize(out, cfg))
-
-
-def check_room(cfg, out: str) -> None:
-    """Refuse a data set too large to write: more scenes than MAX_SCENES, or more bytes than the
-    disk under OUT has free (at the measured PNG size per pixel, BYTES_PER_PIXEL)."""
-    import shutil
-
-    from edgepick.data.synth import BYTES_PER_PIXEL, MAX_SCENES
-
-    need = cfg.scenes * cfg.width * cfg.height * BYTES_PER_PIXEL
-    flag = "--splits" if cfg.splits else "--scenes"
-    if cfg.scenes > MAX_SCENES:
-        raise ConfigError(f"{flag}: {cfg.scenes} scenes is beyond the {MAX_SCENES} edgepick makes at once (they would "
-                          f"take about {need / 1e9:.3g} GB)")
-    parent = Path(out).absolute()
-    while not parent.exists():
-        parent = parent.parent
-    free = shutil.disk_usage(parent).free
-    if need > free:
-        raise ConfigError(f"{flag}: {cfg.scenes} scenes at {cfg.width}x{cfg.height} take about {need / 1e9:.3g} GB, "
-                          f"but {parent} has {free / 1e9:.3g} GB free")
 
 
 @data.command("preview")
@@ -129,9 +106,6 @@ def data_import(fmt: str, src: str, out: str, cityscapes_classes: str, splits: s
     emit(import_dataset(fmt, src, out, cfg))
 
 
-MAX_FRAMES = 100_000  # about 90 GB of 640x480 PNGs
-
-
 @data.command("capture")
 @click.argument("out", type=click.Path(file_okay=False))
 @click.option("--camera", default="realsense", show_default=True,
@@ -141,15 +115,14 @@ MAX_FRAMES = 100_000  # about 90 GB of 640x480 PNGs
 @click.option("--size", default="640x480", show_default=True, help="Camera stream size, WIDTHxHEIGHT.")
 def data_capture(out: str, camera: str, count: int, interval: float, size: str) -> None:
     """Save aligned RGB + depth + intrinsics.json from a camera into OUT, for annotation (e.g. CVAT)."""
-    from edgepick.data.capture import capture
+    from edgepick.data.capture import capture, check_count
     from edgepick.cli.cameras import open_camera
 
     source = camera.partition(":")[2] if camera.startswith("dir:") else None
     check_output(out, "OUT", kind="dir", inputs=(source,))
     if count < 1 or not (math.isfinite(interval) and interval >= 0):
         raise ConfigError("--count must be at least 1 and --interval 0 or more seconds")
-    if count > MAX_FRAMES:
-        raise ConfigError(f"--count {count}: at most {MAX_FRAMES} frames at once")
+    check_count(count)
     width, height = parse_size(size)
     emit(capture(open_camera(camera, width, height), out, count, interval))
 

@@ -15,11 +15,19 @@ from edgepick.errors import ConfigError
 from edgepick.frames import Camera
 
 
+MAX_FRAMES = 100_000  # about 90 GB of 640x480 PNGs
+
+
+def check_count(count: int) -> None:
+    """Refuse a frame count below 1 or above MAX_FRAMES."""
+    if not 1 <= count <= MAX_FRAMES:
+        raise ConfigError(f"--count {count}: capture 1 to {MAX_FRAMES} frames at once")
+
+
 def capture(camera: Camera, out: str | Path, count: int, interval_s: float = 0.0) -> dict:
     """Write `count` frames to OUT/rgb, OUT/depth and OUT/intrinsics.json; all or nothing."""
     out = Path(out)
-    if count < 1:
-        raise ConfigError("--count must be at least 1")
+    check_count(count)
     with atomic_folder(out) as tmp:
         (tmp / "rgb").mkdir()
         (tmp / "depth").mkdir()

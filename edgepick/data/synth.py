@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import multiprocessing
 import os
+import shutil
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -112,12 +113,31 @@ def _render_one(job: tuple[str, int, int, int, int, int, str]) -> tuple[str, str
     return split, sid, scene.grasps, scene.info
 
 
+def check_room(config: SynthConfig, out: str | Path) -> None:
+    """Refuse a data set too large to write: more scenes than MAX_SCENES, or more bytes than the
+    disk under OUT has free (at BYTES_PER_PIXEL), before anything is rendered."""
+    scenes = sum(config.split_counts())
+    need = scenes * config.width * config.height * BYTES_PER_PIXEL
+    flag = "--splits" if config.splits else "--scenes"
+    if scenes > MAX_SCENES:
+        raise ConfigError(f"{flag}: {scenes} scenes is beyond the {MAX_SCENES} edgepick makes at once (they would "
+                          f"take about {need / 1e9:.3g} GB)")
+    parent = Path(out).absolute()
+    while not parent.exists():
+        parent = parent.parent
+    free = shutil.disk_usage(parent).free
+    if need > free:
+        raise ConfigError(f"{flag}: {scenes} scenes at {config.width}x{config.height} take about {need / 1e9:.3g} GB, "
+                          f"but {parent} has {free / 1e9:.3g} GB free")
+
+
 def synthesize(out: str | Path, config: SynthConfig, progress: bool = True) -> dict:
     """Generate the data set at OUT; returns a summary with scenes/s."""
     out = Path(out)
     counts = config.split_counts()
     if min(counts) < 1 or config.scenes < 3 and config.splits is None:
         raise ConfigError("need at least one scene in each of train, val and test (--scenes >= 3)")
+    check_room(config, out)
     with atomic_folder(out) as tmp:
         for split in SPLITS:
             for sub in ("rgb", "depth", "mask"):

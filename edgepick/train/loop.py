@@ -29,7 +29,7 @@ import torch.nn.functional as F
 
 from edgepick.data.native import NativeDataset
 from edgepick.errors import CheckpointError, ConfigError
-from edgepick.files import mark
+from edgepick.files import made_by, mark
 from edgepick.metrics import segmentation_metrics
 from edgepick.models.deeplabv3 import DeepLabV3, ModelConfig, build_model, load_backbone_weights
 from edgepick.progress import progress as progress_bar
@@ -359,8 +359,8 @@ def _save(out: Path, cfg: TrainConfig, state: dict, record: dict, ckpt: dict, de
     improved = (record["miou"] or 0.0) > state["best_miou"]
     if improved:
         state["best_miou"] = record["miou"] or 0.0
-    if not out.is_dir():  # only now: a failed first epoch leaves no RUN behind
-        out.mkdir(parents=True)
+    out.mkdir(parents=True, exist_ok=True)  # only now: a failed first epoch leaves no RUN behind
+    if made_by(out) != "train":
         mark(out, "train")
     # last.pt goes last: a run killed in between resumes from the epoch before and writes the others again
     full = {**ckpt, **state}
