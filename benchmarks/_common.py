@@ -23,11 +23,11 @@ def untrained_checkpoint(path: Path, size: tuple[int, int], classes: list[str], 
     import torch
 
     from edgepick.models.deeplabv3 import ModelConfig, build_model
-    from edgepick.train.checkpoint import model_meta
+    from edgepick.train.checkpoint import Checkpoint
 
     torch.manual_seed(0)
     cfg = ModelConfig(num_classes=len(classes), variant=variant)
-    torch.save({"model": build_model(cfg).state_dict(), "train_time_s": 0.0, **model_meta(cfg, classes, size)}, path)
+    Checkpoint(model_config=cfg, classes=tuple(classes), input_size=size, model=build_model(cfg).state_dict()).save(path)
     return path
 
 

@@ -50,7 +50,7 @@ def main() -> None:
     args = ap.parse_args()
 
     model, ckpt = load_model(args.run)
-    size = tuple(ckpt["input_size"])
+    size = ckpt.input_size
     config = QuantConfig()
     calib = model_images(args.data, "train", args.calib_images, size)
     images = model_images(args.data, "val", args.images, size)

@@ -20,7 +20,8 @@ from _common import add_output, machine_line, emit  # noqa: E402
 from edgepick.data.synth import SynthConfig, synthesize  # noqa: E402
 from edgepick.quant.qat import train_qat  # noqa: E402
 from edgepick.quant.quantizer import QuantConfig  # noqa: E402
-from edgepick.train.checkpoint import read_checkpoint  # noqa: E402
+from edgepick.train.checkpoint import Checkpoint  # noqa: E402
+from edgepick.train.run import Run  # noqa: E402
 from edgepick.train.loop import TrainConfig, train  # noqa: E402
 
 
@@ -37,14 +38,14 @@ def main() -> None:
         tc = TrainConfig(data=str(data), out=str(root / "float"), epochs=args.epochs, batch_size=8, size=(64, 96),
                          lr=2e-3, device="cpu", keep_epochs=[switch])
         train(tc, progress=False)
-        rows = {"float (no QaT)": json.loads((root / "float" / "metrics.json").read_text())["history"]}
+        rows = {"float (no QaT)": json.loads(Run(root / "float").metrics.read_text())["history"]}
         for carry in (False, True):
             out = root / f"hybrid{int(carry)}"
             train_qat(replace(tc, out=str(out), keep_epochs=[]), QuantConfig(),
-                      start=read_checkpoint(root / "float" / f"epoch_{switch:03d}.pt"), carry_optimizer=carry,
+                      start=Checkpoint.load(Run(root / "float").epoch(switch)), carry_optimizer=carry,
                       progress=False)
             label = "hybrid-QaT, carried AdamW moments" if carry else "hybrid-QaT, fresh AdamW"
-            rows[label] = json.loads((out / "metrics.json").read_text())["history"]
+            rows[label] = json.loads(Run(out).metrics.read_text())["history"]
     epochs = list(range(switch + 1, args.epochs + 1))
     lines = ["# Hybrid-QaT: fresh optimizer against the float run's AdamW moments", "",
              f"Command: `python benchmarks/hybrid_optimizer.py --epochs {args.epochs}`", "",

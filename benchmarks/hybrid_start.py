@@ -163,7 +163,7 @@ def main() -> None:
         else:
             run, data = Path(args.run), Path(args.data)
         model, ckpt = load_model(run)
-        size = tuple(ckpt["input_size"])
+        size = ckpt.input_size
         calib = model_images(data, "train", 64, size)
         plain = [as_input(r) for r in calib]
         batches = train_batches(data, size, args.batches, args.batch_size)

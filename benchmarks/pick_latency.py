@@ -63,10 +63,10 @@ def main() -> None:
             camera = SynthCamera(seed=100, mount_height_m=0.7)
             pipeline = Pipeline(Segmenter(path, threads=args.threads), camera.calibration())
             with camera, SimRobot() as robot:
-                run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), PickConfig(), 2, CommandLog(None),
-                           echo=lambda line: None)  # warm-up
-                results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), PickConfig(), args.cycles,
-                                     CommandLog(None), echo=lambda line: None)
+                run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=PickConfig(), cycles=2,
+                           log=CommandLog(None), echo=lambda line: None)  # warm-up
+                results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=PickConfig(),
+                                     cycles=args.cycles, log=CommandLog(None), echo=lambda line: None)
             issued = [r["frame_to_command_ms"] for r in results if "frame_to_command_ms" in r]
             planned = [r["plan_ms"] for r in results]
             rows[Path(path).name] = {

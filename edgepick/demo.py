@@ -119,8 +119,9 @@ def pick_demo(workdir: Path, model: Path, cycles: int = PICK_CYCLES) -> dict:
     log = CommandLog(workdir / "picks.jsonl")
     try:
         with camera, SimRobot() as robot:
-            results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), PickConfig(), cycles, log,
-                                 workdir / "picks", echo=lambda line: click.echo(line, err=True), truth_cal=truth)
+            results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=PickConfig(), cycles=cycles,
+                                 log=log, overlay_dir=workdir / "picks", echo=lambda line: click.echo(line, err=True),
+                                 truth_cal=truth)
     finally:
         log.close()
     return {"model": str(model), **cycles_summary(results), "overlays": str(workdir / "picks"),

@@ -48,7 +48,7 @@ def _torch_predictor(model_path: Path):
     from edgepick.train.checkpoint import load_model
 
     model, ckpt = load_model(model_path)
-    h, w = ckpt["input_size"]
+    h, w = ckpt.input_size
 
     @torch.inference_mode()
     def predict(rgb: np.ndarray) -> np.ndarray:
@@ -56,4 +56,4 @@ def _torch_predictor(model_path: Path):
         labels = model(x)["out"].argmax(1)[0].numpy().astype(np.uint8)
         return cv2.resize(labels, (rgb.shape[1], rgb.shape[0]), interpolation=cv2.INTER_NEAREST)
 
-    return ckpt["classes"], predict
+    return list(ckpt.classes), predict

@@ -70,17 +70,12 @@ def _within(path: str, folder: str) -> bool:
 
 
 def made_by(folder: str | Path) -> str | None:
-    """The edgepick command that made FOLDER (its MARKER file), or None. A run folder of an
-    edgepick from before the marker (last.pt beside metrics.json) counts as made by train."""
-    folder = Path(folder)
+    """The edgepick command that made FOLDER (its MARKER file), or None."""
     try:
-        found = json.loads((folder / MARKER).read_text()).get("made_by")
+        found = json.loads((Path(folder) / MARKER).read_text()).get("made_by")
         return found if isinstance(found, str) else None
     except (OSError, ValueError, AttributeError):
-        pass
-    if (folder / "last.pt").is_file() and (folder / "metrics.json").is_file():
-        return "train"
-    return None
+        return None
 
 
 def mark(folder: str | Path, command: str) -> None:

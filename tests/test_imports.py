@@ -58,6 +58,8 @@ def test_no_module_level_import_circle():
 def test_arrows_point_down():
     forbidden = {"data": {"runtime", "robot", "sim", "train", "quant", "export", "bench", "cli"},
                  "train": {"quant", "export", "runtime", "robot", "sim", "bench", "cli"},
+                 "export": {"quant", "evaluation", "robot", "sim", "bench", "demo", "cli"},
+                 "quant": {"robot", "sim", "bench", "demo", "cli"},
                  "robot": {"sim", "bench", "cli", "train", "quant", "export"},
                  "runtime": {"sim", "robot", "bench", "cli", "train", "quant", "export", "data"},
                  "models": {"train", "quant", "export", "runtime", "robot", "sim", "bench", "cli"},

@@ -58,8 +58,8 @@ def cell_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: int, 
     truth = camera.calibration()
     robot = SimRobot()
     with camera, robot:
-        results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), PickConfig(), cycles,
-                             CommandLog(None), echo=lambda line: None, truth_cal=truth)
+        results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=PickConfig(), cycles=cycles,
+                             log=CommandLog(None), echo=lambda line: None, truth_cal=truth)
     times = np.array([r["plan_ms"] for r in results])  # frame -> labels -> records -> the checked plan
     summary = summarize(results)
     return CellRow(mode, model, len(results), round(float(times.mean()), 2), round(float(times.std()), 2),

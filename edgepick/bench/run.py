@@ -32,7 +32,7 @@ def gpu_row(checkpoint: str | Path, data: str | Path, images: list[np.ndarray], 
 
     model, ckpt = load_model(checkpoint)
     model = model.cuda().eval()
-    h, w = ckpt["input_size"]
+    h, w = ckpt.input_size
     batch = [torch.from_numpy(cv2.resize(im, (w, h), interpolation=cv2.INTER_AREA)).permute(2, 0, 1)[None].float().cuda()
              for im in images]
     times = []
@@ -45,9 +45,10 @@ def gpu_row(checkpoint: str | Path, data: str | Path, images: list[np.ndarray], 
             if i >= cfg.warmup:
                 times.append(1000 * (time.perf_counter() - t0))
     acc = evaluate(checkpoint, data, cfg.split, progress=False)
-    size = Path(checkpoint if Path(checkpoint).is_file() else Path(checkpoint) / "best.pt").stat().st_size
+    size = ckpt.path.stat().st_size
     return Row("fp32 GPU", str(checkpoint), "fp32", acc["pixel_acc"], acc["miou"], round(float(np.median(times)), 3),
-               round(float(np.percentile(times, 95)), 3), run_train_time_s(ckpt), round(size / 1e6, 3),
+               round(float(np.percentile(times, 95)), 3), run_train_time_s(ckpt.path, ckpt.train_time_s),
+               round(size / 1e6, 3),
                device=torch.cuda.get_device_name())
 
 

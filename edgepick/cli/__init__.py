@@ -167,7 +167,7 @@ def _run(args: list[str] | None) -> int:
             raise
         return _fail(f"this command needs the [train] extra ({exc.name} is not installed): "
                      "pip install 'edgepick[train]'", EXIT_USER_ERROR)
-    except SystemExit as exc:  # a command that ends with its own status (pick: 3 when the robot halted)
+    except SystemExit as exc:  # a command (or a library under it) that ends with its own status
         return exc.code if isinstance(exc.code, int) else 1
     return 0
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-import sys
 
 import click
 
@@ -37,8 +36,9 @@ def check_gripper(spec: str, robot_host: str | None) -> tuple[str, int | str]:
     raise ConfigError(f"--gripper {spec}: unknown gripper; use digital:N, tool:N or rg2[:HOST]")
 
 
-def make_gripper(spec: tuple[str, int | str], robot) -> "DigitalGripper | RG2Gripper":  # noqa: F821
-    """The gripper of a checked spec (check_gripper); a digital one drives ROBOT's output."""
+def make_gripper(spec: tuple[str, int | str], robot):
+    """The gripper of a checked spec (check_gripper): an RG2Gripper, or a DigitalGripper that
+    drives ROBOT's output."""
     from edgepick.robot.grippers import DigitalGripper, RG2Gripper
 
     kind, arg = spec
@@ -89,7 +89,7 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     stop, lost link) or cannot be reached, it says so and the exit status is 3.
     """
     from edgepick.cli.cameras import open_camera
-    from edgepick.robot.base import RobotError, RobotUnreachable
+    from edgepick.robot.base import RobotError, RobotHalted, RobotUnreachable
     from edgepick.robot.loop import cycles_summary, run_cycles
     from edgepick.robot.pick import CommandLog, PickConfig
     from edgepick.runtime.calibration import Calibration
@@ -138,13 +138,14 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     try:
         with overlays, source:
             if robot is None:
-                results = run_cycles(source, pipeline, None, None, cfg, cycles, log, overlay_dir, echo, truth_cal)
+                results = run_cycles(source, pipeline, None, None, cfg=cfg, cycles=cycles, log=log,
+                                     overlay_dir=overlay_dir, echo=echo, truth_cal=truth_cal)
             else:
                 try:
                     grip.probe()  # a gripper that cannot be reached is found before the arm is sent anything
                     with robot:
-                        results = run_cycles(source, pipeline, robot, grip, cfg, cycles, log, overlay_dir, echo,
-                                             truth_cal)
+                        results = run_cycles(source, pipeline, robot, grip, cfg=cfg, cycles=cycles, log=log,
+                                             overlay_dir=overlay_dir, echo=echo, truth_cal=truth_cal)
                 except RobotError as exc:
                     if getattr(exc, "exit_code", 2) != 3:
                         raise
@@ -154,11 +155,11 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
         log.close()
     summary = {"model": model, **cycles_summary(results), "halted": halted,
                "log": log_path if log.path and log.path.exists() else None, "results": results}
-    click.echo(json.dumps(summary, indent=1))
-    if halted:
-        message = halted if unreachable else f"robot halted: {halted} ({summary['done']} of {cycles} cycles done)"
-        click.echo(f"edgepick: error: {message}", err=True)
-        sys.exit(3)
+    click.echo(json.dumps(summary, indent=1))  # the summary first, even when the run ends in a halt
+    if halted:  # the command line prints the one error line and exits 3
+        if unreachable:
+            raise RobotUnreachable(halted)
+        raise RobotHalted(f"robot halted: {halted} ({summary['done']} of {cycles} cycles done)")
 
 
 def _check_motion(cycles: int, speed: float, acc: float, robot_spec: str) -> tuple[str, str]:

@@ -50,8 +50,9 @@ def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, 
     Multi-GPU: torchrun --nproc_per_node N -m edgepick train DATA --out RUN ...
     --resume continues RUN on DATA (the same data set, at any path) after a kill.
     """
-    from edgepick.train.loop import TrainConfig
+    from edgepick.train.config import TrainConfig
     from edgepick.train.loop import train as run_train
+    from edgepick.train.run import Run
     from edgepick.train.setup import dist_env
 
     dist_env()
@@ -66,7 +67,7 @@ def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, 
     if seed < 0:
         raise ConfigError(f"--seed {seed}: must be 0 or positive")
     input_hw = model_size(size)
-    if not resume and (Path(out) / "last.pt").exists():
+    if not resume and Run(out).holds_run():
         raise ConfigError(f"--out {out} already holds a training run; pass --resume or choose a new --out")
     check_output(out, "--out", kind="dir", inputs=(data_dir,), reuse="train" if resume else None)
     if not resume:

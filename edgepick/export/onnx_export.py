@@ -18,6 +18,8 @@ from edgepick.errors import ConfigError
 from edgepick.files import atomic_path, sha256_of
 from edgepick.export.crop_convs import crop_padded_convs
 from edgepick.export.int8_activations import integer_activations
+from edgepick.train.checkpoint import Checkpoint, load_model
+from edgepick.train.run import Run
 
 OPSET = 21
 
@@ -47,29 +49,27 @@ class DeployNet(nn.Module):
         return logits.argmax(1).to(torch.uint8)
 
 
-def run_train_time_s(ckpt: dict) -> float:
-    """Training time of the run a checkpoint came from. A run's best.pt holds the time up to its
-    (earlier) best epoch; the thesis counts the whole run, which metrics.json beside it holds."""
-    path = Path(ckpt.get("path", ""))
-    metrics = path.parent / "metrics.json"
-    if path.name == "best.pt" and metrics.is_file():
-        try:
-            return float(json.loads(metrics.read_text())["train_time_s"])
-        except (ValueError, KeyError, TypeError):
-            pass
-    return float(ckpt.get("train_time_s", 0.0))
+def run_train_time_s(path: Path | None, train_time_s: float) -> float:
+    """Training time of the run the checkpoint at PATH came from. A run's best.pt holds the time up
+    to its (earlier) best epoch; the thesis counts the whole run, which its metrics hold."""
+    if path is not None and Run(path.parent).best == path:
+        total = Run(path.parent).total_train_time_s()
+        if total is not None:
+            return total
+    return train_time_s
 
 
-def contract_metadata(ckpt: dict, precision: str, quant: dict | None, train_time_s: float | None = None) -> dict:
+def contract_metadata(ckpt: Checkpoint, precision: str, quant: dict | None, train_time_s: float | None = None) -> dict:
     """The edgepick.* metadata_props of docs/contracts.md#onnx-model, from a checkpoint's own description."""
-    return {"edgepick.classes": json.dumps(ckpt["classes"]),
-            "edgepick.input_size": json.dumps(list(ckpt["input_size"])),
-            "edgepick.colorspace": ckpt["colorspace"],
+    seconds = train_time_s if train_time_s is not None else run_train_time_s(ckpt.path, ckpt.train_time_s)
+    return {"edgepick.classes": json.dumps(list(ckpt.classes)),
+            "edgepick.input_size": json.dumps(list(ckpt.input_size)),
+            "edgepick.colorspace": ckpt.colorspace,
             "edgepick.precision": precision,
             "edgepick.quant": json.dumps(quant or {"mode": "none"}),
-            "edgepick.source_sha256": sha256_of(ckpt["path"]) if ckpt.get("path") else "",
-            "edgepick.train_time_s": f"{train_time_s if train_time_s is not None else run_train_time_s(ckpt):.1f}",
-            "edgepick.arch": ckpt["model_config"]["arch"]}
+            "edgepick.source_sha256": sha256_of(ckpt.path) if ckpt.path else "",
+            "edgepick.train_time_s": f"{seconds:.1f}",
+            "edgepick.arch": ckpt.model_config.arch}
 
 
 def strip_debug_info(model) -> None:
@@ -141,10 +141,9 @@ def export_checkpoint(checkpoint: str | Path, out: str | Path) -> dict:
     """`edgepick export`: the float model of a checkpoint (or RUN) as an fp32 ONNX model
     (docs/contracts.md#onnx-model)."""
     from edgepick.models.deeplabv3 import trim_dilated_convs
-    from edgepick.train.checkpoint import load_model
 
     model, ckpt = load_model(checkpoint)
-    size = tuple(ckpt["input_size"])
+    size = ckpt.input_size
     trim_dilated_convs(model, size)
     path = export_onnx(LogitsNet(model), out, contract_metadata(ckpt, "fp32", None), size)
-    return {"out": str(path), "size_bytes": path.stat().st_size, "input_size": list(size), "classes": ckpt["classes"]}
+    return {"out": str(path), "size_bytes": path.stat().st_size, "input_size": list(size), "classes": list(ckpt.classes)}

@@ -20,9 +20,9 @@ from edgepick.models.resnet import ResNetFeatures
 
 ARCHS = ("mobilenetv3", "resnet50", "resnet101")
 COLORSPACES = ("rgb", "hsv", "gray")
-_NORM = {"rgb": ((0.485, 0.456, 0.406), (0.229, 0.224, 0.225)),
-         "hsv": ((0.5, 0.5, 0.5), (0.29, 0.29, 0.29)),
-         "gray": ((0.449, 0.449, 0.449), (0.226, 0.226, 0.226))}
+NORMALISATION = {"rgb": ((0.485, 0.456, 0.406), (0.229, 0.224, 0.225)),  # mean, std per colour space
+                 "hsv": ((0.5, 0.5, 0.5), (0.29, 0.29, 0.29)),
+                 "gray": ((0.449, 0.449, 0.449), (0.226, 0.226, 0.226))}
 
 
 VARIANTS = ("standard", "edge")
@@ -75,7 +75,7 @@ class Preprocess(nn.Module):
     def __init__(self, colorspace: str = "rgb"):
         super().__init__()
         self.colorspace = colorspace
-        mean, std = (torch.tensor(v).view(1, 3, 1, 1) for v in _NORM[colorspace])
+        mean, std = (torch.tensor(v).view(1, 3, 1, 1) for v in NORMALISATION[colorspace])
         # (x / 255 - mean) / std as one multiply-add: x * scale + shift (scale folds 1/255 unless HSV needs [0, 1])
         first = 1.0 if colorspace == "hsv" else 255.0
         self.register_buffer("scale", 1.0 / (first * std), persistent=False)

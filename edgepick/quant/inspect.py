@@ -132,8 +132,8 @@ def inspect(checkpoint: str | Path, data: str | Path, config: QuantConfig | None
     check_image_count(data, "val", images, "val images to compare (--images)")
     model, ckpt = load_model(checkpoint)
     check_classes(ckpt, data)
-    size = tuple(ckpt["input_size"])
-    float_gm = float_graph(load_model(checkpoint)[0], size)
+    size = ckpt.input_size
+    float_gm = float_graph(ckpt.build_model(), size)
     prepared = prepare(model, config, size, qat=False)
     with torch.no_grad():
         for rgb in progress_bar(model_images(data, "train", calib_images, size, seed), desc="calibrate", unit="img",
@@ -173,7 +173,7 @@ def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str |
         candidates = ranked(inspect(checkpoint, data, config, calib_images, min(COMPARED_IMAGES, n_val),
                                     progress=progress))
         keep = list(config.keep_float)
-        steps, best = [], None
+        steps, chosen = [], None
         while True:
             cfg = QuantConfig(**{**config.to_dict(), "keep_float": keep})
             path = work / f"step{len(steps)}.onnx"
@@ -181,16 +181,16 @@ def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str |
             miou = evaluate(path, data, "val", progress=False)["miou"]
             drop = round(100 * (base - miou), 3)
             steps.append({"keep_float": list(keep), "val_miou": miou, "drop_pp": drop, "file": str(path)})
-            if best is None or drop < best["drop_pp"]:
-                best = {**steps[-1], "result": res}
+            if chosen is None or drop < chosen["drop_pp"]:
+                chosen = {**steps[-1], "result": res}
             added = len(keep) - len(config.keep_float)
             if drop <= max_drop_pp or added >= max_float_layers or not candidates:
                 break
             keep.append(candidates.pop(0))
         Path(out).parent.mkdir(parents=True, exist_ok=True)
-        shutil.move(best["file"], out)
+        shutil.move(chosen["file"], out)
     finally:
         shutil.rmtree(work, ignore_errors=True)
-    return {"out": str(out), "fp32_val_miou": base, "budget_pp": max_drop_pp, "met": best["drop_pp"] <= max_drop_pp,
-            "chosen": {k: v for k, v in best.items() if k not in ("file", "result")}, "steps": steps,
-            "agreement_vs_torch": best["result"]["agreement_vs_torch"]}
+    return {"out": str(out), "fp32_val_miou": base, "budget_pp": max_drop_pp, "met": chosen["drop_pp"] <= max_drop_pp,
+            "chosen": {k: v for k, v in chosen.items() if k not in ("file", "result")}, "steps": steps,
+            "agreement_vs_torch": chosen["result"]["agreement_vs_torch"]}

@@ -26,9 +26,9 @@ from edgepick.progress import progress as progress_bar
 from edgepick.quant.graph import QuantizationError, as_input, check_keep_float, convert, expected_int8_convs, prepare
 from edgepick.quant.qat import load_qat, qat_config, train_qat
 from edgepick.quant.quantizer import QuantConfig, count_quant_nodes
-from edgepick.train.checkpoint import is_qat_checkpoint, load_model, read_checkpoint
-from edgepick.schema import Where, field
-from edgepick.train.loop import TrainConfig
+from edgepick.train.checkpoint import Checkpoint, load_model
+from edgepick.train.config import TrainConfig
+from edgepick.train.run import Run
 
 DEFAULT_CALIB_IMAGES = 64  # or the whole train split when it is smaller
 
@@ -55,10 +55,10 @@ def model_images(data: str | Path, split: str, count: int | None, size: tuple[in
     return [cv2.resize(ds.rgb(i), (w, h), interpolation=cv2.INTER_AREA) for i in ids]
 
 
-def check_classes(ckpt: dict, data: str | Path) -> None:
+def check_classes(ckpt: Checkpoint, data: str | Path) -> None:
     classes = NativeDataset.open(data, "train").classes
-    if classes != ckpt["classes"]:
-        raise CheckpointError(f"the checkpoint's classes {ckpt['classes']} differ from the data set's {classes}")
+    if classes != list(ckpt.classes):
+        raise CheckpointError(f"the checkpoint's classes {list(ckpt.classes)} differ from the data set's {classes}")
 
 
 def _stage(message: str, enabled: bool) -> None:
@@ -96,7 +96,7 @@ def quantize_static(checkpoint: str | Path, data: str | Path, out: str | Path, c
     check_image_count(data, "train", calib_images)
     model, ckpt = load_model(checkpoint)
     check_classes(ckpt, data)
-    size = tuple(ckpt["input_size"])
+    size = ckpt.input_size
     images = model_images(data, "train", calib_images, size, seed)
     check_images = model_images(data, "val", min(8, len(NativeDataset.open(data, "val"))), size, seed)
     check_keep_float(model, config.keep_float)
@@ -118,25 +118,24 @@ def quantize_static(checkpoint: str | Path, data: str | Path, out: str | Path, c
             "quant": quant}
 
 
-def _finish_qat(run: Path, data: str | Path, out: str | Path, quant: dict, progress: bool = False) -> dict:
+def _finish_qat(run: Run, data: str | Path, out: str | Path, quant: dict, progress: bool = False) -> dict:
     """Convert the QaT run's best epoch on val (best.pt, picked as a float RUN's best.pt is: the
     last epoch is not always the best one) and export it, with the whole run's phase times."""
-    last = read_checkpoint(run / "last.pt")
-    ckpt = read_checkpoint(run / "best.pt") if (run / "best.pt").is_file() else last
-    _stage(f"rebuild the fake-quant graph of QaT epoch {ckpt['epoch']} (the best on val) and convert it to int8",
+    last = Checkpoint.load(run.last)
+    ckpt = Checkpoint.load(run.best) if run.best.is_file() else last
+    _stage(f"rebuild the fake-quant graph of QaT epoch {ckpt.epoch} (the best on val) and convert it to int8",
            progress)
     prepared = load_qat(ckpt)
     converted = convert(prepared)
-    size = tuple(ckpt["input_size"])
-    float_s, qat_s = float(last.get("init_train_time_s", 0.0)), float(last["train_time_s"])
+    size = ckpt.input_size
+    float_s, qat_s = last.init_train_time_s, last.train_time_s
     meta = contract_metadata(ckpt, "int8", quant, train_time_s=float_s + qat_s)
     check_images = model_images(data, "val", min(8, len(NativeDataset.open(data, "val"))), size)
     expected = expected_int8_convs(prepared, qat_config(ckpt))
     result = export_int8(converted, out, meta, size, expected, check_images, progress)
-    return {"mode": quant["mode"], **result, "run": str(run), "observers": count_quant_nodes(prepared),
-            "float_phase_s": round(float_s, 2), "qat_phase_s": round(qat_s, 2), "val_miou_qat": ckpt["history"][-1]["miou"],
-            "qat_epoch": ckpt["epoch"],
-            "quant": quant}
+    return {"mode": quant["mode"], **result, "run": str(run.path), "observers": count_quant_nodes(prepared),
+            "float_phase_s": round(float_s, 2), "qat_phase_s": round(qat_s, 2), "val_miou_qat": ckpt.history[-1]["miou"],
+            "qat_epoch": ckpt.epoch, "quant": quant}
 
 
 def _qat_quant(mode: str, fraction: float, config: QuantConfig) -> dict:
@@ -153,7 +152,7 @@ def quantize_qat(train_config: TrainConfig, out: str | Path, config: QuantConfig
     _stage("prepare the fake-quant graph (torch.export: up to a minute on a CPU), then train every epoch with it",
            progress)
     train_qat(train_config, config, progress=progress)
-    return _finish_qat(Path(train_config.out), train_config.data, out, _qat_quant("qat", 1.0, config),
+    return _finish_qat(Run(train_config.out), train_config.data, out, _qat_quant("qat", 1.0, config),
                        progress=progress)
 
 
@@ -190,7 +189,7 @@ def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_frac
     # load the epoch checkpoint -> prepare -> calibrate -> fit (train_qat) -> convert -> export (_finish_qat)
     start, cfg = _switch_point(Path(run), data, qat_fraction)
     cfg = replace(cfg, data=str(data), out=str(qat_run), keep_epochs=[], device=device)
-    _stage(f"continue {run} from epoch {start['epoch']} of {cfg.epochs}"
+    _stage(f"continue {run} from epoch {start.epoch} of {cfg.epochs}"
            + (f"; draw {calib_images} train images for the starting activation ranges" if calib_images else ""),
            progress)
     images = model_images(data, "train", calib_images, cfg.size, cfg.seed) if calib_images else None
@@ -201,24 +200,25 @@ def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_frac
              "calib_images": calib_images or None, "hold_ranges": hold_ranges}
     if calib_images:
         quant["calib_method"] = f"qat from percentile {config.percentile}"
-    return _finish_qat(qat_run, data, out, quant, progress=progress)
+    return _finish_qat(Run(qat_run), data, out, quant, progress=progress)
 
 
-def _switch_point(run: Path, data: str | Path, qat_fraction: float) -> tuple[dict, TrainConfig]:
+def _switch_point(run: Path, data: str | Path, qat_fraction: float) -> tuple[Checkpoint, TrainConfig]:
     """The float RUN's checkpoint at (1 - qat_fraction) of its epoch budget, and the run's config."""
-    last = read_checkpoint(run / "last.pt" if run.is_dir() else run)
-    if is_qat_checkpoint(last):
+    last = Checkpoint.load(Run(run).last if run.is_dir() else run)
+    if last.is_qat:
         raise CheckpointError(f"{run} is a QaT run; hybrid-QaT starts from a float run")
+    if last.train_config is None:
+        raise CheckpointError(f"{last.path} has no train_config: hybrid-QaT continues a run edgepick trained")
     check_classes(last, data)
-    where = Where(last["path"])
-    cfg = TrainConfig.from_dict(field(last, "train_config", where), where.at("train_config"))
+    cfg = last.train_config
     switch = round((1.0 - qat_fraction) * cfg.epochs)
     if switch >= cfg.epochs:
         raise ConfigError(f"--qat-fraction {qat_fraction} of {cfg.epochs} epochs is less than one epoch")
-    init = Path(last["path"]).parent / f"epoch_{switch:03d}.pt"
+    init = Run(last.path.parent).epoch(switch)
     if not init.is_file():
         raise ConfigError(f"{init} does not exist: train the float run with --keep-epochs {switch}")
-    return read_checkpoint(init), cfg
+    return Checkpoint.load(init), cfg
 
 
 def _check_out(out: str | Path) -> None:

@@ -21,11 +21,14 @@ from typing import Callable
 import numpy as np
 import torch
 
-from edgepick.models.deeplabv3 import ModelConfig, build_model
+from edgepick.errors import CheckpointError
+from edgepick.models.deeplabv3 import build_model
 from edgepick.quant.graph import PREFIX, as_input, prepare
 from edgepick.quant.quantizer import PercentileObserver, QuantConfig
 from edgepick.quant.torchao_compat import set_mode
-from edgepick.train.loop import Hooks, TrainConfig, fit, new_model
+from edgepick.train.checkpoint import Checkpoint
+from edgepick.train.config import TrainConfig
+from edgepick.train.loop import Hooks, fit, new_model
 
 
 def to_eval(prepared: torch.fx.GraphModule) -> torch.fx.GraphModule:
@@ -152,7 +155,7 @@ class QatHooks(Hooks):
                         "calib_images": len(self.calib_images or []), "hold_ranges": self.hold_ranges}}
 
 
-def train_qat(cfg: TrainConfig, config: QuantConfig, start: dict | None = None, carry_optimizer: bool = True,
+def train_qat(cfg: TrainConfig, config: QuantConfig, start: Checkpoint | None = None, carry_optimizer: bool = True,
               freeze_at: float = 0.7, calib_images: list[np.ndarray] | None = None, hold_ranges: bool = False,
               progress: bool = True) -> dict:
     """A QaT run into cfg.out: the float model (fresh, or START's weights and schedule: hybrid-QaT)
@@ -163,15 +166,15 @@ def train_qat(cfg: TrainConfig, config: QuantConfig, start: dict | None = None, 
     return fit(cfg, graph, hooks, start=start, carry_optimizer=carry_optimizer, progress=progress)
 
 
-def qat_config(checkpoint: dict) -> QuantConfig:
+def qat_config(checkpoint: Checkpoint) -> QuantConfig:
     """The QuantConfig a QaT run's checkpoint was trained with."""
-    record = checkpoint.get("qat") or {"quant": checkpoint["train_config"]["quant"]}  # older QaT runs
-    return QuantConfig(**record["quant"])
+    if not checkpoint.is_qat:
+        raise CheckpointError(f"{checkpoint.path} is not a QaT run's checkpoint")
+    return QuantConfig(**checkpoint.qat["quant"])
 
 
-def load_qat(checkpoint: dict) -> torch.fx.GraphModule:
+def load_qat(checkpoint: Checkpoint) -> torch.fx.GraphModule:
     """Rebuild a QaT run's fake-quant graph from its checkpoint."""
-    prepared = prepare(build_model(ModelConfig(**checkpoint["model_config"])), qat_config(checkpoint),
-                       tuple(checkpoint["input_size"]), qat=True)
-    load_qat_state(prepared, checkpoint["model"])
+    prepared = prepare(build_model(checkpoint.model_config), qat_config(checkpoint), checkpoint.input_size, qat=True)
+    load_qat_state(prepared, checkpoint.model)
     return prepared

@@ -1,4 +1,4 @@
-"""The `Robot` protocol and the guard every implementation shares.
+"""`RobotBase`: the guard every robot (URRobot, SimRobot) shares.
 
 `RobotBase` checks each target, and moveL's straight path to it from the arm's pose, against
 the envelope BEFORE anything is sent, checks each command's result and the safety status

@@ -10,15 +10,17 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 
 import cv2
 
+from edgepick.frames import Camera, Frame
 from edgepick.robot.base import RobotBase
 from edgepick.robot.envelope import Envelope
+from edgepick.robot.grippers import DigitalGripper, RG2Gripper
 from edgepick.robot.pick import CommandLog, PickConfig, choose_target, execute
-from edgepick.frames import Camera, Frame
 from edgepick.robot.verdict import judge, summarize
 from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.grasp import draw_overlay
@@ -36,13 +38,40 @@ def grasp_error_m(record: dict, truth: list[dict] | None) -> float | None:
     return min((math.dist(record["point_camera_m"], t["point_camera_m"]) for t in same), default=math.inf)
 
 
-def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper, cfg: PickConfig,
-               cycles: int, log: CommandLog, overlay_dir: str | Path | None = None, echo=print,
+def judge_cycle(record: dict | None, seen: list[dict], frame: Frame, cfg: PickConfig,
+                truth_cal: Calibration | None) -> dict:
+    """What a cycle's result says about its choice: the grasp point's error against the scene's
+    truth and, in the synthetic cell (TRUTH_CAL, the cell's true calibration), the verdict
+    (robot/verdict.py). RECORD is the chosen object (None: nothing chosen), SEEN every record."""
+    judged = truth_cal is not None and frame.truth is not None
+    if record is None:
+        if not judged:
+            return {}
+        wanted = [r for r in seen if not cfg.classes or r["class"] in cfg.classes]
+        return {"verdict": {"success": False, "failure": "unreachable" if wanted else "no object seen"}}
+    err = grasp_error_m(record, frame.truth)
+    fields = {"grasp_error_m": None if err is None or math.isinf(err) else round(err, 4),
+              "within_1cm": None if err is None else err <= SUCCESS_M}
+    if err is not None and math.isinf(err):
+        fields["note"] = f"no {record['class']} in the scene's truth (false detection)"
+    if judged:
+        fields["verdict"] = judge(record, frame, truth_cal)
+    return fields
+
+
+def stopped_verdict(verdict: dict) -> dict:
+    """The verdict of a cycle the robot stopped: a failure, whatever the grasp would have been."""
+    return {**verdict, "success": False, "failure": "robot stopped"}
+
+
+def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None,
+               gripper: DigitalGripper | RG2Gripper | None, *, cfg: PickConfig, cycles: int, log: CommandLog,
+               overlay_dir: str | Path | None = None, echo: Callable[[str], object] = print,
                truth_cal: Calibration | None = None) -> list[dict]:
     """Run up to `cycles` pick cycles (robot None = plan only). Stops early when the robot halts
     (a failed gripper halts it too). Each plan passes the envelope and, with a robot, the
     controller's own safety limits before its first command. TRUTH_CAL (the synthetic cell's true
-    calibration) lets each cycle be judged against the truth."""
+    calibration) lets each cycle be judged against the truth. ECHO gets each cycle's line."""
     results = []
     envelope = robot.envelope if robot is not None else Envelope()
     limits = robot.limits_reason if robot is not None else None  # plan only: no controller to ask
@@ -61,22 +90,13 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, grip
         t_plan = time.perf_counter()
         result = {"cycle": cycle, "frame": frame.name, "objects": len(seen.records), "stage_ms": seen.ms,
                   "plan_ms": round(1000 * (t_plan - t0), 2)}
-        judged = truth_cal is not None and frame.truth is not None
         if record is None:
             result.update(outcome="skipped", reason=note)
             log.write(cycle=cycle, command="none", target=None, result=f"skipped: {note}")
-            if judged:
-                wanted = [r for r in seen.records if not cfg.classes or r["class"] in cfg.classes]
-                result["verdict"] = {"success": False, "failure": "unreachable" if wanted else "no object seen"}
+            result.update(judge_cycle(None, seen.records, frame, cfg, truth_cal))
         else:
-            err = grasp_error_m(record, frame.truth)
-            result.update(target=record["class"], pixel=record["pixel"], pose_robot=record["pose_robot"],
-                          grasp_error_m=None if err is None or math.isinf(err) else round(err, 4),
-                          within_1cm=None if err is None else err <= SUCCESS_M)
-            if err is not None and math.isinf(err):
-                result["note"] = f"no {record['class']} in the scene's truth (false detection)"
-            if judged:
-                result["verdict"] = judge(record, frame, truth_cal)
+            result.update(target=record["class"], pixel=record["pixel"], pose_robot=record["pose_robot"])
+            result.update(judge_cycle(record, seen.records, frame, cfg, truth_cal))
             if robot is None:
                 result.update(outcome="planned", plan=[asdict(s) for s in plan])
             else:
@@ -93,13 +113,13 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, grip
                     result["frame_to_command_ms"] = round(1000 * (first["t"] - t0), 2)
                 result["motion_s"] = round(getattr(robot, "motion_s", 0.0) - motion0, 3)
                 result.update(outcome="done" if stopped is None else "stopped", reason=stopped)
-                if stopped is not None and judged:
-                    result["verdict"] = {**result["verdict"], "success": False, "failure": "robot stopped"}
+                if stopped is not None and "verdict" in result:
+                    result["verdict"] = stopped_verdict(result["verdict"])
         if overlay_dir:  # after the robot's commands: not part of the frame -> command latency
             cv2.imwrite(str(Path(overlay_dir) / f"cycle_{cycle:03d}.png"),
                         draw_overlay(frame.rgb, [record] if record else seen.records))
         results.append(result)
-        echo(_line(result))
+        echo(cycle_line(result))
         if robot is not None and robot.halted:
             break  # the caller reports it once
     return results
@@ -120,7 +140,8 @@ def cycles_summary(results: list[dict]) -> dict:
                                                   if "frame_to_command_ms" in r])}
 
 
-def _line(r: dict) -> str:
+def cycle_line(r: dict) -> str:
+    """One cycle's result as the line `pick` prints: the target, outcome, grasp error, latency and verdict."""
     if r["outcome"] == "skipped":
         return f"cycle {r['cycle']}: nothing to pick ({r['reason']}){_verdict(r)}"
     err = "" if r.get("grasp_error_m") is None else \
@@ -133,6 +154,7 @@ def _line(r: dict) -> str:
 
 
 def _verdict(r: dict) -> str:
+    """The line's verdict tail ('; verdict: ...'), empty for a cycle that was not judged."""
     v = r.get("verdict")
     if v is None:
         return ""

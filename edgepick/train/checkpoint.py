@@ -1,48 +1,107 @@
-"""Checkpoints: written atomically, carrying everything needed to rebuild and run the model."""
+"""Checkpoints (docs/contracts.md#run-folder): what a run saves after each epoch, written
+atomically and read back checked, so that every later stage reads typed fields, not dict keys."""
 
 from __future__ import annotations
 
-from dataclasses import fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 import torch
 
 from edgepick.errors import CheckpointError, ConfigError
 from edgepick.files import atomic_path
-from edgepick.models.deeplabv3 import _NORM, ARCHS, COLORSPACES, VARIANTS, DeepLabV3, ModelConfig, build_model
-from edgepick.schema import Where, as_dict, as_list, as_names, as_number, as_numbers, as_str, field
+from edgepick.models.deeplabv3 import ARCHS, COLORSPACES, NORMALISATION, VARIANTS, DeepLabV3, ModelConfig, build_model
+from edgepick.schema import Where, as_dict, as_list, as_names, as_number, as_numbers, as_str
+from edgepick.schema import field as required_field
+from edgepick.train.config import TrainConfig
+from edgepick.train.run import checkpoint_path
 
 
-def save_atomic(obj: dict, path: str | Path) -> None:
-    """torch.save to a temporary file beside PATH, then rename: a kill never leaves half a file."""
-    with atomic_path(path) as tmp:
-        torch.save(obj, tmp)
+@dataclass(frozen=True)
+class Checkpoint:
+    """One epoch of a run: the model and what rebuilds it, the run's config and bookkeeping."""
+
+    model_config: ModelConfig
+    classes: tuple[str, ...]
+    input_size: tuple[int, int]  # (height, width) of the model's input
+    model: dict = field(repr=False, compare=False)  # the state dict: a float model's or a QaT run's graph's
+    train_config: TrainConfig | None = None
+    epoch: int = 0
+    history: tuple[dict, ...] = ()  # one record per epoch (loss, pixel accuracy, mIoU, timings)
+    train_time_s: float = 0.0  # wall time up to this epoch, the float phase of a continued run included
+    best_miou: float = -1.0  # the run's best validation mIoU so far
+    phase_start: int = 0  # the epoch this run's own training started after (a continued run's switch point)
+    init_train_time_s: float = 0.0  # the wall time of the run it continued (hybrid-QaT's float phase)
+    world_size: int = 1
+    data_image_size: tuple[int, int] | None = None  # (height, width) of the data set's images
+    qat: dict | None = None  # a QaT run's record: its QuantConfig, freeze_at, calibration images, held ranges
+    optimizer: dict | None = field(default=None, repr=False, compare=False)  # AdamW's (last.pt, kept epochs)
+    scheduler: dict | None = field(default=None, repr=False, compare=False)
+    path: Path | None = field(default=None, compare=False)  # where it was read from
+
+    @property
+    def colorspace(self) -> str:
+        return self.model_config.colorspace
+
+    @property
+    def normalisation(self) -> dict:
+        """What the model does to its [0, 255] input inside the graph: per-channel mean and std of [0, 1]."""
+        mean, std = NORMALISATION[self.colorspace]
+        return {"mean": mean, "std": std, "input_range": 255}
+
+    @property
+    def is_qat(self) -> bool:
+        return self.qat is not None
+
+    def to_dict(self) -> dict:
+        """The file's content (plain types and tensors)."""
+        d = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "path"}
+        d["model_config"] = self.model_config.to_dict()
+        d["train_config"] = asdict(self.train_config) if self.train_config is not None else None
+        d["classes"], d["input_size"], d["history"] = list(self.classes), list(self.input_size), list(self.history)
+        d["data_image_size"] = list(self.data_image_size) if self.data_image_size else None
+        return d
+
+    def save(self, path: str | Path) -> None:
+        """torch.save to a temporary file beside PATH, then rename: a kill never leaves half a file."""
+        with atomic_path(path) as tmp:
+            torch.save(self.to_dict(), tmp)
+
+    def without_optimizer(self) -> "Checkpoint":
+        """The weights and bookkeeping only: what export and the passes need, a third of the size."""
+        return replace(self, optimizer=None, scheduler=None)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Checkpoint":
+        """A checkpoint file (or a RUN folder's best.pt), every field checked once, here."""
+        path = checkpoint_path(path)
+        if not path.is_file():
+            raise CheckpointError(f"no checkpoint at {path}")
+        try:
+            d = torch.load(path, map_location="cpu", weights_only=False)
+        except Exception as exc:  # noqa: BLE001 - a corrupt or foreign file is the user's
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise CheckpointError(f"cannot read checkpoint {path}: {first}") from None
+        if not isinstance(d, dict) or "model" not in d or "model_config" not in d:
+            raise CheckpointError(f"{path} is not an edgepick checkpoint")
+        return replace(_checked(d, Where(str(path))), path=path)
+
+    def build_model(self) -> DeepLabV3:
+        """The float model of this checkpoint, in eval mode."""
+        if self.is_qat:
+            raise CheckpointError(f"{self.path} is a QaT checkpoint; use the int8 ONNX its quantize command wrote")
+        model = build_model(self.model_config)
+        missing, unexpected = model.load_state_dict(self.model, strict=False)
+        if missing or unexpected:
+            raise CheckpointError(f"checkpoint {self.path} does not fit a {self.model_config.arch} model "
+                                  f"({len(missing)} missing, {len(unexpected)} unexpected tensors)")
+        return model.eval()
 
 
-def model_meta(model_cfg: ModelConfig, classes: list[str], input_size: tuple[int, int]) -> dict:
-    """What a checkpoint says about its model: arch, classes, input size, colour space, normalisation."""
-    mean, std = _NORM[model_cfg.colorspace]
-    return {"model_config": model_cfg.to_dict(), "classes": list(classes), "input_size": list(input_size),
-            "colorspace": model_cfg.colorspace, "normalisation": {"mean": mean, "std": std, "input_range": 255}}
-
-
-def read_checkpoint(path: str | Path) -> dict:
-    """A checkpoint (or a RUN folder's best.pt), its description checked (check_checkpoint)."""
-    path = Path(path)
-    if path.is_dir():  # a RUN folder: take its best checkpoint
-        path = path / "best.pt"
-    if not path.is_file():
-        raise CheckpointError(f"no checkpoint at {path}")
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as exc:  # noqa: BLE001 - a corrupt or foreign file is the user's
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise CheckpointError(f"cannot read checkpoint {path}: {first}") from None
-    if not isinstance(ckpt, dict) or "model" not in ckpt or "model_config" not in ckpt:
-        raise CheckpointError(f"{path} is not an edgepick checkpoint")
-    check_checkpoint(ckpt, Where(str(path)))
-    ckpt["path"] = str(path)
-    return ckpt
+def load_model(path: str | Path) -> tuple[DeepLabV3, Checkpoint]:
+    """The float model of a checkpoint (or RUN folder) in eval mode, and the checkpoint."""
+    ckpt = Checkpoint.load(path)
+    return ckpt.build_model(), ckpt
 
 
 def check_model_config(value: object, where: Where) -> ModelConfig:
@@ -52,65 +111,66 @@ def check_model_config(value: object, where: Where) -> ModelConfig:
     if unknown:
         where.fail(f"has unknown fields {', '.join(map(str, unknown))}")
     checked = {
-        "arch": as_str(field(mc, "arch", where), where.at("arch"), ARCHS),
-        "num_classes": as_number(field(mc, "num_classes", where), where.at("num_classes"), integer=True, minimum=2,
-                                 maximum=255),
+        "arch": as_str(required_field(mc, "arch", where), where.at("arch"), ARCHS),
+        "num_classes": as_number(required_field(mc, "num_classes", where), where.at("num_classes"), integer=True,
+                                 minimum=2, maximum=255),
         "output_stride": as_number(mc.get("output_stride", 16), where.at("output_stride"), integer=True),
         "colorspace": as_str(mc.get("colorspace", "rgb"), where.at("colorspace"), COLORSPACES),
-        "aux_loss": mc.get("aux_loss", False),
+        "aux_loss": _flag(mc.get("aux_loss", False), where.at("aux_loss")),
         "bn_momentum": as_number(mc.get("bn_momentum", 0.1), where.at("bn_momentum"), above=0, maximum=1),
         "variant": as_str(mc.get("variant", "standard"), where.at("variant"), VARIANTS),
     }
-    if not isinstance(checked["aux_loss"], bool):
-        where.at("aux_loss").fail("must be true or false")
     try:
         return ModelConfig(**checked).validate()
     except ConfigError as exc:
         where.fail(str(exc))
 
 
-def check_checkpoint(ckpt: dict, where: Where) -> None:
-    """What the passes read from a checkpoint, checked: the model's config, its state dict, the
-    class names (one per output class), the input size (H, W: multiples of 8, at least 32, the
-    backbone's stride), the colour space and, when present, the epoch and training time."""
-    cfg = check_model_config(ckpt["model_config"], where.at("model_config"))
-    if not isinstance(ckpt["model"], dict) or not all(torch.is_tensor(v) for v in ckpt["model"].values()):
+def _flag(value: object, where: Where) -> bool:
+    if not isinstance(value, bool):
+        where.fail("must be true or false")
+    return value
+
+
+def _optional_dict(d: dict, key: str, where: Where) -> dict | None:
+    return None if d.get(key) is None else as_dict(d[key], where.at(key))
+
+
+def _size(value: object, where: Where, minimum: int = 1) -> tuple[int, int]:
+    return tuple(as_numbers(value, where, 2, integer=True, minimum=minimum, maximum=8192))
+
+
+def _checked(d: dict, where: Where) -> Checkpoint:
+    """A Checkpoint from a file's dict: the model's config, its state dict, one class name per output
+    class, the input size (H, W: multiples of 8, at least 32, the backbone's stride), and the run's
+    config and bookkeeping when present. A field edgepick does not write is refused."""
+    unknown = sorted(set(map(str, d)) - {f.name for f in fields(Checkpoint)} - {"path"})
+    if unknown:
+        where.fail(f"has unknown fields {', '.join(unknown)}")
+    cfg = check_model_config(d["model_config"], where.at("model_config"))
+    if not isinstance(d["model"], dict) or not all(torch.is_tensor(v) for v in d["model"].values()):
         where.at("model").fail("must be a state dict (parameter names to tensors)")
-    classes = as_names(field(ckpt, "classes", where), where.at("classes"), min_length=2)
+    classes = as_names(required_field(d, "classes", where), where.at("classes"), min_length=2)
     if len(classes) != cfg.num_classes:
         where.at("classes").fail(f"names {len(classes)} classes but the model has {cfg.num_classes}")
-    h, w = as_numbers(field(ckpt, "input_size", where), where.at("input_size"), 2, integer=True, minimum=32,
-                      maximum=4096)
+    h, w = _size(required_field(d, "input_size", where), where.at("input_size"), minimum=32)
     if h % 8 or w % 8:
         where.at("input_size").fail(f"{w}x{h} (WIDTHxHEIGHT) must have sides that are multiples of 8 (the "
                                     "backbone's stride)")
-    if as_str(field(ckpt, "colorspace", where), where.at("colorspace"), COLORSPACES) != cfg.colorspace:
-        where.at("colorspace").fail(f"is {ckpt['colorspace']!r} but model_config says {cfg.colorspace!r}")
-    if "epoch" in ckpt:
-        as_number(ckpt["epoch"], where.at("epoch"), integer=True, minimum=0)
-    if "train_time_s" in ckpt:
-        as_number(ckpt["train_time_s"], where.at("train_time_s"), minimum=0)
-    if "history" in ckpt:
-        for i, record in enumerate(as_list(ckpt["history"], where.at("history"))):
-            as_dict(record, where.at("history").at(i))
-    if "train_config" in ckpt:
-        as_dict(ckpt["train_config"], where.at("train_config"))
-
-
-def is_qat_checkpoint(ckpt: dict) -> bool:
-    """A QaT run's checkpoint holds a fake-quant graph's state, not a float model's."""
-    return "qat" in ckpt or bool((ckpt.get("train_config") or {}).get("qat"))  # the latter: older QaT runs
-
-
-def load_model(path: str | Path) -> tuple[DeepLabV3, dict]:
-    """Rebuild the model of a checkpoint (or RUN folder) in eval mode; returns (model, checkpoint)."""
-    ckpt = read_checkpoint(path)
-    if is_qat_checkpoint(ckpt):
-        raise CheckpointError(f"{ckpt['path']} is a QaT checkpoint; use the int8 ONNX its quantize command wrote")
-    cfg = ModelConfig(**ckpt["model_config"])  # checked by read_checkpoint
-    model = build_model(cfg)
-    missing, unexpected = model.load_state_dict(ckpt["model"], strict=False)
-    if missing or unexpected:
-        raise CheckpointError(f"checkpoint {ckpt['path']} does not fit a {cfg.arch} model "
-                              f"({len(missing)} missing, {len(unexpected)} unexpected tensors)")
-    return model.eval(), ckpt
+    train_config = d.get("train_config")
+    image_size = d.get("data_image_size")
+    return Checkpoint(
+        model_config=cfg, classes=tuple(classes), input_size=(h, w), model=d["model"],
+        train_config=TrainConfig.from_dict(train_config, where.at("train_config")) if train_config is not None
+        else None,
+        epoch=as_number(d.get("epoch", 0), where.at("epoch"), integer=True, minimum=0),
+        history=tuple(as_dict(r, where.at("history").at(i))
+                      for i, r in enumerate(as_list(d.get("history", []), where.at("history")))),
+        train_time_s=float(as_number(d.get("train_time_s", 0.0), where.at("train_time_s"), minimum=0)),
+        best_miou=float(as_number(d.get("best_miou", -1.0), where.at("best_miou"), minimum=-1, maximum=1)),
+        phase_start=as_number(d.get("phase_start", 0), where.at("phase_start"), integer=True, minimum=0),
+        init_train_time_s=float(as_number(d.get("init_train_time_s", 0.0), where.at("init_train_time_s"), minimum=0)),
+        world_size=as_number(d.get("world_size", 1), where.at("world_size"), integer=True, minimum=1),
+        data_image_size=_size(image_size, where.at("data_image_size")) if image_size is not None else None,
+        qat=_optional_dict(d, "qat", where), optimizer=_optional_dict(d, "optimizer", where),
+        scheduler=_optional_dict(d, "scheduler", where))

@@ -1,8 +1,9 @@
 """`edgepick train`: one training loop for CPU, one GPU (bf16 AMP) and DDP (torchrun).
 
-Per epoch: train with augmentation, validate (mIoU), append to metrics.json, write last.pt
-(atomically), best.pt when validation mIoU improves, epoch_NNN.pt at --keep-epochs (the
-hybrid-QaT switch points). --resume continues from last.pt, losing at most one epoch.
+Per epoch: train with augmentation, validate (mIoU), write the run folder's checkpoints and
+metrics (edgepick/train/run.py: best.pt when validation mIoU improves, epoch_NNN.pt at
+--keep-epochs, the hybrid-QaT switch points, then last.pt). --resume continues from last.pt,
+losing at most one epoch.
 
 `fit` trains whatever model it is given and knows nothing of quantization: a model that needs
 more from the loop (a QaT graph: its own train/eval switch, an eval copy for validation, a change
@@ -13,14 +14,9 @@ and the user's own loop trains it.
 
 from __future__ import annotations
 
-import json
-import math
-import os
-import shutil
 import time
 import warnings
-from dataclasses import asdict, dataclass, field, fields
-from pathlib import Path
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -33,71 +29,11 @@ from edgepick.files import made_by, mark
 from edgepick.metrics import segmentation_metrics
 from edgepick.models.deeplabv3 import DeepLabV3, ModelConfig, build_model, load_backbone_weights
 from edgepick.progress import progress as progress_bar
-from edgepick.schema import Where, as_dict, as_list, as_number, as_numbers, as_str
-from edgepick.schema import field as required_field
-from edgepick.train.checkpoint import is_qat_checkpoint, model_meta, read_checkpoint, save_atomic
+from edgepick.train.checkpoint import Checkpoint
+from edgepick.train.config import TrainConfig, check_config
 from edgepick.train.data import IGNORE, augment, class_weights
+from edgepick.train.run import Run
 from edgepick.train.setup import device_for, dist_env, log, logits, make_loaders, validate
-
-
-@dataclass
-class TrainConfig:
-    data: str
-    out: str
-    arch: str = "mobilenetv3"
-    variant: str = "standard"  # edge: MobileNetV3 without SE/hardswish, 128-channel ASPP (quantization-friendly)
-    epochs: int = 100
-    batch_size: int = 8
-    lr: float = 1e-3
-    weight_decay: float = 1e-4
-    size: tuple[int, int] = (480, 640)  # H, W
-    colorspace: str = "rgb"
-    output_stride: int = 16
-    aux_loss: bool = False
-    device: str = "auto"
-    keep_epochs: list[int] = field(default_factory=list)
-    epoch_images: int = 0  # 0: an epoch is the whole train split; N: N images drawn afresh each epoch
-    val_images: int = 0  # 0: validate on the whole val split; N: on N evenly spaced val images
-    backbone_weights: str | None = None
-    workers: int = -1  # -1: in-memory cache (decoded up front on GPU); 4 workers on GPU if it does not fit
-    seed: int = 0
-    class_weighting: bool = True
-
-    @classmethod
-    def from_dict(cls, values: dict, where: Where | None = None) -> "TrainConfig":
-        """The config a checkpoint recorded, each field's type checked (WHERE names the file in
-        errors; keys an older edgepick wrote and this one has no use for are dropped)."""
-        where = where or Where("train_config")
-        values = as_dict(values, where)
-        checked = {}
-        for f in fields(cls):
-            if f.name not in values:
-                if f.name in ("data", "out"):
-                    required_field(values, f.name, where)  # says which is missing
-                continue
-            checked[f.name] = _typed(values[f.name], f.type, where.at(f.name))
-        return cls(**checked)
-
-
-def _typed(value: object, kind: str, where: Where) -> object:
-    """One recorded TrainConfig field, checked against its annotation."""
-    if kind == "str | None" and value is None:
-        return None
-    if kind in ("str", "str | None"):
-        return as_str(value, where)
-    if kind == "bool":
-        if not isinstance(value, bool):
-            where.fail("must be true or false")
-        return value
-    if kind == "int":
-        return as_number(value, where, integer=True)
-    if kind == "float":
-        return float(as_number(value, where))
-    if kind == "tuple[int, int]":
-        return tuple(as_numbers(value, where, 2, integer=True, minimum=1))
-    if kind == "list[int]":
-        return [as_number(v, where.at(i), integer=True) for i, v in enumerate(as_list(value, where))]
-    raise TypeError(f"no check for a TrainConfig field of type {kind}")  # a new field needs one here
 
 
 class Hooks:
@@ -121,24 +57,8 @@ class Hooks:
         return model.eval()
 
     def checkpoint(self) -> dict:
-        """Entries each checkpoint of the run carries besides the loop's own."""
+        """Checkpoint fields each checkpoint of the run carries besides the loop's own (a QaT run's `qat`)."""
         return {}
-
-
-def check_config(cfg: TrainConfig, world: int = 1) -> None:
-    if cfg.epochs < 1 or cfg.batch_size < 1:
-        raise ConfigError("--epochs and --batch-size must be at least 1")
-    if not (math.isfinite(cfg.lr) and 0 < cfg.lr < 1):
-        raise ConfigError(f"--lr {cfg.lr}: the learning rate must be a number in (0, 1), e.g. 1e-3")
-    if cfg.epoch_images < 0 or cfg.val_images < 0:
-        raise ConfigError("--epoch-images and --val-images must be 0 (all) or positive")
-    if cfg.epoch_images and world > 1:
-        raise ConfigError("--epoch-images is for single-process runs (DDP shards the whole split)")
-    if cfg.seed < 0:
-        raise ConfigError(f"--seed {cfg.seed}: must be 0 or positive")
-    outside = [e for e in cfg.keep_epochs if not 1 <= e <= cfg.epochs]
-    if outside:
-        raise ConfigError(f"--keep-epochs {outside[0]}: not an epoch of this run's budget (1..{cfg.epochs})")
 
 
 def model_config(cfg: TrainConfig, classes: list[str]) -> ModelConfig:
@@ -148,7 +68,7 @@ def model_config(cfg: TrainConfig, classes: list[str]) -> ModelConfig:
     return model_cfg
 
 
-def new_model(cfg: TrainConfig, start: dict | None = None) -> DeepLabV3:
+def new_model(cfg: TrainConfig, start: Checkpoint | None = None) -> DeepLabV3:
     """The float model a run begins with: fresh (seeded with cfg.seed, cfg.backbone_weights if
     given), or the weights of START, a checkpoint the run continues (a float run's epoch_NNN.pt)."""
     classes = NativeDataset.open(cfg.data, "train").classes  # validates the layout before anything is written
@@ -158,11 +78,11 @@ def new_model(cfg: TrainConfig, start: dict | None = None) -> DeepLabV3:
     if cfg.backbone_weights:
         load_backbone_weights(model, cfg.backbone_weights)
     if start is not None:
-        if start["classes"] != classes:
-            raise ConfigError(f"{start['path']} was trained on classes {start['classes']}, the data has {classes}")
-        if start["epoch"] >= cfg.epochs:
-            raise ConfigError(f"{start['path']} is at epoch {start['epoch']}, the budget is {cfg.epochs} epochs")
-        model.load_state_dict({k: v for k, v in start["model"].items()
+        if list(start.classes) != classes:
+            raise ConfigError(f"{start.path} was trained on classes {list(start.classes)}, the data has {classes}")
+        if start.epoch >= cfg.epochs:
+            raise ConfigError(f"{start.path} is at epoch {start.epoch}, the budget is {cfg.epochs} epochs")
+        model.load_state_dict({k: v for k, v in start.model.items()
                                if cfg.aux_loss or not k.startswith("aux_classifier.")})
     return model
 
@@ -172,40 +92,40 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     returns the final summary."""
     last = None
     if resume:
-        last_path = Path(cfg.out) / "last.pt"
-        if not last_path.is_file():
-            raise ConfigError(f"nothing to resume: {last_path} does not exist")
-        last = read_checkpoint(last_path)
-        if is_qat_checkpoint(last):
+        run = Run(cfg.out)
+        if not run.holds_run():
+            raise ConfigError(f"nothing to resume: {run.last} does not exist")
+        last = Checkpoint.load(run.last)
+        if last.is_qat:
             raise CheckpointError(f"{cfg.out} is a QaT run; run its quantize command again to start it anew")
-        epochs, data = cfg.epochs, cfg.data  # epochs 0: keep the run's own epoch budget
-        where = Where(last["path"])
-        cfg = TrainConfig.from_dict(required_field(last, "train_config", where), where.at("train_config"))
-        cfg.epochs = max(epochs or cfg.epochs, last["epoch"])
-        cfg.data = data  # the data set given now (a run moves with its data): checked to be the same one
-        check_same_data(last, data)
+        if last.train_config is None:
+            raise CheckpointError(f"{last.path} has no train_config to resume with")
+        # epochs 0: the run's own budget; DATA: the data set given now (a run moves with its data), checked
+        cfg = replace(last.train_config, epochs=max(cfg.epochs or last.train_config.epochs, last.epoch), data=cfg.data)
+        check_same_data(last, cfg.data)
     return fit(cfg, new_model(cfg), resume=last, progress=progress)
 
 
-def check_same_data(last: dict, data: str) -> None:
+def check_same_data(last: Checkpoint, data: str) -> None:
     """Refuse to resume RUN on a data set other than the one it was trained on: other class names,
     or (runs that recorded it) images of another size."""
     train_ds = NativeDataset.open(data, "train")
-    if train_ds.classes != last["classes"]:
+    if train_ds.classes != list(last.classes):
         raise ConfigError(f"DATA {data} has the classes {train_ds.classes}, the run to resume was trained on "
-                          f"{last['classes']}; give the run's own data set")
-    recorded = last.get("data_image_size")
-    if recorded is not None and list(train_ds.rgb(train_ds.ids[0]).shape[:2]) != list(recorded):
+                          f"{list(last.classes)}; give the run's own data set")
+    recorded = last.data_image_size
+    if recorded is not None and train_ds.rgb(train_ds.ids[0]).shape[:2] != recorded:
         h, w = recorded
         raise ConfigError(f"DATA {data} holds images of another size than the {w}x{h} the run was trained on; "
                           "give the run's own data set")
 
 
-def carry_optimizer_state(opt: torch.optim.Optimizer, model: torch.nn.Module, start: dict, prefix: str = "") -> int:
+def carry_optimizer_state(opt: torch.optim.Optimizer, model: torch.nn.Module, start: Checkpoint,
+                          prefix: str = "") -> int:
     """Give OPT (over MODEL, whose parameter names are the float model's behind PREFIX) the AdamW
     moments that the float checkpoint START holds, matched by name; returns how many got them."""
-    saved = start.get("optimizer", {}).get("state", {})
-    names = [n for n, _ in build_model(ModelConfig(**start["model_config"])).named_parameters()]
+    saved = (start.optimizer or {}).get("state", {})
+    names = [n for n, _ in build_model(start.model_config).named_parameters()]
     by_name = {names[i]: s for i, s in saved.items() if i < len(names)}
     carried = 0
     for name, p in model.named_parameters():
@@ -223,8 +143,8 @@ def _schedule(opt: torch.optim.Optimizer, total_steps: int) -> torch.optim.lr_sc
 
 
 def _starting_state(model: torch.nn.Module, opt: torch.optim.Optimizer, sched: torch.optim.lr_scheduler.LambdaLR,
-                    steps_per_epoch: int, start: dict | None, carry_optimizer: bool, prefix: str,
-                    resume: dict | None) -> dict:
+                    steps_per_epoch: int, start: Checkpoint | None, carry_optimizer: bool, prefix: str,
+                    resume: Checkpoint | None) -> dict:
     """The run's bookkeeping (epoch, history, best mIoU, times) at its first epoch: fresh, continuing
     START's schedule (and its AdamW moments), or RESUME's own state (weights, optimizer, schedule)."""
     state = {"epoch": 0, "history": [], "best_miou": -1.0, "train_time_s": 0.0, "phase_start": 0,
@@ -232,22 +152,25 @@ def _starting_state(model: torch.nn.Module, opt: torch.optim.Optimizer, sched: t
     if start is not None:
         if carry_optimizer:
             carry_optimizer_state(opt, model, start, prefix)
-        state.update(epoch=start["epoch"], history=list(start["history"]), phase_start=start["epoch"],
-                     init_train_time_s=start["train_time_s"])
+        state.update(epoch=start.epoch, history=list(start.history), phase_start=start.epoch,
+                     init_train_time_s=start.train_time_s)
         with warnings.catch_warnings():  # fast-forwarding the LR schedule before any optimizer step
             warnings.simplefilter("ignore")
-            for _ in range(start["epoch"] * steps_per_epoch):
+            for _ in range(start.epoch * steps_per_epoch):
                 sched.step()
     if resume is not None:
-        model.load_state_dict(resume["model"])
-        opt.load_state_dict(resume["optimizer"])
-        sched.load_state_dict(resume["scheduler"])
-        state = {k: resume[k] for k in state if k in resume}
+        if resume.optimizer is None or resume.scheduler is None:
+            raise CheckpointError(f"{resume.path} holds no optimizer state to resume from (a best.pt?)")
+        model.load_state_dict(resume.model)
+        opt.load_state_dict(resume.optimizer)
+        sched.load_state_dict(resume.scheduler)
+        state = {k: getattr(resume, k) for k in state}
+        state["history"] = list(state["history"])
     return state
 
 
-def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, start: dict | None = None,
-        carry_optimizer: bool = True, resume: dict | None = None, progress: bool = True) -> dict:
+def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, start: Checkpoint | None = None,
+        carry_optimizer: bool = True, resume: Checkpoint | None = None, progress: bool = True) -> dict:
     """Train MODEL (built for cfg's data and size) for cfg.epochs, writing cfg.out's checkpoints
     and metrics. START: the checkpoint MODEL's weights come from, whose epochs, history and LR
     schedule the run continues (with its AdamW moments unless carry_optimizer is False); RESUME:
@@ -256,9 +179,9 @@ def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, st
     hooks = hooks or Hooks()
     rank, world, local_rank = dist_env()
     device = device_for(cfg.device, local_rank)
-    out = Path(cfg.out)
-    if resume is None and (out / "last.pt").exists():
-        raise ConfigError(f"{out} already holds a training run; pass --resume or choose a new --out")
+    run = Run(cfg.out)
+    if resume is None and run.holds_run():
+        raise ConfigError(f"{run.path} already holds a training run; pass --resume or choose a new --out")
     train_ds, val_ds = NativeDataset.open(cfg.data, "train"), NativeDataset.open(cfg.data, "val")
     classes = train_ds.classes
     check_config(cfg, world)
@@ -276,10 +199,10 @@ def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, st
     sched = _schedule(opt, cfg.epochs * steps_per_epoch)
     state = _starting_state(model, opt, sched, steps_per_epoch, start, carry_optimizer, hooks.param_prefix, resume)
     if resume is not None:
-        log(f"resuming {out} after epoch {state['epoch']}", rank)
+        log(f"resuming {run.path} after epoch {state['epoch']}", rank)
     ddp = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
-    meta = {**model_meta(model_config(cfg, classes), classes, cfg.size), "train_config": asdict(cfg),
-            "world_size": world, "data_image_size": list(train_ds.rgb(train_ds.ids[0]).shape[:2])}
+    meta = {"model_config": model_config(cfg, classes), "classes": tuple(classes), "input_size": tuple(cfg.size),
+            "train_config": cfg, "world_size": world, "data_image_size": train_ds.rgb(train_ds.ids[0]).shape[:2]}
     gen = torch.Generator().manual_seed(cfg.seed * 1000 + state["epoch"] + rank)
     hooks.begin(model, device, state["phase_start"] * steps_per_epoch, cfg.epochs * steps_per_epoch)
 
@@ -323,14 +246,21 @@ def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, st
         log(f"epoch {epoch}/{cfg.epochs}: loss {record['loss']:.4f}  val pixel acc {record['pixel_acc']:.4f}  "
             f"mIoU {record['miou']:.4f}  {record['epoch_s']:.1f}s", rank)
         if rank == 0:
-            _save(out, cfg, state, record, {"model": model.state_dict(), "optimizer": opt.state_dict(),
-                                            "scheduler": sched.state_dict(), **meta, **hooks.checkpoint()},
-                  str(device), world)
+            improved = (record["miou"] or 0.0) > state["best_miou"]
+            if improved:
+                state["best_miou"] = record["miou"] or 0.0
+            ckpt = Checkpoint(model=model.state_dict(), optimizer=opt.state_dict(), scheduler=sched.state_dict(),
+                              **meta, **{**state, "history": tuple(state["history"])}, **hooks.checkpoint())
+            _save(run, ckpt, improved, epoch in cfg.keep_epochs)
+            run.write_metrics({"epochs": epoch, "best_miou": state["best_miou"],
+                               "train_time_s": round(state["train_time_s"], 2), "device": str(device),
+                               "world_size": world, "arch": cfg.arch, "size": list(cfg.size),
+                               "history": state["history"]})
         if world > 1:
             dist.barrier()
     if world > 1:
         dist.destroy_process_group()
-    return {"out": str(out), "epochs": state["epoch"], "best_miou": state["best_miou"],
+    return {"out": str(run.path), "epochs": state["epoch"], "best_miou": state["best_miou"],
             "train_time_s": round(state["train_time_s"], 2), "last": state["history"][-1] if state["history"] else None}
 
 
@@ -351,32 +281,15 @@ def _record(epoch: int, m: dict, loss_sum: float, seen: int, train_s: float, epo
             "images_per_s": round(seen / train_s, 2)}
 
 
-RESUME_ONLY = ("optimizer", "scheduler")  # what only --resume and hybrid-QaT read
-
-
-def _save(out: Path, cfg: TrainConfig, state: dict, record: dict, ckpt: dict, device: str, world: int) -> None:
-    """last.pt (atomically), best.pt if validation mIoU improved, epoch_NNN.pt if kept, metrics.json."""
-    improved = (record["miou"] or 0.0) > state["best_miou"]
-    if improved:
-        state["best_miou"] = record["miou"] or 0.0
-    out.mkdir(parents=True, exist_ok=True)  # only now: a failed first epoch leaves no RUN behind
-    if made_by(out) != "train":
-        mark(out, "train")
-    # last.pt goes last: a run killed in between resumes from the epoch before and writes the others again
-    full = {**ckpt, **state}
-    if improved:  # the weights to export and quantize: no optimizer state (a third of last.pt's size)
-        save_atomic({k: v for k, v in full.items() if k not in RESUME_ONLY}, out / "best.pt")
-    last_path = out / "last.pt"
-    if record["epoch"] in cfg.keep_epochs:  # a hybrid-QaT switch point: it carries the AdamW moments on
-        kept = out / f"epoch_{record['epoch']:03d}.pt"
-        save_atomic(full, kept)
-        shutil.copyfile(kept, out / ".last.pt.tmp")
-        os.replace(out / ".last.pt.tmp", last_path)
-    else:
-        save_atomic(full, last_path)
-    summary = {"epochs": record["epoch"], "best_miou": state["best_miou"],
-               "train_time_s": round(state["train_time_s"], 2), "device": device, "world_size": world,
-               "arch": cfg.arch, "size": list(cfg.size), "history": state["history"]}
-    tmp = out / ".metrics.json.tmp"
-    tmp.write_text(json.dumps(summary, indent=1))
-    os.replace(tmp, out / "metrics.json")
+def _save(run: Run, ckpt: Checkpoint, improved: bool, kept: bool) -> None:
+    """best.pt if validation mIoU improved, epoch_NNN.pt if the epoch is kept, then last.pt: last
+    comes last, so a run killed in between resumes from the epoch before and writes the others again.
+    Each file is written atomically."""
+    run.path.mkdir(parents=True, exist_ok=True)  # only now: a failed first epoch leaves no RUN behind
+    if made_by(run.path) != "train":
+        mark(run.path, "train")
+    if improved:  # the weights to export and quantize
+        ckpt.without_optimizer().save(run.best)
+    if kept:  # a hybrid-QaT switch point: it carries the AdamW moments on
+        ckpt.save(run.epoch(ckpt.epoch))
+    ckpt.save(run.last)

@@ -22,6 +22,7 @@ pytest.importorskip("onnx")
 torch = pytest.importorskip("torch")
 
 from edgepick.cli import run  # noqa: E402
+from edgepick.files import mark  # noqa: E402
 from edgepick.runtime.calibration import kabsch  # noqa: E402
 from tests.cli.test_bad_input import _pairs, _tree, assert_refused  # noqa: E402
 from tests.runtime.test_pipeline import red_model  # noqa: E402
@@ -110,7 +111,7 @@ def _checkpoint_variants(best: dict) -> dict[str, tuple[object, str]]:
         "ck-arch": (changed(model_config={**mc, "arch": "vgg16"}), "model_config.arch must be one of"),
         "ck-num-classes": (changed(model_config={**mc, "num_classes": "five"}), "num_classes must be a number"),
         "ck-model-config-str": (changed(model_config="mobilenetv3"), "model_config must be a JSON object"),
-        "ck-unknown-field": (changed(model_config={**mc, "depth": 3}), "unknown fields depth"),
+        "ck-unknown-config-field": (changed(model_config={**mc, "depth": 3}), "unknown fields depth"),
         "ck-stride": (changed(model_config={**mc, "output_stride": 4}), "output stride must be 8 or 16"),
         "ck-no-classes": (changed(classes=None), "has no field 'classes'"),
         "ck-classes-count": (changed(classes=["background", "a", "b"]), "names 3 classes but the model has 5"),
@@ -118,7 +119,7 @@ def _checkpoint_variants(best: dict) -> dict[str, tuple[object, str]]:
         "ck-zero-size": (changed(input_size=[0, 0]), "input_size[0] must be 32 or more"),
         "ck-odd-size": (changed(input_size=[36, 44]), "44x36 (WIDTHxHEIGHT) must have sides that are multiples of 8"),
         "ck-33x31": (changed(input_size=[31, 33]), "input_size[0] must be 32 or more, got 31"),
-        "ck-colorspace": (changed(colorspace="hsv"), "colorspace is 'hsv' but model_config says 'rgb'"),
+        "ck-unknown-field": (changed(colorspace="hsv"), "has unknown fields colorspace"),
         "ck-model-list": (changed(model=[1, 2]), "model must be a state dict"),
         "ck-epoch": (changed(epoch=-1), "epoch must be 0 or more"),
         "ck-train-config": (changed(train_config="fast"), "train_config must be a JSON object"),
@@ -171,6 +172,7 @@ def bw(tmp_path_factory, small_data, trained_run):
         torch.save({**{k: v for k, v in last.items() if k not in ("optimizer", "scheduler")}, "train_config": config},
                    run_dir / "last.pt")
         (run_dir / "metrics.json").write_text("{}")
+        mark(run_dir, "train")
         ws[name] = run_dir
     torch.save([torch.zeros(3)], w / "bb-list.pt")
     torch.save({"backbone.0.0.weight": "not a tensor"}, w / "bb-str.pt")

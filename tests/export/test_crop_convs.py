@@ -122,13 +122,13 @@ def test_int8_export_crops_aspp_and_keeps_labels(small_data: Path, tmp_path: Pat
     from edgepick.export.checks import conv_weight_report
     from edgepick.models.deeplabv3 import ModelConfig, build_model
     from edgepick.quant.passes import quantize_static
-    from edgepick.train.checkpoint import model_meta
+    from edgepick.train.checkpoint import Checkpoint
 
     classes = json.loads((small_data / "meta.json").read_text())["classes"]
     torch.manual_seed(0)
     cfg = ModelConfig(num_classes=len(classes), variant="edge")
     ckpt = tmp_path / "untrained.pt"
-    torch.save({"model": build_model(cfg).state_dict(), "train_time_s": 0.0, **model_meta(cfg, classes, (192, 256))}, ckpt)
+    Checkpoint(model_config=cfg, classes=tuple(classes), input_size=(192, 256), model=build_model(cfg).state_dict()).save(ckpt)
     result = quantize_static(ckpt, small_data, tmp_path / "int8.onnx", calib_images=4, progress=False)
     names = [n.name for n in onnx.load(result["out"]).graph.node if n.op_type == "Conv"]
     assert sum(CROP_TAG in n for n in names) == 3

@@ -116,13 +116,13 @@ def test_int8_export_of_the_standard_model_has_no_float_activations(small_data, 
 
     from edgepick.models.deeplabv3 import ModelConfig, build_model
     from edgepick.quant.passes import quantize_static
-    from edgepick.train.checkpoint import model_meta
+    from edgepick.train.checkpoint import Checkpoint
 
     classes = json.loads((small_data / "meta.json").read_text())["classes"]
     torch.manual_seed(0)
     cfg = ModelConfig(num_classes=len(classes))
     ckpt = tmp_path / "untrained.pt"
-    torch.save({"model": build_model(cfg).state_dict(), "train_time_s": 0.0, **model_meta(cfg, classes, (96, 128))}, ckpt)
+    Checkpoint(model_config=cfg, classes=tuple(classes), input_size=(96, 128), model=build_model(cfg).state_dict()).save(ckpt)
     result = quantize_static(ckpt, small_data, tmp_path / "int8.onnx", calib_images=4, progress=False)
     model = onnx.load(result["out"])
     ops = [n.op_type for n in model.graph.node]

@@ -19,7 +19,7 @@ pytestmark = pytest.mark.slow
 
 def test_a_graph_compared_with_itself_has_no_drift(trained_run, small_data):
     model, ckpt = load_model(trained_run)
-    size = tuple(ckpt["input_size"])
+    size = ckpt.input_size
     gm = float_graph(model, size)
     report = compare(gm, gm, model_images(small_data, "val", 2, size))
     assert len(report["layers"]) > 50 and all(math.isinf(r["sqnr_db"]) for r in report["layers"])

@@ -64,7 +64,7 @@ def test_fp32_onnx_agrees_with_torch(onnx_files, trained_run, small_data):
     from edgepick.train.checkpoint import load_model
 
     model, ckpt = load_model(trained_run)
-    images = model_images(small_data, "val", 8, tuple(ckpt["input_size"]))
+    images = model_images(small_data, "val", 8, ckpt.input_size)
     assert label_agreement(onnx_files["fp32"]["out"], LogitsNet(model).eval(), images) >= 0.999
     assert Segmenter(onnx_files["fp32"]["out"]).info.precision == "fp32"
 
@@ -89,13 +89,14 @@ def test_keep_float_layers_stay_float(trained_run, small_data, tmp_path):
 
 def _as_if_trained_on_a_gpu(run: Path, dest: Path) -> Path:
     """A copy of RUN whose checkpoints say `--device cuda`, as a float run made on a GPU box does."""
-    import torch
+    from dataclasses import replace
+
+    from edgepick.train.checkpoint import Checkpoint
 
     shutil.copytree(run, dest)
-    for ckpt in dest.glob("*.pt"):
-        state = torch.load(ckpt, map_location="cpu", weights_only=False)
-        state["train_config"]["device"] = "cuda"
-        torch.save(state, ckpt)
+    for path in dest.glob("*.pt"):
+        ckpt = Checkpoint.load(path)
+        replace(ckpt, train_config=replace(ckpt.train_config, device="cuda")).save(path)
     return dest
 
 
@@ -119,13 +120,15 @@ def test_hybrid_qat_from_a_kept_epoch(trained_run, small_data, tmp_path):
     history = json.loads((tmp_path / "h.run" / "metrics.json").read_text())["history"]
     assert [h["epoch"] for h in history] == list(range(1, EPOCHS + 1))  # float epochs carried, then the QaT one
     assert result["qat_epoch"] == EPOCHS
-    import torch
+    from dataclasses import replace
 
     from edgepick.errors import CheckpointError
+    from edgepick.train.checkpoint import Checkpoint
     from edgepick.train.loop import TrainConfig, train
+    from edgepick.train.run import Run
 
-    ckpt = torch.load(tmp_path / "h.run" / "last.pt", map_location="cpu", weights_only=False)
-    assert ckpt["qat"]["quant"]["reduce_range"] is not None and "qat" not in ckpt["train_config"]
+    ckpt = Checkpoint.load(tmp_path / "h.run" / "last.pt")
+    assert ckpt.is_qat and ckpt.qat["quant"]["reduce_range"] is not None
     with pytest.raises(CheckpointError, match="QaT run"):  # train --resume is for float runs
         train(TrainConfig(data=str(small_data), out=str(tmp_path / "h.run")), resume=True)
 
@@ -134,25 +137,24 @@ def test_hybrid_qat_from_a_kept_epoch(trained_run, small_data, tmp_path):
     from edgepick.quant.passes import model_images
     from edgepick.quant.qat import activation_fake_quants, calibrate_activations, load_qat
     from edgepick.quant.quantizer import QuantConfig
-    from edgepick.train.checkpoint import load_model, read_checkpoint
+    from edgepick.train.checkpoint import load_model
 
     def ranges(graph) -> dict:
         return {f"{n}.{end}": float(getattr(fq.activation_post_process, f"{end}_val"))
                 for n, fq in activation_fake_quants(graph).items() for end in ("min", "max")}
 
     model, start = load_model(run / f"epoch_{EPOCHS - 1:03d}.pt")
-    size = tuple(start["input_size"])
+    size = start.input_size
     expected = prepare(model, QuantConfig(), size, qat=True)
     calibrate_activations(expected, model_images(small_data, "train", 36, size), hold=True)
-    assert ranges(load_qat(read_checkpoint(tmp_path / "h.run" / "last.pt"))) == pytest.approx(ranges(expected), rel=1e-5)
+    assert ranges(load_qat(Checkpoint.load(tmp_path / "h.run" / "last.pt"))) == pytest.approx(ranges(expected), rel=1e-5)
 
     # the file is the QaT phase's best epoch on val (best.pt); the phase time is the whole run's (last.pt)
     from edgepick.quant.passes import _finish_qat
 
-    last = torch.load(tmp_path / "h.run" / "last.pt", map_location="cpu", weights_only=False)
-    last.update(epoch=EPOCHS + 1, train_time_s=last["train_time_s"] + 100.0)  # as if one more, worse, epoch ran
-    torch.save(last, tmp_path / "h.run" / "last.pt")
-    again = _finish_qat(tmp_path / "h.run", small_data, tmp_path / "h2.onnx", quant)
+    last = Checkpoint.load(tmp_path / "h.run" / "last.pt")
+    replace(last, epoch=EPOCHS + 1, train_time_s=last.train_time_s + 100.0).save(last.path)  # one more, worse, epoch
+    again = _finish_qat(Run(tmp_path / "h.run"), small_data, tmp_path / "h2.onnx", quant)
     assert again["qat_epoch"] == EPOCHS and again["qat_phase_s"] == pytest.approx(result["qat_phase_s"] + 100.0, abs=0.01)
 
 

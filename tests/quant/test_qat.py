@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from edgepick.train.checkpoint import read_checkpoint
+from edgepick.train.checkpoint import Checkpoint
 
 
 def _prepared_qat(trained_run):
@@ -15,7 +15,7 @@ def _prepared_qat(trained_run):
     from edgepick.train.checkpoint import load_model
 
     model, ckpt = load_model(trained_run)
-    size = tuple(ckpt["input_size"])
+    size = ckpt.input_size
     return prepare(model, QuantConfig(), size, qat=True), size
 
 
@@ -169,7 +169,7 @@ def test_converted_qat_graph_computes_what_qat_trained(trained_run, small_data):
     from edgepick.train.checkpoint import load_model
 
     model, ckpt = load_model(trained_run)
-    size = tuple(ckpt["input_size"])
+    size = ckpt.input_size
     train = torch.stack([as_input(i)[0] for i in model_images(small_data, "train", 8, size)])
     val = torch.stack([as_input(i)[0] for i in model_images(small_data, "val", 8, size)])
     model.eval()
@@ -262,19 +262,19 @@ def test_eval_copy_is_an_exact_eval_graph():
 
 def test_hybrid_qat_continues_with_the_float_runs_optimizer_moments(trained_run):
     """Hybrid-QaT's fake-quant graph gets the AdamW moments of the float checkpoint it starts from."""
-    from edgepick.models.deeplabv3 import ModelConfig, build_model
+    from edgepick.models.deeplabv3 import build_model
     from edgepick.quant.graph import prepare
     from edgepick.quant.quantizer import QuantConfig
     from edgepick.train.loop import carry_optimizer_state
 
-    start = read_checkpoint(trained_run / "epoch_002.pt")
-    model = prepare(build_model(ModelConfig(**start["model_config"])), QuantConfig(), (64, 96), qat=True)
+    start = Checkpoint.load(trained_run / "epoch_002.pt")
+    model = prepare(build_model(start.model_config), QuantConfig(), (64, 96), qat=True)
     opt = torch.optim.AdamW(model.parameters())
     params = dict(model.named_parameters())
-    float_shapes = {k: v.shape for k, v in start["model"].items()}
+    float_shapes = {k: v.shape for k, v in start.model.items()}
     # all but the dilated ASPP convs that prepare trims to the taps a 96x64 input reaches
     same_shape = sum(float_shapes[n.removeprefix("model.")] == p.shape for n, p in params.items())
     assert carry_optimizer_state(opt, model, start, prefix="model.") == same_shape > 150
-    first = next(iter(start["optimizer"]["state"].values()))  # the float model's first parameter
+    first = next(iter(start.optimizer["state"].values()))  # the float model's first parameter
     assert torch.equal(opt.state[params["model.backbone.0.0.weight"]]["exp_avg"], first["exp_avg"])
     assert float(opt.state[params["model.backbone.0.0.weight"]]["step"]) == float(first["step"]) > 0

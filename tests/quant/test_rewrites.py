@@ -43,7 +43,7 @@ def test_conv_biases_lie_on_onnxruntimes_int32_grid(trained_run, small_data):
     from edgepick.train.checkpoint import load_model
 
     model, ckpt = load_model(trained_run)
-    size = tuple(ckpt["input_size"])
+    size = ckpt.input_size
     prepared = prepare(model, QuantConfig(), size, qat=False)
     with torch.no_grad():
         for rgb in model_images(small_data, "train", 2, size):

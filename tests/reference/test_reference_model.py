@@ -36,6 +36,6 @@ def test_reference_model_picks_in_the_synthetic_cell():
     truth = camera.calibration()
     with camera, robot:
         results = run_cycles(camera, Pipeline(Segmenter(reference_model(), threads=2), truth), robot,
-                             DigitalGripper(robot, 0), PickConfig(), 8, CommandLog(None), echo=lambda line: None,
-                             truth_cal=truth)
+                             DigitalGripper(robot, 0), cfg=PickConfig(), cycles=8, log=CommandLog(None),
+                             echo=lambda line: None, truth_cal=truth)
     assert summarize(results)["success"] >= 6, [r.get("verdict") for r in results]

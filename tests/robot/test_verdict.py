@@ -64,8 +64,8 @@ def test_pick_loop_judges_each_cycle_with_the_true_labels():
     cam, robot, lines = SynthCamera(640, 480, seed=0, mount_height_m=0.7), SimRobot(), []
     cal = cam.calibration()
     with cam, robot:
-        results = run_cycles(cam, TruthPipeline(list(CLASSES), cal), robot, DigitalGripper(robot, 0), PickConfig(),
-                             12, CommandLog(None), echo=lines.append, truth_cal=cal)
+        results = run_cycles(cam, TruthPipeline(list(CLASSES), cal), robot, DigitalGripper(robot, 0), cfg=PickConfig(),
+                             cycles=12, log=CommandLog(None), echo=lines.append, truth_cal=cal)
     verdicts = [r["verdict"] for r in results]
     assert len(verdicts) == 12 and all("verdict:" in line for line in lines)
     assert sum(v["success"] for v in verdicts) >= 6

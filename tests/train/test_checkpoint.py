@@ -12,14 +12,13 @@ from hypothesis import strategies as st
 torch = pytest.importorskip("torch")
 
 from edgepick.errors import EdgepickError  # noqa: E402
-from edgepick.train.checkpoint import read_checkpoint  # noqa: E402
-from edgepick.train.loop import TrainConfig  # noqa: E402
+from edgepick.train.checkpoint import Checkpoint  # noqa: E402
 from tests.test_schema import _paths, json_values  # noqa: E402
 
 GOOD = {"model": {"backbone.0.0.weight": torch.zeros(2, 3, 1, 1)},
         "model_config": {"arch": "mobilenetv3", "num_classes": 3, "output_stride": 16, "colorspace": "rgb",
                          "aux_loss": False, "bn_momentum": 0.1, "variant": "standard"},
-        "classes": ["background", "a", "b"], "input_size": [96, 128], "colorspace": "rgb", "epoch": 3,
+        "classes": ["background", "a", "b"], "input_size": [96, 128], "epoch": 3,
         "history": [{"epoch": 1, "miou": 0.5}], "train_time_s": 12.5,
         "train_config": {"data": "d", "out": "r", "epochs": 10, "size": [96, 128], "lr": 0.001, "keep_epochs": [9]}}
 
@@ -40,9 +39,13 @@ def mutated_checkpoint(draw):
 
 def test_a_good_checkpoint_reads_and_its_train_config_too(tmp_path):
     torch.save(GOOD, tmp_path / "c.pt")
-    ckpt = read_checkpoint(tmp_path / "c.pt")
-    assert ckpt["path"] == str(tmp_path / "c.pt")
-    assert TrainConfig.from_dict(ckpt["train_config"]).size == (96, 128)
+    ckpt = Checkpoint.load(tmp_path / "c.pt")
+    assert ckpt.path == tmp_path / "c.pt" and ckpt.classes == ("background", "a", "b") and ckpt.epoch == 3
+    assert ckpt.train_config.size == (96, 128) and ckpt.train_config.keep_epochs == [9]
+    ckpt.save(tmp_path / "again.pt")
+    again = Checkpoint.load(tmp_path / "again.pt")  # what save writes, load reads back the same
+    assert again == ckpt and again.model.keys() == ckpt.model.keys()
+    assert all(torch.equal(again.model[k], v) for k, v in ckpt.model.items())
 
 
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -50,9 +53,7 @@ def test_a_good_checkpoint_reads_and_its_train_config_too(tmp_path):
 def test_any_mutated_description_reads_or_is_one_line(tmp_path, ckpt):
     torch.save(ckpt, tmp_path / "c.pt")
     try:
-        read = read_checkpoint(tmp_path / "c.pt")
-        if "train_config" in read:
-            TrainConfig.from_dict(read["train_config"])
+        Checkpoint.load(tmp_path / "c.pt")
     except EdgepickError as exc:
         assert "\n" not in str(exc) and str(exc).strip(), str(exc)
 
@@ -64,9 +65,11 @@ def test_any_mutated_description_reads_or_is_one_line(tmp_path, ckpt):
     ({"classes": "abc"}, "classes must be a list"),
     ({"model_config": {**GOOD["model_config"], "arch": "unet"}}, "model_config.arch must be one of"),
     ({"model": [1]}, "model must be a state dict"),
+    ({"colorspace": "rgb"}, "has unknown fields colorspace"),
+    ({"train_config": {**GOOD["train_config"], "quant": {}}}, "train_config has unknown fields quant"),
 ])
 def test_the_field_at_fault_is_named(tmp_path, change, message):
     torch.save({**GOOD, **change}, tmp_path / "c.pt")
     with pytest.raises(EdgepickError) as info:
-        read_checkpoint(tmp_path / "c.pt")
+        Checkpoint.load(tmp_path / "c.pt")
     assert message in str(info.value) and str(info.value).startswith(str(tmp_path / "c.pt"))

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from edgepick.train.checkpoint import load_model, read_checkpoint
+from edgepick.train.checkpoint import Checkpoint, load_model
 from tests.conftest import REPO, run_cli
 
 
@@ -38,7 +38,7 @@ def test_short_cpu_training_beats_chance_and_is_not_degenerate(trained_run, smal
 
     model, ckpt = load_model(trained_run)
     ds = NativeDataset.open(small_data, "val")
-    h, w = ckpt["input_size"]
+    h, w = ckpt.input_size
     seen = set()
     with torch.no_grad():
         for sid in ds.ids:
@@ -48,14 +48,14 @@ def test_short_cpu_training_beats_chance_and_is_not_degenerate(trained_run, smal
 
 
 def test_checkpoints_carry_their_config(trained_run):
-    ckpt = read_checkpoint(trained_run / "best.pt")
-    assert ckpt["classes"] == ["background", "bearing", "disk", "adapter", "box"]
-    assert ckpt["input_size"] == [96, 128]
-    assert ckpt["colorspace"] == "rgb" and ckpt["model_config"]["arch"] == "mobilenetv3"
-    assert ckpt["normalisation"]["mean"] == (0.485, 0.456, 0.406)
+    ckpt = Checkpoint.load(trained_run / "best.pt")
+    assert ckpt.classes == ("background", "bearing", "disk", "adapter", "box")
+    assert ckpt.input_size == (96, 128)
+    assert ckpt.colorspace == "rgb" and ckpt.model_config.arch == "mobilenetv3"
+    assert ckpt.normalisation["mean"] == (0.485, 0.456, 0.406)
     assert (trained_run / "last.pt").is_file() and (trained_run / "epoch_002.pt").is_file()
-    assert read_checkpoint(trained_run / "epoch_002.pt")["epoch"] == 2
-    assert not list(trained_run.glob(".*tmp"))
+    assert Checkpoint.load(trained_run / "epoch_002.pt").epoch == 2
+    assert not [p.name for p in trained_run.iterdir() if ".tmp" in p.name]
 
 
 def test_eval_cli_reports_metrics(trained_run, small_data, tmp_path):
@@ -78,7 +78,7 @@ def test_resume_after_kill_loses_at_most_one_epoch(small_data, tmp_path):
         time.sleep(0.1)
     proc.send_signal(signal.SIGKILL)  # no chance to clean up: atomic writes must hold
     proc.wait()
-    done = read_checkpoint(run / "last.pt")["epoch"]
+    done = Checkpoint.load(run / "last.pt").epoch
     assert 1 <= done < 4
     other = tmp_path / "other"  # the same images under other class names: not the run's data set
     shutil.copytree(small_data, other)
@@ -95,10 +95,10 @@ def test_resume_after_kill_loses_at_most_one_epoch(small_data, tmp_path):
     assert f"resuming {run} after epoch {done}" in resumed.stderr
     history = json.loads((run / "metrics.json").read_text())["history"]
     assert [h["epoch"] for h in history] == [1, 2, 3, 4]
-    last = read_checkpoint(run / "last.pt")
-    assert last["epoch"] == 4 and last["train_config"]["data"] == "data"
-    best = read_checkpoint(run / "best.pt")  # what export and quantize take: no optimizer state
-    assert "optimizer" not in best and "optimizer" in last
+    last = Checkpoint.load(run / "last.pt")
+    assert last.epoch == 4 and last.train_config.data == "data"
+    best = Checkpoint.load(run / "best.pt")  # what export and quantize take: no optimizer state
+    assert best.optimizer is None and last.optimizer is not None
     assert (run / "best.pt").stat().st_size < 0.5 * (run / "last.pt").stat().st_size
 
 
@@ -110,8 +110,8 @@ def test_ddp_two_cpu_processes_with_gloo(small_data, tmp_path):
                            "--epochs", "1", "--size", "96x64", "--batch-size", "4", "--device", "cpu"],
                           cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    ckpt = read_checkpoint(run / "last.pt")
-    assert ckpt["world_size"] == 2 and ckpt["epoch"] == 1
+    ckpt = Checkpoint.load(run / "last.pt")
+    assert ckpt.world_size == 2 and ckpt.epoch == 1
     hist = json.loads((run / "metrics.json").read_text())["history"]
     # each rank saw half of the 36 training images; the loss/metrics are all-reduced over both
     assert hist[0]["miou"] is not None
