@@ -18,7 +18,7 @@ from _common import add_output, machine_line, emit  # noqa: E402
 
 from edgepick.evaluation import evaluate  # noqa: E402
 from edgepick.export.onnx_export import export_checkpoint  # noqa: E402
-from edgepick.quant.passes import quantize_static  # noqa: E402
+from edgepick.quant.passes import agreement_images, folder_images, quantize_static  # noqa: E402
 from edgepick.quant.quantizer import QuantConfig  # noqa: E402
 
 CASES = [("minmax", True), ("minmax", False), ("percentile", True), ("percentile", False), ("mse", True),
@@ -43,13 +43,14 @@ def main() -> None:
     rows = []
     try:
         fp32 = export_checkpoint(args.run, work / "fp32.onnx")["out"]
+        calib, check = folder_images(args.data, "train", args.calib_images), agreement_images(args.data)
         base = {e: evaluate(fp32, args.data, args.split, progress=False, engine=e)["miou"] for e in engines}
         rows.append(("fp32", "-", base, None))
         for method, reduce_range in CASES:
             out = work / f"{method}-{reduce_range}.onnx"
             print(f"-- {method} reduce_range={reduce_range}", file=sys.stderr, flush=True)
-            r = quantize_static(args.run, args.data, out, QuantConfig(calib_method=method, reduce_range=reduce_range),
-                                calib_images=args.calib_images, progress=False)
+            r = quantize_static(args.run, calib, out, QuantConfig(calib_method=method, reduce_range=reduce_range),
+                                check_images=check, progress=False)
             miou = {e: evaluate(out, args.data, args.split, progress=False, engine=e)["miou"] for e in engines}
             rows.append((method, "7-bit" if reduce_range else "8-bit", miou, r["agreement_vs_torch"]))
     finally:

@@ -129,9 +129,9 @@ def hybrid_ab(run: Path, data: Path, fraction: float, tmp: Path) -> dict[str, tu
 
     export_checkpoint(run, tmp / "fp32.onnx")
     rows = {"fp32": (*scores(tmp / "fp32.onnx"), "")}
-    for label, kw in {"first-batch ranges, moving (--calib-images 0)": {"calib_images": 0},
-                      "calibrated start, 64 images": {"calib_images": 64, "hold_ranges": False},
-                      "calibrated start, held (the default)": {"calib_images": 64, "hold_ranges": True}}.items():
+    for label, kw in {"first-batch ranges, moving (--calib-images 0)": {"calib": 0},
+                      "calibrated start, 64 images": {"calib": 64, "hold_ranges": False},
+                      "calibrated start, held (the default)": {"calib": 64, "hold_ranges": True}}.items():
         out = tmp / f"h{len(rows)}.onnx"
         result = quantize_hybrid(run, data, out, fraction, progress=False, device="cpu", **kw)
         rows[f"hybrid, {label}"] = (*scores(out), result["qat_phase_s"])

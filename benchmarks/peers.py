@@ -129,6 +129,7 @@ def main() -> None:
 
     from edgepick.export.onnx_export import export_checkpoint
     from edgepick.quant.passes import model_images
+    from edgepick.quant.passes import agreement_images, folder_images
     from edgepick.quant.passes import quantize_static as edgepick_static
 
     work = Path(tempfile.mkdtemp(prefix="peers-"))
@@ -163,7 +164,8 @@ def main() -> None:
         ov_fp32 = ov.Core().read_model(str(fp32))
         ov_int8 = nncf.quantize(ov_fp32, nncf.Dataset(calib), subset_size=len(calib))
         ov.save_model(ov_int8, work / "nncf.xml")
-        ours = Path(edgepick_static(args.run, args.data, work / "edgepick.onnx", calib_images=args.calib_images,
+        ours = Path(edgepick_static(args.run, folder_images(args.data, "train", args.calib_images),
+                                    work / "edgepick.onnx", check_images=agreement_images(args.data),
                                     progress=False)["out"])
 
         # OpenVINO's own default for a float model on CPUs with AMX or avx512_bf16: a row only where it is bf16

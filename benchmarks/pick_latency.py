@@ -37,14 +37,15 @@ from edgepick.runtime.session import Segmenter  # noqa: E402
 
 def default_models(work: Path) -> list[str]:
     from edgepick.data.synth import SynthConfig, synthesize
-    from edgepick.quant.passes import quantize_static
+    from edgepick.quant.passes import folder_images, quantize_static
 
     data = work / "data"
     synthesize(data, SynthConfig(scenes=20, seed=3, splits=(16, 2, 2)), progress=False)
     out = []
     for h, w in ((480, 640), (240, 320)):
         ckpt = untrained_checkpoint(work / f"untrained_{h}.pt", (h, w), list(CLASSES))
-        out.append(quantize_static(ckpt, data, work / f"int8_{h}x{w}.onnx", calib_images=16, progress=False)["out"])
+        out.append(quantize_static(ckpt, folder_images(data, "train", 16), work / f"int8_{h}x{w}.onnx",
+                                   progress=False)["out"])
     return out
 
 

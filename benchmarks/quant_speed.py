@@ -114,7 +114,7 @@ def main() -> None:
     from edgepick.data.synth import SynthConfig, synthesize
     from edgepick.evaluation import evaluate
     from edgepick.export.onnx_export import export_checkpoint
-    from edgepick.quant.passes import quantize_static
+    from edgepick.quant.passes import folder_images, quantize_static
     from edgepick.quant.quantizer import QuantConfig
     from edgepick.train.checkpoint import load_model
 
@@ -125,19 +125,19 @@ def main() -> None:
     classes = json.loads((data / "meta.json").read_text())["classes"]
     ckpt = args.checkpoint or str(untrained_checkpoint(work / "untrained.pt", (480, 640), classes, args.variant))
     fp32 = export_checkpoint(ckpt, work / "fp32.onnx")
-    int8 = quantize_static(ckpt, data, work / "int8.onnx", calib_images=args.calib_images, progress=False)
-    whole = quantize_static(ckpt, data, work / "int8_whole.onnx", calib_images=args.calib_images, progress=False,
+    calib = folder_images(data, "train", args.calib_images)
+    int8 = quantize_static(ckpt, calib, work / "int8.onnx", progress=False)
+    whole = quantize_static(ckpt, calib, work / "int8_whole.onnx", progress=False,
                             export_passes=("integer_activations",))  # the same int8 model, convs whole
-    float_act = quantize_static(ckpt, data, work / "int8_float_act.onnx", QuantConfig(hardswish_gate=False),
-                                calib_images=args.calib_images, progress=False,
-                                export_passes=("crop_convs",))  # hardswish, SE, pooling in float
+    float_act = quantize_static(ckpt, calib, work / "int8_float_act.onnx", QuantConfig(hardswish_gate=False),
+                                progress=False, export_passes=("crop_convs",))  # hardswish, SE, pooling in float
     model, _ = load_model(ckpt)
     depthwise = [n for n, m in model.named_modules() if isinstance(m, torch.nn.Conv2d) and m.groups > 1]
-    dw_float = quantize_static(ckpt, data, work / "int8_dw_float.onnx", QuantConfig(keep_float=depthwise),
-                               calib_images=args.calib_images, progress=False)
+    dw_float = quantize_static(ckpt, calib, work / "int8_dw_float.onnx", QuantConfig(keep_float=depthwise),
+                               progress=False)
     first = [next(n for n, m in model.named_modules() if isinstance(m, torch.nn.Conv2d) and m.in_channels == 3)]
-    first_float = quantize_static(ckpt, data, work / "int8_first_float.onnx", QuantConfig(keep_float=first),
-                                  calib_images=args.calib_images, progress=False)
+    first_float = quantize_static(ckpt, calib, work / "int8_first_float.onnx", QuantConfig(keep_float=first),
+                                  progress=False)
     size = fp32["input_size"]
     image = (np.random.default_rng(0).random((1, size[0], size[1], 3)) * 255).astype(np.uint8)
 

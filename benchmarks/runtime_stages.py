@@ -36,13 +36,13 @@ from edgepick.runtime.session import Segmenter  # noqa: E402
 def default_models(work: Path) -> list[str]:
     from edgepick.data.synth import SynthConfig, synthesize
     from edgepick.export.onnx_export import export_checkpoint
-    from edgepick.quant.passes import quantize_static
+    from edgepick.quant.passes import folder_images, quantize_static
 
     data = work / "data"
     synthesize(data, SynthConfig(scenes=20, seed=3, splits=(16, 2, 2)), progress=False)
     ckpt = untrained_checkpoint(work / "untrained.pt", (480, 640), list(CLASSES))
     fp32 = export_checkpoint(ckpt, work / "fp32.onnx")["out"]
-    int8 = quantize_static(ckpt, data, work / "int8.onnx", calib_images=16, progress=False)["out"]
+    int8 = quantize_static(ckpt, folder_images(data, "train", 16), work / "int8.onnx", progress=False)["out"]
     return [fp32, int8]
 
 

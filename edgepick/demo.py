@@ -79,12 +79,13 @@ def quantize_demo(workdir: Path, epochs: int) -> dict:
     """fp32 export, static int8 and hybrid-QaT int8 (last epoch with QaT); runtime eval of each."""
     from edgepick.evaluation import evaluate
     from edgepick.export.onnx_export import export_checkpoint
-    from edgepick.quant.passes import quantize_hybrid, quantize_static
+    from edgepick.quant.passes import agreement_images, folder_images, quantize_hybrid, quantize_static
 
     _step("4/8 export fp32, quantize static int8 and hybrid-QaT int8 (onnxruntime QDQ)")
     models = workdir / "models"
     files = {"fp32": export_checkpoint(workdir / "run", models / "fp32.onnx"),
-             "static": quantize_static(workdir / "run", workdir / "data", models / "static.onnx", calib_images=32),
+             "static": quantize_static(workdir / "run", folder_images(workdir / "data", "train", 32),
+                                       models / "static.onnx", check_images=agreement_images(workdir / "data")),
              "hybrid": quantize_hybrid(workdir / "run", workdir / "data", models / "hybrid.onnx", 1 / epochs,
                                        qat_run=workdir / "hybrid.run", device="cpu")}
     _step("5/8 evaluate the ONNX files with the runtime (onnxruntime, CPU) on the test split")

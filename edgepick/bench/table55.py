@@ -83,7 +83,7 @@ def make_table55(work: str | Path, setting: Setting, device: str = "auto", comma
 
     from edgepick.data.synth import SynthConfig, synthesize
     from edgepick.export.onnx_export import export_checkpoint
-    from edgepick.quant.passes import quantize_hybrid, quantize_qat, quantize_static
+    from edgepick.quant.passes import agreement_images, folder_images, quantize_hybrid, quantize_qat, quantize_static
     from edgepick.train.loop import TrainConfig, train
 
     s = setting
@@ -120,8 +120,9 @@ def make_table55(work: str | Path, setting: Setting, device: str = "auto", comma
     files = [models / "fp32.onnx", models / "static.onnx", models / "qat.onnx",
              *[models / f"hybrid{p:.2f}.onnx" for p in FRACTIONS]]
     timed("fp32 export", "fp32", files[0], export_checkpoint, work / "float", files[0])
-    timed("static PTQ", "static", files[1], quantize_static, work / "float", data, files[1],
-          calib_images=min(64, s.splits[0]), progress=False)
+    timed("static PTQ", "static", files[1], lambda: quantize_static(
+        work / "float", folder_images(data, "train", min(64, s.splits[0])), files[1],
+        check_images=agreement_images(data), progress=False))
     qat_tc = replace(tc, out=str(work / "qat"), keep_epochs=[])
     timed("QaT from scratch", "qat", files[2], quantize_qat, qat_tc, files[2], progress=False)
     for p, f in zip(FRACTIONS, files[3:]):

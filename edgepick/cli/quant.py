@@ -92,8 +92,10 @@ def quantize() -> None:
 def quantize_static_cmd(checkpoint: str, data_dir: str, calib_images: int | None, calib_method: str, percentile: float,
                         seed: int, max_miou_drop: float | None, max_float_layers: int, out: str, reduce_range: bool,
                         keep_float: str) -> None:
-    """Static post-training quantization of a float checkpoint (BN folded, ranges calibrated)."""
-    from edgepick.quant.passes import quantize_static
+    """Static post-training quantization of a float checkpoint (BN folded, ranges calibrated on
+    --calib-images train images of --data)."""
+    from edgepick.quant.passes import agreement_images, check_classes, check_image_count, folder_images, quantize_static
+    from edgepick.train.checkpoint import Checkpoint
 
     _check_onnx_out(out, checkpoint, data_dir)
     if seed < 0:
@@ -104,7 +106,11 @@ def quantize_static_cmd(checkpoint: str, data_dir: str, calib_images: int | None
 
         emit(quantize_accuracy_aware(checkpoint, data_dir, out, max_miou_drop, cfg, calib_images, max_float_layers))
         return
-    emit(quantize_static(checkpoint, data_dir, out, cfg, calib_images=calib_images, seed=seed))
+    check_image_count(data_dir, "train", calib_images)
+    ckpt = Checkpoint.load(checkpoint)
+    check_classes(ckpt, data_dir)
+    emit(quantize_static(ckpt, folder_images(data_dir, "train", calib_images, seed), out, cfg,
+                         check_images=agreement_images(data_dir, seed)))
 
 
 @quantize.command("inspect")
@@ -119,10 +125,18 @@ def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int | Non
     """Where int8 drifts from fp32: per conv layer, the SQNR of the int8 simulation against fp32 and
     the drift it adds; the worst layers are the --keep-float candidates. JSON on stdout."""
     from edgepick.quant.inspect import inspect
+    from edgepick.quant.passes import check_classes, check_image_count, folder_images
+    from edgepick.train.checkpoint import Checkpoint
 
     if top < 0:
         raise ConfigError(f"--top {top}: the number of rows must be 0 or more")
-    report = inspect(checkpoint, data_dir, _quant_config(calib_method, reduce_range=reduce_range), calib_images, images)
+    check_image_count(data_dir, "train", calib_images)
+    check_image_count(data_dir, "val", images, "val images to compare (--images)")
+    ckpt = Checkpoint.load(checkpoint)
+    check_classes(ckpt, data_dir)
+    report = inspect(ckpt, folder_images(data_dir, "train", calib_images),
+                     folder_images(data_dir, "val", images, what="val images"),
+                     _quant_config(calib_method, reduce_range=reduce_range))
     by_name = {r["layer"]: r for r in report["layers"]}
     click.echo(f"logits SQNR {report['logits_sqnr_db']} dB, labels equal to fp32: {report['label_agreement']}", err=True)
     click.echo(f"{'layer':40s} {'SQNR dB':>8s} {'added drift dB':>15s}", err=True)
@@ -203,7 +217,13 @@ def quantize_hybrid_cmd(run: str, data_dir: str, qat_fraction: float, qat_run: s
 
     _check_onnx_out(out, run, data_dir)
     check_output(qat_run or str(Path(out).with_suffix(".run")), "--run", kind="dir", inputs=(run, data_dir, out))
+    if not 0.0 < qat_fraction < 1.0:
+        raise ConfigError(f"--qat-fraction must be inside (0, 1), got {qat_fraction}")
+    if not 0.0 <= freeze_at <= 1.0:
+        raise ConfigError(f"--freeze-at must be inside [0, 1], got {freeze_at}")
+    if calib_images is not None and (calib_images < 0 or (hold_ranges and not calib_images)):
+        raise ConfigError("--calib-images must be 0 (off) or positive, and --hold-ranges needs it")
     cfg = _quant_config(reduce_range=reduce_range, keep_float=keep_float, weight_averaging=weight_averaging)
     emit(quantize_hybrid(run, data_dir, out, qat_fraction, cfg, qat_run=qat_run, freeze_at=freeze_at,
-                          carry_optimizer=not fresh_optimizer, calib_images=calib_images, hold_ranges=hold_ranges,
+                          carry_optimizer=not fresh_optimizer, calib=calib_images, hold_ranges=hold_ranges,
                           device=device))

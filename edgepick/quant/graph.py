@@ -1,11 +1,14 @@
 """The pt2e verbs on a DeepLabV3, as torchao's quantize_pt2e has them: `prepare` (observers for
-static PTQ, or fake-quant for QaT) and `convert` (a Q/DQ graph with BatchNorm folded). Both assert
-that quantization really happened, where pt2e would hand back a float model without a word."""
+static PTQ, or fake-quant for QaT), `calibrate` (the caller's images through the observers) and
+`convert` (a Q/DQ graph with BatchNorm folded). prepare and convert assert that quantization really
+happened, where pt2e would hand back a float model without a word."""
 
 from __future__ import annotations
 
 import warnings
+from collections.abc import Iterable, Iterator
 
+import cv2
 import numpy as np
 import torch
 
@@ -26,6 +29,40 @@ class QuantizationError(EdgepickError):
 def as_input(rgb: np.ndarray) -> torch.Tensor:
     """An HWC uint8 RGB image as the model's [1, 3, H, W] float input."""
     return torch.from_numpy(rgb).permute(2, 0, 1)[None].float()
+
+
+def at_input_size(rgb: np.ndarray, size: tuple[int, int], what: str = "calib") -> np.ndarray:
+    """An HxWx3 uint8 RGB image at the model's (H, W), area-resized as the runtime resizes a frame."""
+    if not isinstance(rgb, np.ndarray) or rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        got = f"{rgb.dtype} {rgb.shape}" if isinstance(rgb, np.ndarray) else type(rgb).__name__
+        raise ConfigError(f"{what}: images must be HxWx3 uint8 RGB arrays, got {got}")
+    h, w = size
+    return rgb if rgb.shape[:2] == (h, w) else cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA)
+
+
+def calibrate(prepared: torch.fx.GraphModule, images: Iterable[np.ndarray], size: tuple[int, int] | None = None,
+              progress: bool = False) -> int:
+    """Run PREPARED on each of IMAGES (HxWx3 uint8 RGB, resized to the model's (H, W) SIZE when given)
+    so that its observers see the activations; returns how many images it saw (at least one)."""
+    from edgepick.progress import progress as progress_bar
+
+    device = next(prepared.parameters()).device
+    seen = 0
+    with torch.no_grad():
+        for rgb in progress_bar(images, desc="calibrate", unit="img", enabled=progress):
+            prepared(as_input(at_input_size(rgb, size) if size else rgb).to(device))
+            seen += 1
+    if not seen:
+        raise ConfigError("calib: no images; calibration needs at least one")
+    return seen
+
+
+def first_of(images: Iterable[np.ndarray], count: int, kept: list[np.ndarray]) -> Iterator[np.ndarray]:
+    """IMAGES as they come, the first COUNT of them also put in KEPT (for a check after calibrating)."""
+    for rgb in images:
+        if len(kept) < count:
+            kept.append(rgb)
+        yield rgb
 
 
 def check_keep_float(model: torch.nn.Module, names: list[str]) -> None:

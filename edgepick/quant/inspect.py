@@ -17,6 +17,7 @@ import shutil
 import sys
 import tempfile
 import warnings
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -26,9 +27,9 @@ from edgepick.data.native import NativeDataset
 from edgepick.errors import ConfigError
 from edgepick.export.onnx_export import LogitsNet
 from edgepick.models.deeplabv3 import trim_dilated_convs
-from edgepick.quant.graph import PREFIX, as_input, convert, prepare
+from edgepick.quant.graph import PREFIX, as_input, at_input_size, calibrate, convert, prepare
 from edgepick.quant.quantizer import QuantConfig, module_path
-from edgepick.progress import progress as progress_bar
+from edgepick.train.checkpoint import Checkpoint
 
 CONV = torch.ops.aten.conv2d.default
 COMPARED_IMAGES = 8  # val images inspect compares fp32 and int8 on, by default
@@ -121,25 +122,19 @@ def ranked(report: dict) -> list[str]:
     return [r["layer"] for r in sorted(rows, key=lambda r: -r["added_drift_db"])]
 
 
-def inspect(checkpoint: str | Path, data: str | Path, config: QuantConfig | None = None, calib_images: int | None = None,
-            images: int = COMPARED_IMAGES, seed: int = 0, progress: bool = True) -> dict:
-    """Calibrate a static int8 model (in memory) and compare it layer by layer with fp32 on IMAGES val images."""
-    from edgepick.quant.passes import check_classes, check_image_count, model_images
-    from edgepick.train.checkpoint import load_model
-
+def inspect(checkpoint: str | Path | Checkpoint, calib: Iterable[np.ndarray], images: Sequence[np.ndarray],
+            config: QuantConfig | None = None, progress: bool = True) -> dict:
+    """Calibrate a static int8 model (in memory) on CALIB and compare it layer by layer with fp32 on
+    IMAGES (HxWx3 uint8 RGB, resized to the model's input; `folder_images` draws both from a data set)."""
     config = (config or QuantConfig()).validate()
-    check_image_count(data, "train", calib_images)
-    check_image_count(data, "val", images, "val images to compare (--images)")
-    model, ckpt = load_model(checkpoint)
-    check_classes(ckpt, data)
+    if not images:
+        raise ConfigError("images: give at least one image to compare on")
+    ckpt = checkpoint if isinstance(checkpoint, Checkpoint) else Checkpoint.load(checkpoint)
     size = ckpt.input_size
     float_gm = float_graph(ckpt.build_model(), size)
-    prepared = prepare(model, config, size, qat=False)
-    with torch.no_grad():
-        for rgb in progress_bar(model_images(data, "train", calib_images, size, seed), desc="calibrate", unit="img",
-                                enabled=progress):
-            prepared(as_input(rgb))
-    report = compare(float_gm, convert(prepared), model_images(data, "val", images, size, seed, "val images"))
+    prepared = prepare(ckpt.build_model(), config, size, qat=False)
+    calibrate(prepared, calib, size, progress)
+    report = compare(float_gm, convert(prepared), [at_input_size(rgb, size, "images") for rgb in images])
     report["ranked"] = ranked(report)
     return report
 
@@ -152,7 +147,7 @@ def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str |
     are float. Writes the best file found at OUT and reports every step."""
     from edgepick.evaluation import evaluate
     from edgepick.export.onnx_export import export_checkpoint
-    from edgepick.quant.passes import check_image_count, quantize_static
+    from edgepick.quant.passes import agreement_images, check_classes, check_image_count, folder_images, quantize_static
 
     if not (math.isfinite(max_drop_pp) and max_drop_pp >= 0):
         raise ConfigError(f"--max-miou-drop {max_drop_pp}: must be a number of percentage points, 0 or more")
@@ -166,18 +161,21 @@ def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str |
     if n_val < COMPARED_IMAGES:
         print(f"edgepick: warning: {data}/val has {n_val} images; the val mIoU that --max-miou-drop compares moves "
               "in coarse steps on so few", file=sys.stderr, flush=True)
+    ckpt = Checkpoint.load(checkpoint)
+    check_classes(ckpt, data)
+    calib = folder_images(data, "train", calib_images)  # drawn once, for every step
+    compared, check = folder_images(data, "val", min(COMPARED_IMAGES, n_val), what="val images"), agreement_images(data)
     work = Path(tempfile.mkdtemp(prefix="accuracy-aware-"))
     try:
         fp32 = export_checkpoint(checkpoint, work / "fp32.onnx")["out"]
         base = evaluate(fp32, data, "val", progress=False)["miou"]
-        candidates = ranked(inspect(checkpoint, data, config, calib_images, min(COMPARED_IMAGES, n_val),
-                                    progress=progress))
+        candidates = ranked(inspect(ckpt, calib, compared, config, progress=progress))
         keep = list(config.keep_float)
         steps, chosen = [], None
         while True:
             cfg = QuantConfig(**{**config.to_dict(), "keep_float": keep})
             path = work / f"step{len(steps)}.onnx"
-            res = quantize_static(checkpoint, data, path, cfg, calib_images=calib_images, progress=False)
+            res = quantize_static(ckpt, calib, path, cfg, check_images=check, progress=False)
             miou = evaluate(path, data, "val", progress=False)["miou"]
             drop = round(100 * (base - miou), 3)
             steps.append({"keep_float": list(keep), "val_miou": miou, "drop_pp": drop, "file": str(path)})

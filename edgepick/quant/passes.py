@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Iterable, Sequence
 from dataclasses import replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 
@@ -22,15 +22,16 @@ from edgepick.data.native import NativeDataset
 from edgepick.errors import CheckpointError, ConfigError
 from edgepick.export.checks import conv_weight_report, label_agreement
 from edgepick.export.onnx_export import EXPORT_PASSES, contract_metadata, export_onnx
-from edgepick.progress import progress as progress_bar
-from edgepick.quant.graph import QuantizationError, as_input, check_keep_float, convert, expected_int8_convs, prepare
+from edgepick.quant.graph import (QuantizationError, at_input_size, calibrate, check_keep_float, convert,
+                                  expected_int8_convs, first_of, prepare)
 from edgepick.quant.qat import load_qat, qat_config, train_qat
 from edgepick.quant.quantizer import QuantConfig, count_quant_nodes
-from edgepick.train.checkpoint import Checkpoint, load_model
+from edgepick.train.checkpoint import Checkpoint
 from edgepick.train.config import TrainConfig
 from edgepick.train.run import Run
 
 DEFAULT_CALIB_IMAGES = 64  # or the whole train split when it is smaller
+AGREEMENT_IMAGES = 8  # images on which each pass compares onnxruntime's labels with torch's simulation
 
 
 def check_image_count(data: str | Path, split: str, count: int | None, what: str = "calibration images") -> int:
@@ -44,15 +45,29 @@ def check_image_count(data: str | Path, split: str, count: int | None, what: str
     return count
 
 
-def model_images(data: str | Path, split: str, count: int | None, size: tuple[int, int], seed: int = 0,
-                 what: str = "calibration images") -> list[np.ndarray]:
-    """COUNT images of DATA/<split> (None: DEFAULT_CALIB_IMAGES, or all if fewer), chosen with
-    SEED, area-resized to the model's (H, W)."""
+def folder_images(data: str | Path, split: str = "train", count: int | None = None, seed: int = 0,
+                  what: str = "calibration images") -> list[np.ndarray]:
+    """COUNT images of DATA/<split> (None: DEFAULT_CALIB_IMAGES, or all if fewer), chosen with SEED,
+    as HxWx3 uint8 RGB at the data set's own size: the calibration data the passes take, from a
+    native data set."""
+    if seed < 0:
+        raise ConfigError(f"seed {seed}: must be 0 or positive")
     ds = NativeDataset.open(data, split)
     count = check_image_count(data, split, count, what)
     ids = [ds.ids[i] for i in sorted(np.random.default_rng(seed).choice(len(ds), count, replace=False))]
-    h, w = size
-    return [cv2.resize(ds.rgb(i), (w, h), interpolation=cv2.INTER_AREA) for i in ids]
+    return [ds.rgb(i) for i in ids]
+
+
+def agreement_images(data: str | Path, seed: int = 0) -> list[np.ndarray]:
+    """Up to AGREEMENT_IMAGES val images of DATA: where each pass compares onnxruntime's labels with torch's."""
+    n = len(NativeDataset.open(data, "val"))
+    return folder_images(data, "val", min(AGREEMENT_IMAGES, n), seed, "val images")
+
+
+def model_images(data: str | Path, split: str, count: int | None, size: tuple[int, int], seed: int = 0,
+                 what: str = "calibration images") -> list[np.ndarray]:
+    """folder_images, area-resized to the model's (H, W)."""
+    return [at_input_size(rgb, size) for rgb in folder_images(data, split, count, seed, what)]
 
 
 def check_classes(ckpt: Checkpoint, data: str | Path) -> None:
@@ -83,36 +98,31 @@ def export_int8(converted: torch.fx.GraphModule, out: str | Path, metadata: dict
             "int8_convs": report["int8"], "float_convs": report["float"], "agreement_vs_torch": round(agreement, 5)}
 
 
-def quantize_static(checkpoint: str | Path, data: str | Path, out: str | Path, config: QuantConfig | None = None,
-                    calib_images: int | None = None, seed: int = 0, progress: bool = True,
-                    export_passes: tuple[str, ...] = tuple(EXPORT_PASSES)) -> dict:
-    """Static post-training quantization: BN folded, per-channel int8 weights, activation ranges
-    calibrated on CALIB_IMAGES train images (None: 64, or all if fewer) with config.calib_method;
-    writes an int8 ONNX after the ONNX graph passes EXPORT_PASSES (all by default)."""
+def quantize_static(checkpoint: str | Path | Checkpoint, calib: Iterable[np.ndarray], out: str | Path,
+                    config: QuantConfig | None = None, check_images: Sequence[np.ndarray] | None = None,
+                    progress: bool = True, export_passes: tuple[str, ...] = tuple(EXPORT_PASSES)) -> dict:
+    """Static post-training quantization of a float checkpoint (or RUN): BN folded, per-channel
+    int8 weights, activation ranges calibrated with config.calib_method on CALIB (HxWx3 uint8 RGB
+    images, any iterable, resized to the model's input); writes an int8 ONNX after the ONNX graph
+    passes EXPORT_PASSES (all by default). The onnxruntime-vs-torch label agreement is measured on
+    CHECK_IMAGES [default: the first 8 calibration images]. `folder_images` draws CALIB from a data set."""
     config = (config or QuantConfig()).validate()
-    if seed < 0:
-        raise ConfigError(f"--seed {seed}: must be 0 or positive")
     _check_out(out)
-    check_image_count(data, "train", calib_images)
-    model, ckpt = load_model(checkpoint)
-    check_classes(ckpt, data)
-    size = ckpt.input_size
-    images = model_images(data, "train", calib_images, size, seed)
-    check_images = model_images(data, "val", min(8, len(NativeDataset.open(data, "val"))), size, seed)
+    ckpt = checkpoint if isinstance(checkpoint, Checkpoint) else Checkpoint.load(checkpoint)
+    model, size = ckpt.build_model(), ckpt.input_size
     check_keep_float(model, config.keep_float)
     t0 = time.perf_counter()
-    _stage(f"prepare the graph (torch.export, observers) to calibrate on {len(images)} train images", progress)
+    _stage("prepare the graph (torch.export, observers), then calibrate", progress)
     prepared = prepare(model, config, size, qat=False)
-    with torch.no_grad():
-        for rgb in progress_bar(images, desc="calibrate", unit="img", enabled=progress):
-            prepared(as_input(rgb))
+    kept: list[np.ndarray] = []
+    seen = calibrate(prepared, first_of(calib, AGREEMENT_IMAGES, kept), size, progress)
     converted = convert(prepared)
     calib_s = time.perf_counter() - t0
-    quant = {"mode": "static", "qat_fraction": None, "calib_method": config.calib_method,
-             "calib_images": len(images),
+    quant = {"mode": "static", "qat_fraction": None, "calib_method": config.calib_method, "calib_images": seen,
              **{k: v for k, v in config.to_dict().items() if k not in ("calib_method", "weight_averaging")}}
     meta = contract_metadata(ckpt, "int8", quant)
-    result = export_int8(converted, out, meta, size, expected_int8_convs(prepared, config), check_images, progress,
+    check = [at_input_size(rgb, size, "check_images") for rgb in (kept if check_images is None else check_images)]
+    result = export_int8(converted, out, meta, size, expected_int8_convs(prepared, config), check, progress,
                          export_passes)
     return {"mode": "static", **result, "observers": count_quant_nodes(prepared), "calib_s": round(calib_s, 2),
             "quant": quant}
@@ -130,7 +140,7 @@ def _finish_qat(run: Run, data: str | Path, out: str | Path, quant: dict, progre
     size = ckpt.input_size
     float_s, qat_s = last.init_train_time_s, last.train_time_s
     meta = contract_metadata(ckpt, "int8", quant, train_time_s=float_s + qat_s)
-    check_images = model_images(data, "val", min(8, len(NativeDataset.open(data, "val"))), size)
+    check_images = [at_input_size(rgb, size) for rgb in agreement_images(data)]
     expected = expected_int8_convs(prepared, qat_config(ckpt))
     result = export_int8(converted, out, meta, size, expected, check_images, progress)
     return {"mode": quant["mode"], **result, "run": str(run.path), "observers": count_quant_nodes(prepared),
@@ -158,29 +168,28 @@ def quantize_qat(train_config: TrainConfig, out: str | Path, config: QuantConfig
 
 def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_fraction: float,
                     config: QuantConfig | None = None, qat_run: str | Path | None = None, progress: bool = True,
-                    freeze_at: float = 0.7, carry_optimizer: bool = True, calib_images: int | None = None,
-                    hold_ranges: bool | None = None, device: str = "auto") -> dict:
+                    freeze_at: float = 0.7, carry_optimizer: bool = True,
+                    calib: Iterable[np.ndarray] | int | None = None, hold_ranges: bool | None = None,
+                    device: str = "auto") -> dict:
     """Hybrid-QaT: of the float RUN's epoch budget E, continue from its epoch_NNN.pt at (1 - p)E
     (its weights, LR schedule and, unless carry_optimizer is False, AdamW moments) and train the
-    last pE epochs with fake-quant (into QAT_RUN), observers and BN frozen after FREEZE_AT of the
-    QaT steps (1.0: never), then export the int8 ONNX. The activation ranges start from static
-    PTQ's (config.percentile over CALIB_IMAGES train images; None: 64, or all if fewer) and HOLD_RANGES
-    (None: yes when calibrated) keeps them for the whole phase: a short phase at the tail of the
-    learning-rate schedule has little room to train moving min/max ranges back (docs/quantization.md).
-    CALIB_IMAGES 0: the first batch's min/max, moving. DEVICE is this machine's choice (auto, cpu,
-    cuda), not the float run's."""
+    last pE epochs on DATA with fake-quant (into QAT_RUN), observers and BN frozen after FREEZE_AT of
+    the QaT steps (1.0: never), then export the int8 ONNX.
+
+    The activation ranges start from static PTQ's (config.percentile) over CALIB: HxWx3 uint8 RGB
+    images, or how many to draw from DATA's train split with the run's seed (None: 64, or all if
+    fewer; 0 or no images: the first batch's min/max, moving). HOLD_RANGES (None: yes when
+    calibrated) keeps them for the whole phase: a short phase at the tail of the learning-rate
+    schedule has little room to train moving min/max ranges back (docs/quantization.md). DEVICE is
+    this machine's choice (auto, cpu, cuda), not the float run's."""
     if not 0.0 < qat_fraction < 1.0:
-        raise ConfigError(f"--qat-fraction must be inside (0, 1), got {qat_fraction}")
+        raise ConfigError(f"qat_fraction must be inside (0, 1), got {qat_fraction}")
     if not 0.0 <= freeze_at <= 1.0:
-        raise ConfigError(f"--freeze-at must be inside [0, 1], got {freeze_at}")
-    n_train = len(NativeDataset.open(data, "train"))
-    if calib_images is None:
-        calib_images = min(DEFAULT_CALIB_IMAGES, n_train)
-    if calib_images < 0 or (hold_ranges and not calib_images):
-        raise ConfigError("--calib-images must be 0 (off) or positive, and --hold-ranges needs it")
-    if calib_images > n_train:
-        raise ConfigError(f"asked for {calib_images} calibration images, but {data}/train has fewer")
-    hold_ranges = bool(calib_images) if hold_ranges is None else hold_ranges
+        raise ConfigError(f"freeze_at must be inside [0, 1], got {freeze_at}")
+    if isinstance(calib, int) and calib < 0:
+        raise ConfigError(f"calib {calib}: a number of calibration images must be 0 (none) or positive")
+    if isinstance(calib, int) and calib:
+        check_image_count(data, "train", calib)
     config = (config or QuantConfig()).validate()
     _check_out(out)
     qat_run = Path(qat_run) if qat_run else Path(out).with_suffix(".run")
@@ -189,16 +198,21 @@ def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_frac
     # load the epoch checkpoint -> prepare -> calibrate -> fit (train_qat) -> convert -> export (_finish_qat)
     start, cfg = _switch_point(Path(run), data, qat_fraction)
     cfg = replace(cfg, data=str(data), out=str(qat_run), keep_epochs=[], device=device)
-    _stage(f"continue {run} from epoch {start.epoch} of {cfg.epochs}"
-           + (f"; draw {calib_images} train images for the starting activation ranges" if calib_images else ""),
-           progress)
-    images = model_images(data, "train", calib_images, cfg.size, cfg.seed) if calib_images else None
+    if calib is None or isinstance(calib, int):
+        _stage(f"continue {run} from epoch {start.epoch} of {cfg.epochs}; draw the calibration images", progress)
+        images = folder_images(data, "train", calib, cfg.seed) if calib != 0 else []
+    else:
+        images = list(calib)
+    images = [at_input_size(rgb, cfg.size) for rgb in images]
+    if hold_ranges and not images:
+        raise ConfigError("hold_ranges needs calibration images (calib)")
+    hold_ranges = bool(images) if hold_ranges is None else hold_ranges
     _stage("prepare the fake-quant graph (torch.export: up to a minute on a CPU), then train the QaT epochs", progress)
-    train_qat(cfg, config, start=start, carry_optimizer=carry_optimizer, freeze_at=freeze_at, calib_images=images,
-              hold_ranges=hold_ranges, progress=progress)
+    train_qat(cfg, config, start=start, carry_optimizer=carry_optimizer, freeze_at=freeze_at,
+              calib_images=images or None, hold_ranges=hold_ranges, progress=progress)
     quant = {**_qat_quant("hybrid", qat_fraction, config), "freeze_at": freeze_at, "carry_optimizer": carry_optimizer,
-             "calib_images": calib_images or None, "hold_ranges": hold_ranges}
-    if calib_images:
+             "calib_images": len(images) or None, "hold_ranges": hold_ranges}
+    if images:
         quant["calib_method"] = f"qat from percentile {config.percentile}"
     return _finish_qat(Run(qat_run), data, out, quant, progress=progress)
 

@@ -23,7 +23,7 @@ import torch
 
 from edgepick.errors import CheckpointError
 from edgepick.models.deeplabv3 import build_model
-from edgepick.quant.graph import PREFIX, as_input, prepare
+from edgepick.quant.graph import PREFIX, calibrate, prepare
 from edgepick.quant.quantizer import PercentileObserver, QuantConfig
 from edgepick.quant.torchao_compat import set_mode
 from edgepick.train.checkpoint import Checkpoint
@@ -70,14 +70,11 @@ def calibrate_activations(prepared: torch.fx.GraphModule, images: list[np.ndarra
                                           quant_min=fq.activation_post_process.quant_min,
                                           quant_max=fq.activation_post_process.quant_max) for name, fq in targets.items()}
     hooks = [fq.register_forward_pre_hook(_observing(observers[name])) for name, fq in targets.items()]
-    device = next(prepared.parameters()).device
     prepared.apply(disable_fake_quant)
     prepared.apply(disable_observer)
     to_eval(prepared)  # BN on running statistics, as at deployment
     try:
-        with torch.no_grad():
-            for rgb in images:
-                prepared(as_input(rgb).to(device))
+        calibrate(prepared, images)
     finally:
         for h in hooks:
             h.remove()

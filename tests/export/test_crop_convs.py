@@ -121,7 +121,7 @@ def test_int8_export_crops_aspp_and_keeps_labels(small_data: Path, tmp_path: Pat
 
     from edgepick.export.checks import conv_weight_report
     from edgepick.models.deeplabv3 import ModelConfig, build_model
-    from edgepick.quant.passes import quantize_static
+    from edgepick.quant.passes import agreement_images, folder_images, quantize_static
     from edgepick.train.checkpoint import Checkpoint
 
     classes = json.loads((small_data / "meta.json").read_text())["classes"]
@@ -129,7 +129,8 @@ def test_int8_export_crops_aspp_and_keeps_labels(small_data: Path, tmp_path: Pat
     cfg = ModelConfig(num_classes=len(classes), variant="edge")
     ckpt = tmp_path / "untrained.pt"
     Checkpoint(model_config=cfg, classes=tuple(classes), input_size=(192, 256), model=build_model(cfg).state_dict()).save(ckpt)
-    result = quantize_static(ckpt, small_data, tmp_path / "int8.onnx", calib_images=4, progress=False)
+    result = quantize_static(ckpt, folder_images(small_data, "train", 4), tmp_path / "int8.onnx",
+                             check_images=agreement_images(small_data), progress=False)
     names = [n.name for n in onnx.load(result["out"]).graph.node if n.op_type == "Conv"]
     assert sum(CROP_TAG in n for n in names) == 3
     report = conv_weight_report(result["out"])

@@ -115,7 +115,7 @@ def test_int8_export_of_the_standard_model_has_no_float_activations(small_data, 
     import torch
 
     from edgepick.models.deeplabv3 import ModelConfig, build_model
-    from edgepick.quant.passes import quantize_static
+    from edgepick.quant.passes import agreement_images, folder_images, quantize_static
     from edgepick.train.checkpoint import Checkpoint
 
     classes = json.loads((small_data / "meta.json").read_text())["classes"]
@@ -123,7 +123,8 @@ def test_int8_export_of_the_standard_model_has_no_float_activations(small_data, 
     cfg = ModelConfig(num_classes=len(classes))
     ckpt = tmp_path / "untrained.pt"
     Checkpoint(model_config=cfg, classes=tuple(classes), input_size=(96, 128), model=build_model(cfg).state_dict()).save(ckpt)
-    result = quantize_static(ckpt, small_data, tmp_path / "int8.onnx", calib_images=4, progress=False)
+    result = quantize_static(ckpt, folder_images(small_data, "train", 4), tmp_path / "int8.onnx",
+                             check_images=agreement_images(small_data), progress=False)
     model = onnx.load(result["out"])
     ops = [n.op_type for n in model.graph.node]
     assert not {"HardSwish", "HardSigmoid", "ReduceMean"} & set(ops)

@@ -78,12 +78,12 @@ def test_eval_runs_on_onnx_files(onnx_files, trained_run, small_data):
 
 
 def test_keep_float_layers_stay_float(trained_run, small_data, tmp_path):
-    from edgepick.quant.passes import quantize_static
+    from edgepick.quant.passes import folder_images, quantize_static
     from edgepick.quant.quantizer import QuantConfig
 
-    result = quantize_static(trained_run, small_data, tmp_path / "k.onnx",
+    result = quantize_static(trained_run, folder_images(small_data, "train", 4), tmp_path / "k.onnx",
                              QuantConfig(calib_method="percentile", keep_float=["classifier.4", "backbone.0"]),
-                             calib_images=4, progress=False)
+                             progress=False)
     assert result["int8_convs"] == 68 and len(result["float_convs"]) == 2
 
 
@@ -101,12 +101,13 @@ def _as_if_trained_on_a_gpu(run: Path, dest: Path) -> Path:
 
 
 def test_hybrid_qat_from_a_kept_epoch(trained_run, small_data, tmp_path):
-    from edgepick.quant.passes import quantize_hybrid
+    from edgepick.quant.passes import folder_images, quantize_hybrid
 
     p = 1 / EPOCHS  # the last epoch with QaT, from epoch_024.pt
     # the QaT phase runs where it is started (here: CPU in CI), not on the device the float run recorded
     run = _as_if_trained_on_a_gpu(trained_run, tmp_path / "float")
-    result = quantize_hybrid(run, small_data, tmp_path / "h.onnx", p, progress=False)
+    calib = (rgb for rgb in folder_images(small_data, "train", 36))  # any iterable of images, at their own size
+    result = quantize_hybrid(run, small_data, tmp_path / "h.onnx", p, progress=False, calib=calib)
     assert result["int8_convs"] == result["convs"] == 70 and result["observers"] > 0
     assert result["float_phase_s"] > 0 and result["qat_phase_s"] > 0
     assert result["agreement_vs_torch"] >= AGREEMENT
@@ -201,3 +202,23 @@ def test_an_upper_case_onnx_suffix_is_taken_by_every_check_alike(tmp_path):
     _check_out(tmp_path / "q.ONNX")
     with pytest.raises(ConfigError, match="unknown export pass"):  # past the suffix check, before any export
         export_onnx(torch.nn.Identity(), tmp_path / "q.ONNX", {}, (32, 32), passes=("nope",))
+
+
+def test_static_takes_images_from_anywhere_at_any_size(trained_run, small_data, tmp_path):
+    """The pass calibrates on what the caller gives: a generator of HxWx3 uint8 RGB images of any
+    size (resized to the model's input); anything else is refused in one line naming `calib`."""
+    import numpy as np
+
+    from edgepick.errors import ConfigError
+    from edgepick.quant.passes import folder_images, quantize_static
+
+    rng = np.random.default_rng(0)
+    own = [rng.integers(0, 256, (480, 640, 3), dtype=np.uint8)]  # a camera frame, not a data set image
+    images = (rgb for rgb in [*folder_images(small_data, "train", 3), *own])
+    result = quantize_static(trained_run, images, tmp_path / "own.onnx", progress=False)
+    assert result["quant"]["calib_images"] == 4 and result["int8_convs"] == 70
+    assert json.loads(Segmenter(result["out"]).info.metadata["edgepick.quant"])["calib_images"] == 4
+    for bad in ([np.zeros((96, 128, 3), np.float32)], [np.zeros((96, 128), np.uint8)], []):
+        with pytest.raises(ConfigError, match="calib"):
+            quantize_static(trained_run, bad, tmp_path / "bad.onnx", progress=False)
+    assert not (tmp_path / "bad.onnx").exists()
