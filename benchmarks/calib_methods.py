@@ -42,7 +42,7 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="calib-"))
     rows = []
     try:
-        fp32 = export_checkpoint(args.run, work / "fp32.onnx")["out"]
+        fp32 = export_checkpoint(args.run, work / "fp32.onnx").out
         calib, check = folder_images(args.data, "train", args.calib_images), agreement_images(args.data)
         base = {e: evaluate(fp32, args.data, args.split, progress=False, engine=e)["miou"] for e in engines}
         rows.append(("fp32", "-", base, None))
@@ -52,7 +52,7 @@ def main() -> None:
             r = quantize_static(args.run, calib, out, QuantConfig(calib_method=method, reduce_range=reduce_range),
                                 check_images=check, progress=False)
             miou = {e: evaluate(out, args.data, args.split, progress=False, engine=e)["miou"] for e in engines}
-            rows.append((method, "7-bit" if reduce_range else "8-bit", miou, r["agreement_vs_torch"]))
+            rows.append((method, "7-bit" if reduce_range else "8-bit", miou, r.agreement_vs_torch))
     finally:
         shutil.rmtree(work, ignore_errors=True)
 

@@ -30,7 +30,7 @@ from _common import add_output, machine_line, emit  # noqa: E402
 from edgepick.data.native import NativeDataset  # noqa: E402
 from edgepick.cli.options import model_size  # noqa: E402
 from edgepick.data.synth import SynthConfig, synthesize  # noqa: E402
-from edgepick.export.onnx_export import LogitsNet  # noqa: E402
+from edgepick.models.deeplabv3 import LogitsNet  # noqa: E402
 from edgepick.metrics import confusion_matrix, segmentation_metrics  # noqa: E402
 from edgepick.quant.graph import as_input, convert, prepare  # noqa: E402
 from edgepick.quant.passes import model_images  # noqa: E402
@@ -134,7 +134,7 @@ def hybrid_ab(run: Path, data: Path, fraction: float, tmp: Path) -> dict[str, tu
                       "calibrated start, held (the default)": {"calib": 64, "hold_ranges": True}}.items():
         out = tmp / f"h{len(rows)}.onnx"
         result = quantize_hybrid(run, data, out, fraction, progress=False, device="cpu", **kw)
-        rows[f"hybrid, {label}"] = (*scores(out), result["qat_phase_s"])
+        rows[f"hybrid, {label}"] = (*scores(out), result.qat_phase_s)
     return rows
 
 

@@ -134,7 +134,7 @@ def main() -> None:
 
     work = Path(tempfile.mkdtemp(prefix="peers-"))
     try:
-        fp32 = Path(export_checkpoint(args.run, work / "fp32.onnx")["out"])
+        fp32 = Path(export_checkpoint(args.run, work / "fp32.onnx").out)
         size = tuple(Segmenter(fp32).info.input_size)
         calib = [prepare(im, size) for im in model_images(args.data, "train", args.calib_images, size)]
 
@@ -166,7 +166,7 @@ def main() -> None:
         ov.save_model(ov_int8, work / "nncf.xml")
         ours = Path(edgepick_static(args.run, folder_images(args.data, "train", args.calib_images),
                                     work / "edgepick.onnx", check_images=agreement_images(args.data),
-                                    progress=False)["out"])
+                                    progress=False).out)
 
         # OpenVINO's own default for a float model on CPUs with AMX or avx512_bf16: a row only where it is bf16
         bf16 = OpenVinoModel(ov.Core().read_model(str(fp32)), args.threads, size, precision="bf16")

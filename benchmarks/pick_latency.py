@@ -45,7 +45,7 @@ def default_models(work: Path) -> list[str]:
     for h, w in ((480, 640), (240, 320)):
         ckpt = untrained_checkpoint(work / f"untrained_{h}.pt", (h, w), list(CLASSES))
         out.append(quantize_static(ckpt, folder_images(data, "train", 16), work / f"int8_{h}x{w}.onnx",
-                                   progress=False)["out"])
+                                   progress=False).out)
     return out
 
 

@@ -138,22 +138,22 @@ def main() -> None:
     first = [next(n for n, m in model.named_modules() if isinstance(m, torch.nn.Conv2d) and m.in_channels == 3)]
     first_float = quantize_static(ckpt, calib, work / "int8_first_float.onnx", QuantConfig(keep_float=first),
                                   progress=False)
-    size = fp32["input_size"]
+    size = fp32.input_size
     image = (np.random.default_rng(0).random((1, size[0], size[1], 3)) * 255).astype(np.uint8)
 
     rows, ops, nodes, convs = {}, {}, {}, {}
     models = (("fp32", fp32), ("int8", int8), (WHOLE, whole), (FLOAT_ACT, float_act), (DW_FLOAT, dw_float),
               (FIRST_FLOAT, first_float))
-    timed = latency([f["out"] for _, f in models], image, args.threads, args.runs)
+    timed = latency([f.out for _, f in models], image, args.threads, args.runs)
     for (name, f), t in zip(models, timed):
-        rows[name] = {"p50": statistics.median(t), "p95": float(np.percentile(t, 95)), "mb": f["size_bytes"] / 1e6}
+        rows[name] = {"p50": statistics.median(t), "p95": float(np.percentile(t, 95)), "mb": f.size_bytes / 1e6}
         if name in (WHOLE, FLOAT_ACT, DW_FLOAT, FIRST_FLOAT):  # timed only
             continue
-        ops[name] = per_op(f["out"], image, args.threads, 10, str(work / f"prof_{name}"))
-        nodes[name] = per_op(f["out"], image, args.threads, 10, str(work / f"nodes_{name}"), by="node")
-        convs[name] = per_op(f["out"], image, args.threads, 10, str(work / f"convs_{name}"), by="conv")
+        ops[name] = per_op(f.out, image, args.threads, 10, str(work / f"prof_{name}"))
+        nodes[name] = per_op(f.out, image, args.threads, 10, str(work / f"nodes_{name}"), by="node")
+        convs[name] = per_op(f.out, image, args.threads, 10, str(work / f"convs_{name}"), by="conv")
         if args.checkpoint:
-            rows[name]["miou"] = evaluate(f["out"], data, "test", progress=False)["miou"]
+            rows[name]["miou"] = evaluate(f.out, data, "test", progress=False)["miou"]
     ratio = rows["fp32"]["p50"] / rows["int8"]["p50"]
     conv_fp32 = ops["fp32"].get("Conv", 0.0) + ops["fp32"].get("FusedConv", 0.0)
     conv_int8 = ops["int8"].get("QLinearConv", 0.0) + ops["int8"].get("Conv", 0.0)  # kept-float convs count too

@@ -41,8 +41,8 @@ def default_models(work: Path) -> list[str]:
     data = work / "data"
     synthesize(data, SynthConfig(scenes=20, seed=3, splits=(16, 2, 2)), progress=False)
     ckpt = untrained_checkpoint(work / "untrained.pt", (480, 640), list(CLASSES))
-    fp32 = export_checkpoint(ckpt, work / "fp32.onnx")["out"]
-    int8 = quantize_static(ckpt, folder_images(data, "train", 16), work / "int8.onnx", progress=False)["out"]
+    fp32 = export_checkpoint(ckpt, work / "fp32.onnx").out
+    int8 = quantize_static(ckpt, folder_images(data, "train", 16), work / "int8.onnx", progress=False).out
     return [fp32, int8]
 
 

@@ -58,21 +58,21 @@ def main() -> None:
             run = work / f"run-{variant}"
             res = train(TrainConfig(data=str(data), out=str(run), variant=variant, epochs=args.epochs, batch_size=8,
                                     size=(h, w), lr=2e-3, device="cpu"), progress=False)
-            fp32 = export_checkpoint(run, work / f"{variant}-fp32.onnx")["out"]
+            fp32 = export_checkpoint(run, work / f"{variant}-fp32.onnx").out
             int8 = quantize_static(run, folder_images(data, "train", 32), work / f"{variant}-int8.onnx",
                                    check_images=agreement_images(data), progress=False)
             m_fp32 = evaluate(fp32, data, "test", progress=False)["miou"]
-            m_int8 = evaluate(int8["out"], data, "test", progress=False)["miou"]
+            m_int8 = evaluate(int8.out, data, "test", progress=False)["miou"]
             params = sum(p.numel() for p in load_model(run)[0].parameters())
             # latency does not depend on the weights: untrained models at the deployment size
             ckpt = untrained_checkpoint(work / f"{variant}-480.pt", (480, 640), list(CLASSES), variant)
-            f480 = export_checkpoint(ckpt, work / f"{variant}-480-fp32.onnx")["out"]
+            f480 = export_checkpoint(ckpt, work / f"{variant}-480-fp32.onnx").out
             i480 = quantize_static(ckpt, folder_images(data, "train", 16), work / f"{variant}-480-int8.onnx",
-                                   progress=False)["out"]
+                                   progress=False).out
             t_f, t_i = (statistics.median(t) for t in latency([f480, i480], image, 2, args.runs))
-            rows[variant] = {"params_m": params / 1e6, "train_s": res["train_time_s"], "fp32": m_fp32, "int8": m_int8,
-                             "agree": int8["agreement_vs_torch"], "fp32_ms": t_f, "int8_ms": t_i,
-                             "int8_mb": int8["size_bytes"] / 1e6}
+            rows[variant] = {"params_m": params / 1e6, "train_s": res.train_time_s, "fp32": m_fp32, "int8": m_int8,
+                             "agree": int8.agreement_vs_torch, "fp32_ms": t_f, "int8_ms": t_i,
+                             "int8_mb": int8.size_bytes / 1e6}
     finally:
         shutil.rmtree(work, ignore_errors=True)
 

@@ -63,8 +63,8 @@ def _run_demo(workdir: Path, scenes: int, epochs: int, size: tuple[int, int]) ->
     table = bench_demo(workdir, [Path(int8[name]["file"]) for name in ("fp32", "static", "hybrid")], reference)
     quick = quick_table_demo(workdir)
     summary = {
-        "data": str(workdir / "data"), "preview": str(workdir / "preview.png"), "run": run["out"],
-        "train_time_s": run["train_time_s"], "best_val_miou": run["best_miou"],
+        "data": str(workdir / "data"), "preview": str(workdir / "preview.png"), "run": run.out,
+        "train_time_s": run.train_time_s, "best_val_miou": run.best_miou,
         "test": {"pixel_acc": test["pixel_acc"], "miou": test["miou"],
                  "per_class_iou": {c: v["iou"] for c, v in test["per_class"].items()}},
         "onnx": int8, "picks": picks, "bench": table, "quick_table55": quick, "total_s": round(time.perf_counter() - t0, 1),
@@ -89,13 +89,13 @@ def quantize_demo(workdir: Path, epochs: int) -> dict:
              "hybrid": quantize_hybrid(workdir / "run", workdir / "data", models / "hybrid.onnx", 1 / epochs,
                                        qat_run=workdir / "hybrid.run", device="cpu")}
     _step("5/8 evaluate the ONNX files with the runtime (onnxruntime, CPU) on the test split")
-    fp32_size = files["fp32"]["size_bytes"]
+    fp32_size = files["fp32"].size_bytes
     out = {}
     for name, f in files.items():
-        res = evaluate(f["out"], workdir / "data", "test", progress=False)
-        out[name] = {"file": f["out"], "size_mb": round(f["size_bytes"] / 1e6, 2),
-                     "smaller_than_fp32": round(fp32_size / f["size_bytes"], 2),
-                     "agreement_vs_torch": f.get("agreement_vs_torch"), "test_miou": res["miou"],
+        res = evaluate(f.out, workdir / "data", "test", progress=False)
+        out[name] = {"file": f.out, "size_mb": round(f.size_bytes / 1e6, 2),
+                     "smaller_than_fp32": round(fp32_size / f.size_bytes, 2),
+                     "agreement_vs_torch": getattr(f, "agreement_vs_torch", None), "test_miou": res["miou"],
                      "test_pixel_acc": res["pixel_acc"]}
         click.echo(f"{name:7s} {out[name]['size_mb']:6.2f} MB ({out[name]['smaller_than_fp32']}x smaller)  "
                    f"test mIoU {res['miou']:.3f}  onnxruntime-vs-torch agreement {f.get('agreement_vs_torch', '-')}",

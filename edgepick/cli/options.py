@@ -7,6 +7,7 @@ and is parsed here; internally the package keeps (height, width) tuples, like to
 from __future__ import annotations
 
 import json
+from typing import Any
 
 import click
 
@@ -75,6 +76,7 @@ epoch_subset = [
 ]
 
 
-def emit(result: dict) -> None:
-    """A command's result: JSON on stdout (progress and tables go to stderr)."""
-    click.echo(json.dumps(result, indent=1))
+def emit(result: dict | Any) -> None:
+    """A command's result (a dict, or a result record's `to_dict()`): JSON on stdout (progress and
+    tables go to stderr)."""
+    click.echo(json.dumps(result if isinstance(result, dict) else result.to_dict(), indent=1))

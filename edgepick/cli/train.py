@@ -79,7 +79,7 @@ def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, 
                       workers=workers, seed=seed)
     result = run_train(cfg, resume=resume)
     if result is not None:
-        emit({k: v for k, v in result.items()})
+        emit(result.to_dict())
 
 
 @click.command("eval")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import warnings
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import torch
@@ -18,21 +19,24 @@ from edgepick.errors import ConfigError
 from edgepick.files import atomic_path, sha256_of
 from edgepick.export.crop_convs import crop_padded_convs
 from edgepick.export.int8_activations import integer_activations
+from edgepick.models.deeplabv3 import LogitsNet
 from edgepick.train.checkpoint import Checkpoint, load_model
 from edgepick.train.run import Run
 
 OPSET = 21
 
 
-class LogitsNet(nn.Module):
-    """DeepLabV3 -> a plain logits tensor (what torch.export and pt2e want)."""
+@dataclass(frozen=True)
+class ExportResult:
+    """An exported fp32 model (the JSON `edgepick export` prints)."""
 
-    def __init__(self, model: nn.Module):
-        super().__init__()
-        self.model = model
+    out: str
+    size_bytes: int
+    input_size: list[int]  # [H, W], as the model's edgepick.input_size metadata
+    classes: list[str]
 
-    def forward(self, x: Tensor) -> Tensor:
-        return self.model(x)["out"]
+    def to_dict(self) -> dict:
+        return asdict(self)
 
 
 class DeployNet(nn.Module):
@@ -137,7 +141,7 @@ def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: tu
     return path
 
 
-def export_checkpoint(checkpoint: str | Path, out: str | Path) -> dict:
+def export_checkpoint(checkpoint: str | Path, out: str | Path) -> ExportResult:
     """`edgepick export`: the float model of a checkpoint (or RUN) as an fp32 ONNX model
     (docs/contracts.md#onnx-model)."""
     from edgepick.models.deeplabv3 import trim_dilated_convs
@@ -146,4 +150,4 @@ def export_checkpoint(checkpoint: str | Path, out: str | Path) -> dict:
     size = ckpt.input_size
     trim_dilated_convs(model, size)
     path = export_onnx(LogitsNet(model), out, contract_metadata(ckpt, "fp32", None), size)
-    return {"out": str(path), "size_bytes": path.stat().st_size, "input_size": list(size), "classes": list(ckpt.classes)}
+    return ExportResult(out=str(path), size_bytes=path.stat().st_size, input_size=list(size), classes=list(ckpt.classes))

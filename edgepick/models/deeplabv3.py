@@ -177,6 +177,18 @@ class DeepLabV3(nn.Module):
         return out
 
 
+
+class LogitsNet(nn.Module):
+    """DeepLabV3 -> its plain `out` logits tensor: what torch.export, pt2e and the ONNX writer take."""
+
+    def __init__(self, model: nn.Module):
+        super().__init__()
+        self.model = model
+
+    def forward(self, x: Tensor) -> Tensor:
+        return self.model(x)["out"]
+
+
 def build_model(config: ModelConfig) -> DeepLabV3:
     """DeepLabV3 for a config; the keys match torchvision's builder for the same arch."""
     config.validate()

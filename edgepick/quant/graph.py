@@ -13,7 +13,7 @@ import numpy as np
 import torch
 
 from edgepick.errors import ConfigError, EdgepickError
-from edgepick.export.onnx_export import LogitsNet
+from edgepick.models.deeplabv3 import LogitsNet
 from edgepick.models.deeplabv3 import trim_dilated_convs
 from edgepick.quant.quantizer import EdgeQuantizer, QuantConfig, count_quant_nodes, module_path, under
 from edgepick.quant.rewrites import drop_fake_quants_after_dropout, gate_hardswish, snap_conv_biases

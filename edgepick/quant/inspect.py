@@ -25,10 +25,11 @@ import torch
 
 from edgepick.data.native import NativeDataset
 from edgepick.errors import ConfigError
-from edgepick.export.onnx_export import LogitsNet
+from edgepick.models.deeplabv3 import LogitsNet
 from edgepick.models.deeplabv3 import trim_dilated_convs
 from edgepick.quant.graph import PREFIX, as_input, at_input_size, calibrate, convert, prepare
 from edgepick.quant.quantizer import QuantConfig, module_path
+from edgepick.quant.results import AccuracyAwareResult
 from edgepick.train.checkpoint import Checkpoint
 
 CONV = torch.ops.aten.conv2d.default
@@ -141,7 +142,7 @@ def inspect(checkpoint: str | Path | Checkpoint, calib: Iterable[np.ndarray], im
 
 def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str | Path, max_drop_pp: float,
                             config: QuantConfig | None = None, calib_images: int | None = None, max_float_layers: int = 6,
-                            progress: bool = True) -> dict:
+                            progress: bool = True) -> AccuracyAwareResult:
     """Static PTQ that keeps the layers adding the most drift in float, one at a time, until the
     val mIoU (onnxruntime) is within MAX_DROP_PP points of the fp32 model's, or MAX_FLOAT_LAYERS
     are float. Writes the best file found at OUT and reports every step."""
@@ -167,7 +168,7 @@ def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str |
     compared, check = folder_images(data, "val", min(COMPARED_IMAGES, n_val), what="val images"), agreement_images(data)
     work = Path(tempfile.mkdtemp(prefix="accuracy-aware-"))
     try:
-        fp32 = export_checkpoint(checkpoint, work / "fp32.onnx")["out"]
+        fp32 = export_checkpoint(checkpoint, work / "fp32.onnx").out
         base = evaluate(fp32, data, "val", progress=False)["miou"]
         candidates = ranked(inspect(ckpt, calib, compared, config, progress=progress))
         keep = list(config.keep_float)
@@ -189,6 +190,7 @@ def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str |
         shutil.move(chosen["file"], out)
     finally:
         shutil.rmtree(work, ignore_errors=True)
-    return {"out": str(out), "fp32_val_miou": base, "budget_pp": max_drop_pp, "met": chosen["drop_pp"] <= max_drop_pp,
-            "chosen": {k: v for k, v in chosen.items() if k not in ("file", "result")}, "steps": steps,
-            "agreement_vs_torch": chosen["result"]["agreement_vs_torch"]}
+    return AccuracyAwareResult(out=str(out), fp32_val_miou=base, budget_pp=max_drop_pp,
+                               met=chosen["drop_pp"] <= max_drop_pp,
+                               chosen={k: v for k, v in chosen.items() if k not in ("file", "result")}, steps=steps,
+                               agreement_vs_torch=chosen["result"].agreement_vs_torch)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Iterable, Sequence
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +26,7 @@ from edgepick.quant.graph import (QuantizationError, at_input_size, calibrate, c
                                   expected_int8_convs, first_of, prepare)
 from edgepick.quant.qat import load_qat, qat_config, train_qat
 from edgepick.quant.quantizer import QuantConfig, count_quant_nodes
+from edgepick.quant.results import Int8File, PassResult
 from edgepick.train.checkpoint import Checkpoint
 from edgepick.train.config import TrainConfig
 from edgepick.train.run import Run
@@ -82,9 +83,9 @@ def _stage(message: str, enabled: bool) -> None:
         print(message, file=sys.stderr, flush=True)
 
 
-def export_int8(converted: torch.fx.GraphModule, out: str | Path, metadata: dict, size: tuple[int, int],
-                expected_convs: int, check_images: list[np.ndarray], progress: bool = False,
-                passes: tuple[str, ...] = tuple(EXPORT_PASSES)) -> dict:
+def _export_int8(converted: torch.fx.GraphModule, out: str | Path, metadata: dict, size: tuple[int, int],
+                 expected_convs: int, check_images: list[np.ndarray], progress: bool = False,
+                 passes: tuple[str, ...] = tuple(EXPORT_PASSES)) -> Int8File:
     """Export, then check int8 conv weights and onnxruntime-vs-torch label agreement; no file on failure."""
     _stage(f"export the int8 ONNX to {out} (torch.export, then onnx checks)", progress)
     path = export_onnx(converted, out, metadata, size, passes)
@@ -94,13 +95,13 @@ def export_int8(converted: torch.fx.GraphModule, out: str | Path, metadata: dict
         path.unlink()
         raise QuantizationError(f"only {report['int8']} of {expected_convs} convs got int8 weights in the ONNX")
     agreement = label_agreement(path, converted, check_images)
-    return {"out": str(path), "size_bytes": path.stat().st_size, "convs": report["convs"],
-            "int8_convs": report["int8"], "float_convs": report["float"], "agreement_vs_torch": round(agreement, 5)}
+    return Int8File(out=str(path), size_bytes=path.stat().st_size, convs=report["convs"], int8_convs=report["int8"],
+                    float_convs=report["float"], agreement_vs_torch=round(agreement, 5))
 
 
 def quantize_static(checkpoint: str | Path | Checkpoint, calib: Iterable[np.ndarray], out: str | Path,
                     config: QuantConfig | None = None, check_images: Sequence[np.ndarray] | None = None,
-                    progress: bool = True, export_passes: tuple[str, ...] = tuple(EXPORT_PASSES)) -> dict:
+                    progress: bool = True, export_passes: tuple[str, ...] = tuple(EXPORT_PASSES)) -> PassResult:
     """Static post-training quantization of a float checkpoint (or RUN): BN folded, per-channel
     int8 weights, activation ranges calibrated with config.calib_method on CALIB (HxWx3 uint8 RGB
     images, any iterable, resized to the model's input); writes an int8 ONNX after the ONNX graph
@@ -122,13 +123,13 @@ def quantize_static(checkpoint: str | Path | Checkpoint, calib: Iterable[np.ndar
              **{k: v for k, v in config.to_dict().items() if k not in ("calib_method", "weight_averaging")}}
     meta = contract_metadata(ckpt, "int8", quant)
     check = [at_input_size(rgb, size, "check_images") for rgb in (kept if check_images is None else check_images)]
-    result = export_int8(converted, out, meta, size, expected_int8_convs(prepared, config), check, progress,
-                         export_passes)
-    return {"mode": "static", **result, "observers": count_quant_nodes(prepared), "calib_s": round(calib_s, 2),
-            "quant": quant}
+    file = _export_int8(converted, out, meta, size, expected_int8_convs(prepared, config), check, progress,
+                        export_passes)
+    return PassResult(mode="static", **asdict(file), observers=count_quant_nodes(prepared), quant=quant,
+                      calib_s=round(calib_s, 2))
 
 
-def _finish_qat(run: Run, data: str | Path, out: str | Path, quant: dict, progress: bool = False) -> dict:
+def _finish_qat(run: Run, data: str | Path, out: str | Path, quant: dict, progress: bool = False) -> PassResult:
     """Convert the QaT run's best epoch on val (best.pt, picked as a float RUN's best.pt is: the
     last epoch is not always the best one) and export it, with the whole run's phase times."""
     last = Checkpoint.load(run.last)
@@ -142,10 +143,10 @@ def _finish_qat(run: Run, data: str | Path, out: str | Path, quant: dict, progre
     meta = contract_metadata(ckpt, "int8", quant, train_time_s=float_s + qat_s)
     check_images = [at_input_size(rgb, size) for rgb in agreement_images(data)]
     expected = expected_int8_convs(prepared, qat_config(ckpt))
-    result = export_int8(converted, out, meta, size, expected, check_images, progress)
-    return {"mode": quant["mode"], **result, "run": str(run.path), "observers": count_quant_nodes(prepared),
-            "float_phase_s": round(float_s, 2), "qat_phase_s": round(qat_s, 2), "val_miou_qat": ckpt.history[-1]["miou"],
-            "qat_epoch": ckpt.epoch, "quant": quant}
+    file = _export_int8(converted, out, meta, size, expected, check_images, progress)
+    return PassResult(mode=quant["mode"], **asdict(file), observers=count_quant_nodes(prepared), quant=quant,
+                      run=str(run.path), float_phase_s=round(float_s, 2), qat_phase_s=round(qat_s, 2),
+                      val_miou_qat=ckpt.history[-1]["miou"], qat_epoch=ckpt.epoch)
 
 
 def _qat_quant(mode: str, fraction: float, config: QuantConfig) -> dict:
@@ -154,7 +155,7 @@ def _qat_quant(mode: str, fraction: float, config: QuantConfig) -> dict:
 
 
 def quantize_qat(train_config: TrainConfig, out: str | Path, config: QuantConfig | None = None,
-                 progress: bool = True) -> dict:
+                 progress: bool = True) -> PassResult:
     """QaT from scratch: a whole training run (its .out the RUN folder) with fake-quant on every
     epoch, then an int8 ONNX at OUT."""
     config = (config or QuantConfig()).validate()
@@ -170,7 +171,7 @@ def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_frac
                     config: QuantConfig | None = None, qat_run: str | Path | None = None, progress: bool = True,
                     freeze_at: float = 0.7, carry_optimizer: bool = True,
                     calib: Iterable[np.ndarray] | int | None = None, hold_ranges: bool | None = None,
-                    device: str = "auto") -> dict:
+                    device: str = "auto") -> PassResult:
     """Hybrid-QaT: of the float RUN's epoch budget E, continue from its epoch_NNN.pt at (1 - p)E
     (its weights, LR schedule and, unless carry_optimizer is False, AdamW moments) and train the
     last pE epochs on DATA with fake-quant (into QAT_RUN), observers and BN frozen after FREEZE_AT of

@@ -29,6 +29,7 @@ from edgepick.quant.torchao_compat import set_mode
 from edgepick.train.checkpoint import Checkpoint
 from edgepick.train.config import TrainConfig
 from edgepick.train.loop import Hooks, fit, new_model
+from edgepick.train.run import TrainResult
 
 
 def to_eval(prepared: torch.fx.GraphModule) -> torch.fx.GraphModule:
@@ -154,7 +155,7 @@ class QatHooks(Hooks):
 
 def train_qat(cfg: TrainConfig, config: QuantConfig, start: Checkpoint | None = None, carry_optimizer: bool = True,
               freeze_at: float = 0.7, calib_images: list[np.ndarray] | None = None, hold_ranges: bool = False,
-              progress: bool = True) -> dict:
+              progress: bool = True) -> TrainResult:
     """A QaT run into cfg.out: the float model (fresh, or START's weights and schedule: hybrid-QaT)
     prepared with fake-quant, then trained by edgepick.train's loop with QatHooks."""
     cfg = replace(cfg, aux_loss=False)  # the deployed graph has no auxiliary head

@@ -32,7 +32,7 @@ from edgepick.progress import progress as progress_bar
 from edgepick.train.checkpoint import Checkpoint
 from edgepick.train.config import TrainConfig, check_config
 from edgepick.train.data import IGNORE, augment, class_weights
-from edgepick.train.run import Run
+from edgepick.train.run import EpochRecord, Run, TrainResult
 from edgepick.train.setup import device_for, dist_env, log, logits, make_loaders, validate
 
 
@@ -87,7 +87,7 @@ def new_model(cfg: TrainConfig, start: Checkpoint | None = None) -> DeepLabV3:
     return model
 
 
-def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict:
+def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> TrainResult:
     """Train a float DeepLabV3 on a native data set (resume: continue cfg.out from its last.pt);
     returns the final summary."""
     last = None
@@ -170,7 +170,7 @@ def _starting_state(model: torch.nn.Module, opt: torch.optim.Optimizer, sched: t
 
 
 def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, start: Checkpoint | None = None,
-        carry_optimizer: bool = True, resume: Checkpoint | None = None, progress: bool = True) -> dict:
+        carry_optimizer: bool = True, resume: Checkpoint | None = None, progress: bool = True) -> TrainResult:
     """Train MODEL (built for cfg's data and size) for cfg.epochs, writing cfg.out's checkpoints
     and metrics. START: the checkpoint MODEL's weights come from, whose epochs, history and LR
     schedule the run continues (with its AdamW moments unless carry_optimizer is False); RESUME:
@@ -240,15 +240,15 @@ def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, st
             cm, loss_sum, seen = _all_reduce(cm, loss_sum, seen, device)
         record = _record(epoch, segmentation_metrics(cm, classes), loss_sum, seen, train_s,
                          time.perf_counter() - t0, loaders.n_val)
-        state["train_time_s"] += record["epoch_s"]
-        state["history"].append(record)
+        state["train_time_s"] += record.epoch_s
+        state["history"].append(record.to_dict())
         state["epoch"] = epoch
-        log(f"epoch {epoch}/{cfg.epochs}: loss {record['loss']:.4f}  val pixel acc {record['pixel_acc']:.4f}  "
-            f"mIoU {record['miou']:.4f}  {record['epoch_s']:.1f}s", rank)
+        log(f"epoch {epoch}/{cfg.epochs}: loss {record.loss:.4f}  val pixel acc {record.pixel_acc:.4f}  "
+            f"mIoU {record.miou:.4f}  {record.epoch_s:.1f}s", rank)
         if rank == 0:
-            improved = (record["miou"] or 0.0) > state["best_miou"]
+            improved = (record.miou or 0.0) > state["best_miou"]
             if improved:
-                state["best_miou"] = record["miou"] or 0.0
+                state["best_miou"] = record.miou or 0.0
             ckpt = Checkpoint(model=model.state_dict(), optimizer=opt.state_dict(), scheduler=sched.state_dict(),
                               **meta, **{**state, "history": tuple(state["history"])}, **hooks.checkpoint())
             _save(run, ckpt, improved, epoch in cfg.keep_epochs)
@@ -260,8 +260,10 @@ def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, st
             dist.barrier()
     if world > 1:
         dist.destroy_process_group()
-    return {"out": str(run.path), "epochs": state["epoch"], "best_miou": state["best_miou"],
-            "train_time_s": round(state["train_time_s"], 2), "last": state["history"][-1] if state["history"] else None}
+    history = state["history"]
+    return TrainResult(out=str(run.path), epochs=state["epoch"], best_miou=state["best_miou"],
+                       train_time_s=round(state["train_time_s"], 2),
+                       last=EpochRecord(**history[-1]) if history else None)
 
 
 def _all_reduce(cm: np.ndarray, loss_sum: float, seen: int, device: torch.device) -> tuple[np.ndarray, float, int]:
@@ -273,12 +275,12 @@ def _all_reduce(cm: np.ndarray, loss_sum: float, seen: int, device: torch.device
     return t.cpu().numpy(), float(stats[0]), int(stats[1])
 
 
-def _record(epoch: int, m: dict, loss_sum: float, seen: int, train_s: float, epoch_s: float, n_val: int) -> dict:
+def _record(epoch: int, m: dict, loss_sum: float, seen: int, train_s: float, epoch_s: float,
+            n_val: int) -> EpochRecord:
     """One epoch's entry of metrics.json's history."""
-    return {"epoch": epoch, "loss": round(loss_sum / max(seen, 1), 5), "pixel_acc": m["pixel_acc"],
-            "miou": m["miou"], "per_class_iou": {c: v["iou"] for c, v in m["per_class"].items()},
-            "epoch_s": round(epoch_s, 2), "train_s": round(train_s, 2), "images": seen, "val_images": n_val,
-            "images_per_s": round(seen / train_s, 2)}
+    return EpochRecord(epoch=epoch, loss=round(loss_sum / max(seen, 1), 5), pixel_acc=m["pixel_acc"], miou=m["miou"],
+                       per_class_iou={c: v["iou"] for c, v in m["per_class"].items()}, epoch_s=round(epoch_s, 2),
+                       train_s=round(train_s, 2), images=seen, val_images=n_val, images_per_s=round(seen / train_s, 2))
 
 
 def _save(run: Run, ckpt: Checkpoint, improved: bool, kept: bool) -> None:

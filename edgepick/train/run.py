@@ -13,11 +13,46 @@ from __future__ import annotations
 
 import json
 import re
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from edgepick.files import atomic_write
 
 _EPOCH = re.compile(r"epoch_(\d{3,})\.pt")
+
+
+
+@dataclass(frozen=True)
+class EpochRecord:
+    """One epoch of a run: metrics.json's and the checkpoint's history entry."""
+
+    epoch: int
+    loss: float
+    pixel_acc: float
+    miou: float | None  # None: no class of the val split was present or predicted
+    per_class_iou: dict[str, float | None]
+    epoch_s: float
+    train_s: float
+    images: int
+    val_images: int
+    images_per_s: float
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """What a training run ended with (the JSON `edgepick train` prints)."""
+
+    out: str
+    epochs: int
+    best_miou: float
+    train_time_s: float
+    last: EpochRecord | None  # the last epoch's record; None when the run has none
+
+    def to_dict(self) -> dict:
+        return {**asdict(self), "last": self.last.to_dict() if self.last else None}
 
 
 class Run:

@@ -131,8 +131,8 @@ def test_int8_export_crops_aspp_and_keeps_labels(small_data: Path, tmp_path: Pat
     Checkpoint(model_config=cfg, classes=tuple(classes), input_size=(192, 256), model=build_model(cfg).state_dict()).save(ckpt)
     result = quantize_static(ckpt, folder_images(small_data, "train", 4), tmp_path / "int8.onnx",
                              check_images=agreement_images(small_data), progress=False)
-    names = [n.name for n in onnx.load(result["out"]).graph.node if n.op_type == "Conv"]
+    names = [n.name for n in onnx.load(result.out).graph.node if n.op_type == "Conv"]
     assert sum(CROP_TAG in n for n in names) == 3
-    report = conv_weight_report(result["out"])
-    assert report["convs"] == report["int8"] == result["int8_convs"] == len(names) - 2 and report["float"] == []
-    assert result["agreement_vs_torch"] >= 0.995
+    report = conv_weight_report(result.out)
+    assert report["convs"] == report["int8"] == result.int8_convs == len(names) - 2 and report["float"] == []
+    assert result.agreement_vs_torch >= 0.995

@@ -125,11 +125,11 @@ def test_int8_export_of_the_standard_model_has_no_float_activations(small_data, 
     Checkpoint(model_config=cfg, classes=tuple(classes), input_size=(96, 128), model=build_model(cfg).state_dict()).save(ckpt)
     result = quantize_static(ckpt, folder_images(small_data, "train", 4), tmp_path / "int8.onnx",
                              check_images=agreement_images(small_data), progress=False)
-    model = onnx.load(result["out"])
+    model = onnx.load(result.out)
     ops = [n.op_type for n in model.graph.node]
     assert not {"HardSwish", "HardSigmoid", "ReduceMean"} & set(ops)
     assert ops.count("GlobalAveragePool") == 9  # 8 SE blocks + ASPP pooling
     assert sum(TAG in n.name and n.op_type == "Add" for n in model.graph.node) == 8 + 20  # SE gates + hardswish
     read = {i for n in model.graph.node for i in n.input}
     assert all(i.name in read for i in model.graph.initializer)
-    assert result["agreement_vs_torch"] >= 0.995
+    assert result.agreement_vs_torch >= 0.995

@@ -59,7 +59,7 @@ def test_preprocessing_constants_span_the_width(onnx_files):
 
 def test_fp32_onnx_agrees_with_torch(onnx_files, trained_run, small_data):
     from edgepick.export.checks import label_agreement
-    from edgepick.export.onnx_export import LogitsNet
+    from edgepick.models.deeplabv3 import LogitsNet
     from edgepick.quant.passes import model_images
     from edgepick.train.checkpoint import load_model
 
@@ -84,7 +84,7 @@ def test_keep_float_layers_stay_float(trained_run, small_data, tmp_path):
     result = quantize_static(trained_run, folder_images(small_data, "train", 4), tmp_path / "k.onnx",
                              QuantConfig(calib_method="percentile", keep_float=["classifier.4", "backbone.0"]),
                              progress=False)
-    assert result["int8_convs"] == 68 and len(result["float_convs"]) == 2
+    assert result.int8_convs == 68 and len(result.float_convs) == 2
 
 
 def _as_if_trained_on_a_gpu(run: Path, dest: Path) -> Path:
@@ -108,19 +108,19 @@ def test_hybrid_qat_from_a_kept_epoch(trained_run, small_data, tmp_path):
     run = _as_if_trained_on_a_gpu(trained_run, tmp_path / "float")
     calib = (rgb for rgb in folder_images(small_data, "train", 36))  # any iterable of images, at their own size
     result = quantize_hybrid(run, small_data, tmp_path / "h.onnx", p, progress=False, calib=calib)
-    assert result["int8_convs"] == result["convs"] == 70 and result["observers"] > 0
-    assert result["float_phase_s"] > 0 and result["qat_phase_s"] > 0
-    assert result["agreement_vs_torch"] >= AGREEMENT
-    meta = Segmenter(result["out"]).info.metadata
+    assert result.int8_convs == result.convs == 70 and result.observers > 0
+    assert result.float_phase_s > 0 and result.qat_phase_s > 0
+    assert result.agreement_vs_torch >= AGREEMENT
+    meta = Segmenter(result.out).info.metadata
     quant = json.loads(meta["edgepick.quant"])
     assert quant["mode"] == "hybrid" and quant["qat_fraction"] == pytest.approx(p)
     assert quant["carry_optimizer"] is True and quant["freeze_at"] == pytest.approx(0.7)
     assert quant["calib_images"] == 36 and quant["hold_ranges"] is True  # default: static's ranges (all 36), held
     assert quant["calib_method"].startswith("qat from percentile")
-    assert float(meta["edgepick.train_time_s"]) == pytest.approx(result["float_phase_s"] + result["qat_phase_s"], abs=0.2)
+    assert float(meta["edgepick.train_time_s"]) == pytest.approx(result.float_phase_s + result.qat_phase_s, abs=0.2)
     history = json.loads((tmp_path / "h.run" / "metrics.json").read_text())["history"]
     assert [h["epoch"] for h in history] == list(range(1, EPOCHS + 1))  # float epochs carried, then the QaT one
-    assert result["qat_epoch"] == EPOCHS
+    assert result.qat_epoch == EPOCHS
     from dataclasses import replace
 
     from edgepick.errors import CheckpointError
@@ -156,7 +156,7 @@ def test_hybrid_qat_from_a_kept_epoch(trained_run, small_data, tmp_path):
     last = Checkpoint.load(tmp_path / "h.run" / "last.pt")
     replace(last, epoch=EPOCHS + 1, train_time_s=last.train_time_s + 100.0).save(last.path)  # one more, worse, epoch
     again = _finish_qat(Run(tmp_path / "h.run"), small_data, tmp_path / "h2.onnx", quant)
-    assert again["qat_epoch"] == EPOCHS and again["qat_phase_s"] == pytest.approx(result["qat_phase_s"] + 100.0, abs=0.01)
+    assert again.qat_epoch == EPOCHS and again.qat_phase_s == pytest.approx(result.qat_phase_s + 100.0, abs=0.01)
 
 
 def test_qat_from_scratch(small_data, tmp_path):
@@ -166,8 +166,8 @@ def test_qat_from_scratch(small_data, tmp_path):
     cfg = TrainConfig(data=str(small_data), out=str(tmp_path / "q.run"), epochs=1, batch_size=4, size=(64, 96),
                       device="cpu")
     result = quantize_qat(cfg, tmp_path / "q.onnx", progress=False)
-    assert result["observers"] > 0 and result["int8_convs"] == 70
-    assert Segmenter(result["out"]).info.input_size == (64, 96)
+    assert result.observers > 0 and result.int8_convs == 70
+    assert Segmenter(result.out).info.input_size == (64, 96)
 
 
 def test_bad_input_is_one_line_and_leaves_nothing(trained_run, small_data, tmp_path):
@@ -216,8 +216,8 @@ def test_static_takes_images_from_anywhere_at_any_size(trained_run, small_data, 
     own = [rng.integers(0, 256, (480, 640, 3), dtype=np.uint8)]  # a camera frame, not a data set image
     images = (rgb for rgb in [*folder_images(small_data, "train", 3), *own])
     result = quantize_static(trained_run, images, tmp_path / "own.onnx", progress=False)
-    assert result["quant"]["calib_images"] == 4 and result["int8_convs"] == 70
-    assert json.loads(Segmenter(result["out"]).info.metadata["edgepick.quant"])["calib_images"] == 4
+    assert result.quant["calib_images"] == 4 and result.int8_convs == 70
+    assert json.loads(Segmenter(result.out).info.metadata["edgepick.quant"])["calib_images"] == 4
     for bad in ([np.zeros((96, 128, 3), np.float32)], [np.zeros((96, 128), np.uint8)], []):
         with pytest.raises(ConfigError, match="calib"):
             quantize_static(trained_run, bad, tmp_path / "bad.onnx", progress=False)

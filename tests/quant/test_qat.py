@@ -23,7 +23,7 @@ def test_calibrated_start_is_where_static_ptq_is(trained_run, small_data):
     """Converted right after a held calibration, the QaT graph is as close to fp32 as static PTQ is."""
     from torchao.quantization.pt2e import disable_observer
 
-    from edgepick.export.onnx_export import LogitsNet
+    from edgepick.models.deeplabv3 import LogitsNet
     from edgepick.quant.graph import as_input, convert
     from edgepick.quant.graph import prepare as prepare_graph
     from edgepick.quant.passes import model_images
@@ -87,7 +87,7 @@ def test_qat_graph_keeps_the_models_batchnorm_eps(after):
     from torchao.quantization.pt2e import disable_fake_quant, disable_observer
 
     from edgepick.models.deeplabv3 import ModelConfig, build_model
-    from edgepick.export.onnx_export import LogitsNet
+    from edgepick.models.deeplabv3 import LogitsNet
     from edgepick.quant.graph import prepare
     from edgepick.quant.qat import to_eval
     from edgepick.quant.quantizer import QuantConfig
@@ -161,7 +161,7 @@ def test_converted_qat_graph_computes_what_qat_trained(trained_run, small_data):
     fused fake-quant kernel computes its own: no eps floor, an asymmetric grid for one-signed channels)."""
     from torchao.quantization.pt2e import FakeQuantizeBase, disable_observer
 
-    from edgepick.export.onnx_export import LogitsNet
+    from edgepick.models.deeplabv3 import LogitsNet
     from edgepick.quant.graph import as_input, convert, prepare
     from edgepick.quant.passes import model_images
     from edgepick.quant.qat import to_eval

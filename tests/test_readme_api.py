@@ -1,0 +1,61 @@
+"""The README's Python API runs as written: its first block end to end on a tiny data set (train,
+export, static, hybrid and QaT), the runtime block on the files it made, and every import of the
+section resolves to a public name (one in its package's `__all__`)."""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SETTINGS = re.compile(r"^data, size, epochs = .*$", re.M)
+
+
+def api_blocks() -> list[str]:
+    """The ```python blocks of the README's "Python API" section, in order."""
+    text = (REPO / "README.md").read_text()
+    section = text[text.index("## Python API"):]
+    section = section[:section.index("\n## ", 1)]
+    return re.findall(r"```python\n(.*?)```", section, re.S)
+
+
+def test_the_api_section_imports_only_public_names():
+    blocks = api_blocks()
+    assert len(blocks) >= 3
+    for block in blocks:
+        for node in ast.walk(ast.parse(block)):
+            if isinstance(node, ast.Import):
+                raise AssertionError(f"the README imports modules ({ast.unparse(node)}); name the public objects")
+            if isinstance(node, ast.ImportFrom):
+                assert node.module in ("edgepick", "edgepick.train", "edgepick.quant", "edgepick.export",
+                                       "edgepick.runtime"), ast.unparse(node)
+                module = importlib.import_module(node.module)
+                for alias in node.names:
+                    assert alias.name in module.__all__, f"{node.module}.{alias.name} is not public"
+
+
+def test_the_first_api_block_runs_on_a_tiny_data_set(tmp_path, monkeypatch):
+    from edgepick.data.synth import SynthConfig, synthesize
+
+    synthesize(tmp_path / "data", SynthConfig(scenes=12, width=128, height=96, seed=3, splits=(8, 2, 2)),
+               progress=False)
+    first, *_, runtime = api_blocks()
+    assert len(SETTINGS.findall(first)) == 1, "the block's settings line moved; update this test"
+    monkeypatch.chdir(tmp_path)
+    names: dict = {}
+    exec(compile(SETTINGS.sub('data, size, epochs = "data", Size(96, 64), 10', first), "README.md", "exec"), names)
+    for name in ("fp32.onnx", "static.onnx", "hybrid10.onnx", "qat.onnx"):
+        assert (tmp_path / name).is_file(), name
+    assert names["static"].int8_convs == names["static"].convs and names["static"].agreement_vs_torch > 0.9
+
+    (tmp_path / "calib.json").write_text(json.dumps({"R": np.eye(3).tolist(), "t": [0.1, 0.0, 0.0]}))
+    runtime_names: dict = {}
+    exec(compile(runtime, "README.md", "exec"), runtime_names)
+    result = runtime_names["result"]
+    assert result.labels.shape == (96, 128) and set(result.ms) >= {"inference"}
