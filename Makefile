@@ -19,7 +19,10 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/edgepick demo --workdir $(DEMO_DIR)
 
+# Lint and type-check first (seconds), then the suite.
 test: $(STAMP)
+	$(PY) -m ruff check edgepick benchmarks tests
+	$(PY) -m mypy edgepick/__init__.py edgepick/train edgepick/quant edgepick/export edgepick/runtime
 	$(PY) -m pytest -q -p no:cacheprovider
 
 clean:
