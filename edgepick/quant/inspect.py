@@ -26,6 +26,7 @@ import torch
 from edgepick.data.native import NativeDataset
 from edgepick.errors import ConfigError
 from edgepick.export.onnx_export import LogitsNet
+from edgepick.geometry import Size
 from edgepick.models.deeplabv3 import trim_dilated_convs
 from edgepick.quant.graph import PREFIX, as_input, at_input_size, calibrate, convert, prepare
 from edgepick.quant.quantizer import QuantConfig, module_path
@@ -72,11 +73,11 @@ def record(gm: torch.fx.GraphModule, x: torch.Tensor) -> tuple[dict[str, torch.T
     return rec.values, logits
 
 
-def float_graph(model: torch.nn.Module, size: tuple[int, int]) -> torch.fx.GraphModule:
+def float_graph(model: torch.nn.Module, size: Size) -> torch.fx.GraphModule:
     trim_dilated_convs(model, size)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return torch.export.export(LogitsNet(model).eval(), (torch.rand(1, 3, *size) * 255,)).module()
+        return torch.export.export(LogitsNet(model).eval(), (torch.rand(1, 3, *size.hw) * 255,)).module()
 
 
 def _sqnr(signal: float, noise: float) -> float:
