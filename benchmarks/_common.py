@@ -17,9 +17,9 @@ from edgepick.bench.machine import machine_line, results_file  # noqa: E402,F401
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-def untrained_checkpoint(path: Path, size: tuple[int, int], classes: list[str], variant: str = "standard") -> Path:
+def untrained_checkpoint(path: Path, size, classes: list[str], variant: str = "standard") -> Path:
     """A seeded, untrained default model (DeepLabV3-MobileNetV3) as a checkpoint: latency does
-    not depend on the weights, so speed benchmarks need no training run."""
+    not depend on the weights, so speed benchmarks need no training run. SIZE: the model input, a Size."""
     import torch
 
     from edgepick.models.deeplabv3 import ModelConfig, build_model

@@ -75,7 +75,7 @@ def main() -> None:
     lines = ["# onnxruntime-vs-torch label agreement: conv biases on the int32 grid", "",
              f"Command: `python benchmarks/agreement.py {' '.join(sys.argv[1:])}`  ",
              f"{machine_line()}; onnxruntime "
-             f"{ort.__version__}, torch {torch.__version__}; model {args.run} (input {size[1]}x{size[0]}); static PTQ "
+             f"{ort.__version__}, torch {torch.__version__}; model {args.run} (input {size}); static PTQ "
              f"({config.calib_method}, {'7' if config.reduce_range else '8'}-bit weights, {args.calib_images} calibration "
              f"images); agreement over {args.images} val images (share of pixels with the same label).", "",
              "| conv biases | onnxruntime optimisation | agreement with torch's simulation (%) |", "|---|---|---|"]

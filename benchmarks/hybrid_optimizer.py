@@ -18,6 +18,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import add_output, machine_line, emit  # noqa: E402
 
 from edgepick.data.synth import SynthConfig, synthesize  # noqa: E402
+from edgepick.geometry import Size  # noqa: E402
 from edgepick.quant.qat import train_qat  # noqa: E402
 from edgepick.quant.quantizer import QuantConfig  # noqa: E402
 from edgepick.train.checkpoint import Checkpoint  # noqa: E402
@@ -35,7 +36,7 @@ def main() -> None:
         root = Path(tmp)
         data = root / "data"
         synthesize(data, SynthConfig(scenes=110, width=320, height=240, seed=3, splits=(80, 20, 10)), progress=False)
-        tc = TrainConfig(data=str(data), out=str(root / "float"), epochs=args.epochs, batch_size=8, size=(64, 96),
+        tc = TrainConfig(data=str(data), out=str(root / "float"), epochs=args.epochs, batch_size=8, size=Size(96, 64),
                          lr=2e-3, device="cpu", keep_epochs=[switch])
         train(tc, progress=False)
         rows = {"float (no QaT)": json.loads(Run(root / "float").metrics.read_text())["history"]}

@@ -31,6 +31,7 @@ from edgepick.data.native import NativeDataset  # noqa: E402
 from edgepick.cli.options import model_size  # noqa: E402
 from edgepick.data.synth import SynthConfig, synthesize  # noqa: E402
 from edgepick.models.deeplabv3 import LogitsNet  # noqa: E402
+from edgepick.geometry import Size  # noqa: E402
 from edgepick.metrics import confusion_matrix, segmentation_metrics  # noqa: E402
 from edgepick.quant.graph import as_input, convert, prepare  # noqa: E402
 from edgepick.quant.passes import model_images  # noqa: E402
@@ -41,14 +42,14 @@ from edgepick.train.data import augment  # noqa: E402
 from edgepick.train.loop import TrainConfig, train  # noqa: E402
 
 
-def val_miou(net, data: Path, size: tuple[int, int], count: int) -> float:
+def val_miou(net, data: Path, size: Size, count: int) -> float:
     """mIoU of a logits net over COUNT val images (area-resized like calibration; masks nearest)."""
     import cv2
 
     ds = NativeDataset.open(data, "val")
     n = len(ds.classes)
     cm = np.zeros((n, n), np.int64)
-    h, w = size
+    h, w = size.hw
     with torch.no_grad():
         for i in ds.ids[:count]:
             rgb = cv2.resize(ds.rgb(i), (w, h), interpolation=cv2.INTER_AREA)
@@ -58,12 +59,12 @@ def val_miou(net, data: Path, size: tuple[int, int], count: int) -> float:
     return 100 * segmentation_metrics(cm)["miou"]
 
 
-def train_batches(data: Path, size: tuple[int, int], count: int, batch: int, seed: int = 0) -> list[torch.Tensor]:
+def train_batches(data: Path, size: Size, count: int, batch: int, seed: int = 0) -> list[torch.Tensor]:
     """COUNT augmented training batches, as the training loop makes them."""
     images = np.stack(model_images(data, "train", count * batch, size, seed))
     x = torch.from_numpy(images).permute(0, 3, 1, 2).float()
     gen = torch.Generator().manual_seed(seed)
-    dummy = torch.zeros(x.shape[0], *size, dtype=torch.long)
+    dummy = torch.zeros(x.shape[0], *size.hw, dtype=torch.long)
     out = []
     for k in range(count):
         xb, _ = augment(x[k * batch:(k + 1) * batch], dummy[k * batch:(k + 1) * batch], gen)
@@ -188,7 +189,7 @@ def main() -> None:
         source = "trained here" if args.run is None else str(run)
     lines = ["# Hybrid-QaT's starting point: activation ranges", "",
              "Command: `python benchmarks/hybrid_start.py " + " ".join(sys.argv[1:]) + "`", "",
-             f"- {machine_line()}; float model {source}, input {size[1]}x{size[0]}; "
+             f"- {machine_line()}; float model {source}, input {size}; "
              f"batches of {args.batch_size}; mIoU on {args.val} val images", "",
              "| int8 model | val mIoU (%) | vs fp32 (pp) |", "|---|---|---|"]
     for label, value in rows.items():

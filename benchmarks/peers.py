@@ -27,6 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import add_output, machine_line, emit, interleaved_times  # noqa: E402
 
 from edgepick.data.native import NativeDataset  # noqa: E402
+from edgepick.geometry import Size  # noqa: E402
 from edgepick.metrics import confusion_matrix, segmentation_metrics  # noqa: E402
 from edgepick.runtime.session import Segmenter, openvino_config  # noqa: E402
 
@@ -44,7 +45,7 @@ class OpenVinoModel:
     """A model compiled by OpenVINO for the CPU, float parts in PRECISION (f32, as the runtime's
     `--engine openvino`, unless asked)."""
 
-    def __init__(self, model, threads: int, size: tuple[int, int], precision: str = "f32"):
+    def __init__(self, model, threads: int, size: Size, precision: str = "f32"):
         import openvino as ov
 
         self.compiled = ov.Core().compile_model(model, "CPU", openvino_config(threads, precision))
@@ -61,9 +62,8 @@ class OpenVinoModel:
         return self.request.infer({0: image})[self.compiled.output(0)][0].astype(np.uint8)
 
 
-def prepare(rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    h, w = size
-    return np.ascontiguousarray(cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA))[None]
+def prepare(rgb: np.ndarray, size: Size) -> np.ndarray:
+    return np.ascontiguousarray(cv2.resize(rgb, (size.width, size.height), interpolation=cv2.INTER_AREA))[None]
 
 
 def evaluate(model, ds: NativeDataset, reference: dict[str, np.ndarray] | None) -> tuple[dict, float | None]:
@@ -135,7 +135,7 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="peers-"))
     try:
         fp32 = Path(export_checkpoint(args.run, work / "fp32.onnx").out)
-        size = tuple(Segmenter(fp32).info.input_size)
+        size = Segmenter(fp32).info.input_size
         calib = [prepare(im, size) for im in model_images(args.data, "train", args.calib_images, size)]
 
         class Reader(CalibrationDataReader):
@@ -204,7 +204,7 @@ def main() -> None:
              "", f"Command: `python benchmarks/peers.py {shlex.join(sys.argv[1:])}`  ",
              f"{machine_line()}; onnxruntime "
              f"{ort.__version__}, openvino {ov.__version__.split('-')[0]}, nncf {nncf.__version__}; model: {args.run} "
-             f"(input {size[1]}x{size[0]}); accuracy on {len(ds)} {args.split} images of {args.data}; latency over "
+             f"(input {size}); accuracy on {len(ds)} {args.split} images of {args.data}; latency over "
              f"{args.runs} runs per model after warm-up, the models timed in alternating blocks of 5 (one process, same "
              f"images).", *([f"Model: {args.model_note}"] if args.model_note else []), "",
              "| Quantized by (engine) | mIoU (%) | Pixel acc (%) | agreement with fp32 (%) | p50 (ms) | p95 (ms) "

@@ -26,6 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import add_output, machine_line, emit, untrained_checkpoint  # noqa: E402
 
 from edgepick.data.render import CLASSES  # noqa: E402
+from edgepick.geometry import Size  # noqa: E402
 from edgepick.robot.grippers import DigitalGripper  # noqa: E402
 from edgepick.robot.loop import run_cycles  # noqa: E402
 from edgepick.robot.pick import CommandLog, PickConfig  # noqa: E402
@@ -42,9 +43,9 @@ def default_models(work: Path) -> list[str]:
     data = work / "data"
     synthesize(data, SynthConfig(scenes=20, seed=3, splits=(16, 2, 2)), progress=False)
     out = []
-    for h, w in ((480, 640), (240, 320)):
-        ckpt = untrained_checkpoint(work / f"untrained_{h}.pt", (h, w), list(CLASSES))
-        out.append(quantize_static(ckpt, folder_images(data, "train", 16), work / f"int8_{h}x{w}.onnx",
+    for size in (Size(640, 480), Size(320, 240)):
+        ckpt = untrained_checkpoint(work / f"untrained_{size.height}.pt", size, list(CLASSES))
+        out.append(quantize_static(ckpt, folder_images(data, "train", 16), work / f"int8_{size.height}x{size.width}.onnx",
                                    progress=False).out)
     return out
 
@@ -88,7 +89,7 @@ def main() -> None:
     for name, r in rows.items():
         cmd = "-" if r["cmd_p50"] is None else f"{r['cmd_p50']:.1f}"
         motion = "-" if r["motion_s"] is None else f"{r['motion_s']:.1f}"
-        lines.append(f"| {name} ({r['input'][1]}x{r['input'][0]}) | {r['cycles']} | {r['picked']} | "
+        lines.append(f"| {name} ({r['input']}) | {r['cycles']} | {r['picked']} | "
                      f"{r['infer_p50']:.1f} | {r['plan_p50']:.1f} | {r['plan_p95']:.1f} | {cmd} | {motion} |")
     lines += ["", "Frame -> plan covers perception (pre, inference, post, grasp), target choice, planning and the",
               "envelope check of every pose; frame -> first command adds issuing the first moveL. Thesis: 5.59 s.",

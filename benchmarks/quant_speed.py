@@ -114,6 +114,7 @@ def main() -> None:
     from edgepick.data.synth import SynthConfig, synthesize
     from edgepick.evaluation import evaluate
     from edgepick.export.onnx_export import export_checkpoint
+    from edgepick.geometry import Size
     from edgepick.quant.passes import folder_images, quantize_static
     from edgepick.quant.quantizer import QuantConfig
     from edgepick.train.checkpoint import load_model
@@ -123,7 +124,7 @@ def main() -> None:
     if not args.data:
         synthesize(data, SynthConfig(scenes=24, seed=3, splits=(16, 4, 4)), progress=False)
     classes = json.loads((data / "meta.json").read_text())["classes"]
-    ckpt = args.checkpoint or str(untrained_checkpoint(work / "untrained.pt", (480, 640), classes, args.variant))
+    ckpt = args.checkpoint or str(untrained_checkpoint(work / "untrained.pt", Size(640, 480), classes, args.variant))
     fp32 = export_checkpoint(ckpt, work / "fp32.onnx")
     calib = folder_images(data, "train", args.calib_images)
     int8 = quantize_static(ckpt, calib, work / "int8.onnx", progress=False)
@@ -139,7 +140,7 @@ def main() -> None:
     first_float = quantize_static(ckpt, calib, work / "int8_first_float.onnx", QuantConfig(keep_float=first),
                                   progress=False)
     size = fp32.input_size
-    image = (np.random.default_rng(0).random((1, size[0], size[1], 3)) * 255).astype(np.uint8)
+    image = (np.random.default_rng(0).random((1, *size.hw, 3)) * 255).astype(np.uint8)
 
     rows, ops, nodes, convs = {}, {}, {}, {}
     models = (("fp32", fp32), ("int8", int8), (WHOLE, whole), (FLOAT_ACT, float_act), (DW_FLOAT, dw_float),
@@ -159,7 +160,7 @@ def main() -> None:
     conv_int8 = ops["int8"].get("QLinearConv", 0.0) + ops["int8"].get("Conv", 0.0)  # kept-float convs count too
 
     lines = [f"# fp32 vs int8 (static PTQ) in onnxruntime {ort.__version__}, {args.threads} threads, "
-             f"input {size[1]}x{size[0]}",
+             f"input {size}",
              "", f"Command: `python benchmarks/quant_speed.py {' '.join(sys.argv[1:])}`  ",
              f"{machine_line()}; "
              f"model: {'checkpoint ' + args.checkpoint if args.checkpoint else f'untrained DeepLabV3-MobileNetV3 ({args.variant})'}; "

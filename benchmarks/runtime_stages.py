@@ -27,7 +27,7 @@ from _common import add_output, machine_line, emit, untrained_checkpoint  # noqa
 
 from edgepick.data.render import CLASSES, SceneRenderer  # noqa: E402
 from edgepick.frames import Frame  # noqa: E402
-from edgepick.geometry import Intrinsics  # noqa: E402
+from edgepick.geometry import Intrinsics, Size  # noqa: E402
 from edgepick.runtime.grasp import grasp_records  # noqa: E402
 from edgepick.runtime.pipeline import STAGES, Pipeline, median_ms  # noqa: E402
 from edgepick.runtime.session import Segmenter  # noqa: E402
@@ -40,7 +40,7 @@ def default_models(work: Path) -> list[str]:
 
     data = work / "data"
     synthesize(data, SynthConfig(scenes=20, seed=3, splits=(16, 2, 2)), progress=False)
-    ckpt = untrained_checkpoint(work / "untrained.pt", (480, 640), list(CLASSES))
+    ckpt = untrained_checkpoint(work / "untrained.pt", Size(640, 480), list(CLASSES))
     fp32 = export_checkpoint(ckpt, work / "fp32.onnx").out
     int8 = quantize_static(ckpt, folder_images(data, "train", 16), work / "int8.onnx", progress=False).out
     return [fp32, int8]
@@ -91,7 +91,7 @@ def main() -> None:
              "| Model (input) | " + " | ".join(STAGES) + " | outside inference | total p50 | total p95 |",
              "|---" * (len(STAGES) + 4) + "|"]
     for name, (med, p95, size) in rows.items():
-        lines.append(f"| {name} ({size[1]}x{size[0]}) | " + " | ".join(f"{med[s]:.2f}" for s in STAGES)
+        lines.append(f"| {name} ({size}) | " + " | ".join(f"{med[s]:.2f}" for s in STAGES)
                      + f" | {med['outside_inference']:.2f} | {med['total']:.1f} | {p95:.1f} |")
     lines += ["", f"Grasp stage on the scenes' true label images (median {objects:.0f} objects per frame): "
               f"**{true_med:.2f} ms** median.", ""]

@@ -19,7 +19,7 @@ import numpy as np
 
 from edgepick.data.render import SceneRenderer
 from edgepick.data.synth import _PNG_FAST, _PNG_RLE, SynthConfig, synthesize
-from edgepick.geometry import Intrinsics
+from edgepick.geometry import Intrinsics, Size
 
 
 def per_scene_ms(width: int, height: int, scenes: int = 20) -> dict:
@@ -46,7 +46,8 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=0, help="0 = one per core")
     ap.add_argument("--size", default="640x480")
     args = ap.parse_args()
-    w, h = (int(v) for v in args.size.split("x"))
+    size = Size.parse(args.size)
+    w, h = size.width, size.height
     tmp = Path(tempfile.mkdtemp())
     try:
         result = synthesize(tmp / "data", SynthConfig(scenes=args.scenes, width=w, height=h, workers=args.workers),

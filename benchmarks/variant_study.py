@@ -34,7 +34,7 @@ def main() -> None:
     args = ap.parse_args()
     from edgepick.cli.options import model_size
 
-    h, w = model_size(args.size)
+    size = model_size(args.size)
     splits = tuple(int(v) for v in args.splits.split(","))
 
     import torch
@@ -42,6 +42,7 @@ def main() -> None:
     from edgepick.data.render import CLASSES
     from edgepick.data.synth import SynthConfig, synthesize
     from edgepick.evaluation import evaluate
+    from edgepick.geometry import Size
     from edgepick.export.onnx_export import export_checkpoint
     from edgepick.quant.passes import agreement_images, folder_images, quantize_static
     from edgepick.quant.quantizer import QuantConfig
@@ -57,7 +58,7 @@ def main() -> None:
         for variant in ("standard", "edge"):
             run = work / f"run-{variant}"
             res = train(TrainConfig(data=str(data), out=str(run), variant=variant, epochs=args.epochs, batch_size=8,
-                                    size=(h, w), lr=2e-3, device="cpu"), progress=False)
+                                    size=size, lr=2e-3, device="cpu"), progress=False)
             fp32 = export_checkpoint(run, work / f"{variant}-fp32.onnx").out
             int8 = quantize_static(run, folder_images(data, "train", 32), work / f"{variant}-int8.onnx",
                                    check_images=agreement_images(data), progress=False)
@@ -65,7 +66,7 @@ def main() -> None:
             m_int8 = evaluate(int8.out, data, "test", progress=False)["miou"]
             params = sum(p.numel() for p in load_model(run)[0].parameters())
             # latency does not depend on the weights: untrained models at the deployment size
-            ckpt = untrained_checkpoint(work / f"{variant}-480.pt", (480, 640), list(CLASSES), variant)
+            ckpt = untrained_checkpoint(work / f"{variant}-480.pt", Size(640, 480), list(CLASSES), variant)
             f480 = export_checkpoint(ckpt, work / f"{variant}-480-fp32.onnx").out
             i480 = quantize_static(ckpt, folder_images(data, "train", 16), work / f"{variant}-480-int8.onnx",
                                    progress=False).out
@@ -79,7 +80,7 @@ def main() -> None:
     lines = ["# Standard vs edge DeepLabV3-MobileNetV3: accuracy and int8 speed", "",
              f"Command: `python benchmarks/variant_study.py {' '.join(sys.argv[1:])}`  ",
              f"{machine_line()}; torch {torch.__version__}. "
-             f"Accuracy: synthetic splits {splits}, {args.epochs} CPU epochs at {h}x{w}, static int8 ({QuantConfig().calib_method}, 32 "
+             f"Accuracy: synthetic splits {splits}, {args.epochs} CPU epochs at {size}, static int8 ({QuantConfig().calib_method}, 32 "
              f"images), test-split mIoU through onnxruntime. Latency: the same architectures at 640x480, 2 threads, "
              f"median of {args.runs} runs, one process, fp32 and int8 timed in alternating blocks of 5.", "",
              "| Variant | Params (M) | train (s) | fp32 mIoU (%) | int8 mIoU (%) | drop (pp) | ORT vs torch agreement "

@@ -19,6 +19,7 @@ from pathlib import Path
 import click
 
 from edgepick.files import output_dir
+from edgepick.geometry import Size
 
 
 CELL_CYCLES = 20  # pick cycles per model for the demo's grasp success column (bench --cell)
@@ -29,14 +30,14 @@ def _step(title: str) -> None:
     click.echo(click.style(f"\n== {title}", bold=True), err=True)
 
 
-def run_demo(workdir: Path, scenes: int = 204, epochs: int = 12, size: tuple[int, int] = (192, 256)) -> dict:
+def run_demo(workdir: Path, scenes: int = 204, epochs: int = 12, size: Size = Size(256, 192)) -> dict:
     """Run the demo in WORKDIR and print a summary; returns it. WORKDIR must be new, empty or an
     earlier demo's (emptied first); an interrupted demo leaves it empty (files.output_dir)."""
     with output_dir(workdir, "demo", fresh=True):
         return _run_demo(workdir, scenes, epochs, size)
 
 
-def _run_demo(workdir: Path, scenes: int, epochs: int, size: tuple[int, int]) -> dict:
+def _run_demo(workdir: Path, scenes: int, epochs: int, size: Size) -> dict:
     from edgepick.data.preview import contact_sheet
     from edgepick.data.synth import SynthConfig, synthesize
     from edgepick.evaluation import evaluate
@@ -49,7 +50,7 @@ def _run_demo(workdir: Path, scenes: int, epochs: int, size: tuple[int, int]) ->
     click.echo(f"{synth['scenes']} scenes in {synth['seconds']} s ({synth['scenes_per_s']} scenes/s), "
                f"splits {synth['splits']}", err=True)
     contact_sheet(workdir / "data", workdir / "preview.png", count=9)
-    _step(f"2/8 train DeepLabV3-MobileNetV3 on CPU, {epochs} epochs at {size[1]}x{size[0]}")
+    _step(f"2/8 train DeepLabV3-MobileNetV3 on CPU, {epochs} epochs at {size}")
     run = train(TrainConfig(data=str(workdir / "data"), out=str(workdir / "run"), epochs=epochs, batch_size=8,
                             size=size, device="cpu", keep_epochs=[max(1, epochs - 1)]))
     _step("3/8 evaluate the best checkpoint on the test split")
@@ -154,7 +155,7 @@ def quick_table_demo(workdir: Path) -> str:
     from edgepick.bench.table55 import QUICK, make_table55
 
     _step(f"8/8 the quick Table 5.5 / 5.6: {QUICK.splits} scenes, {QUICK.epochs} epochs at "
-          f"{QUICK.size[1]}x{QUICK.size[0]}: float, static, QaT from scratch, hybrid-QaT 1/5/10%")
+          f"{QUICK.size}: float, static, QaT from scratch, hybrid-QaT 1/5/10%")
     table = make_table55(workdir / "table55", QUICK, "cpu", "edgepick demo (step 8)",
                          echo=lambda line: click.echo(line, err=True))
     out = workdir / "table55-quick.md"

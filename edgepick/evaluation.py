@@ -48,7 +48,7 @@ def _torch_predictor(model_path: Path):
     from edgepick.train.checkpoint import load_model
 
     model, ckpt = load_model(model_path)
-    h, w = ckpt.input_size
+    h, w = ckpt.input_size.hw
 
     @torch.inference_mode()
     def predict(rgb: np.ndarray) -> np.ndarray:

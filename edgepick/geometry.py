@@ -1,13 +1,68 @@
-"""Pinhole camera geometry shared by the generator and the runtime (numpy only)."""
+"""Image sizes and pinhole camera geometry shared by the generator, training and the runtime (numpy only)."""
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
+from edgepick.errors import ConfigError
 from edgepick.schema import Where, as_dict, as_number, field, read_json
+
+
+@dataclass(frozen=True)
+class Size:
+    """An image or model input size, width first as cameras and the command line state it (640x480).
+    Not a tuple on purpose: `.hw` gives the (height, width) that numpy, torch and file metadata keep,
+    so an order is never guessed."""
+
+    width: int
+    height: int
+
+    def __post_init__(self) -> None:
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
+                raise ConfigError(f"size: {name} must be a positive whole number, got {value!r}")
+            object.__setattr__(self, name, int(value))
+
+    @classmethod
+    def parse(cls, text: str) -> "Size":
+        """'640x480' (WIDTHxHEIGHT, the command line's form) -> Size(640, 480)."""
+        try:
+            width, height = (int(v) for v in str(text).lower().split("x"))
+        except ValueError:
+            raise ConfigError(f"size must be WIDTHxHEIGHT like 640x480, got {text!r}") from None
+        return cls(width, height)
+
+    @classmethod
+    def from_hw(cls, hw: tuple[int, int]) -> "Size":
+        """The size of a (height, width) pair: an array's shape[:2] or a file's [H, W] metadata."""
+        height, width = hw
+        return cls(width, height)
+
+    @classmethod
+    def of(cls, image: np.ndarray) -> "Size":
+        """The size of an HxW or HxWxC image array."""
+        return cls.from_hw(image.shape[:2])
+
+    @property
+    def hw(self) -> tuple[int, int]:
+        """(height, width): the order of numpy and torch shapes and of edgepick's file metadata."""
+        return self.height, self.width
+
+    def __str__(self) -> str:
+        return f"{self.width}x{self.height}"
+
+
+def check_size(value: object, what: str) -> Size:
+    """VALUE when it is a Size; a (height, width) or (width, height) tuple is refused rather than guessed."""
+    if not isinstance(value, Size):
+        raise ConfigError(f"{what} must be a Size(width, height) (from edgepick.geometry), got {value!r}")
+    return value
+
 
 # A RealSense D415 colour stream at 640x480 has fx ~ fy ~ 615 px.
 D415_FOCAL_640 = 615.0

@@ -36,9 +36,10 @@ def small_data(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="session")
 def trained_run(small_data: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A short CPU training run (MobileNetV3, 128x96) shared by the eval and quality tests."""
+    from edgepick.geometry import Size
     from edgepick.train.loop import TrainConfig, train
 
     out = tmp_path_factory.mktemp("runs") / "run"
-    train(TrainConfig(data=str(small_data), out=str(out), epochs=EPOCHS, batch_size=4, size=(96, 128), device="cpu",
+    train(TrainConfig(data=str(small_data), out=str(out), epochs=EPOCHS, batch_size=4, size=Size(128, 96), device="cpu",
                       lr=2e-3, keep_epochs=[2, EPOCHS - 1]), progress=False)
     return out

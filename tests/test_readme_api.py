@@ -11,7 +11,6 @@ import re
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SETTINGS = re.compile(r"^data, size, epochs = .*$", re.M)

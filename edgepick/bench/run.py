@@ -32,7 +32,7 @@ def gpu_row(checkpoint: str | Path, data: str | Path, images: list[np.ndarray], 
 
     model, ckpt = load_model(checkpoint)
     model = model.cuda().eval()
-    h, w = ckpt.input_size
+    h, w = ckpt.input_size.hw
     batch = [torch.from_numpy(cv2.resize(im, (w, h), interpolation=cv2.INTER_AREA)).permute(2, 0, 1)[None].float().cuda()
              for im in images]
     times = []

@@ -19,6 +19,7 @@ from edgepick.bench.machine import machine_line, machine_slug
 from edgepick.bench.measure import BenchConfig
 from edgepick.bench.run import run_bench
 from edgepick.files import atomic_write
+from edgepick.geometry import Size
 
 
 @dataclass(frozen=True)
@@ -27,7 +28,7 @@ class Setting:
 
     name: str
     splits: tuple[int, int, int]  # synthetic train/val/test scenes (640x480)
-    size: tuple[int, int]  # training input H, W
+    size: Size  # the model's training input
     epochs: int  # the epoch budget E; hybrid-QaT switches at (1 - p)E, so E = 100 gives 1/5/10% exactly
     batch_size: int
     lr: float
@@ -38,17 +39,17 @@ class Setting:
     def describe(self) -> str:
         per_epoch = f"{self.epoch_images} images drawn afresh from the train split" if self.epoch_images else "the whole train split"
         val = f"{self.val_images} of the val images" if self.val_images else "the whole val split"
-        return (f"synthetic splits {self.splits} at 640x480, model input {self.size[1]}x{self.size[0]}, "
+        return (f"synthetic splits {self.splits} at 640x480, model input {self.size}, "
                 f"{self.epochs} epochs of {per_epoch} (validated on {val}), batch {self.batch_size}, lr {self.lr}")
 
 
 # Scaled down until the whole table takes minutes on 2 CPU cores: 3 steps per epoch at 96x64.
-QUICK = Setting("quick", splits=(24, 12, 12), size=(64, 96), epochs=100, batch_size=8, lr=2e-3, runs=30)
+QUICK = Setting("quick", splits=(24, 12, 12), size=Size(96, 64), epochs=100, batch_size=8, lr=2e-3, runs=30)
 # The thesis's data scale on a short GPU budget: the 4000/1000/100 split at 640x480 and E = 100 epochs
 # (so 1/5/10% are whole epochs), each epoch 160 images drawn from the train split (4 passes over it in all).
-SHORT = Setting("short", splits=(4000, 1000, 100), size=(480, 640), epochs=100, batch_size=16, lr=2e-3, runs=50,
+SHORT = Setting("short", splits=(4000, 1000, 100), size=Size(640, 480), epochs=100, batch_size=16, lr=2e-3, runs=50,
                 epoch_images=160, val_images=100)
-FULL = Setting("full", splits=(4000, 1000, 100), size=(480, 640), epochs=100, batch_size=16, lr=1e-3, runs=100)
+FULL = Setting("full", splits=(4000, 1000, 100), size=Size(640, 480), epochs=100, batch_size=16, lr=1e-3, runs=100)
 SETTINGS = {s.name: s for s in (QUICK, SHORT, FULL)}
 FRACTIONS = (0.01, 0.05, 0.10)
 PHASES = ("synth", "float", "fp32", "static", "qat", "hybrid", *(f"hybrid{p:.2f}" for p in FRACTIONS), "bench")

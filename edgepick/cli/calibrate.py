@@ -172,7 +172,7 @@ def collect(robot_spec: str, camera: str, marker_spec: str, marker_offset: str, 
     check_output(out, "--out", inputs=(folder,))
     if robot_log is not None:
         check_output(robot_log, "--robot-log", inputs=(folder, out))
-    width, height = parse_size(size)
+    frame_size = parse_size(size)
     plan = plan_positions(cfg)
     if kind == "ur" and not execute:
         check_plan(plan, HOME_POSE, envelope)  # the arm's own pose is not known without a connection
@@ -187,7 +187,7 @@ def collect(robot_spec: str, camera: str, marker_spec: str, marker_offset: str, 
         from edgepick.robot.ur import URRobot
 
         robot = URRobot(host, envelope=envelope, debug_log=robot_log)
-    source = open_camera(camera, width, height)
+    source = open_camera(camera, frame_size)
     if isinstance(source, FolderCamera) and not source.loop and len(source.names) < len(plan):
         raise ConfigError(f"--camera {camera}: {len(source.names)} frames for {len(plan)} positions; give one frame "
                           "per position (or fewer --poses)")

@@ -33,7 +33,7 @@ def data_synth(out: str, scenes: int, splits: str | None, size: str, seed: int, 
     from edgepick.data.synth import SynthConfig, synthesize
 
     check_output(out, "OUT", kind="dir")
-    width, height = parse_size(size)
+    image_size = parse_size(size)
     if seed < 0:
         raise ConfigError(f"--seed {seed}: must be 0 or positive")
     if workers < 0:
@@ -49,7 +49,8 @@ def data_synth(out: str, scenes: int, splits: str | None, size: str, seed: int, 
         scenes = sum(split_counts)
     if scenes < 3:
         raise ConfigError("--scenes must be at least 3 (one per split)")
-    cfg = SynthConfig(scenes=scenes, width=width, height=height, seed=seed, splits=split_counts, workers=workers)
+    cfg = SynthConfig(scenes=scenes, width=image_size.width, height=image_size.height, seed=seed, splits=split_counts,
+                      workers=workers)
     emit(synthesize(out, cfg))
 
 
@@ -123,7 +124,6 @@ def data_capture(out: str, camera: str, count: int, interval: float, size: str) 
     if count < 1 or not (math.isfinite(interval) and interval >= 0):
         raise ConfigError("--count must be at least 1 and --interval 0 or more seconds")
     check_count(count)
-    width, height = parse_size(size)
-    emit(capture(open_camera(camera, width, height), out, count, interval))
+    emit(capture(open_camera(camera, parse_size(size)), out, count, interval))
 
 

@@ -1,7 +1,8 @@
 """Options and parsers shared by the command groups (click only, no torch).
 
 Every `--size` in edgepick is WIDTHxHEIGHT, as cameras and image files state it (640x480),
-and is parsed here; internally the package keeps (height, width) tuples, like torch.
+and is parsed here into a `Size(width, height)` (edgepick.geometry), the form every size takes
+in the Python API; arrays and file metadata keep (height, width), as numpy and torch do (`Size.hw`).
 """
 
 from __future__ import annotations
@@ -12,12 +13,13 @@ from typing import Any
 import click
 
 from edgepick.errors import ConfigError
+from edgepick.geometry import Size
 
 SIZE_HELP = "WIDTHxHEIGHT"
 
 
-def parse_size(text: str, model_input: bool = False) -> tuple[int, int]:
-    """'640x480' -> (width, height). A model input needs sides that are multiples of 8 and >= 32
+def parse_size(text: str, model_input: bool = False) -> Size:
+    """'640x480' -> Size(640, 480). A model input needs sides that are multiples of 8 and >= 32
     (the backbone's stride); a camera or rendered image needs 32..4096 per side."""
     try:
         w, h = (int(v) for v in text.lower().split("x"))
@@ -27,19 +29,18 @@ def parse_size(text: str, model_input: bool = False) -> tuple[int, int]:
         raise ConfigError(f"--size {text!r}: both sides must be multiples of 8 and at least 32")
     if not (32 <= w <= 4096 and 32 <= h <= 4096):
         raise ConfigError(f"--size {text!r} out of range (32..4096 per side)")
-    return w, h
+    return Size(w, h)
 
 
-def model_size(text: str) -> tuple[int, int]:
-    """A model input --size as the (height, width) the trainer takes."""
-    w, h = parse_size(text, model_input=True)
-    return h, w
+def model_size(text: str) -> Size:
+    """A model input --size: sides that are multiples of 8 and at least 32."""
+    return parse_size(text, model_input=True)
 
 
-def check_orientation(size_hw: tuple[int, int], image_hw: tuple[int, int], option: str = "--size") -> None:
-    """Refuse a model input that is the data's images turned on their side: the usual sign of a
+def check_orientation(size: Size, image: Size, option: str = "--size") -> None:
+    """Refuse a model input SIZE that is the data's IMAGE size turned on its side: the usual sign of a
     size given as HEIGHTxWIDTH (e.g. 480x640 for 640x480 images)."""
-    (h, w), (ih, iw) = size_hw, image_hw
+    (h, w), (ih, iw) = size.hw, image.hw
     if h != w and ih != iw and (h > w) != (ih > iw):
         if h * ih == w * iw:
             raise ConfigError(f"{option} {w}x{h} turns the {iw}x{ih} images on their side; sizes are "
@@ -49,13 +50,13 @@ def check_orientation(size_hw: tuple[int, int], image_hw: tuple[int, int], optio
                    f"be squeezed to it (sizes are {SIZE_HELP})", err=True)
 
 
-def check_data_orientation(data_dir: str, input_hw: tuple[int, int]) -> None:
+def check_data_orientation(data_dir: str, size: Size) -> None:
     """check_orientation against the first train image of DATA (one PNG read)."""
     from edgepick.data.native import NativeDataset
 
     ds = NativeDataset.open(data_dir, "train")
     if len(ds):
-        check_orientation(input_hw, ds.rgb(ds.ids[0]).shape[:2])
+        check_orientation(size, Size.of(ds.rgb(ds.ids[0])))
 
 
 def with_options(options):

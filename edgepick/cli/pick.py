@@ -105,13 +105,13 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
         check_output(overlay_dir, "--overlay-dir", kind="dir", inputs=(model, calib), reuse="pick")
     if robot_log is not None:
         check_output(robot_log, "--robot-log", inputs=(model, calib, log_path))
-    width, height = parse_size(size)
+    frame_size = parse_size(size)
     model = model or _reference_for(camera)
     segmenter = Segmenter(model, threads=threads, engine=engine)
     unknown = [c for c in classes if c not in segmenter.info.classes]
     if unknown:
         raise ConfigError(f"--class {unknown[0]}: not a class of {model} ({', '.join(segmenter.info.classes)})")
-    source = open_camera(camera, width, height)
+    source = open_camera(camera, frame_size)
     if calib:
         cal = Calibration.load(calib)
     elif isinstance(source, SynthCamera) and source.mount is not None:

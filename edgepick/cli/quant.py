@@ -173,12 +173,12 @@ def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int,
     _check_onnx_out(out, data_dir)
     if seed < 0:
         raise ConfigError(f"--seed {seed}: must be 0 or positive")
-    input_hw = model_size(size)
-    check_data_orientation(data_dir, input_hw)
+    input_size = model_size(size)
+    check_data_orientation(data_dir, input_size)
     run = run_dir or str(Path(out).with_suffix(".run"))
     check_output(run, "--run", kind="dir", inputs=(data_dir, out))
     cfg = TrainConfig(data=data_dir, out=run, arch=arch, epochs=epochs, batch_size=batch_size, lr=lr,
-                      size=input_hw, device=device, seed=seed, epoch_images=epoch_images,
+                      size=input_size, device=device, seed=seed, epoch_images=epoch_images,
                       val_images=val_images)
     emit(quantize_qat(cfg, out, _quant_config(reduce_range=reduce_range, keep_float=keep_float,
                                                weight_averaging=weight_averaging)))

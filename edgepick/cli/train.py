@@ -66,14 +66,14 @@ def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, 
             raise ConfigError(f"--keep-epochs {outside[0]}: not an epoch of the budget (1..{epochs})")
     if seed < 0:
         raise ConfigError(f"--seed {seed}: must be 0 or positive")
-    input_hw = model_size(size)
+    input_size = model_size(size)
     if not resume and Run(out).holds_run():
         raise ConfigError(f"--out {out} already holds a training run; pass --resume or choose a new --out")
     check_output(out, "--out", kind="dir", inputs=(data_dir,), reuse="train" if resume else None)
     if not resume:
-        check_data_orientation(data_dir, input_hw)
+        check_data_orientation(data_dir, input_size)
     cfg = TrainConfig(data=data_dir, out=out, arch=arch, variant=variant, epochs=epochs if epochs is not None else (0 if resume else 100),
-                      batch_size=batch_size, lr=lr, size=input_hw, colorspace=colorspace,
+                      batch_size=batch_size, lr=lr, size=input_size, colorspace=colorspace,
                       output_stride=int(output_stride), aux_loss=aux_loss, device=device, keep_epochs=keep,
                       backbone_weights=backbone_weights, epoch_images=epoch_images, val_images=val_images,
                       workers=workers, seed=seed)

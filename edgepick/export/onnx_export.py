@@ -17,6 +17,7 @@ from torch import Tensor, nn
 
 from edgepick.errors import ConfigError
 from edgepick.files import atomic_path, sha256_of
+from edgepick.geometry import Size
 from edgepick.export.crop_convs import crop_padded_convs
 from edgepick.export.int8_activations import integer_activations
 from edgepick.models.deeplabv3 import LogitsNet
@@ -32,11 +33,12 @@ class ExportResult:
 
     out: str
     size_bytes: int
-    input_size: list[int]  # [H, W], as the model's edgepick.input_size metadata
+    input_size: Size
     classes: list[str]
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """The JSON `edgepick export` prints: input_size as [H, W], like the model's metadata."""
+        return {**asdict(self), "input_size": list(self.input_size.hw)}
 
 
 class DeployNet(nn.Module):
@@ -67,7 +69,7 @@ def contract_metadata(ckpt: Checkpoint, precision: str, quant: dict | None, trai
     """The edgepick.* metadata_props of docs/contracts.md#onnx-model, from a checkpoint's own description."""
     seconds = train_time_s if train_time_s is not None else run_train_time_s(ckpt.path, ckpt.train_time_s)
     return {"edgepick.classes": json.dumps(list(ckpt.classes)),
-            "edgepick.input_size": json.dumps(list(ckpt.input_size)),
+            "edgepick.input_size": json.dumps(list(ckpt.input_size.hw)),
             "edgepick.colorspace": ckpt.colorspace,
             "edgepick.precision": precision,
             "edgepick.quant": json.dumps(quant or {"mode": "none"}),
@@ -100,7 +102,7 @@ EXPORT_PASSES = {
 }
 
 
-def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: tuple[int, int],
+def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: Size,
                 passes: tuple[str, ...] = tuple(EXPORT_PASSES)) -> Path:
     """Export NET ([0, 255] NCHW float -> logits, float or pt2e-converted) as an ONNX model
     (docs/contracts.md#onnx-model), then run the named graph PASSES (EXPORT_PASSES; all by
@@ -117,8 +119,7 @@ def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: tu
     unknown = [p for p in passes if p not in EXPORT_PASSES]
     if unknown:
         raise ConfigError(f"unknown export pass {unknown[0]!r}; the passes are {', '.join(EXPORT_PASSES)}")
-    h, w = input_size
-    example = (torch.zeros(1, h, w, 3, dtype=torch.uint8),)
+    example = (torch.zeros(1, *input_size.hw, 3, dtype=torch.uint8),)
     if not isinstance(net, torch.fx.GraphModule):  # exported graphs are already in eval form
         net.eval()
     deploy = DeployNet(net)
@@ -150,4 +151,4 @@ def export_checkpoint(checkpoint: str | Path, out: str | Path) -> ExportResult:
     size = ckpt.input_size
     trim_dilated_convs(model, size)
     path = export_onnx(LogitsNet(model), out, contract_metadata(ckpt, "fp32", None), size)
-    return ExportResult(out=str(path), size_bytes=path.stat().st_size, input_size=list(size), classes=list(ckpt.classes))
+    return ExportResult(out=str(path), size_bytes=path.stat().st_size, input_size=size, classes=list(ckpt.classes))

@@ -15,6 +15,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from edgepick.errors import ConfigError
+from edgepick.geometry import Size
 from edgepick.models.mobilenetv3 import mobilenet_v3_large_features
 from edgepick.models.resnet import ResNetFeatures
 
@@ -202,7 +203,7 @@ def build_model(config: ModelConfig) -> DeepLabV3:
 
 
 @torch.no_grad()
-def trim_dilated_convs(model: DeepLabV3, input_size: tuple[int, int]) -> int:
+def trim_dilated_convs(model: DeepLabV3, input_size: Size) -> int:
     """Shrink ASPP 3x3 kernels whose dilation reaches past the feature map; returns how many changed.
 
     With rate 36 on a 40x30 map (640x480 at stride 16) the outer rows of taps only ever see
@@ -217,7 +218,7 @@ def trim_dilated_convs(model: DeepLabV3, input_size: tuple[int, int]) -> int:
 
     hook = model.classifier[0].register_forward_pre_hook(record)
     was_training = model.training
-    model.eval()(torch.zeros(1, 3, *input_size))
+    model.eval()(torch.zeros(1, 3, *input_size.hw))
     model.train(was_training)
     hook.remove()
     h, w = seen["hw"]

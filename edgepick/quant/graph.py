@@ -13,6 +13,7 @@ import numpy as np
 import torch
 
 from edgepick.errors import ConfigError, EdgepickError
+from edgepick.geometry import Size
 from edgepick.models.deeplabv3 import LogitsNet
 from edgepick.models.deeplabv3 import trim_dilated_convs
 from edgepick.quant.quantizer import EdgeQuantizer, QuantConfig, count_quant_nodes, module_path, under
@@ -31,18 +32,17 @@ def as_input(rgb: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(rgb).permute(2, 0, 1)[None].float()
 
 
-def at_input_size(rgb: np.ndarray, size: tuple[int, int], what: str = "calib") -> np.ndarray:
-    """An HxWx3 uint8 RGB image at the model's (H, W), area-resized as the runtime resizes a frame."""
+def at_input_size(rgb: np.ndarray, size: Size, what: str = "calib") -> np.ndarray:
+    """An HxWx3 uint8 RGB image at the model's input SIZE, area-resized as the runtime resizes a frame."""
     if not isinstance(rgb, np.ndarray) or rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
         got = f"{rgb.dtype} {rgb.shape}" if isinstance(rgb, np.ndarray) else type(rgb).__name__
         raise ConfigError(f"{what}: images must be HxWx3 uint8 RGB arrays, got {got}")
-    h, w = size
-    return rgb if rgb.shape[:2] == (h, w) else cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA)
+    return rgb if rgb.shape[:2] == size.hw else cv2.resize(rgb, (size.width, size.height), interpolation=cv2.INTER_AREA)
 
 
-def calibrate(prepared: torch.fx.GraphModule, images: Iterable[np.ndarray], size: tuple[int, int] | None = None,
+def calibrate(prepared: torch.fx.GraphModule, images: Iterable[np.ndarray], size: Size | None = None,
               progress: bool = False) -> int:
-    """Run PREPARED on each of IMAGES (HxWx3 uint8 RGB, resized to the model's (H, W) SIZE when given)
+    """Run PREPARED on each of IMAGES (HxWx3 uint8 RGB, resized to the model's input SIZE when given)
     so that its observers see the activations; returns how many images it saw (at least one)."""
     from edgepick.progress import progress as progress_bar
 
@@ -50,7 +50,7 @@ def calibrate(prepared: torch.fx.GraphModule, images: Iterable[np.ndarray], size
     seen = 0
     with torch.no_grad():
         for rgb in progress_bar(images, desc="calibrate", unit="img", enabled=progress):
-            prepared(as_input(at_input_size(rgb, size) if size else rgb).to(device))
+            prepared(as_input(at_input_size(rgb, size) if size is not None else rgb).to(device))
             seen += 1
     if not seen:
         raise ConfigError("calib: no images; calibration needs at least one")
@@ -73,7 +73,7 @@ def check_keep_float(model: torch.nn.Module, names: list[str]) -> None:
                           f"(see 'edgepick quantize inspect' for layer names)")
 
 
-def prepare(model: torch.nn.Module, config: QuantConfig, size: tuple[int, int], qat: bool) -> torch.fx.GraphModule:
+def prepare(model: torch.nn.Module, config: QuantConfig, size: Size, qat: bool) -> torch.fx.GraphModule:
     """torch.export + pt2e prepare of MODEL (changed in place: trimmed taps, gated hardswish);
     QAT gives a fake-quant graph with a batch dimension to train. Raises if no observer or
     fake-quant was inserted (the silent-float trap)."""
@@ -84,7 +84,7 @@ def prepare(model: torch.nn.Module, config: QuantConfig, size: tuple[int, int], 
     if config.hardswish_gate:
         gate_hardswish(model)
     net = LogitsNet(model).train(qat)
-    example = (torch.rand(2 if qat else 1, 3, *size) * 255,)
+    example = (torch.rand(2 if qat else 1, 3, *size.hw) * 255,)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         batch = torch.export.Dim("batch", min=1, max=4096)  # QaT trains on batches

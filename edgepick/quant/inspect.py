@@ -25,6 +25,7 @@ import torch
 
 from edgepick.data.native import NativeDataset
 from edgepick.errors import ConfigError
+from edgepick.geometry import Size
 from edgepick.models.deeplabv3 import LogitsNet
 from edgepick.models.deeplabv3 import trim_dilated_convs
 from edgepick.quant.graph import PREFIX, as_input, at_input_size, calibrate, convert, prepare
@@ -73,11 +74,11 @@ def record(gm: torch.fx.GraphModule, x: torch.Tensor) -> tuple[dict[str, torch.T
     return rec.values, logits
 
 
-def float_graph(model: torch.nn.Module, size: tuple[int, int]) -> torch.fx.GraphModule:
+def float_graph(model: torch.nn.Module, size: Size) -> torch.fx.GraphModule:
     trim_dilated_convs(model, size)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return torch.export.export(LogitsNet(model).eval(), (torch.rand(1, 3, *size) * 255,)).module()
+        return torch.export.export(LogitsNet(model).eval(), (torch.rand(1, 3, *size.hw) * 255,)).module()
 
 
 def _sqnr(signal: float, noise: float) -> float:

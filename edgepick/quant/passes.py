@@ -22,6 +22,7 @@ from edgepick.data.native import NativeDataset
 from edgepick.errors import CheckpointError, ConfigError
 from edgepick.export.checks import conv_weight_report, label_agreement
 from edgepick.export.onnx_export import EXPORT_PASSES, contract_metadata, export_onnx
+from edgepick.geometry import Size
 from edgepick.quant.graph import (QuantizationError, at_input_size, calibrate, check_keep_float, convert,
                                   expected_int8_convs, first_of, prepare)
 from edgepick.quant.qat import load_qat, qat_config, train_qat
@@ -65,9 +66,9 @@ def agreement_images(data: str | Path, seed: int = 0) -> list[np.ndarray]:
     return folder_images(data, "val", min(AGREEMENT_IMAGES, n), seed, "val images")
 
 
-def model_images(data: str | Path, split: str, count: int | None, size: tuple[int, int], seed: int = 0,
+def model_images(data: str | Path, split: str, count: int | None, size: Size, seed: int = 0,
                  what: str = "calibration images") -> list[np.ndarray]:
-    """folder_images, area-resized to the model's (H, W)."""
+    """folder_images, area-resized to the model's input SIZE."""
     return [at_input_size(rgb, size) for rgb in folder_images(data, split, count, seed, what)]
 
 
@@ -83,7 +84,7 @@ def _stage(message: str, enabled: bool) -> None:
         print(message, file=sys.stderr, flush=True)
 
 
-def _export_int8(converted: torch.fx.GraphModule, out: str | Path, metadata: dict, size: tuple[int, int],
+def _export_int8(converted: torch.fx.GraphModule, out: str | Path, metadata: dict, size: Size,
                  expected_convs: int, check_images: list[np.ndarray], progress: bool = False,
                  passes: tuple[str, ...] = tuple(EXPORT_PASSES)) -> Int8File:
     """Export, then check int8 conv weights and onnxruntime-vs-torch label agreement; no file on failure."""

@@ -22,6 +22,7 @@ import onnxruntime as ort
 
 from edgepick.errors import EdgepickError
 from edgepick.files import atomic_write
+from edgepick.geometry import Size
 from edgepick.schema import Where, as_names, as_numbers
 
 
@@ -35,7 +36,7 @@ REQUIRED_KEYS = ("edgepick.classes", "edgepick.input_size", "edgepick.colorspace
 @dataclass
 class ModelInfo:
     classes: list[str]
-    input_size: tuple[int, int]  # H, W
+    input_size: Size  # the image input's, read from the [H, W] of edgepick.input_size
     colorspace: str
     precision: str
     metadata: dict[str, str]
@@ -88,7 +89,7 @@ def read_info(session: ort.InferenceSession, path: Path) -> ModelInfo:
     out = outputs.get("labels")
     if out is None or out.type != "tensor(uint8)" or list(out.shape) != [1, h, w]:
         raise ModelError(f"{path} must give a uint8 output 'labels' of shape [1, {h}, {w}]")
-    return ModelInfo(list(classes), (h, w), meta["edgepick.colorspace"], meta["edgepick.precision"], dict(meta))
+    return ModelInfo(list(classes), Size(w, h), meta["edgepick.colorspace"], meta["edgepick.precision"], dict(meta))
 
 
 ENGINES = ("onnxruntime", "openvino")
@@ -151,7 +152,7 @@ def _median_ms(runs: dict[str, object], image: np.ndarray, timed: int = 10, bloc
     return {name: round(statistics.median(t), 3) for name, t in times.items()}
 
 
-def choose_engine(path: Path, threads: int, ort_run, h: int, w: int) -> tuple[str, object | None, dict]:
+def choose_engine(path: Path, threads: int, ort_run, size: Size) -> tuple[str, object | None, dict]:
     """The faster engine for this model, thread count and CPU: read from the cache, or measured on a
     blank frame and written there. Returns (engine, its OpenVINO runner or None, the record)."""
     if importlib.util.find_spec("openvino") is None:
@@ -166,7 +167,7 @@ def choose_engine(path: Path, threads: int, ort_run, h: int, w: int) -> tuple[st
     ov_run = None
     if record is None or record.get("engine") not in ENGINES:
         ov_run = _openvino_runner(path, threads)
-        ms = _median_ms({"onnxruntime": ort_run, "openvino": ov_run}, np.zeros((1, h, w, 3), np.uint8))
+        ms = _median_ms({"onnxruntime": ort_run, "openvino": ov_run}, np.zeros((1, *size.hw, 3), np.uint8))
         record = {"engine": min(ms, key=ms.get), "p50_ms": ms, "model": str(path)}
         try:
             atomic_write(cache, json.dumps({**known, key: record}, indent=1))
@@ -195,7 +196,7 @@ class Segmenter:
         self.engine_choice = None
         ov_run = None
         if engine == AUTO:
-            engine, ov_run, self.engine_choice = choose_engine(path, threads, self._run, *self.info.input_size)
+            engine, ov_run, self.engine_choice = choose_engine(path, threads, self._run, self.info.input_size)
         self.path, self.engine = path, engine
         if engine == "openvino":
             self._run = ov_run or _openvino_runner(path, threads)
@@ -205,9 +206,9 @@ class Segmenter:
         """HxWx3 uint8 RGB -> the model's [1, h, w, 3] input (area resize when the size differs)."""
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise ModelError(f"expected an HxWx3 uint8 RGB frame, got {rgb.dtype} {rgb.shape}")
-        h, w = self.info.input_size
-        if rgb.shape[:2] != (h, w):
-            rgb = cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA)
+        size = self.info.input_size
+        if rgb.shape[:2] != size.hw:
+            rgb = cv2.resize(rgb, (size.width, size.height), interpolation=cv2.INTER_AREA)
         return np.ascontiguousarray(rgb)[None]
 
     def infer(self, image: np.ndarray) -> np.ndarray:

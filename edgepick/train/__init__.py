@@ -1,7 +1,8 @@
 """Float training of DeepLabV3 (CPU, one GPU, or DDP under torchrun) and the run folder it writes.
 
+    from edgepick import Size
     from edgepick.train import TrainConfig, train
-    train(TrainConfig(data="data", out="run", epochs=30, size=(240, 320)))   # size: (H, W)
+    train(TrainConfig(data="data", out="run", epochs=30, size=Size(320, 240)))
 """
 
 from edgepick.train.checkpoint import Checkpoint, load_model

@@ -3,13 +3,14 @@ atomically and read back checked, so that every later stage reads typed fields, 
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 import torch
 
 from edgepick.errors import CheckpointError, ConfigError
 from edgepick.files import atomic_path
+from edgepick.geometry import Size, check_size
 from edgepick.models.deeplabv3 import ARCHS, COLORSPACES, NORMALISATION, VARIANTS, DeepLabV3, ModelConfig, build_model
 from edgepick.schema import Where, as_dict, as_list, as_names, as_number, as_numbers, as_str
 from edgepick.schema import field as required_field
@@ -23,7 +24,7 @@ class Checkpoint:
 
     model_config: ModelConfig
     classes: tuple[str, ...]
-    input_size: tuple[int, int]  # (height, width) of the model's input
+    input_size: Size  # the model's input
     model: dict = field(repr=False, compare=False)  # the state dict: a float model's or a QaT run's graph's
     train_config: TrainConfig | None = None
     epoch: int = 0
@@ -33,11 +34,16 @@ class Checkpoint:
     phase_start: int = 0  # the epoch this run's own training started after (a continued run's switch point)
     init_train_time_s: float = 0.0  # the wall time of the run it continued (hybrid-QaT's float phase)
     world_size: int = 1
-    data_image_size: tuple[int, int] | None = None  # (height, width) of the data set's images
+    data_image_size: Size | None = None  # the data set's images
     qat: dict | None = None  # a QaT run's record: its QuantConfig, freeze_at, calibration images, held ranges
     optimizer: dict | None = field(default=None, repr=False, compare=False)  # AdamW's (last.pt, kept epochs)
     scheduler: dict | None = field(default=None, repr=False, compare=False)
     path: Path | None = field(default=None, compare=False)  # where it was read from
+
+    def __post_init__(self) -> None:
+        check_size(self.input_size, "Checkpoint input_size")
+        if self.data_image_size is not None:
+            check_size(self.data_image_size, "Checkpoint data_image_size")
 
     @property
     def colorspace(self) -> str:
@@ -57,9 +63,9 @@ class Checkpoint:
         """The file's content (plain types and tensors)."""
         d = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "path"}
         d["model_config"] = self.model_config.to_dict()
-        d["train_config"] = asdict(self.train_config) if self.train_config is not None else None
-        d["classes"], d["input_size"], d["history"] = list(self.classes), list(self.input_size), list(self.history)
-        d["data_image_size"] = list(self.data_image_size) if self.data_image_size else None
+        d["train_config"] = self.train_config.to_dict() if self.train_config is not None else None
+        d["classes"], d["input_size"], d["history"] = list(self.classes), list(self.input_size.hw), list(self.history)
+        d["data_image_size"] = list(self.data_image_size.hw) if self.data_image_size else None
         return d
 
     def save(self, path: str | Path) -> None:
@@ -136,8 +142,9 @@ def _optional_dict(d: dict, key: str, where: Where) -> dict | None:
     return None if d.get(key) is None else as_dict(d[key], where.at(key))
 
 
-def _size(value: object, where: Where, minimum: int = 1) -> tuple[int, int]:
-    return tuple(as_numbers(value, where, 2, integer=True, minimum=minimum, maximum=8192))
+def _size(value: object, where: Where, minimum: int = 1) -> Size:
+    """A recorded [H, W] size."""
+    return Size.from_hw(as_numbers(value, where, 2, integer=True, minimum=minimum, maximum=8192))
 
 
 def _checked(d: dict, where: Where) -> Checkpoint:
@@ -153,14 +160,14 @@ def _checked(d: dict, where: Where) -> Checkpoint:
     classes = as_names(required_field(d, "classes", where), where.at("classes"), min_length=2)
     if len(classes) != cfg.num_classes:
         where.at("classes").fail(f"names {len(classes)} classes but the model has {cfg.num_classes}")
-    h, w = _size(required_field(d, "input_size", where), where.at("input_size"), minimum=32)
-    if h % 8 or w % 8:
-        where.at("input_size").fail(f"{w}x{h} (WIDTHxHEIGHT) must have sides that are multiples of 8 (the "
+    input_size = _size(required_field(d, "input_size", where), where.at("input_size"), minimum=32)
+    if input_size.width % 8 or input_size.height % 8:
+        where.at("input_size").fail(f"{input_size} (WIDTHxHEIGHT) must have sides that are multiples of 8 (the "
                                     "backbone's stride)")
     train_config = d.get("train_config")
     image_size = d.get("data_image_size")
     return Checkpoint(
-        model_config=cfg, classes=tuple(classes), input_size=(h, w), model=d["model"],
+        model_config=cfg, classes=tuple(classes), input_size=input_size, model=d["model"],
         train_config=TrainConfig.from_dict(train_config, where.at("train_config")) if train_config is not None
         else None,
         epoch=as_number(d.get("epoch", 0), where.at("epoch"), integer=True, minimum=0),

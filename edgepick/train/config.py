@@ -4,9 +4,10 @@ checked when read back."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields
 
 from edgepick.errors import ConfigError
+from edgepick.geometry import Size, check_size
 from edgepick.schema import Where, as_dict, as_list, as_number, as_numbers, as_str
 from edgepick.schema import field as required_field
 
@@ -21,7 +22,7 @@ class TrainConfig:
     batch_size: int = 8
     lr: float = 1e-3
     weight_decay: float = 1e-4
-    size: tuple[int, int] = (480, 640)  # H, W
+    size: Size = Size(640, 480)  # the model's input
     colorspace: str = "rgb"
     output_stride: int = 16
     aux_loss: bool = False
@@ -33,6 +34,15 @@ class TrainConfig:
     workers: int = -1  # -1: in-memory cache (decoded up front on GPU); 4 workers on GPU if it does not fit
     seed: int = 0
     class_weighting: bool = True
+
+    def __post_init__(self) -> None:
+        check_size(self.size, "TrainConfig size")
+
+    def to_dict(self) -> dict:
+        """The form a checkpoint records (plain types; size as [H, W], docs/contracts.md#run-folder)."""
+        d = asdict(self)
+        d["size"] = list(self.size.hw)
+        return d
 
     @classmethod
     def from_dict(cls, values: dict, where: Where | None = None) -> "TrainConfig":
@@ -66,8 +76,8 @@ def _typed(value: object, kind: str, where: Where) -> object:
         return as_number(value, where, integer=True)
     if kind == "float":
         return float(as_number(value, where))
-    if kind == "tuple[int, int]":
-        return tuple(as_numbers(value, where, 2, integer=True, minimum=1))
+    if kind == "Size":
+        return Size.from_hw(as_numbers(value, where, 2, integer=True, minimum=1))
     if kind == "list[int]":
         return [as_number(v, where.at(i), integer=True) for i, v in enumerate(as_list(value, where))]
     raise TypeError(f"no check for a TrainConfig field of type {kind}")  # a new field needs one here

@@ -13,12 +13,13 @@ import torch.nn.functional as F
 from torch.utils.data import Dataset
 
 from edgepick.data.native import IGNORE, NativeDataset
+from edgepick.geometry import Size
 
 
 class SegmentationSet(Dataset):
     """(uint8 HWC RGB, uint8 HW mask) at a fixed size; optionally kept in memory after first read."""
 
-    def __init__(self, ds: NativeDataset, size: tuple[int, int], cache: bool = False):
+    def __init__(self, ds: NativeDataset, size: Size, cache: bool = False):
         self.ds, self.size, self.cache = ds, size, cache
         self._mem: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
@@ -27,7 +28,7 @@ class SegmentationSet(Dataset):
 
     def _read(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         sid = self.ds.ids[i]
-        h, w = self.size
+        h, w = self.size.hw
         img = cv2.resize(self.ds.rgb(sid), (w, h), interpolation=cv2.INTER_AREA)
         mask = cv2.resize(self.ds.mask(sid), (w, h), interpolation=cv2.INTER_NEAREST)
         return img, mask
@@ -51,8 +52,7 @@ class SegmentationSet(Dataset):
 
     def cache_bytes(self, count: int | None = None) -> int:
         """Memory the cache takes with COUNT (default: all) samples."""
-        h, w = self.size
-        return (len(self) if count is None else count) * h * w * 4
+        return (len(self) if count is None else count) * self.size.width * self.size.height * 4
 
 
 def class_weights(ds: NativeDataset, num_classes: int, max_images: int = 200) -> torch.Tensor:

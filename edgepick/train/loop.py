@@ -26,6 +26,7 @@ import torch.nn.functional as F
 from edgepick.data.native import NativeDataset
 from edgepick.errors import CheckpointError, ConfigError
 from edgepick.files import made_by, mark
+from edgepick.geometry import Size
 from edgepick.metrics import segmentation_metrics
 from edgepick.models.deeplabv3 import DeepLabV3, ModelConfig, build_model, load_backbone_weights
 from edgepick.progress import progress as progress_bar
@@ -114,9 +115,8 @@ def check_same_data(last: Checkpoint, data: str) -> None:
         raise ConfigError(f"DATA {data} has the classes {train_ds.classes}, the run to resume was trained on "
                           f"{list(last.classes)}; give the run's own data set")
     recorded = last.data_image_size
-    if recorded is not None and train_ds.rgb(train_ds.ids[0]).shape[:2] != recorded:
-        h, w = recorded
-        raise ConfigError(f"DATA {data} holds images of another size than the {w}x{h} the run was trained on; "
+    if recorded is not None and Size.of(train_ds.rgb(train_ds.ids[0])) != recorded:
+        raise ConfigError(f"DATA {data} holds images of another size than the {recorded} the run was trained on; "
                           "give the run's own data set")
 
 
@@ -201,8 +201,8 @@ def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, st
     if resume is not None:
         log(f"resuming {run.path} after epoch {state['epoch']}", rank)
     ddp = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
-    meta = {"model_config": model_config(cfg, classes), "classes": tuple(classes), "input_size": tuple(cfg.size),
-            "train_config": cfg, "world_size": world, "data_image_size": train_ds.rgb(train_ds.ids[0]).shape[:2]}
+    meta = {"model_config": model_config(cfg, classes), "classes": tuple(classes), "input_size": cfg.size,
+            "train_config": cfg, "world_size": world, "data_image_size": Size.of(train_ds.rgb(train_ds.ids[0]))}
     gen = torch.Generator().manual_seed(cfg.seed * 1000 + state["epoch"] + rank)
     hooks.begin(model, device, state["phase_start"] * steps_per_epoch, cfg.epochs * steps_per_epoch)
 
@@ -254,7 +254,7 @@ def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, st
             _save(run, ckpt, improved, epoch in cfg.keep_epochs)
             run.write_metrics({"epochs": epoch, "best_miou": state["best_miou"],
                                "train_time_s": round(state["train_time_s"], 2), "device": str(device),
-                               "world_size": world, "arch": cfg.arch, "size": list(cfg.size),
+                               "world_size": world, "arch": cfg.arch, "size": list(cfg.size.hw),
                                "history": state["history"]})
         if world > 1:
             dist.barrier()

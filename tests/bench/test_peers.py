@@ -14,14 +14,15 @@ pytest.importorskip("onnx")
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 import peers  # noqa: E402
 
+from edgepick.geometry import Size  # noqa: E402
 from tests.runtime.test_session import compile_spy, red_channel_model  # noqa: E402
 
 
 def test_openvino_rows_run_in_the_precision_they_are_labelled(tmp_path, monkeypatch):
     compiled = compile_spy(monkeypatch)
     path = red_channel_model(tmp_path / "m.onnx")
-    fp32 = peers.OpenVinoModel(ov.Core().read_model(str(path)), 1, (8, 12))
-    bf16 = peers.OpenVinoModel(ov.Core().read_model(str(path)), 1, (8, 12), precision="bf16")
+    fp32 = peers.OpenVinoModel(ov.Core().read_model(str(path)), 1, Size(12, 8))
+    bf16 = peers.OpenVinoModel(ov.Core().read_model(str(path)), 1, Size(12, 8), precision="bf16")
     assert [config["INFERENCE_PRECISION_HINT"] for config, _ in compiled] == ["f32", "bf16"]
     assert fp32.compiled.get_property("INFERENCE_PRECISION_HINT") == ov.Type.f32 and not fp32.runs_in_bf16()
     assert bf16.compiled.get_property("INFERENCE_PRECISION_HINT") in (ov.Type.bf16, ov.Type.f32)  # f32: no bf16 here

@@ -3,8 +3,9 @@
 import json
 
 from edgepick.bench.table55 import PHASES, SHORT, Setting, make_table55
+from edgepick.geometry import Size
 
-TINY = Setting("tiny", splits=(4, 2, 2), size=(64, 96), epochs=100, batch_size=2, lr=2e-3, runs=2)
+TINY = Setting("tiny", splits=(4, 2, 2), size=Size(96, 64), epochs=100, batch_size=2, lr=2e-3, runs=2)
 
 
 def test_only_runs_the_named_phases_and_keeps_finished_ones(tmp_path):
@@ -23,6 +24,6 @@ def test_only_runs_the_named_phases_and_keeps_finished_ones(tmp_path):
 
 def test_short_gpu_setting_switches_at_whole_epochs():
     assert {"hybrid0.01", "hybrid0.05", "hybrid0.10"} <= set(PHASES)
-    assert SHORT.splits == (4000, 1000, 100) and SHORT.size == (480, 640)
+    assert SHORT.splits == (4000, 1000, 100) and SHORT.size == Size(640, 480)
     assert [round((1 - p) * SHORT.epochs) for p in (0.01, 0.05, 0.10)] == [99, 95, 90]
     assert "160 images drawn afresh" in SHORT.describe()

@@ -14,6 +14,7 @@ import pytest
 from onnx import TensorProto, helper, numpy_helper
 
 from edgepick.export.crop_convs import CROP_TAG, axis_bands, crop_padded_convs
+from edgepick.geometry import Size
 
 
 @pytest.mark.parametrize("length,kernel,dilation,pad0,pad1", [
@@ -128,7 +129,7 @@ def test_int8_export_crops_aspp_and_keeps_labels(small_data: Path, tmp_path: Pat
     torch.manual_seed(0)
     cfg = ModelConfig(num_classes=len(classes), variant="edge")
     ckpt = tmp_path / "untrained.pt"
-    Checkpoint(model_config=cfg, classes=tuple(classes), input_size=(192, 256), model=build_model(cfg).state_dict()).save(ckpt)
+    Checkpoint(model_config=cfg, classes=tuple(classes), input_size=Size(256, 192), model=build_model(cfg).state_dict()).save(ckpt)
     result = quantize_static(ckpt, folder_images(small_data, "train", 4), tmp_path / "int8.onnx",
                              check_images=agreement_images(small_data), progress=False)
     names = [n.name for n in onnx.load(result.out).graph.node if n.op_type == "Conv"]

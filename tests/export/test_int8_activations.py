@@ -11,6 +11,7 @@ import pytest
 from onnx import TensorProto, helper, numpy_helper
 
 from edgepick.export.int8_activations import TAG, integer_activations
+from edgepick.geometry import Size
 
 C, H, W = 8, 12, 16
 
@@ -122,7 +123,7 @@ def test_int8_export_of_the_standard_model_has_no_float_activations(small_data, 
     torch.manual_seed(0)
     cfg = ModelConfig(num_classes=len(classes))
     ckpt = tmp_path / "untrained.pt"
-    Checkpoint(model_config=cfg, classes=tuple(classes), input_size=(96, 128), model=build_model(cfg).state_dict()).save(ckpt)
+    Checkpoint(model_config=cfg, classes=tuple(classes), input_size=Size(128, 96), model=build_model(cfg).state_dict()).save(ckpt)
     result = quantize_static(ckpt, folder_images(small_data, "train", 4), tmp_path / "int8.onnx",
                              check_images=agreement_images(small_data), progress=False)
     model = onnx.load(result.out)

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from edgepick.bench.machine import cpu_flags
+from edgepick.geometry import Size
 from edgepick.runtime.session import Segmenter
 from tests.conftest import EPOCHS, run_cli
 
@@ -34,7 +35,7 @@ def onnx_files(trained_run: Path, small_data: Path, tmp_path_factory) -> dict:
 def test_static_int8_meets_the_contract(onnx_files):
     static = onnx_files["static"]
     seg = Segmenter(static["out"])  # docs/contracts.md#onnx-model: uint8 image, uint8 labels, metadata
-    assert seg.info.precision == "int8" and seg.info.input_size == (96, 128)
+    assert seg.info.precision == "int8" and seg.info.input_size == Size(128, 96)
     quant = json.loads(seg.info.metadata["edgepick.quant"])
     assert quant["mode"] == "static" and quant["calib_images"] == 16 and quant["calib_method"] == "percentile"
     assert len(seg.info.metadata["edgepick.source_sha256"]) == 64
@@ -163,11 +164,11 @@ def test_qat_from_scratch(small_data, tmp_path):
     from edgepick.quant.passes import quantize_qat
     from edgepick.train.loop import TrainConfig
 
-    cfg = TrainConfig(data=str(small_data), out=str(tmp_path / "q.run"), epochs=1, batch_size=4, size=(64, 96),
+    cfg = TrainConfig(data=str(small_data), out=str(tmp_path / "q.run"), epochs=1, batch_size=4, size=Size(96, 64),
                       device="cpu")
     result = quantize_qat(cfg, tmp_path / "q.onnx", progress=False)
     assert result.observers > 0 and result.int8_convs == 70
-    assert Segmenter(result.out).info.input_size == (64, 96)
+    assert Segmenter(result.out).info.input_size == Size(96, 64)
 
 
 def test_bad_input_is_one_line_and_leaves_nothing(trained_run, small_data, tmp_path):

@@ -13,7 +13,7 @@ from edgepick.cli.cameras import open_camera
 from edgepick.frames import CameraError
 from edgepick.runtime.camera import FolderCamera, RealSenseCamera
 from edgepick.sim.camera import SynthCamera
-from edgepick.geometry import Intrinsics
+from edgepick.geometry import Intrinsics, Size
 
 
 @pytest.fixture(scope="module")
@@ -85,7 +85,7 @@ def test_synth_stream_is_deterministic_and_carries_truth():
 
 
 def test_open_camera_specs(tmp_path):
-    assert isinstance(open_camera("synth:5", 160, 120), SynthCamera)
+    assert isinstance(open_camera("synth:5", Size(160, 120)), SynthCamera)
     assert isinstance(open_camera(f"dir:{plain_folder(tmp_path / 'c')}"), FolderCamera)
     assert isinstance(open_camera("realsense:123"), RealSenseCamera)  # not opened: touches no device
     with pytest.raises(CameraError, match="unknown camera"):

@@ -12,6 +12,7 @@ import pytest
 onnx = pytest.importorskip("onnx")
 from onnx import TensorProto, helper  # noqa: E402
 
+from edgepick.geometry import Size  # noqa: E402
 from edgepick.runtime.session import ModelError, Segmenter  # noqa: E402
 
 
@@ -42,7 +43,7 @@ def red_channel_model(path: Path, h: int = 8, w: int = 12, in_type=TensorProto.U
 
 def test_labels_come_back_at_the_frame_size(tmp_path):
     seg = Segmenter(red_channel_model(tmp_path / "m.onnx"), threads=1)
-    assert seg.info.classes == ["background", "a", "b"] and seg.info.input_size == (8, 12)
+    assert seg.info.classes == ["background", "a", "b"] and seg.info.input_size == Size(12, 8)
     frame = np.zeros((16, 24, 3), np.uint8)
     frame[:8, :12, 0] = 2  # top-left quarter is class 2
     labels = seg.labels(frame)

@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 torch = pytest.importorskip("torch")
 
 from edgepick.errors import EdgepickError  # noqa: E402
+from edgepick.geometry import Size  # noqa: E402
 from edgepick.train.checkpoint import Checkpoint  # noqa: E402
 from tests.test_schema import _paths, json_values  # noqa: E402
 
@@ -41,8 +42,11 @@ def test_a_good_checkpoint_reads_and_its_train_config_too(tmp_path):
     torch.save(GOOD, tmp_path / "c.pt")
     ckpt = Checkpoint.load(tmp_path / "c.pt")
     assert ckpt.path == tmp_path / "c.pt" and ckpt.classes == ("background", "a", "b") and ckpt.epoch == 3
-    assert ckpt.train_config.size == (96, 128) and ckpt.train_config.keep_epochs == [9]
+    assert ckpt.train_config.size == Size(128, 96) and ckpt.train_config.keep_epochs == [9]
+    assert ckpt.input_size == Size(128, 96)
     ckpt.save(tmp_path / "again.pt")
+    saved = torch.load(tmp_path / "again.pt", weights_only=False)  # the file keeps [H, W] (docs/contracts.md#run-folder)
+    assert saved["input_size"] == [96, 128] and saved["train_config"]["size"] == [96, 128]
     again = Checkpoint.load(tmp_path / "again.pt")  # what save writes, load reads back the same
     assert again == ckpt and again.model.keys() == ckpt.model.keys()
     assert all(torch.equal(again.model[k], v) for k, v in ckpt.model.items())
@@ -73,3 +77,18 @@ def test_the_field_at_fault_is_named(tmp_path, change, message):
     with pytest.raises(EdgepickError) as info:
         Checkpoint.load(tmp_path / "c.pt")
     assert message in str(info.value) and str(info.value).startswith(str(tmp_path / "c.pt"))
+
+
+def test_sizes_are_size_objects_and_a_tuple_is_refused():
+    """The Python API takes Size(width, height); a bare tuple (whose order would be a guess) is one line."""
+    from edgepick.errors import ConfigError
+    from edgepick.models.deeplabv3 import ModelConfig
+    from edgepick.train.config import TrainConfig
+
+    assert TrainConfig(data="d", out="r").size == Size(640, 480)
+    with pytest.raises(ConfigError, match=r"TrainConfig size must be a Size\(width, height\)"):
+        TrainConfig(data="d", out="r", size=(480, 640))
+    cfg = TrainConfig(data="d", out="r", size=Size(128, 96))
+    assert cfg.to_dict()["size"] == [96, 128] and TrainConfig.from_dict(cfg.to_dict()) == cfg
+    with pytest.raises(ConfigError, match=r"Checkpoint input_size must be a Size\(width, height\)"):
+        Checkpoint(model_config=ModelConfig(num_classes=3), classes=("a", "b", "c"), input_size=(96, 128), model={})

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import torch
 
+from edgepick.geometry import Size
 from edgepick.train.checkpoint import Checkpoint, load_model
 from tests.conftest import REPO, run_cli
 
@@ -38,7 +39,7 @@ def test_short_cpu_training_beats_chance_and_is_not_degenerate(trained_run, smal
 
     model, ckpt = load_model(trained_run)
     ds = NativeDataset.open(small_data, "val")
-    h, w = ckpt.input_size
+    h, w = ckpt.input_size.hw
     seen = set()
     with torch.no_grad():
         for sid in ds.ids:
@@ -50,7 +51,7 @@ def test_short_cpu_training_beats_chance_and_is_not_degenerate(trained_run, smal
 def test_checkpoints_carry_their_config(trained_run):
     ckpt = Checkpoint.load(trained_run / "best.pt")
     assert ckpt.classes == ("background", "bearing", "disk", "adapter", "box")
-    assert ckpt.input_size == (96, 128)
+    assert ckpt.input_size == Size(128, 96)
     assert ckpt.colorspace == "rgb" and ckpt.model_config.arch == "mobilenetv3"
     assert ckpt.normalisation["mean"] == (0.485, 0.456, 0.406)
     assert (trained_run / "last.pt").is_file() and (trained_run / "epoch_002.pt").is_file()
@@ -134,7 +135,7 @@ def test_epoch_and_val_subsets(small_data, tmp_path):
     from edgepick.train.loop import TrainConfig, train
 
     run = tmp_path / "run"
-    train(TrainConfig(data=str(small_data), out=str(run), epochs=2, batch_size=4, size=(64, 96), device="cpu",
+    train(TrainConfig(data=str(small_data), out=str(run), epochs=2, batch_size=4, size=Size(96, 64), device="cpu",
                       epoch_images=8, val_images=3), progress=False)
     history = json.loads((run / "metrics.json").read_text())["history"]
     assert [(h["images"], h["val_images"]) for h in history] == [(8, 3), (8, 3)]
