@@ -18,7 +18,7 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any, Literal, NoReturn, overload
 
 from edgepick.errors import EdgepickError
 
@@ -110,6 +110,16 @@ def field(obj: dict, key: str, where: Where, default: Any = MISSING) -> Any:
     return default
 
 
+@overload
+def as_number(value: Any, where: Where, *, integer: Literal[True], minimum: float | None = None,
+              above: float | None = None, maximum: float | None = None) -> int: ...
+
+
+@overload
+def as_number(value: Any, where: Where, *, integer: bool = False, minimum: float | None = None,
+              above: float | None = None, maximum: float | None = None) -> float: ...
+
+
 def as_number(value: Any, where: Where, *, integer: bool = False, minimum: float | None = None,
               above: float | None = None, maximum: float | None = None) -> float | int:
     """A finite number (whole when INTEGER), >= MINIMUM, > ABOVE, <= MAXIMUM."""
@@ -150,9 +160,20 @@ def as_list(value: Any, where: Where, length: int | None = None, min_length: int
     return list(value)
 
 
-def as_numbers(value: Any, where: Where, length: int, **limits: Any) -> list[float]:
-    """A list of LENGTH finite numbers, each within LIMITS (as_number's keywords)."""
-    return [as_number(v, where.at(i), **limits) for i, v in enumerate(as_list(value, where, length))]
+@overload
+def as_numbers(value: Any, where: Where, length: int, *, integer: Literal[True], **limits: float | None) -> list[int]: ...
+
+
+@overload
+def as_numbers(value: Any, where: Where, length: int, *, integer: bool = False, **limits: float | None) -> list[float]: ...
+
+
+def as_numbers(value: Any, where: Where, length: int, *, integer: bool = False,
+               **limits: float | None) -> list[float] | list[int]:
+    """A list of LENGTH finite numbers (whole when INTEGER), each within LIMITS (as_number's
+    minimum, above, maximum)."""
+    return [as_number(v, where.at(i), integer=integer, **limits)  # type: ignore[misc]
+            for i, v in enumerate(as_list(value, where, length))]
 
 
 def as_names(value: Any, where: Where, min_length: int = 1) -> list[str]:

@@ -13,6 +13,8 @@ and the regions' uint8 outputs are joined by Concat. Region nodes are named `<co
 
 from __future__ import annotations
 
+from typing import Any
+
 from dataclasses import dataclass
 from itertools import pairwise
 
@@ -68,10 +70,10 @@ def graph_links(graph) -> tuple[dict, dict[str, list], set[str]]:
 class _Group:
     """One int8 conv: x_q -> DequantizeLinear -> Conv (kernel: int8 initializer -> DequantizeLinear)
     [-> Relu] -> QuantizeLinear."""
-    conv: object
-    x_dq: object
-    w_dq: object
-    tail: list
+    conv: Any  # onnx NodeProtos
+    x_dq: Any
+    w_dq: Any
+    tail: list[Any]
 
 
 def crop_padded_convs(model, min_saving: float = 0.25) -> int:
@@ -114,7 +116,8 @@ def _int8_group(conv, producer, consumers, inits, outputs) -> _Group | None:
         return None
     if w_dq.input[0] not in inits:
         return None
-    tail, out = [], conv.output[0]
+    tail: list[Any] = []
+    out = conv.output[0]
     while out not in outputs and len(consumers.get(out, [])) == 1 and not (tail and tail[-1].op_type == "QuantizeLinear"):
         nxt = consumers[out][0]
         if nxt.op_type not in ("Relu", "QuantizeLinear"):

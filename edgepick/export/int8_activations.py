@@ -49,7 +49,7 @@ def integer_activations(model) -> dict[str, int]:
             continue
         q = chain[-1]
         y_scale, y_zero = _qparams(q, inits)
-        if _qparams(dq, inits)[0] is None or y_scale is None:
+        if _qparams(dq, inits)[0] is None or y_scale is None or y_zero is None:
             continue
         if node.op_type == "ReduceMean":
             new = _global_pool(node, chain, inits) if ranks.get(node.input[0]) == 4 else None

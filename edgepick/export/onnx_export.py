@@ -10,7 +10,9 @@ from __future__ import annotations
 import json
 import warnings
 from dataclasses import asdict, dataclass
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import torch
 from torch import Tensor, nn
@@ -96,7 +98,7 @@ def drop_unused_initializers(model) -> None:
 
 
 # ONNX graph passes run after the export, by name; both change only int8 graphs and keep the labels.
-EXPORT_PASSES = {
+EXPORT_PASSES: dict[str, Callable[[Any], object]] = {
     "crop_convs": crop_padded_convs,  # int8 convs split into regions that skip padding-only taps (ASPP)
     "integer_activations": integer_activations,  # integer kernels for hardsigmoid (gated hardswish), pooling
 }

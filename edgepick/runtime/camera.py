@@ -89,9 +89,9 @@ class RealSenseCamera(Camera):
             config.enable_device(self.serial)
         config.enable_stream(rs.stream.color, self.width, self.height, rs.format.rgb8, self.fps)
         config.enable_stream(rs.stream.depth, self.width, self.height, rs.format.z16, self.fps)
-        self.pipeline = rs.pipeline()
+        pipeline = self.pipeline = rs.pipeline()
         try:
-            profile = self.pipeline.start(config)
+            profile = pipeline.start(config)
         except RuntimeError as exc:
             self.pipeline = None
             raise CameraError(f"RealSense would not start {self.width}x{self.height}@{self.fps}: {exc}") from None

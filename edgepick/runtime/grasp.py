@@ -55,7 +55,7 @@ def filter_class_masks(labels: np.ndarray, num_classes: int, cfg: GraspConfig) -
     """Per class present: median blur then dilation of its binary mask (uint8 0/1), worked on
     the class's bounding box plus a margin (the result is the same as on the whole frame, at a
     fraction of the cost). Returns {class: (x0, y0, mask crop)}."""
-    out = {}
+    out: dict[int, tuple[int, int, np.ndarray]] = {}
     kernel = np.ones((cfg.dilate_ksize, cfg.dilate_ksize), np.uint8)
     margin = cfg.median_ksize // 2 + cfg.dilate_ksize // 2 + 1
     h, w = labels.shape

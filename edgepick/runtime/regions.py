@@ -58,7 +58,7 @@ def _top_faces(region: np.ndarray, depth_m: np.ndarray, cfg: GraspConfig) -> lis
     counts, edges = np.histogram(vals, bins=max(1, int(np.ptp(vals) / (tol / 2)) + 1))
     near = np.convolve(np.pad(counts, 1), np.ones(3, int), mode="valid")  # a level may straddle two bins
     faces: list[np.ndarray] = []
-    for i in np.flatnonzero(near >= cfg.split_min_share * vals.size):
+    for i in map(int, np.flatnonzero(near >= cfg.split_min_share * vals.size)):
         if (i > 0 and counts[i - 1] > counts[i]) or (i + 1 < counts.size and counts[i + 1] >= counts[i]):
             continue  # not a peak
         level = (edges[i] + edges[i + 1]) / 2

@@ -13,6 +13,7 @@ import json
 import os
 import statistics
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -136,7 +137,7 @@ def _cpu() -> str:
     return "unknown CPU"
 
 
-def _median_ms(runs: dict[str, object], image: np.ndarray, timed: int = 10, block: int = 5) -> dict[str, float]:
+def _median_ms(runs: dict[str, Callable[[np.ndarray], object]], image: np.ndarray, timed: int = 10, block: int = 5) -> dict[str, float]:
     """Median milliseconds of each runner on IMAGE, timed in alternating blocks after 3 warm-up calls
     (so that a shared machine's load drifts over both alike)."""
     times: dict[str, list[float]] = {name: [] for name in runs}
@@ -152,7 +153,8 @@ def _median_ms(runs: dict[str, object], image: np.ndarray, timed: int = 10, bloc
     return {name: round(statistics.median(t), 3) for name, t in times.items()}
 
 
-def choose_engine(path: Path, threads: int, ort_run, size: Size) -> tuple[str, object | None, dict]:
+def choose_engine(path: Path, threads: int, ort_run: Callable[[np.ndarray], object],
+                  size: Size) -> tuple[str, Callable[[np.ndarray], object] | None, dict]:
     """The faster engine for this model, thread count and CPU: read from the cache, or measured on a
     blank frame and written there. Returns (engine, its OpenVINO runner or None, the record)."""
     if importlib.util.find_spec("openvino") is None:
@@ -168,7 +170,7 @@ def choose_engine(path: Path, threads: int, ort_run, size: Size) -> tuple[str, o
     if record is None or record.get("engine") not in ENGINES:
         ov_run = _openvino_runner(path, threads)
         ms = _median_ms({"onnxruntime": ort_run, "openvino": ov_run}, np.zeros((1, *size.hw, 3), np.uint8))
-        record = {"engine": min(ms, key=ms.get), "p50_ms": ms, "model": str(path)}
+        record = {"engine": min(ms, key=ms.__getitem__), "p50_ms": ms, "model": str(path)}
         try:
             atomic_write(cache, json.dumps({**known, key: record}, indent=1))
         except OSError:
