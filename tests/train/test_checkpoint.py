@@ -41,7 +41,7 @@ def test_a_good_checkpoint_reads_and_its_train_config_too(tmp_path):
     torch.save(GOOD, tmp_path / "c.pt")
     ckpt = Checkpoint.load(tmp_path / "c.pt")
     assert ckpt.path == tmp_path / "c.pt" and ckpt.classes == ("background", "a", "b") and ckpt.epoch == 3
-    assert ckpt.train_config.size == (96, 128) and ckpt.train_config.keep_epochs == [9]
+    assert ckpt.train_config.size == (96, 128) and ckpt.train_config.keep_epochs == (9,)
     ckpt.save(tmp_path / "again.pt")
     again = Checkpoint.load(tmp_path / "again.pt")  # what save writes, load reads back the same
     assert again == ckpt and again.model.keys() == ckpt.model.keys()
@@ -73,3 +73,21 @@ def test_the_field_at_fault_is_named(tmp_path, change, message):
     with pytest.raises(EdgepickError) as info:
         Checkpoint.load(tmp_path / "c.pt")
     assert message in str(info.value) and str(info.value).startswith(str(tmp_path / "c.pt"))
+
+
+def test_a_saved_checkpoint_holds_plain_values_that_read_back_as_the_configs(tmp_path):
+    """The configs' choices (enums) are written as their strings and numbers: the file loads with
+    torch's weights_only unpickler, which refuses every class of edgepick's, and reads back equal."""
+    from edgepick.models.config import ModelConfig
+    from edgepick.train.config import TrainConfig
+
+    tc = TrainConfig(data="d", out="r", epochs=10, size=(96, 128), keep_epochs=[9], device="cpu", output_stride=8)
+    ckpt = Checkpoint(model_config=ModelConfig("resnet50", 3, 8, "hsv"), classes=("background", "a", "b"),
+                      input_size=(96, 128), model=dict(GOOD["model"]), train_config=tc)
+    ckpt.save(tmp_path / "c.pt")
+    d = torch.load(tmp_path / "c.pt", weights_only=True)
+    assert d["model_config"]["arch"] == "resnet50" and type(d["model_config"]["arch"]) is str
+    assert type(d["train_config"]["device"]) is str and type(d["train_config"]["output_stride"]) is int
+    assert d["train_config"]["keep_epochs"] == [9]
+    again = Checkpoint.load(tmp_path / "c.pt")
+    assert again.model_config == ckpt.model_config and again.train_config == tc
