@@ -42,7 +42,7 @@ def main() -> None:
         rows = {"float (no QaT)": json.loads(Run(root / "float").metrics.read_text())["history"]}
         for carry in (False, True):
             out = root / f"hybrid{int(carry)}"
-            train_qat(replace(tc, out=str(out), keep_epochs=[]), QuantConfig(),
+            train_qat(replace(tc, out=str(out), keep_epochs=()), QuantConfig(),
                       start=Checkpoint.load(Run(root / "float").epoch(switch)), carry_optimizer=carry,
                       progress=False)
             label = "hybrid-QaT, carried AdamW moments" if carry else "hybrid-QaT, fresh AdamW"

@@ -7,14 +7,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from edgepick.data.config import Split
 from edgepick.data.native import NativeDataset
 from edgepick.errors import CheckpointError
 from edgepick.metrics import confusion_matrix, segmentation_metrics
 from edgepick.progress import progress as progress_bar
+from edgepick.runtime.engine import Engine
 
 
-def evaluate(model_path: str | Path, data: str | Path, split: str = "test", progress: bool = True,
-             engine: str = "onnxruntime") -> dict:
+def evaluate(model_path: str | Path, data: str | Path, split: Split = Split.TEST, progress: bool = True,
+             engine: Engine = Engine.ONNXRUNTIME) -> dict:
     """Pixel accuracy, per-class IoU, mIoU and confusion matrix of MODEL on DATA/<split>.
 
     Frames are resized to the model's input size and the labels back to the frame

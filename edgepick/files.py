@@ -117,7 +117,7 @@ def _check_inputs(path: Path, label: str, kind: str, inputs: tuple) -> None:
             raise ConfigError(f"{label} holds the input {given}; write the output elsewhere")
 
 
-def check_output(path: str | Path, option: str = "--out", kind: str = "file", suffixes: tuple[str, ...] = (),
+def check_output(path: str | Path, option: str = "out", kind: str = "file", suffixes: tuple[str, ...] = (),
                  inputs: tuple = (), reuse: str | None = None) -> Path:
     """Refuse an output path before any work starts (docs/contracts.md#command-line): an empty
     path; a suffix other than SUFFIXES; an existing path of the other kind (a folder where a file
@@ -125,7 +125,7 @@ def check_output(path: str | Path, option: str = "--out", kind: str = "file", su
     file system; a name too long for the file system; a file where a parent folder should be; a
     nearest existing folder that is not writable; one of the command's INPUTS. A folder output
     must not be the working folder or hold it, and an existing one must be empty, or made by the
-    edgepick command REUSE (its MARKER)."""
+    edgepick command REUSE (its MARKER). OPTION names the output in messages (a command's flag)."""
     text = os.fspath(path)
     if not text.strip():
         raise ConfigError(f"{option} is empty; give a {'folder' if kind == 'dir' else 'file'} name")

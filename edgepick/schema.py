@@ -1,5 +1,6 @@
 """Checked reading of the files a user hands edgepick: JSON parsed strictly, every field typed and
-range-checked, and a one-line error that names the file and the field.
+range-checked, and a one-line error that names the file and the field; and the two sides of a
+config's choices: `member` (a value as its enum, refused by name) and `plain` (an enum as its value).
 
 Every reader of a user's file (a data set's meta.json and grasps.json, intrinsics, calibration,
 checkpoint descriptions, importer inputs) goes through these helpers, so a malformed file ends
@@ -14,15 +15,17 @@ is meant, and inside their range; names are non-empty strings.
 
 from __future__ import annotations
 
+import enum
 import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, NoReturn, overload
+from typing import Any, Literal, NoReturn, TypeVar, overload
 
-from edgepick.errors import EdgepickError
+from edgepick.errors import EdgepickError, ParameterError
 
 MISSING: Any = object()  # field(): no default, the key is required
+E = TypeVar("E", bound=enum.Enum)
 
 
 class FileContentError(EdgepickError):
@@ -183,3 +186,19 @@ def as_names(value: Any, where: Where, min_length: int = 1) -> list[str]:
         twice = next(n for n in names if names.count(n) > 1)
         where.fail(f"names {twice!r} twice")
     return names
+
+
+def member(kind: type[E], parameter: str, value: Any) -> E:
+    """VALUE (a member of the enum KIND or its value) as a member; anything else is a
+    ParameterError naming PARAMETER and the choices."""
+    try:
+        return kind(value)
+    except ValueError:
+        choices = ", ".join(str(m.value) for m in kind)
+        raise ParameterError(f"{{{parameter}}}: must be one of {choices}", **{parameter: value}) from None
+
+
+def plain(value: Any) -> Any:
+    """VALUE as a file records it: an enum member as its value (a checkpoint or JSON file then holds
+    the same plain strings and numbers whichever classes wrote it)."""
+    return value.value if isinstance(value, enum.Enum) else value

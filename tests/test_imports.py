@@ -7,6 +7,8 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+import pytest
+
 from tests.conftest import REPO
 
 GROUND = {"errors", "files", "progress", "geometry", "frames", "metrics", "schema"}
@@ -74,3 +76,17 @@ def test_the_walk_sees_the_package():
     graph = _imports()
     assert "edgepick.cli" in graph and "edgepick.sim.robot" in graph["edgepick.cli.pick"]["all"]
     assert Path(REPO / "edgepick" / "sim" / "robot.py").is_file()
+
+
+@pytest.mark.parametrize("package", ["edgepick", "edgepick.train", "edgepick.quant", "edgepick.export", "edgepick.runtime",
+                                     "edgepick.models"])
+def test_every_public_name_of_a_package_resolves(package):
+    """The API packages load their objects on first use (a light config module must not import
+    torch); every name in __all__ must still resolve, and nothing else be offered."""
+    import importlib
+
+    module = importlib.import_module(package)
+    for name in module.__all__:
+        assert getattr(module, name) is not None, f"{package}.{name}"
+    with pytest.raises(AttributeError):
+        module.no_such_name  # noqa: B018

@@ -25,6 +25,7 @@ from edgepick.robot.grippers import DigitalGripper
 from edgepick.robot.loop import run_cycles
 from edgepick.robot.pick import CommandLog, PickConfig
 from edgepick.robot.verdict import summarize
+from edgepick.runtime.engine import Engine
 from edgepick.runtime.pipeline import Pipeline
 from edgepick.runtime.session import Segmenter, check_model
 from edgepick.sim.camera import SynthCamera
@@ -68,7 +69,7 @@ def cell_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: int, 
 
 
 def run_cell(models: list[str | Path], cycles: int, out_dir: str | Path, threads: int = 2, seed: int = 0,
-             engine: str = "onnxruntime", progress=print) -> dict:
+             engine: Engine = Engine.ONNXRUNTIME, progress=print) -> dict:
     """The true-label row, then each model's, over the same CYCLES scenes; writes cell.md/.csv/.json
     and success-latency.png in OUT_DIR."""
     for m in models:  # every model's contract before the first cycle

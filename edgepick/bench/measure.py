@@ -11,20 +11,35 @@ from pathlib import Path
 
 import numpy as np
 
+from edgepick.data.config import Split
+from edgepick.errors import ParameterError
 from edgepick.evaluation import evaluate
 from edgepick.runtime.camera import FolderCamera
 from edgepick.runtime.pipeline import Pipeline
+from edgepick.runtime.engine import Engine
 from edgepick.runtime.session import Segmenter
+from edgepick.schema import member
 
 
-@dataclass
+@dataclass(frozen=True)
 class BenchConfig:
+    """How every model of a bench is measured, checked on creation."""
+
     threads: int = 2
     runs: int = 50  # timed inferences per model
     warmup: int = 5
-    split: str = "test"
+    split: Split = Split.TEST
     latency_images: int = 10  # distinct test images cycled through the timed runs
-    engine: str = "onnxruntime"  # or openvino (the [peers] extra)
+    engine: Engine = Engine.ONNXRUNTIME
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "split", member(Split, "split", self.split))
+        object.__setattr__(self, "engine", member(Engine, "engine", self.engine))
+        for name in ("threads", "runs", "latency_images"):
+            if getattr(self, name) < 1:
+                raise ParameterError(f"{{{name}}}: must be at least 1", **{name: getattr(self, name)})
+        if self.warmup < 0:
+            raise ParameterError("{warmup}: must be 0 or more", warmup=self.warmup)
 
 
 @dataclass

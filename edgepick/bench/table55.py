@@ -124,7 +124,7 @@ def make_table55(work: str | Path, setting: Setting, device: str = "auto", comma
     timed("static PTQ", "static", files[1], lambda: quantize_static(
         work / "float", folder_images(data, "train", min(64, s.splits[0])), files[1],
         check_images=agreement_images(data), progress=False))
-    qat_tc = replace(tc, out=str(work / "qat"), keep_epochs=[])
+    qat_tc = replace(tc, out=str(work / "qat"), keep_epochs=())
     timed("QaT from scratch", "qat", files[2], quantize_qat, qat_tc, files[2], progress=False)
     for p, f in zip(FRACTIONS, files[3:]):
         timed(f"hybrid-QaT {p:.0%}", f"hybrid{p:.2f}", f, quantize_hybrid, work / "float", data, f, p,

@@ -13,6 +13,8 @@ interrupted (Ctrl-C), 143 terminated (SIGTERM), 129 hung up (SIGHUP), each after
 from __future__ import annotations
 
 import contextlib
+import enum
+import functools
 import logging
 import os
 import re
@@ -31,7 +33,7 @@ from edgepick.cli.grasp import grasp
 from edgepick.cli.pick import pick
 from edgepick.cli.quant import export_cmd, quantize
 from edgepick.cli.train import demo, eval_cmd, train
-from edgepick.errors import EdgepickError, Terminated
+from edgepick.errors import EdgepickError, ParameterError, Terminated, python_name
 
 EXIT_USER_ERROR = 2
 EXIT_ROBOT_HALTED = 3
@@ -39,6 +41,12 @@ EXIT_INTERRUPTED = 130
 
 # modules of the [train] extra: a command that needs one on the base install says which extra to add
 TRAIN_EXTRA = {"torch", "torchao", "onnx", "onnxscript", "torchvision"}
+
+# library parameters whose command-line option has another name (a unit in the name, or a shorter one)
+ALIASES = {"calib": "calib_images", "data": "data_dir", "debug_log": "robot_log", "depth_scale_m": "depth_scale",
+           "interval_s": "interval", "max_drop_pp": "max_miou_drop", "max_rmse_m": "max_rmse",
+           "offset_m": "marker_offset", "settle_s": "settle", "sizes": "subsets", "spec": "marker_spec",
+           "split_fractions": "splits"}
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
@@ -56,6 +64,72 @@ def cli() -> None:
 
 for _command in (data, train, eval_cmd, calibrate, grasp, demo, export_cmd, quantize, pick, bench):
     cli.add_command(_command)
+
+
+def _commands(command: click.Command) -> list[click.Command]:
+    """The commands under COMMAND (itself when it is not a group)."""
+    if isinstance(command, click.Group):
+        return [c for sub in command.commands.values() for c in _commands(sub)]
+    return [command]
+
+
+def _tag_parameter_errors(command: click.Command) -> None:
+    """Have COMMAND's ParameterErrors carry the command, so that the error line names its flags."""
+    callback = command.callback
+
+    @functools.wraps(callback)
+    def tagged(*args, **kwargs):
+        try:
+            return callback(*args, **kwargs)
+        except ParameterError as exc:
+            exc.command = command
+            raise
+
+    command.callback = tagged
+
+
+for _command in _commands(cli):
+    _tag_parameter_errors(_command)
+
+
+def _option_for(parameter: str, command: click.Command) -> click.Parameter | None:
+    """The click parameter that gives the library's PARAMETER: COMMAND's own (by name, or by its
+    alias), else the one option of that name that other commands share (a hint at another command's
+    flag, e.g. train's --keep-epochs in hybrid-QaT's error)."""
+    names = (parameter, ALIASES.get(parameter))
+    own = [p for p in command.params if p.name in names]
+    if own:
+        return own[0]
+    others = {p.opts[0]: p for c in _commands(cli) for p in c.params
+              if p.name in names and isinstance(p, click.Option)}
+    return next(iter(others.values())) if len(others) == 1 else None
+
+
+def _shown(value: object) -> str:
+    """A value as a user types it on the command line."""
+    if isinstance(value, enum.Enum):
+        return str(value.value)
+    if isinstance(value, (list, tuple)):
+        return ",".join(_shown(v) for v in value)
+    return str(value)
+
+
+def command_line_message(exc: ParameterError, command: click.Command) -> str:
+    """EXC's message with COMMAND's flags where it names a library parameter ("--percentile 101.0"
+    for "percentile=101.0"); a parameter the command line has no option for keeps its Python name."""
+    def name(parameter: str, value: object, with_value: bool) -> str:
+        param = _option_for(parameter, command)
+        if param is None:
+            return python_name(parameter, value, with_value)
+        if isinstance(param, click.Argument):
+            label = param.human_readable_name
+        elif param.is_flag and isinstance(value, bool):
+            return param.opts[0] if value or not param.secondary_opts else param.secondary_opts[0]
+        else:
+            label = next((o for o in param.opts if o.startswith("--")), param.opts[0])
+        return f"{label} {_shown(value)}" if with_value else label
+
+    return exc.render(name)
 
 
 def quiet_dependencies() -> None:
@@ -145,7 +219,9 @@ def _run(args: list[str] | None) -> int:
         with cli.make_context("edgepick", list(sys.argv[1:] if args is None else args)) as ctx:
             cli.invoke(ctx)
     except EdgepickError as exc:
-        return _fail(str(exc), getattr(exc, "exit_code", EXIT_USER_ERROR))
+        command = getattr(exc, "command", None)
+        message = command_line_message(exc, command) if command is not None else str(exc)
+        return _fail(message, getattr(exc, "exit_code", EXIT_USER_ERROR))
     except click.exceptions.Abort:
         click.echo("edgepick: aborted", err=True)
         return EXIT_INTERRUPTED

@@ -7,15 +7,18 @@ from pathlib import Path
 
 import click
 
+from edgepick.cli.options import choice
+from edgepick.data.config import Split
 from edgepick.errors import ConfigError
 from edgepick.files import check_output, output_dir
+from edgepick.runtime.engine import Engine
 
 
 @click.command()
 @click.argument("models", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--data", default=None, type=click.Path(file_okay=False),
               help="Data set (native layout) for accuracy and timing (not needed with --cell).")
-@click.option("--split", default="test", show_default=True, type=click.Choice(["train", "val", "test"]))
+@click.option("--split", default=Split.TEST.value, show_default=True, type=choice(Split))
 @click.option("--threads", default=2, show_default=True, help="onnxruntime intra-op threads for every row.")
 @click.option("--runs", default=50, show_default=True, help="Timed inferences per model (after warm-up).")
 @click.option("--out", "out_dir", default="bench-out", show_default=True, type=click.Path(file_okay=False),
@@ -28,7 +31,7 @@ from edgepick.files import check_output, output_dir
                    "seeded scenes for every model; --cell alone: 50, the thesis's count): pipeline time, size and grasp "
                    "success (docs/contracts.md#grasp-success), with a first row on the scenes' true labels.")
 @click.option("--seed", default=0, show_default=True, help="--cell: the scenes' seed.")
-@click.option("--engine", default="onnxruntime", show_default=True, type=click.Choice(["onnxruntime", "openvino", "auto"]),
+@click.option("--engine", default=Engine.ONNXRUNTIME.value, show_default=True, type=choice(Engine),
               help="Inference engine for every row (openvino: the [peers] extra; auto: the faster one here, measured "
                    "once per model and cached).")
 def bench(models: tuple[str, ...], data: str | None, split: str, threads: int, runs: int, out_dir: str,
@@ -43,8 +46,7 @@ def bench(models: tuple[str, ...], data: str | None, split: str, threads: int, r
     from edgepick.bench.run import run_bench
 
     check_output(out_dir, "--out", kind="dir", inputs=(*models, data), reuse="bench")
-    if threads < 1 or runs < 1:
-        raise ConfigError("--threads and --runs must be at least 1")
+    cfg = BenchConfig(threads=threads, runs=runs, split=split, engine=engine)
     if seed < 0:
         raise ConfigError(f"--seed {seed}: must be 0 or positive")
     for m in models:
@@ -56,7 +58,7 @@ def bench(models: tuple[str, ...], data: str | None, split: str, threads: int, r
         if cell < 1:
             raise ConfigError(f"--cell {cell}: the number of executions must be at least 1")
         with output_dir(out_dir, "bench"):
-            result = run_cell(list(models), cell, out_dir, threads=threads, seed=seed, engine=engine,
+            result = run_cell(list(models), cell, out_dir, threads=cfg.threads, seed=seed, engine=cfg.engine,
                               progress=lambda line: click.echo(line, err=True))
         click.echo(markdown(HEADER, table([CellRow(**r) for r in result["rows"]])), err=True)
         click.echo(json.dumps(result, indent=1))
@@ -65,8 +67,7 @@ def bench(models: tuple[str, ...], data: str | None, split: str, threads: int, r
         raise ConfigError("--data is needed (the data set to measure accuracy and timing on), or --cell N")
 
     with output_dir(out_dir, "bench"):
-        result = run_bench(list(models), data, out_dir, BenchConfig(threads=threads, runs=runs, split=split,
-                                                                    engine=engine),
+        result = run_bench(list(models), data, out_dir, cfg,
                            gpu_checkpoint=gpu_checkpoint, with_pipeline=not no_pipeline,
                            progress=lambda line: click.echo(line, err=True))
     rows = [Row(**r) for r in result["rows"]]

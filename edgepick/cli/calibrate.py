@@ -167,7 +167,6 @@ def collect(robot_spec: str, camera: str, marker_spec: str, marker_offset: str, 
         raise ConfigError("--region is needed: the box of TCP positions your camera sees (robot frame, metres)")
     cfg = CollectConfig(poses=poses, offset_m=_floats(marker_offset, 3, "--marker-offset"), settle_s=settle,
                         speed=speed, **({"region": _floats(region, 6, "--region")} if region else {}))
-    cfg.validate()
     folder = camera.partition(":")[2] if camera.startswith("dir:") else None  # the frames it reads
     check_output(out, "--out", inputs=(folder,))
     if robot_log is not None:

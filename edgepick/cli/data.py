@@ -6,7 +6,8 @@ import math
 
 import click
 
-from edgepick.cli.options import emit, parse_size
+from edgepick.cli.options import choice, default_of, emit, parse_size
+from edgepick.data.config import CityscapesClasses, ImportConfig, ImportFormat, Split
 from edgepick.errors import ConfigError
 from edgepick.files import check_output
 
@@ -34,21 +35,13 @@ def data_synth(out: str, scenes: int, splits: str | None, size: str, seed: int, 
 
     check_output(out, "OUT", kind="dir")
     image_size = parse_size(size)
-    if seed < 0:
-        raise ConfigError(f"--seed {seed}: must be 0 or positive")
-    if workers < 0:
-        raise ConfigError(f"--workers {workers}: must be 0 (one per core) or positive")
     split_counts = None
     if splits:
         try:
             split_counts = tuple(int(v) for v in splits.split(","))
         except ValueError:
             raise ConfigError(f"--splits must be three integers TRAIN,VAL,TEST, got {splits!r}") from None
-        if len(split_counts) != 3 or min(split_counts) < 1:
-            raise ConfigError("--splits needs three counts, each at least 1")
         scenes = sum(split_counts)
-    if scenes < 3:
-        raise ConfigError("--scenes must be at least 3 (one per split)")
     cfg = SynthConfig(scenes=scenes, width=image_size.width, height=image_size.height, seed=seed, splits=split_counts,
                       workers=workers)
     emit(synthesize(out, cfg))
@@ -57,7 +50,7 @@ def data_synth(out: str, scenes: int, splits: str | None, size: str, seed: int, 
 @data.command("preview")
 @click.argument("data_dir", metavar="DATA", type=click.Path())
 @click.option("--out", required=True, type=click.Path(dir_okay=False), help="PNG contact sheet to write.")
-@click.option("--split", default="train", show_default=True, type=click.Choice(["train", "val", "test"]))
+@click.option("--split", default=Split.TRAIN.value, show_default=True, type=choice(Split))
 @click.option("--count", default=12, show_default=True, help="Scenes to draw.")
 def data_preview(data_dir: str, out: str, split: str, count: int) -> None:
     """Draw a contact sheet: RGB with mask overlays and grasp truth, and the depth map."""
@@ -71,17 +64,20 @@ def data_preview(data_dir: str, out: str, split: str, count: int) -> None:
 
 
 @data.command("import")
-@click.argument("fmt", metavar="FORMAT", type=click.Choice(["cityscapes", "bop", "cvat"]))
+@click.argument("fmt", metavar="FORMAT", type=choice(ImportFormat))
 @click.argument("src", type=click.Path())
 @click.argument("out", type=click.Path(file_okay=False))
-@click.option("--cityscapes-classes", default="30", show_default=True, type=click.Choice(["30", "19"]),
+@click.option("--cityscapes-classes", default=default_of(ImportConfig, "cityscapes_classes"), show_default=True,
+              type=choice(CityscapesClasses),
               help="Cityscapes: all 30 benchmark classes, or the 19 train ids (the rest ignored).")
-@click.option("--splits", default="0.8,0.1,0.1", show_default=True, metavar="TRAIN,VAL,TEST",
+@click.option("--splits", default=",".join(map(str, default_of(ImportConfig, "split_fractions"))), show_default=True,
+              metavar="TRAIN,VAL,TEST",
               help="BOP/CVAT: fractions for the train/val/test split (deterministic per file name).")
 @click.option("--images", default=None, type=click.Path(file_okay=False), help="CVAT: colour images [default: SRC/JPEGImages].")
 @click.option("--depth", default=None, type=click.Path(file_okay=False), help="CVAT: uint16 depth PNGs named like the images.")
 @click.option("--intrinsics", default=None, type=click.Path(dir_okay=False), help="CVAT: intrinsics.json of the depth camera.")
-@click.option("--depth-scale", default=0.001, show_default=True, help="CVAT: metres per unit of the depth PNGs.")
+@click.option("--depth-scale", default=default_of(ImportConfig, "depth_scale_m"), show_default=True,
+              help="CVAT: metres per unit of the depth PNGs.")
 def data_import(fmt: str, src: str, out: str, cityscapes_classes: str, splits: str, images: str | None,
                 depth: str | None, intrinsics: str | None, depth_scale: float) -> None:
     """Convert a Cityscapes, BOP (e.g. LineMOD) or CVAT 'Segmentation mask 1.1' tree into the native layout.
@@ -93,11 +89,9 @@ def data_import(fmt: str, src: str, out: str, cityscapes_classes: str, splits: s
                 per object id, depth converted to millimetres, intrinsics from cam_K.
     cvat:       labelmap.txt + SegmentationClass/*.png, images and optional depth folders.
     """
-    from edgepick.data.importers import ImportConfig, import_dataset
+    from edgepick.data.importers import import_dataset
 
     check_output(out, "OUT", kind="dir", inputs=(src, images, depth, intrinsics))
-    if not (math.isfinite(depth_scale) and depth_scale > 0):
-        raise ConfigError(f"--depth-scale {depth_scale}: must be positive (metres per unit, e.g. 0.001)")
     try:
         fractions = tuple(float(v) for v in splits.split(","))
     except ValueError:

@@ -8,8 +8,10 @@ from pathlib import Path
 
 import click
 
+from edgepick.cli.options import choice
 from edgepick.errors import ConfigError
 from edgepick.files import atomic_path, check_output
+from edgepick.runtime.engine import Engine
 
 
 @click.command()
@@ -26,7 +28,7 @@ from edgepick.files import atomic_path, check_output
               help="Mask mode: class names by id, comma-separated [default: the synthetic set's five]. "
                    "Model mode takes them from the model.")
 @click.option("--threads", default=2, show_default=True, help="Inference threads (model mode).")
-@click.option("--engine", default="onnxruntime", show_default=True, type=click.Choice(["onnxruntime", "openvino", "auto"]),
+@click.option("--engine", default=Engine.ONNXRUNTIME.value, show_default=True, type=choice(Engine),
               help="Model mode: inference engine (openvino: the [peers] extra; auto: the faster one here, measured "
                    "once per model and cached in ~/.cache/edgepick).")
 @click.option("--overlay", default=None, type=click.Path(dir_okay=False), help="Write a PNG with centroids, axes, fingers.")

@@ -1,4 +1,5 @@
-"""Options and parsers shared by the command groups (click only, no torch).
+"""Options and parsers shared by the command groups (click only, no torch). An option's choices
+and default come from the library's own config (`choice`, `default_of`), so each is written once.
 
 Every `--size` in edgepick is WIDTHxHEIGHT, as cameras and image files state it (640x480),
 and is parsed here into a `Size(width, height)` (edgepick.geometry), the form every size takes
@@ -7,13 +8,17 @@ in the Python API; arrays and file metadata keep (height, width), as numpy and t
 
 from __future__ import annotations
 
+import dataclasses
+import enum
+import inspect
 import json
-from typing import Any
+from typing import Any, Callable
 
 import click
 
 from edgepick.errors import ConfigError
 from edgepick.geometry import Size
+from edgepick.train.config import TrainConfig
 
 SIZE_HELP = "WIDTHxHEIGHT"
 
@@ -59,6 +64,24 @@ def check_data_orientation(data_dir: str, size: Size) -> None:
         check_orientation(size, Size.of(ds.rgb(ds.ids[0])))
 
 
+def choice(kind: type[enum.Enum]) -> click.Choice:
+    """A click choice of the enum KIND's values, in their order: the library's own choices."""
+    return click.Choice([str(m.value) for m in kind])
+
+
+def default_of(owner: type | Callable, name: str) -> Any:
+    """The default a library config (a dataclass field) or function (a parameter) gives NAME, as a
+    plain value (an enum member as its value), so an option's default is written once."""
+    if dataclasses.is_dataclass(owner):
+        (f,) = [f for f in dataclasses.fields(owner) if f.name == name]
+        value = f.default if f.default_factory is dataclasses.MISSING else f.default_factory()
+    else:
+        value = inspect.signature(owner).parameters[name].default
+    if value is dataclasses.MISSING or value is inspect.Parameter.empty:
+        raise TypeError(f"{name} of {owner.__name__} has no default")
+    return value.value if isinstance(value, enum.Enum) else value
+
+
 def with_options(options):
     """Apply a list of click options to a command, in the order listed."""
     def wrap(f):
@@ -70,9 +93,9 @@ def with_options(options):
 
 # shared by `edgepick train` and `edgepick quantize qat`
 epoch_subset = [
-    click.option("--epoch-images", default=0, show_default=True,
+    click.option("--epoch-images", default=default_of(TrainConfig, "epoch_images"), show_default=True,
                  help="Images per epoch, drawn afresh from the train split each epoch; 0 = the whole split."),
-    click.option("--val-images", default=0, show_default=True,
+    click.option("--val-images", default=default_of(TrainConfig, "val_images"), show_default=True,
                  help="Validate each epoch on this many evenly spaced val images; 0 = the whole split."),
 ]
 

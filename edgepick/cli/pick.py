@@ -8,9 +8,12 @@ import math
 
 import click
 
-from edgepick.cli.options import parse_size
+from edgepick.cli.options import choice, default_of, parse_size
 from edgepick.errors import ConfigError
 from edgepick.files import check_output, output_dir
+from edgepick.robot.envelope import Envelope
+from edgepick.robot.pick import Choose, PickConfig
+from edgepick.runtime.engine import Engine
 
 
 def check_gripper(spec: str, robot_host: str | None) -> tuple[str, int | str]:
@@ -59,11 +62,13 @@ def make_gripper(spec: tuple[str, int | str], robot):
 @click.option("--execute", is_flag=True, help="Move a real arm (--robot ur:HOST). Without it the plan is only printed.")
 @click.option("--cycles", default=1, show_default=True, help="Pick cycles to run.")
 @click.option("--class", "classes", multiple=True, help="Only pick these classes (repeatable).")
-@click.option("--choose", default="largest", show_default=True, type=click.Choice(["largest", "closest"]))
-@click.option("--speed", default=0.25, show_default=True,
-              help="moveL speed, m/s, in (0, 0.25]: the envelope's cap; anything else is refused up front.")
-@click.option("--acc", default=1.2, show_default=True,
-              help="moveL acceleration, m/s^2, in (0, 1.2]: the envelope's cap; anything else is refused up front.")
+@click.option("--choose", default=default_of(PickConfig, "choose"), show_default=True, type=choice(Choose))
+@click.option("--speed", default=default_of(PickConfig, "speed"), show_default=True,
+              help=f"moveL speed, m/s, in (0, {default_of(Envelope, 'max_speed')}]: the envelope's cap; anything else "
+                   "is refused up front.")
+@click.option("--acc", default=default_of(PickConfig, "acc"), show_default=True,
+              help=f"moveL acceleration, m/s^2, in (0, {default_of(Envelope, 'max_acc')}]: the envelope's cap; "
+                   "anything else is refused up front.")
 @click.option("--log", "log_path", default="picks.jsonl", show_default=True, type=click.Path(dir_okay=False),
               help="JSON-lines log of every command (appended; created at the first entry).")
 @click.option("--robot-log", default=None, type=click.Path(dir_okay=False),
@@ -71,7 +76,7 @@ def make_gripper(spec: tuple[str, int | str], robot):
                    "discarded; edgepick reports a failure itself].")
 @click.option("--overlay-dir", default=None, type=click.Path(file_okay=False), help="Write an overlay PNG per cycle.")
 @click.option("--threads", default=2, show_default=True, help="Inference threads.")
-@click.option("--engine", default="onnxruntime", show_default=True, type=click.Choice(["onnxruntime", "openvino", "auto"]),
+@click.option("--engine", default=Engine.ONNXRUNTIME.value, show_default=True, type=choice(Engine),
               help="Inference engine (openvino: the [peers] extra; auto: the faster one here, measured once per "
                    "model and cached in ~/.cache/edgepick).")
 @click.option("--size", default="640x480", show_default=True, help="Camera frame size, WIDTHxHEIGHT.")
@@ -91,7 +96,7 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     from edgepick.cli.cameras import open_camera
     from edgepick.robot.base import RobotError, RobotHalted, RobotUnreachable
     from edgepick.robot.loop import cycles_summary, run_cycles
-    from edgepick.robot.pick import CommandLog, PickConfig
+    from edgepick.robot.pick import CommandLog
     from edgepick.runtime.calibration import Calibration
     from edgepick.runtime.pipeline import Pipeline
     from edgepick.runtime.session import Segmenter
@@ -165,8 +170,6 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
 def _check_motion(cycles: int, speed: float, acc: float, robot_spec: str) -> tuple[str, str]:
     """Refuse a cycle count, speed or acceleration outside the envelope's caps, or an unknown
     robot; returns the robot's kind and host."""
-    from edgepick.robot.envelope import Envelope
-
     if cycles < 1:
         raise ConfigError("--cycles must be at least 1")
     envelope = Envelope()

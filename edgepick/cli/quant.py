@@ -6,18 +6,17 @@ from pathlib import Path
 
 import click
 
-from edgepick.cli.options import emit, epoch_subset, with_options
+from edgepick.cli.options import choice, default_of, emit, epoch_subset, with_options
 from edgepick.errors import ConfigError
 from edgepick.files import check_output
+from edgepick.models.config import Arch
+from edgepick.quant.config import DEFAULT_CALIB_IMAGES, FREEZE_AT, MAX_FLOAT_LAYERS, CalibMethod, QuantConfig
+from edgepick.train.config import Device, TrainConfig
 
 
-def _quant_config(calib_method: str = "percentile", percentile: float = 99.99, reduce_range: bool = True,
-                  keep_float: str = "", weight_averaging: float = 0.01):
-    from edgepick.quant.quantizer import QuantConfig
-
-    return QuantConfig(calib_method=calib_method, percentile=percentile, reduce_range=reduce_range,
-                       keep_float=[k.strip() for k in keep_float.split(",") if k.strip()],
-                       weight_averaging=weight_averaging)
+def _quant_config(keep_float: str = "", **options) -> QuantConfig:
+    """The QuantConfig of a command's options (KEEP_FLOAT comma-separated; the rest by field name)."""
+    return QuantConfig(keep_float=tuple(k.strip() for k in keep_float.split(",") if k.strip()), **options)
 
 
 def _check_onnx_out(out: str, *inputs: str | None) -> None:
@@ -27,7 +26,7 @@ def _check_onnx_out(out: str, *inputs: str | None) -> None:
 common = [
     click.option("--out", required=True, type=click.Path(dir_okay=False),
                  help="int8 ONNX to write (docs/contracts.md#onnx-model)."),
-    click.option("--reduce-range/--full-range", default=True, show_default=True,
+    click.option("--reduce-range/--full-range", default=default_of(QuantConfig, "reduce_range"), show_default=True,
                  help="7-bit weights, for CPUs without VNNI (AVX2 only: onnxruntime's U8S8 kernels saturate "
                       "with 8-bit weights). --full-range for AVX512-VNNI/AVX-VNNI targets."),
     click.option("--keep-float", default="", metavar="NAMES",
@@ -38,9 +37,10 @@ common = [
 # static PTQ and inspect
 calibration = [
     click.option("--calib-images", default=None, type=int,
-                 help="Train images for calibration [default: 64, or the whole train split if smaller]."),
-    click.option("--calib-method", default="percentile", show_default=True,
-                 type=click.Choice(["minmax", "percentile", "entropy", "mse"]),
+                 help=f"Train images for calibration [default: {DEFAULT_CALIB_IMAGES}, or the whole train split if "
+                      "smaller]."),
+    click.option("--calib-method", default=default_of(QuantConfig, "calib_method"), show_default=True,
+                 type=choice(CalibMethod),
                  help="Activation ranges: a percentile of each histogram, min/max, KL divergence (entropy) or "
                       "L2 error (mse, slower). Compare them on your model with benchmarks/calib_methods.py."),
 ]
@@ -48,7 +48,7 @@ calibration = [
 
 # QaT and hybrid-QaT
 qat_options = [
-    click.option("--weight-averaging", default=0.01, show_default=True,
+    click.option("--weight-averaging", default=default_of(QuantConfig, "weight_averaging"), show_default=True,
                  help="Moving-average constant of the QaT weight ranges; 1.0 = each step's own range."),
 ]
 
@@ -82,12 +82,14 @@ def quantize() -> None:
 @click.argument("checkpoint", metavar="RUN_OR_CKPT", type=click.Path())
 @click.option("--data", "data_dir", required=True, type=click.Path(), help="Data set; calibration uses its train split.")
 @with_options(calibration)
-@click.option("--percentile", default=99.99, show_default=True, help="For --calib-method percentile.")
+@click.option("--percentile", default=default_of(QuantConfig, "percentile"), show_default=True,
+              help="For --calib-method percentile.")
 @click.option("--seed", default=0, show_default=True, help="Which calibration images are drawn.")
 @click.option("--max-miou-drop", default=None, type=float, metavar="PP",
               help="Accuracy-aware: keep the layers adding the most drift in float, one at a time, until the val "
                    "mIoU (onnxruntime) is within PP percentage points of fp32's.")
-@click.option("--max-float-layers", default=6, show_default=True, help="With --max-miou-drop: at most this many.")
+@click.option("--max-float-layers", default=MAX_FLOAT_LAYERS, show_default=True,
+              help="With --max-miou-drop: at most this many.")
 @with_options(common)
 def quantize_static_cmd(checkpoint: str, data_dir: str, calib_images: int | None, calib_method: str, percentile: float,
                         seed: int, max_miou_drop: float | None, max_float_layers: int, out: str, reduce_range: bool,
@@ -100,7 +102,7 @@ def quantize_static_cmd(checkpoint: str, data_dir: str, calib_images: int | None
     _check_onnx_out(out, checkpoint, data_dir)
     if seed < 0:
         raise ConfigError(f"--seed {seed}: must be 0 or positive")
-    cfg = _quant_config(calib_method, percentile, reduce_range, keep_float)
+    cfg = _quant_config(keep_float, calib_method=calib_method, percentile=percentile, reduce_range=reduce_range)
     if max_miou_drop is not None:
         from edgepick.quant.inspect import quantize_accuracy_aware
 
@@ -119,7 +121,7 @@ def quantize_static_cmd(checkpoint: str, data_dir: str, calib_images: int | None
 @with_options(calibration)
 @click.option("--images", default=8, show_default=True, help="Val images compared.")
 @click.option("--top", default=10, show_default=True, help="Rows of the worst-layers table on stderr.")
-@click.option("--reduce-range/--full-range", default=True, show_default=True)
+@click.option("--reduce-range/--full-range", default=default_of(QuantConfig, "reduce_range"), show_default=True)
 def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int | None, calib_method: str, images: int, top: int,
                          reduce_range: bool) -> None:
     """Where int8 drifts from fp32: per conv layer, the SQNR of the int8 simulation against fp32 and
@@ -136,7 +138,7 @@ def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int | Non
     check_classes(ckpt, data_dir)
     report = inspect(ckpt, folder_images(data_dir, "train", calib_images),
                      folder_images(data_dir, "val", images, what="val images"),
-                     _quant_config(calib_method, reduce_range=reduce_range))
+                     _quant_config(calib_method=calib_method, reduce_range=reduce_range))
     by_name = {r["layer"]: r for r in report["layers"]}
     click.echo(f"logits SQNR {report['logits_sqnr_db']} dB, labels equal to fp32: {report['label_agreement']}", err=True)
     click.echo(f"{'layer':40s} {'SQNR dB':>8s} {'added drift dB':>15s}", err=True)
@@ -149,14 +151,14 @@ def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int | Non
 @click.option("--data", "data_dir", required=True, type=click.Path())
 @click.option("--run", "run_dir", default=None, type=click.Path(file_okay=False),
               help="Folder for the QaT run's checkpoints [default: OUT with .run].")
-@click.option("--arch", default="mobilenetv3", show_default=True, type=click.Choice(["mobilenetv3", "resnet50", "resnet101"]))
-@click.option("--epochs", default=100, show_default=True)
-@click.option("--batch-size", default=8, show_default=True)
-@click.option("--lr", default=1e-3, show_default=True)
+@click.option("--arch", default=default_of(TrainConfig, "arch"), show_default=True, type=choice(Arch))
+@click.option("--epochs", default=default_of(TrainConfig, "epochs"), show_default=True)
+@click.option("--batch-size", default=default_of(TrainConfig, "batch_size"), show_default=True)
+@click.option("--lr", default=default_of(TrainConfig, "lr"), show_default=True)
 @click.option("--size", default="640x480", show_default=True,
               help="Model input size, WIDTHxHEIGHT (multiples of 8); images are resized to it.")
-@click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
-@click.option("--seed", default=0, show_default=True)
+@click.option("--device", default=default_of(TrainConfig, "device"), show_default=True, type=choice(Device))
+@click.option("--seed", default=default_of(TrainConfig, "seed"), show_default=True)
 @with_options(epoch_subset)
 @with_options(qat_options)
 @with_options(common)
@@ -168,18 +170,15 @@ def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int,
     of the epoch with the best val mIoU."""
     from edgepick.cli.options import check_data_orientation, model_size
     from edgepick.quant.passes import quantize_qat
-    from edgepick.train.loop import TrainConfig
 
     _check_onnx_out(out, data_dir)
-    if seed < 0:
-        raise ConfigError(f"--seed {seed}: must be 0 or positive")
     input_size = model_size(size)
     check_data_orientation(data_dir, input_size)
     run = run_dir or str(Path(out).with_suffix(".run"))
-    check_output(run, "--run", kind="dir", inputs=(data_dir, out))
     cfg = TrainConfig(data=data_dir, out=run, arch=arch, epochs=epochs, batch_size=batch_size, lr=lr,
                       size=input_size, device=device, seed=seed, epoch_images=epoch_images,
                       val_images=val_images)
+    check_output(run, "--run", kind="dir", inputs=(data_dir, out))
     emit(quantize_qat(cfg, out, _quant_config(reduce_range=reduce_range, keep_float=keep_float,
                                                weight_averaging=weight_averaging)))
 
@@ -191,17 +190,17 @@ def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int,
               help="p in (0, 1): the last p of RUN's epoch budget is trained with QaT.")
 @click.option("--run", "qat_run", default=None, type=click.Path(file_okay=False),
               help="Folder for the QaT phase's checkpoints [default: OUT with .run].")
-@click.option("--freeze-at", default=0.7, show_default=True,
+@click.option("--freeze-at", default=FREEZE_AT, show_default=True,
               help="Share of the QaT steps after which observers and BN statistics are frozen (1.0: never).")
 @click.option("--fresh-optimizer", is_flag=True,
               help="Start the QaT phase with a fresh AdamW instead of the float run's moments (for comparison).")
 @click.option("--calib-images", default=None, type=int,
-              help="Start the activation ranges from static PTQ's (percentile over N train images) [default: 64, "
-                   "or the whole train split if smaller]; 0: from the first batch's min/max.")
+              help=f"Start the activation ranges from static PTQ's (percentile over N train images) [default: "
+                   f"{DEFAULT_CALIB_IMAGES}, or the whole train split if smaller]; 0: from the first batch's min/max.")
 @click.option("--hold-ranges/--moving-ranges", default=None,
               help="Keep the calibrated ranges for the whole QaT phase, or let the observers move them "
                    "[default: hold when calibrated].")
-@click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]),
+@click.option("--device", default=default_of(TrainConfig, "device"), show_default=True, type=choice(Device),
               help="Where the QaT phase trains (auto: the GPU if there is one), whatever device RUN used.")
 @with_options(qat_options)
 @with_options(common)
@@ -217,10 +216,6 @@ def quantize_hybrid_cmd(run: str, data_dir: str, qat_fraction: float, qat_run: s
 
     _check_onnx_out(out, run, data_dir)
     check_output(qat_run or str(Path(out).with_suffix(".run")), "--run", kind="dir", inputs=(run, data_dir, out))
-    if not 0.0 < qat_fraction < 1.0:
-        raise ConfigError(f"--qat-fraction must be inside (0, 1), got {qat_fraction}")
-    if not 0.0 <= freeze_at <= 1.0:
-        raise ConfigError(f"--freeze-at must be inside [0, 1], got {freeze_at}")
     if calib_images is not None and (calib_images < 0 or (hold_ranges and not calib_images)):
         raise ConfigError("--calib-images must be 0 (off) or positive, and --hold-ranges needs it")
     cfg = _quant_config(reduce_range=reduce_range, keep_float=keep_float, weight_averaging=weight_averaging)

@@ -7,33 +7,42 @@ from pathlib import Path
 
 import click
 
-from edgepick.cli.options import check_data_orientation, emit, epoch_subset, model_size, with_options
+from edgepick.cli.options import (check_data_orientation, choice, default_of, emit, epoch_subset, model_size,
+                                  with_options)
+from edgepick.data.config import Split
+from edgepick.demo import run_demo
 from edgepick.errors import ConfigError
 from edgepick.files import atomic_write, check_output
+from edgepick.models.config import Arch, ColorSpace, OutputStride, Variant
+from edgepick.train.config import Device, TrainConfig
 
 
 @click.command()
 @click.argument("data_dir", metavar="DATA", type=click.Path())
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="RUN folder for checkpoints and metrics.")
-@click.option("--arch", default="mobilenetv3", show_default=True, type=click.Choice(["mobilenetv3", "resnet50", "resnet101"]))
-@click.option("--variant", default="standard", show_default=True, type=click.Choice(["standard", "edge"]),
+@click.option("--arch", default=default_of(TrainConfig, "arch"), show_default=True, type=choice(Arch))
+@click.option("--variant", default=default_of(TrainConfig, "variant"), show_default=True, type=choice(Variant),
               help="edge: MobileNetV3 without SE and hardswish, 128-channel ASPP (quantization-friendly; not "
                    "torchvision-compatible).")
-@click.option("--epochs", default=None, type=int, help="Epoch budget [default: 100; on --resume: the run's own].")
-@click.option("--batch-size", default=8, show_default=True)
-@click.option("--lr", default=1e-3, show_default=True, help="AdamW learning rate (poly decay, short warm-up).")
-@click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
+@click.option("--epochs", default=None, type=int,
+              help=f"Epoch budget [default: {default_of(TrainConfig, 'epochs')}; on --resume: the run's own].")
+@click.option("--batch-size", default=default_of(TrainConfig, "batch_size"), show_default=True)
+@click.option("--lr", default=default_of(TrainConfig, "lr"), show_default=True,
+              help="AdamW learning rate (poly decay, short warm-up).")
+@click.option("--device", default=default_of(TrainConfig, "device"), show_default=True, type=choice(Device))
 @click.option("--size", default="640x480", show_default=True,
               help="Model input size, WIDTHxHEIGHT (multiples of 8); images are resized to it.")
-@click.option("--colorspace", default="rgb", show_default=True, type=click.Choice(["rgb", "hsv", "gray"]))
-@click.option("--output-stride", default=16, show_default=True, type=click.Choice(["8", "16"]))
-@click.option("--aux-loss/--no-aux-loss", default=False, show_default=True, help="FCN auxiliary head (weight 0.4).")
+@click.option("--colorspace", default=default_of(TrainConfig, "colorspace"), show_default=True, type=choice(ColorSpace))
+@click.option("--output-stride", default=default_of(TrainConfig, "output_stride"), show_default=True,
+              type=choice(OutputStride))
+@click.option("--aux-loss/--no-aux-loss", default=default_of(TrainConfig, "aux_loss"), show_default=True,
+              help="FCN auxiliary head (weight 0.4).")
 @click.option("--keep-epochs", default="", help="Comma-separated epochs whose checkpoints are kept (hybrid-QaT switch points).")
 @click.option("--backbone-weights", default=None, type=click.Path(dir_okay=False), help="Backbone state dict to start from.")
 @with_options(epoch_subset)
-@click.option("--workers", default=-1, show_default=True,
+@click.option("--workers", default=default_of(TrainConfig, "workers"), show_default=True,
               help="Data loader workers; -1 = decode once into memory (4 workers on GPU when that does not fit).")
-@click.option("--seed", default=0, show_default=True)
+@click.option("--seed", default=default_of(TrainConfig, "seed"), show_default=True)
 @click.option("--resume", is_flag=True, help="Continue RUN from its last.pt (losing at most one epoch).")
 def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, batch_size: int, lr: float, device: str, size: str,
           colorspace: str, output_stride: str, aux_loss: bool, keep_epochs: str, backbone_weights: str | None,
@@ -50,7 +59,7 @@ def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, 
     Multi-GPU: torchrun --nproc_per_node N -m edgepick train DATA --out RUN ...
     --resume continues RUN on DATA (the same data set, at any path) after a kill.
     """
-    from edgepick.train.config import TrainConfig
+    from edgepick.train.loop import resume_run
     from edgepick.train.loop import train as run_train
     from edgepick.train.run import Run
     from edgepick.train.setup import dist_env
@@ -60,24 +69,20 @@ def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, 
         keep = sorted({int(v) for v in keep_epochs.split(",") if v.strip()})
     except ValueError:
         raise ConfigError(f"--keep-epochs must be comma-separated integers, got {keep_epochs!r}") from None
-    if epochs is not None:
-        outside = [e for e in keep if not 1 <= e <= epochs]
-        if outside:
-            raise ConfigError(f"--keep-epochs {outside[0]}: not an epoch of the budget (1..{epochs})")
-    if seed < 0:
-        raise ConfigError(f"--seed {seed}: must be 0 or positive")
     input_size = model_size(size)
-    if not resume and Run(out).holds_run():
-        raise ConfigError(f"--out {out} already holds a training run; pass --resume or choose a new --out")
-    check_output(out, "--out", kind="dir", inputs=(data_dir,), reuse="train" if resume else None)
-    if not resume:
+    if resume:
+        check_output(out, "--out", kind="dir", inputs=(data_dir,), reuse="train")
+        result = resume_run(out, data_dir, epochs)
+    else:
+        cfg = TrainConfig(data=data_dir, out=out, arch=arch, variant=variant, batch_size=batch_size, lr=lr,
+                          size=input_size, colorspace=colorspace, output_stride=int(output_stride), aux_loss=aux_loss,
+                          device=device, keep_epochs=keep, backbone_weights=backbone_weights,
+                          epoch_images=epoch_images, val_images=val_images, workers=workers, seed=seed,
+                          **({} if epochs is None else {"epochs": epochs}))
+        Run(out).check_new()
+        check_output(out, "--out", kind="dir", inputs=(data_dir,))
         check_data_orientation(data_dir, input_size)
-    cfg = TrainConfig(data=data_dir, out=out, arch=arch, variant=variant, epochs=epochs if epochs is not None else (0 if resume else 100),
-                      batch_size=batch_size, lr=lr, size=input_size, colorspace=colorspace,
-                      output_stride=int(output_stride), aux_loss=aux_loss, device=device, keep_epochs=keep,
-                      backbone_weights=backbone_weights, epoch_images=epoch_images, val_images=val_images,
-                      workers=workers, seed=seed)
-    result = run_train(cfg, resume=resume)
+        result = run_train(cfg)
     if result is not None:
         emit(result.to_dict())
 
@@ -85,7 +90,7 @@ def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, 
 @click.command("eval")
 @click.argument("model", type=click.Path())
 @click.argument("data_dir", metavar="DATA", type=click.Path())
-@click.option("--split", default="test", show_default=True, type=click.Choice(["train", "val", "test"]))
+@click.option("--split", default=Split.TEST.value, show_default=True, type=choice(Split))
 @click.option("--out", default=None, type=click.Path(dir_okay=False), help="Also write the JSON here.")
 def eval_cmd(model: str, data_dir: str, split: str, out: str | None) -> None:
     """Pixel accuracy, per-class IoU, mIoU and confusion matrix of MODEL (checkpoint, RUN or ONNX) as JSON."""
@@ -104,14 +109,12 @@ def eval_cmd(model: str, data_dir: str, split: str, out: str | None) -> None:
 @click.option("--workdir", default="demo-out", show_default=True, type=click.Path(file_okay=False),
               help="Folder for everything the demo makes. A new or empty folder, or one an earlier demo made (its "
                    "old contents are removed first); any other folder is refused, as is the working folder.")
-@click.option("--scenes", default=204, show_default=True, help="Synthetic scenes to make.")
-@click.option("--epochs", default=12, show_default=True, help="CPU training epochs.")
+@click.option("--scenes", default=default_of(run_demo, "scenes"), show_default=True, help="Synthetic scenes to make.")
+@click.option("--epochs", default=default_of(run_demo, "epochs"), show_default=True, help="CPU training epochs.")
 def demo(workdir: str, scenes: int, epochs: int) -> None:
     """The main job on an embedded default, about 10 minutes on 2 cores: synthetic data, a small
     CPU training run, evaluation, fp32/static/hybrid-QaT ONNX files, pick cycles on the simulated
     robot, and the bench tables (thesis Tables 5.5 and 5.6)."""
-    from edgepick.demo import run_demo
-
     if epochs < 2:
         raise ConfigError(f"--epochs {epochs}: the demo needs at least 2 (its hybrid-QaT continues from epoch N-1)")
     if scenes < 30:

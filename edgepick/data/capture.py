@@ -11,7 +11,7 @@ import cv2
 from tqdm import tqdm
 
 from edgepick.data.native import atomic_folder
-from edgepick.errors import ConfigError
+from edgepick.errors import ConfigError, ParameterError
 from edgepick.frames import Camera
 
 
@@ -21,7 +21,7 @@ MAX_FRAMES = 100_000  # about 90 GB of 640x480 PNGs
 def check_count(count: int) -> None:
     """Refuse a frame count below 1 or above MAX_FRAMES."""
     if not 1 <= count <= MAX_FRAMES:
-        raise ConfigError(f"--count {count}: capture 1 to {MAX_FRAMES} frames at once")
+        raise ParameterError(f"{{count}}: capture 1 to {MAX_FRAMES} frames at once", count=count)
 
 
 def capture(camera: Camera, out: str | Path, count: int, interval_s: float = 0.0) -> dict:

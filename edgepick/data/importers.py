@@ -14,7 +14,6 @@ import json
 import os
 import sys
 import tempfile
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -22,12 +21,11 @@ import numpy as np
 from tqdm import tqdm
 
 from edgepick.data.bop import BopImage, bop_scenes, object_name, read_scene
-from edgepick.data.native import IGNORE, SPLITS, atomic_folder
-from edgepick.errors import DatasetError
+from edgepick.data.config import CityscapesClasses, ImportConfig, ImportFormat, Split
+from edgepick.data.native import IGNORE, atomic_folder
+from edgepick.errors import DatasetError, ParameterError
 from edgepick.geometry import Intrinsics
-from edgepick.schema import read_text
-
-FORMATS = ("cityscapes", "bop", "cvat")
+from edgepick.schema import member, read_text
 
 # Cityscapes label ids (cityscapesScripts' labels.py): name, id, train id (255 = not trained).
 CITYSCAPES = [
@@ -46,22 +44,12 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
 JPEG_DAMAGE = ("Premature end of JPEG file", "Corrupt JPEG data")
 
 
-@dataclass
-class ImportConfig:
-    cityscapes_classes: str = "30"  # "30" (all benchmark classes) or "19" (the train ids)
-    split_fractions: tuple[float, float, float] = (0.8, 0.1, 0.1)  # for sources without splits
-    images: str | None = None  # CVAT: folder of the colour images (default SRC/JPEGImages)
-    depth: str | None = None  # CVAT: folder of uint16 depth PNGs with the images' names
-    intrinsics: str | None = None  # CVAT: intrinsics.json of the depth camera
-    depth_scale_m: float = 0.001  # CVAT: metres per unit of the depth PNGs
-
-
 class NativeWriter:
     """Writes scenes into an `atomic_folder` beside OUT: renamed into place at the end, removed on error."""
 
     def __init__(self, tmp: Path):
         self.tmp = tmp
-        self.counts = dict.fromkeys(SPLITS, 0)
+        self.counts = dict.fromkeys(Split, 0)
         self.has_depth = False
 
     def add(self, split: str, rgb: np.ndarray, mask: np.ndarray, depth_mm: np.ndarray | None, name: str) -> None:
@@ -85,7 +73,7 @@ class NativeWriter:
 
     def finish(self, classes: list[str], intrinsics: Intrinsics | None, source: dict) -> dict:
         """meta.json (classes, ignore index, intrinsics, where the data came from)."""
-        empty = [s for s in SPLITS if self.counts[s] == 0]
+        empty = [s for s in Split if self.counts[s] == 0]
         if empty:
             raise DatasetError(f"the source gives no images for the {', '.join(empty)} split(s)")
         meta = {"classes": classes, "ignore_index": IGNORE, "source": source}
@@ -96,7 +84,7 @@ class NativeWriter:
         return {"classes": len(classes), "splits": dict(self.counts), "depth": self.has_depth}
 
 
-def assign_splits(names: list[str], fractions: tuple[float, float, float]) -> dict[str, str]:
+def assign_splits(names: list[str], fractions: tuple[float, float, float]) -> dict[str, Split]:
     """Deterministic train/val/test assignment (by a hash of each name, so adding files moves few),
     with at least one image in each split that has a non-zero fraction."""
     order = sorted(names, key=lambda n: hashlib.sha1(n.encode()).hexdigest())
@@ -105,7 +93,7 @@ def assign_splits(names: list[str], fractions: tuple[float, float, float]) -> di
     n_test = max(1, round(n * fractions[2])) if fractions[2] > 0 else 0
     if n - n_val - n_test < 1:
         raise DatasetError(f"{n} image(s) are too few for train/val/test splits of {fractions}")
-    return {name: "train" if i < n - n_val - n_test else "val" if i < n - n_test else "test"
+    return {name: Split.TRAIN if i < n - n_val - n_test else Split.VAL if i < n - n_test else Split.TEST
             for i, name in enumerate(order)}
 
 
@@ -151,10 +139,8 @@ def _rgb(path: Path) -> np.ndarray:
 def import_cityscapes(src: Path, writer: NativeWriter, cfg: ImportConfig) -> tuple[list[str], None, dict]:
     """leftImg8bit/<split>/<city>/*_leftImg8bit.png + gtFine/<split>/<city>/*_gtFine_labelIds.png.
     Cityscapes withholds its test labels, so its val split feeds both val and test."""
-    if cfg.cityscapes_classes not in ("30", "19"):
-        raise DatasetError("Cityscapes classes must be 30 (all benchmark classes) or 19 (the train ids)")
     lut = np.full(256, IGNORE, np.uint8)
-    if cfg.cityscapes_classes == "19":
+    if cfg.cityscapes_classes == CityscapesClasses.TRAIN_IDS:
         classes = [n for n, _, t in sorted(CITYSCAPES, key=lambda r: r[2]) if t != 255]
         for _, i, t in CITYSCAPES:
             lut[i] = t
@@ -186,7 +172,7 @@ def import_cityscapes(src: Path, writer: NativeWriter, cfg: ImportConfig) -> tup
         if rgb.shape[:2] != ids.shape:
             raise DatasetError(f"{img} is {_size(rgb)}, its labels {label} {_size(ids)}: they differ in size")
         writer.add(split, rgb, lut[ids], None, str(img.relative_to(src)))
-    return classes, None, {"format": "cityscapes", "classes": cfg.cityscapes_classes, "test_from": "val"}
+    return classes, None, {"format": "cityscapes", "classes": cfg.cityscapes_classes.value, "test_from": "val"}
 
 
 # ----------------------------------------------------------------------------------- BOP
@@ -296,8 +282,8 @@ def _colour_mask(mpath: Path) -> np.ndarray:
 
 
 def import_cvat(src: Path, writer: NativeWriter, cfg: ImportConfig) -> tuple[list[str], Intrinsics | None, dict]:
-    """labelmap.txt + SegmentationClass/*.png colour masks, images from SRC/JPEGImages or --images,
-    depth from --depth (uint16 PNGs with the images' names) with --intrinsics."""
+    """labelmap.txt + SegmentationClass/*.png colour masks, images from SRC/JPEGImages or cfg.images,
+    depth from cfg.depth (uint16 PNGs with the images' names) with cfg.intrinsics."""
     labelmap = src / "labelmap.txt"
     labels = read_labelmap(labelmap)
     names = [n for n, _ in labels]
@@ -319,15 +305,14 @@ def import_cvat(src: Path, writer: NativeWriter, cfg: ImportConfig) -> tuple[lis
         raise DatasetError(f"{src} has no SegmentationClass/*.png masks")
     image_dir = Path(cfg.images) if cfg.images else src / "JPEGImages"
     if not image_dir.is_dir():
-        raise DatasetError(f"no image folder {image_dir}: export with images or give --images DIR")
+        raise ParameterError(f"no image folder {image_dir}: export with images or give {{images:name}}",
+                             images=cfg.images)
     images = _images_by_stem(image_dir)
     depth_dir = Path(cfg.depth) if cfg.depth else None
     intr = None
     if depth_dir is not None:
         if not depth_dir.is_dir():
             raise DatasetError(f"depth folder {depth_dir} does not exist")
-        if not cfg.intrinsics:
-            raise DatasetError("--depth needs --intrinsics (intrinsics.json of the depth camera)")
         intr = Intrinsics.load(cfg.intrinsics)
     splits = assign_splits([m.stem for m in masks], cfg.split_fractions)
     lut_keys = np.array(sorted(colour_key))
@@ -368,18 +353,15 @@ def import_cvat(src: Path, writer: NativeWriter, cfg: ImportConfig) -> tuple[lis
     return classes, intr, {"format": "cvat", "labelmap": [[n, list(c)] for n, c in labels]}
 
 
-def import_dataset(fmt: str, src: str | Path, out: str | Path, cfg: ImportConfig | None = None) -> dict:
+def import_dataset(fmt: ImportFormat, src: str | Path, out: str | Path, cfg: ImportConfig | None = None) -> dict:
     """Convert SRC (in FORMAT) into the native layout at OUT; all or nothing."""
     cfg = cfg or ImportConfig()
+    fmt = member(ImportFormat, "fmt", fmt)
     src, out = Path(src), Path(out)
-    if fmt not in FORMATS:
-        raise DatasetError(f"unknown format {fmt!r}; choose one of {', '.join(FORMATS)}")
     if not src.is_dir():
         raise DatasetError(f"source folder {src} does not exist")
-    fr = cfg.split_fractions
-    if len(fr) != 3 or min(fr) < 0 or abs(sum(fr) - 1) > 1e-6:
-        raise DatasetError("split fractions must be three non-negative numbers that sum to 1")
-    importer = {"cityscapes": import_cityscapes, "bop": import_bop, "cvat": import_cvat}[fmt]
+    importer = {ImportFormat.CITYSCAPES: import_cityscapes, ImportFormat.BOP: import_bop,
+                ImportFormat.CVAT: import_cvat}[fmt]
     with atomic_folder(out) as tmp:
         writer = NativeWriter(tmp)
         summary = writer.finish(*importer(src, writer, cfg))

@@ -10,13 +10,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from edgepick.data.config import Split
 from edgepick.errors import ConfigError, DatasetError
 from edgepick.files import atomic_dir
 from edgepick.geometry import Intrinsics
 from edgepick.frames import read_grasps
-from edgepick.schema import Where, as_dict, as_names, as_number, field, read_json
+from edgepick.schema import Where, as_dict, as_names, as_number, field, member, read_json
 
-SPLITS = ("train", "val", "test")
 IGNORE = 255  # mask value of pixels that are neither trained on nor scored (e.g. Cityscapes' void)
 
 
@@ -25,19 +25,18 @@ class NativeDataset:
     """One split of a native data set: sorted scene ids and readers for their files."""
 
     root: Path
-    split: str
+    split: Split
     classes: list[str]
     ids: list[str]
     intrinsics: Intrinsics | None
 
     @classmethod
-    def open(cls, root: str | Path, split: str) -> "NativeDataset":
+    def open(cls, root: str | Path, split: Split) -> "NativeDataset":
         root = Path(root)
         if not (root / "meta.json").is_file():
             raise DatasetError(f"{root} is not an edgepick data set (no meta.json)")
         meta = read_meta(root)
-        if split not in SPLITS:
-            raise DatasetError(f"unknown split {split!r}; choose one of {', '.join(SPLITS)}")
+        split = member(Split, "split", split)
         rgb_dir, mask_dir = root / split / "rgb", root / split / "mask"
         if not rgb_dir.is_dir() or not mask_dir.is_dir():
             raise DatasetError(f"{root} has no {split}/rgb and {split}/mask folders")

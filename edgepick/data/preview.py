@@ -7,6 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from edgepick.data.config import Split
 from edgepick.data.native import NativeDataset
 from edgepick.errors import EdgepickError
 from edgepick.files import atomic_path
@@ -43,7 +44,7 @@ def draw_tile(rgb: np.ndarray, mask: np.ndarray, depth: np.ndarray | None, grasp
     return np.hstack([bgr, dv])
 
 
-def contact_sheet(data: str | Path, out: str | Path, split: str = "train", count: int = 12, cols: int = 3,
+def contact_sheet(data: str | Path, out: str | Path, split: Split = Split.TRAIN, count: int = 12, cols: int = 3,
                   tile_width: int = 640) -> int:
     """Write a PNG contact sheet of the first COUNT scenes; returns the number drawn."""
     ds = NativeDataset.open(data, split)

@@ -18,26 +18,41 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from edgepick.data.config import Split
 from edgepick.data.native import atomic_folder
 from edgepick.data.render import CLASSES, LIGHTINGS, SceneRenderer
-from edgepick.errors import ConfigError
+from edgepick.errors import ParameterError
 from edgepick.geometry import Intrinsics
 from edgepick.progress import progress as progress_bar
 
-SPLITS = ("train", "val", "test")
 GENERATOR_VERSION = 1
 BYTES_PER_PIXEL = 2.2  # a scene's RGB, depth and mask PNGs per pixel: 1.9 at 640x480, 2.1 at 320x240, rounded up
 MAX_SCENES = 1_000_000  # the thesis's set is 5100; beyond this the job list alone fills the memory
 
 
-@dataclass
+@dataclass(frozen=True)
 class SynthConfig:
+    """What `data synth` renders, checked on creation."""
+
     scenes: int = 510
     width: int = 640
     height: int = 480
     seed: int = 0
     splits: tuple[int, int, int] | None = None  # explicit train/val/test counts
     workers: int = 0  # 0 = one per core
+
+    def __post_init__(self) -> None:
+        if self.seed < 0:
+            raise ParameterError("{seed}: must be 0 or positive", seed=self.seed)
+        if self.workers < 0:
+            raise ParameterError("{workers}: must be 0 (one per core) or positive", workers=self.workers)
+        if self.splits is not None:
+            object.__setattr__(self, "splits", tuple(self.splits))
+            if len(self.splits) != 3 or min(self.splits) < 1:
+                raise ParameterError("{splits}: give three scene counts (train, val, test), each at least 1",
+                                     splits=self.splits)
+        elif self.scenes < 3:
+            raise ParameterError("{scenes}: must be at least 3 (one scene per split)", scenes=self.scenes)
 
     def split_counts(self) -> tuple[int, int, int]:
         """Scene counts per split; by default the thesis's 4000/1000/100 ratio."""
@@ -118,35 +133,34 @@ def check_room(config: SynthConfig, out: str | Path) -> None:
     disk under OUT has free (at BYTES_PER_PIXEL), before anything is rendered."""
     scenes = sum(config.split_counts())
     need = scenes * config.width * config.height * BYTES_PER_PIXEL
-    flag = "--splits" if config.splits else "--scenes"
+    name = "splits" if config.splits else "scenes"  # the parameter that asked for them
+    given = {name: getattr(config, name)}
     if scenes > MAX_SCENES:
-        raise ConfigError(f"{flag}: {scenes} scenes is beyond the {MAX_SCENES} edgepick makes at once (they would "
-                          f"take about {need / 1e9:.3g} GB)")
+        raise ParameterError(f"{{{name}}}: {scenes} scenes is beyond the {MAX_SCENES} edgepick makes at once (they "
+                             f"would take about {need / 1e9:.3g} GB)", **given)
     parent = Path(out).absolute()
     while not parent.exists():
         parent = parent.parent
     free = shutil.disk_usage(parent).free
     if need > free:
-        raise ConfigError(f"{flag}: {scenes} scenes at {config.width}x{config.height} take about {need / 1e9:.3g} GB, "
-                          f"but {parent} has {free / 1e9:.3g} GB free")
+        raise ParameterError(f"{{{name}}}: {scenes} scenes at {config.width}x{config.height} take about "
+                             f"{need / 1e9:.3g} GB, but {parent} has {free / 1e9:.3g} GB free", **given)
 
 
 def synthesize(out: str | Path, config: SynthConfig, progress: bool = True) -> dict:
     """Generate the data set at OUT; returns a summary with scenes/s."""
     out = Path(out)
     counts = config.split_counts()
-    if min(counts) < 1 or config.scenes < 3 and config.splits is None:
-        raise ConfigError("need at least one scene in each of train, val and test (--scenes >= 3)")
     check_room(config, out)
     with atomic_folder(out) as tmp:
-        for split in SPLITS:
+        for split in Split:
             for sub in ("rgb", "depth", "mask"):
                 (tmp / split / sub).mkdir(parents=True)
         jobs = [(split, i, config.seed, config.width, config.height, si, str(tmp))
-                for si, (split, cnt) in enumerate(zip(SPLITS, counts)) for i in range(cnt)]
+                for si, (split, cnt) in enumerate(zip(Split, counts)) for i in range(cnt)]
         workers = config.workers or min(len(jobs), os.cpu_count() or 1)
-        grasps: dict[str, dict] = {s: {} for s in SPLITS}
-        scenes: dict[str, dict] = {s: {} for s in SPLITS}
+        grasps: dict[str, dict] = {s: {} for s in Split}
+        scenes: dict[str, dict] = {s: {} for s in Split}
         t0 = time.perf_counter()
         bar = progress_bar(total=len(jobs), desc="synth", unit="scene", enabled=progress)
         if workers <= 1:
@@ -172,7 +186,7 @@ def synthesize(out: str | Path, config: SynthConfig, progress: bool = True) -> d
                 pool.join()
         elapsed = time.perf_counter() - t0
         intr = Intrinsics.d415(config.width, config.height)
-        for split in SPLITS:
+        for split in Split:
             (tmp / split / "grasps.json").write_text(json.dumps(grasps[split], indent=1))
             (tmp / split / "scenes.json").write_text(json.dumps(scenes[split], indent=1))
         meta = {
@@ -180,10 +194,10 @@ def synthesize(out: str | Path, config: SynthConfig, progress: bool = True) -> d
             "intrinsics": intr.to_dict(),
             "depth_scale": intr.depth_scale,
             "generator": {"name": "edgepick.synth", "version": GENERATOR_VERSION, **asdict(config),
-                          "split_counts": dict(zip(SPLITS, counts)), "lightings": list(LIGHTINGS)},
+                          "split_counts": dict(zip(Split, counts)), "lightings": list(LIGHTINGS)},
         }
         meta["generator"].pop("workers")
         (tmp / "meta.json").write_text(json.dumps(meta, indent=1))
     return {"out": str(out), "scenes": len(jobs), "seconds": round(elapsed, 2),
             "scenes_per_s": round(len(jobs) / elapsed, 2), "workers": workers,
-            "splits": dict(zip(SPLITS, counts))}
+            "splits": dict(zip(Split, counts))}

@@ -17,7 +17,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from edgepick.errors import ConfigError
+from edgepick.errors import ConfigError, ParameterError
 from edgepick.files import atomic_path, sha256_of
 from edgepick.geometry import Size
 from edgepick.export.crop_convs import crop_padded_convs
@@ -116,8 +116,7 @@ def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: Si
     import onnx
 
     path = Path(path)
-    if path.suffix.lower() != ".onnx":
-        raise ConfigError(f"--out must name an .onnx file, got {path}")
+    check_onnx_out(path)
     unknown = [p for p in passes if p not in EXPORT_PASSES]
     if unknown:
         raise ConfigError(f"unknown export pass {unknown[0]!r}; the passes are {', '.join(EXPORT_PASSES)}")
@@ -142,6 +141,12 @@ def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: Si
         onnx.save(model, tmp)
         onnx.checker.check_model(tmp, full_check=True)
     return path
+
+
+def check_onnx_out(out: str | Path) -> None:
+    """Refuse an output path that does not end in .onnx, before any work."""
+    if Path(out).suffix.lower() != ".onnx":
+        raise ParameterError("{out}: must name an .onnx file", out=Path(out))
 
 
 def export_checkpoint(checkpoint: str | Path, out: str | Path) -> ExportResult:

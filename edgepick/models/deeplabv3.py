@@ -8,54 +8,18 @@ export carries them in the graph (docs/contracts.md#onnx-model).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from edgepick.errors import ConfigError
 from edgepick.geometry import Size
+from edgepick.models.config import Arch, ColorSpace, ModelConfig, Variant
 from edgepick.models.mobilenetv3 import mobilenet_v3_large_features
 from edgepick.models.resnet import ResNetFeatures
 
-ARCHS = ("mobilenetv3", "resnet50", "resnet101")
-COLORSPACES = ("rgb", "hsv", "gray")
-NORMALISATION = {"rgb": ((0.485, 0.456, 0.406), (0.229, 0.224, 0.225)),  # mean, std per colour space
-                 "hsv": ((0.5, 0.5, 0.5), (0.29, 0.29, 0.29)),
-                 "gray": ((0.449, 0.449, 0.449), (0.226, 0.226, 0.226))}
-
-
-VARIANTS = ("standard", "edge")
-
-
-@dataclass
-class ModelConfig:
-    arch: str = "mobilenetv3"
-    num_classes: int = 5
-    output_stride: int = 16
-    colorspace: str = "rgb"
-    aux_loss: bool = False
-    bn_momentum: float = 0.1
-    variant: str = "standard"  # standard (torchvision's) | edge (MobileNetV3 without SE/hardswish, 128-ch ASPP)
-
-    def validate(self) -> "ModelConfig":
-        if self.arch not in ARCHS:
-            raise ConfigError(f"unknown arch {self.arch!r}; choose one of {', '.join(ARCHS)}")
-        if self.variant not in VARIANTS:
-            raise ConfigError(f"unknown variant {self.variant!r}; choose one of {', '.join(VARIANTS)}")
-        if self.variant == "edge" and self.arch != "mobilenetv3":
-            raise ConfigError("the edge variant is a MobileNetV3 variant")
-        if self.colorspace not in COLORSPACES:
-            raise ConfigError(f"unknown colour space {self.colorspace!r}; choose one of {', '.join(COLORSPACES)}")
-        if self.output_stride not in (8, 16):
-            raise ConfigError("output stride must be 8 or 16")
-        if self.num_classes < 2:
-            raise ConfigError("need at least 2 classes")
-        return self
-
-    def to_dict(self) -> dict:
-        return asdict(self)
+NORMALISATION = {ColorSpace.RGB: ((0.485, 0.456, 0.406), (0.229, 0.224, 0.225)),  # mean, std per colour space
+                 ColorSpace.HSV: ((0.5, 0.5, 0.5), (0.29, 0.29, 0.29)),
+                 ColorSpace.GRAY: ((0.449, 0.449, 0.449), (0.226, 0.226, 0.226))}
 
 
 def rgb_to_hsv(x: Tensor) -> Tensor:
@@ -73,19 +37,21 @@ def rgb_to_hsv(x: Tensor) -> Tensor:
 class Preprocess(nn.Module):
     """[0, 255] RGB -> colour space -> normalised; buffers are not part of the state dict."""
 
-    def __init__(self, colorspace: str = "rgb"):
+    def __init__(self, colorspace: ColorSpace = ColorSpace.RGB):
         super().__init__()
-        self.colorspace = colorspace
-        mean, std = (torch.tensor(v).view(1, 3, 1, 1) for v in NORMALISATION[colorspace])
+        self.colorspace = ColorSpace(colorspace)
+        # plain flags for forward(): traced as constants
+        self.hsv, self.gray = self.colorspace == ColorSpace.HSV, self.colorspace == ColorSpace.GRAY
+        mean, std = (torch.tensor(v).view(1, 3, 1, 1) for v in NORMALISATION[self.colorspace])
         # (x / 255 - mean) / std as one multiply-add: x * scale + shift (scale folds 1/255 unless HSV needs [0, 1])
-        first = 1.0 if colorspace == "hsv" else 255.0
+        first = 1.0 if self.hsv else 255.0
         self.register_buffer("scale", 1.0 / (first * std), persistent=False)
         self.register_buffer("shift", -mean / std, persistent=False)
 
     def forward(self, x: Tensor) -> Tensor:
-        if self.colorspace == "hsv":
+        if self.hsv:
             x = rgb_to_hsv(x / 255.0)
-        elif self.colorspace == "gray":
+        elif self.gray:
             y = 0.299 * x[:, 0:1] + 0.587 * x[:, 1:2] + 0.114 * x[:, 2:3]
             x = y.expand(-1, 3, -1, -1)
         # the constants spelt out along the width: onnxruntime's int8 graphs run this in NHWC, where a
@@ -163,9 +129,9 @@ class DeepLabV3(nn.Module):
         self.preprocess = Preprocess(config.colorspace)
         self.backbone = backbone
         rates = (12, 24, 36) if config.output_stride == 8 else (6, 12, 18)
-        if config.arch == "mobilenetv3":
+        if config.arch == Arch.MOBILENETV3:
             rates = (12, 24, 36)  # torchvision's setting for its output-stride-16 MobileNet head
-        self.classifier = DeepLabHead(out_ch, config.num_classes, rates, 128 if config.variant == "edge" else 256)
+        self.classifier = DeepLabHead(out_ch, config.num_classes, rates, 128 if config.variant == Variant.EDGE else 256)
         self.aux_classifier = FCNHead(aux_ch, config.num_classes) if config.aux_loss else None
 
     def forward(self, x: Tensor) -> dict[str, Tensor]:
@@ -192,13 +158,12 @@ class LogitsNet(nn.Module):
 
 def build_model(config: ModelConfig) -> DeepLabV3:
     """DeepLabV3 for a config; the keys match torchvision's builder for the same arch."""
-    config.validate()
-    if config.arch == "mobilenetv3":
-        edge = config.variant == "edge"
+    if config.arch == Arch.MOBILENETV3:
+        edge = config.variant == Variant.EDGE
         backbone = MobileNetBackbone(*mobilenet_v3_large_features(config.output_stride, config.bn_momentum,
                                                                   se=not edge, hardswish=not edge))
         return DeepLabV3(config, backbone, 960, 40)
-    blocks = (3, 4, 6, 3) if config.arch == "resnet50" else (3, 4, 23, 3)
+    blocks = (3, 4, 6, 3) if config.arch == Arch.RESNET50 else (3, 4, 23, 3)
     return DeepLabV3(config, ResNetFeatures(blocks, config.output_stride), 2048, 1024)
 
 
@@ -241,16 +206,16 @@ def trim_dilated_convs(model: DeepLabV3, input_size: Size) -> int:
 
 
 def deeplabv3_mobilenet_v3_large(num_classes: int = 21, aux_loss: bool = False, **kw) -> DeepLabV3:
-    return build_model(ModelConfig("mobilenetv3", num_classes, aux_loss=aux_loss, **kw))
+    return build_model(ModelConfig(Arch.MOBILENETV3, num_classes, aux_loss=aux_loss, **kw))
 
 
 def deeplabv3_resnet50(num_classes: int = 21, aux_loss: bool = False, **kw) -> DeepLabV3:
-    return build_model(ModelConfig("resnet50", num_classes, output_stride=kw.pop("output_stride", 8),
+    return build_model(ModelConfig(Arch.RESNET50, num_classes, output_stride=kw.pop("output_stride", 8),
                                    aux_loss=aux_loss, **kw))
 
 
 def deeplabv3_resnet101(num_classes: int = 21, aux_loss: bool = False, **kw) -> DeepLabV3:
-    return build_model(ModelConfig("resnet101", num_classes, output_stride=kw.pop("output_stride", 8),
+    return build_model(ModelConfig(Arch.RESNET101, num_classes, output_stride=kw.pop("output_stride", 8),
                                    aux_loss=aux_loss, **kw))
 
 

@@ -7,13 +7,32 @@ Calibration data is the caller's: any iterable of HxWx3 uint8 RGB images (`folde
 them from a data set).
 """
 
-from edgepick.quant.graph import QuantizationError, calibrate, convert, prepare
-from edgepick.quant.inspect import inspect, quantize_accuracy_aware
-from edgepick.quant.passes import (agreement_images, folder_images, quantize_hybrid, quantize_qat,
-                                   quantize_static)
-from edgepick.quant.qat import QatHooks
-from edgepick.quant.quantizer import QuantConfig
+import importlib
+from typing import TYPE_CHECKING
 
-__all__ = ["QatHooks", "QuantConfig", "QuantizationError", "agreement_images", "calibrate", "convert",
-           "folder_images", "inspect", "prepare", "quantize_accuracy_aware", "quantize_hybrid", "quantize_qat",
-           "quantize_static"]
+_WHERE = {
+    "AccuracyAwareResult": "results", "agreement_images": "passes", "CalibMethod": "config", "calibrate": "graph",
+    "convert": "graph", "folder_images": "passes", "inspect": "inspect", "PassResult": "results",
+    "prepare": "graph", "QatHooks": "qat", "QuantConfig": "config", "QuantizationError": "graph",
+    "quantize_accuracy_aware": "inspect", "quantize_hybrid": "passes", "quantize_qat": "passes",
+    "quantize_static": "passes"
+}
+__all__ = ["AccuracyAwareResult", "CalibMethod", "PassResult", "QatHooks", "QuantConfig", "QuantizationError",
+           "agreement_images", "calibrate", "convert", "folder_images", "inspect", "prepare",
+           "quantize_accuracy_aware", "quantize_hybrid", "quantize_qat", "quantize_static"]
+
+if TYPE_CHECKING:
+    from edgepick.quant.config import CalibMethod, QuantConfig
+    from edgepick.quant.graph import calibrate, convert, prepare, QuantizationError
+    from edgepick.quant.inspect import inspect, quantize_accuracy_aware
+    from edgepick.quant.passes import agreement_images, folder_images, quantize_hybrid, quantize_qat, quantize_static
+    from edgepick.quant.qat import QatHooks
+    from edgepick.quant.results import AccuracyAwareResult, PassResult
+
+
+def __getattr__(name: str) -> object:
+    """The public objects are imported when first asked for, so that importing one light module of
+    the package (a config, an enum) does not import torch."""
+    if name in _WHERE:
+        return getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -12,11 +12,12 @@ import cv2
 import numpy as np
 import torch
 
-from edgepick.errors import ConfigError, EdgepickError
+from edgepick.errors import ConfigError, EdgepickError, ParameterError
 from edgepick.geometry import Size
 from edgepick.models.deeplabv3 import LogitsNet
 from edgepick.models.deeplabv3 import trim_dilated_convs
-from edgepick.quant.quantizer import EdgeQuantizer, QuantConfig, count_quant_nodes, module_path, under
+from edgepick.quant.config import QuantConfig
+from edgepick.quant.quantizer import EdgeQuantizer, count_quant_nodes, module_path, under
 from edgepick.quant.rewrites import drop_fake_quants_after_dropout, gate_hardswish, snap_conv_biases
 from edgepick.quant.torchao_compat import bn_folds_with_own_eps, install_train_eval, set_mode
 
@@ -65,12 +66,13 @@ def first_of(images: Iterable[np.ndarray], count: int, kept: list[np.ndarray]) -
         yield rgb
 
 
-def check_keep_float(model: torch.nn.Module, names: list[str]) -> None:
+def check_keep_float(model: torch.nn.Module, names: tuple[str, ...]) -> None:
+    """Refuse module names (QuantConfig.keep_float) that MODEL does not have."""
     known = {n for n, _ in model.named_modules()}
     unknown = [n for n in names if n not in known]
     if unknown:
-        raise ConfigError(f"--keep-float names no module of the model: {', '.join(unknown)} "
-                          f"(see 'edgepick quantize inspect' for layer names)")
+        raise ParameterError(f"{{keep_float:name}} names no module of the model: {', '.join(unknown)} "
+                             f"(see 'edgepick quantize inspect' for layer names)", keep_float=tuple(unknown))
 
 
 def prepare(model: torch.nn.Module, config: QuantConfig, size: Size, qat: bool) -> torch.fx.GraphModule:

@@ -18,18 +18,20 @@ import sys
 import tempfile
 import warnings
 from collections.abc import Iterable, Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from edgepick.data.native import NativeDataset
-from edgepick.errors import ConfigError
+from edgepick.errors import ParameterError
+from edgepick.export.onnx_export import check_onnx_out
 from edgepick.geometry import Size
-from edgepick.models.deeplabv3 import LogitsNet
-from edgepick.models.deeplabv3 import trim_dilated_convs
+from edgepick.models.deeplabv3 import LogitsNet, trim_dilated_convs
+from edgepick.quant.config import MAX_FLOAT_LAYERS, QuantConfig
 from edgepick.quant.graph import PREFIX, as_input, at_input_size, calibrate, convert, prepare
-from edgepick.quant.quantizer import QuantConfig, module_path
+from edgepick.quant.quantizer import module_path
 from edgepick.quant.results import AccuracyAwareResult
 from edgepick.train.checkpoint import Checkpoint
 
@@ -128,9 +130,9 @@ def inspect(checkpoint: str | Path | Checkpoint, calib: Iterable[np.ndarray], im
             config: QuantConfig | None = None, progress: bool = True) -> dict:
     """Calibrate a static int8 model (in memory) on CALIB and compare it layer by layer with fp32 on
     IMAGES (HxWx3 uint8 RGB, resized to the model's input; `folder_images` draws both from a data set)."""
-    config = (config or QuantConfig()).validate()
+    config = config or QuantConfig()
     if not images:
-        raise ConfigError("images: give at least one image to compare on")
+        raise ParameterError("{images}: give at least one image to compare on", images=images)
     ckpt = checkpoint if isinstance(checkpoint, Checkpoint) else Checkpoint.load(checkpoint)
     size = ckpt.input_size
     float_gm = float_graph(ckpt.build_model(), size)
@@ -142,8 +144,8 @@ def inspect(checkpoint: str | Path | Checkpoint, calib: Iterable[np.ndarray], im
 
 
 def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str | Path, max_drop_pp: float,
-                            config: QuantConfig | None = None, calib_images: int | None = None, max_float_layers: int = 6,
-                            progress: bool = True) -> AccuracyAwareResult:
+                            config: QuantConfig | None = None, calib_images: int | None = None,
+                            max_float_layers: int = MAX_FLOAT_LAYERS, progress: bool = True) -> AccuracyAwareResult:
     """Static PTQ that keeps the layers adding the most drift in float, one at a time, until the
     val mIoU (onnxruntime) is within MAX_DROP_PP points of the fp32 model's, or MAX_FLOAT_LAYERS
     are float. Writes the best file found at OUT and reports every step."""
@@ -152,17 +154,16 @@ def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str |
     from edgepick.quant.passes import agreement_images, check_classes, check_image_count, folder_images, quantize_static
 
     if not (math.isfinite(max_drop_pp) and max_drop_pp >= 0):
-        raise ConfigError(f"--max-miou-drop {max_drop_pp}: must be a number of percentage points, 0 or more")
+        raise ParameterError("{max_drop_pp}: must be a number of percentage points, 0 or more", max_drop_pp=max_drop_pp)
     if max_float_layers < 1:
-        raise ConfigError(f"--max-float-layers {max_float_layers}: must be at least 1")
-    config = (config or QuantConfig()).validate()
-    if Path(out).suffix.lower() != ".onnx":
-        raise ConfigError(f"--out must name an .onnx file, got {out}")
+        raise ParameterError("{max_float_layers}: must be at least 1", max_float_layers=max_float_layers)
+    config = config or QuantConfig()
+    check_onnx_out(out)
     check_image_count(data, "train", calib_images)
     n_val = len(NativeDataset.open(data, "val"))
     if n_val < COMPARED_IMAGES:
-        print(f"edgepick: warning: {data}/val has {n_val} images; the val mIoU that --max-miou-drop compares moves "
-              "in coarse steps on so few", file=sys.stderr, flush=True)
+        print(f"edgepick: warning: {data}/val has {n_val} images; the val mIoU that the accuracy-aware search "
+              "compares moves in coarse steps on so few", file=sys.stderr, flush=True)
     ckpt = Checkpoint.load(checkpoint)
     check_classes(ckpt, data)
     calib = folder_images(data, "train", calib_images)  # drawn once, for every step
@@ -175,7 +176,7 @@ def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str |
         keep = list(config.keep_float)
         steps, chosen = [], None
         while True:
-            cfg = QuantConfig(**{**config.to_dict(), "keep_float": keep})
+            cfg = replace(config, keep_float=tuple(keep))
             path = work / f"step{len(steps)}.onnx"
             res = quantize_static(ckpt, calib, path, cfg, check_images=check, progress=False)
             miou = evaluate(path, data, "val", progress=False)["miou"]

@@ -19,20 +19,20 @@ import numpy as np
 import torch
 
 from edgepick.data.native import NativeDataset
-from edgepick.errors import CheckpointError, ConfigError
+from edgepick.errors import CheckpointError, ConfigError, ParameterError
 from edgepick.export.checks import conv_weight_report, label_agreement
-from edgepick.export.onnx_export import EXPORT_PASSES, contract_metadata, export_onnx
+from edgepick.export.onnx_export import EXPORT_PASSES, check_onnx_out, contract_metadata, export_onnx
 from edgepick.geometry import Size
+from edgepick.quant.config import DEFAULT_CALIB_IMAGES, FREEZE_AT, QuantConfig
 from edgepick.quant.graph import (QuantizationError, at_input_size, calibrate, check_keep_float, convert,
                                   expected_int8_convs, first_of, prepare)
 from edgepick.quant.qat import load_qat, qat_config, train_qat
-from edgepick.quant.quantizer import QuantConfig, count_quant_nodes
+from edgepick.quant.quantizer import count_quant_nodes
 from edgepick.quant.results import Int8File, PassResult
 from edgepick.train.checkpoint import Checkpoint
-from edgepick.train.config import TrainConfig
+from edgepick.train.config import Device, TrainConfig
 from edgepick.train.run import Run
 
-DEFAULT_CALIB_IMAGES = 64  # or the whole train split when it is smaller
 AGREEMENT_IMAGES = 8  # images on which each pass compares onnxruntime's labels with torch's simulation
 
 
@@ -53,7 +53,7 @@ def folder_images(data: str | Path, split: str = "train", count: int | None = No
     as HxWx3 uint8 RGB at the data set's own size: the calibration data the passes take, from a
     native data set."""
     if seed < 0:
-        raise ConfigError(f"seed {seed}: must be 0 or positive")
+        raise ParameterError("{seed}: must be 0 or positive", seed=seed)
     ds = NativeDataset.open(data, split)
     count = check_image_count(data, split, count, what)
     ids = [ds.ids[i] for i in sorted(np.random.default_rng(seed).choice(len(ds), count, replace=False))]
@@ -108,8 +108,8 @@ def quantize_static(checkpoint: str | Path | Checkpoint, calib: Iterable[np.ndar
     images, any iterable, resized to the model's input); writes an int8 ONNX after the ONNX graph
     passes EXPORT_PASSES (all by default). The onnxruntime-vs-torch label agreement is measured on
     CHECK_IMAGES [default: the first 8 calibration images]. `folder_images` draws CALIB from a data set."""
-    config = (config or QuantConfig()).validate()
-    _check_out(out)
+    config = config or QuantConfig()
+    check_onnx_out(out)
     ckpt = checkpoint if isinstance(checkpoint, Checkpoint) else Checkpoint.load(checkpoint)
     model, size = ckpt.build_model(), ckpt.input_size
     check_keep_float(model, config.keep_float)
@@ -159,8 +159,8 @@ def quantize_qat(train_config: TrainConfig, out: str | Path, config: QuantConfig
                  progress: bool = True) -> PassResult:
     """QaT from scratch: a whole training run (its .out the RUN folder) with fake-quant on every
     epoch, then an int8 ONNX at OUT."""
-    config = (config or QuantConfig()).validate()
-    _check_out(out)
+    config = config or QuantConfig()
+    check_onnx_out(out)
     _stage("prepare the fake-quant graph (torch.export: up to a minute on a CPU), then train every epoch with it",
            progress)
     train_qat(train_config, config, progress=progress)
@@ -170,9 +170,9 @@ def quantize_qat(train_config: TrainConfig, out: str | Path, config: QuantConfig
 
 def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_fraction: float,
                     config: QuantConfig | None = None, qat_run: str | Path | None = None, progress: bool = True,
-                    freeze_at: float = 0.7, carry_optimizer: bool = True,
+                    freeze_at: float = FREEZE_AT, carry_optimizer: bool = True,
                     calib: Iterable[np.ndarray] | int | None = None, hold_ranges: bool | None = None,
-                    device: str = "auto") -> PassResult:
+                    device: Device = Device.AUTO) -> PassResult:
     """Hybrid-QaT: of the float RUN's epoch budget E, continue from its epoch_NNN.pt at (1 - p)E
     (its weights, LR schedule and, unless carry_optimizer is False, AdamW moments) and train the
     last pE epochs on DATA with fake-quant (into QAT_RUN), observers and BN frozen after FREEZE_AT of
@@ -185,21 +185,21 @@ def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_frac
     schedule has little room to train moving min/max ranges back (docs/quantization.md). DEVICE is
     this machine's choice (auto, cpu, cuda), not the float run's."""
     if not 0.0 < qat_fraction < 1.0:
-        raise ConfigError(f"qat_fraction must be inside (0, 1), got {qat_fraction}")
+        raise ParameterError("{qat_fraction}: must be inside (0, 1)", qat_fraction=qat_fraction)
     if not 0.0 <= freeze_at <= 1.0:
-        raise ConfigError(f"freeze_at must be inside [0, 1], got {freeze_at}")
+        raise ParameterError("{freeze_at}: must be inside [0, 1]", freeze_at=freeze_at)
     if isinstance(calib, int) and calib < 0:
-        raise ConfigError(f"calib {calib}: a number of calibration images must be 0 (none) or positive")
+        raise ParameterError("{calib}: a number of calibration images must be 0 (none) or positive", calib=calib)
     if isinstance(calib, int) and calib:
         check_image_count(data, "train", calib)
-    config = (config or QuantConfig()).validate()
-    _check_out(out)
+    config = config or QuantConfig()
+    check_onnx_out(out)
     qat_run = Path(qat_run) if qat_run else Path(out).with_suffix(".run")
     if qat_run.exists() and (not qat_run.is_dir() or any(qat_run.iterdir())):
-        raise ConfigError(f"--run {qat_run} already exists and is not empty; choose a new folder")
+        raise ParameterError("{qat_run}: already exists and is not empty; choose a new folder", qat_run=qat_run)
     # load the epoch checkpoint -> prepare -> calibrate -> fit (train_qat) -> convert -> export (_finish_qat)
     start, cfg = _switch_point(Path(run), data, qat_fraction)
-    cfg = replace(cfg, data=str(data), out=str(qat_run), keep_epochs=[], device=device)
+    cfg = replace(cfg, data=str(data), out=str(qat_run), keep_epochs=(), device=device)
     if calib is None or isinstance(calib, int):
         _stage(f"continue {run} from epoch {start.epoch} of {cfg.epochs}; draw the calibration images", progress)
         images = folder_images(data, "train", calib, cfg.seed) if calib != 0 else []
@@ -207,7 +207,8 @@ def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_frac
         images = list(calib)
     images = [at_input_size(rgb, cfg.size) for rgb in images]
     if hold_ranges and not images:
-        raise ConfigError("hold_ranges needs calibration images (calib)")
+        raise ParameterError("{hold_ranges} needs calibration images ({calib:name})", hold_ranges=hold_ranges,
+                             calib=calib)
     hold_ranges = bool(images) if hold_ranges is None else hold_ranges
     _stage("prepare the fake-quant graph (torch.export: up to a minute on a CPU), then train the QaT epochs", progress)
     train_qat(cfg, config, start=start, carry_optimizer=carry_optimizer, freeze_at=freeze_at,
@@ -230,13 +231,9 @@ def _switch_point(run: Path, data: str | Path, qat_fraction: float) -> tuple[Che
     cfg = last.train_config
     switch = round((1.0 - qat_fraction) * cfg.epochs)
     if switch >= cfg.epochs:
-        raise ConfigError(f"--qat-fraction {qat_fraction} of {cfg.epochs} epochs is less than one epoch")
+        raise ParameterError(f"{{qat_fraction}} of {cfg.epochs} epochs is less than one epoch",
+                             qat_fraction=qat_fraction)
     init = Run(last.path.parent).epoch(switch)
     if not init.is_file():
-        raise ConfigError(f"{init} does not exist: train the float run with --keep-epochs {switch}")
+        raise ParameterError(f"{init} does not exist: train the float run with {{keep_epochs}}", keep_epochs=(switch,))
     return Checkpoint.load(init), cfg
-
-
-def _check_out(out: str | Path) -> None:
-    if Path(out).suffix.lower() != ".onnx":
-        raise ConfigError(f"--out must name an .onnx file, got {out}")

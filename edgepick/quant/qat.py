@@ -24,7 +24,8 @@ import torch
 from edgepick.errors import CheckpointError
 from edgepick.models.deeplabv3 import build_model
 from edgepick.quant.graph import PREFIX, calibrate, prepare
-from edgepick.quant.quantizer import PercentileObserver, QuantConfig
+from edgepick.quant.config import FREEZE_AT, QuantConfig
+from edgepick.quant.quantizer import PercentileObserver
 from edgepick.quant.torchao_compat import set_mode
 from edgepick.train.checkpoint import Checkpoint
 from edgepick.train.config import TrainConfig
@@ -121,7 +122,7 @@ class QatHooks(Hooks):
     bf16 = False
     param_prefix = PREFIX
 
-    def __init__(self, config: QuantConfig, freeze_at: float = 0.7, calib_images: list[np.ndarray] | None = None,
+    def __init__(self, config: QuantConfig, freeze_at: float = FREEZE_AT, calib_images: list[np.ndarray] | None = None,
                  hold_ranges: bool = False):
         self.config, self.freeze_at = config, freeze_at
         self.calib_images, self.hold_ranges = calib_images, hold_ranges
@@ -154,7 +155,7 @@ class QatHooks(Hooks):
 
 
 def train_qat(cfg: TrainConfig, config: QuantConfig, start: Checkpoint | None = None, carry_optimizer: bool = True,
-              freeze_at: float = 0.7, calib_images: list[np.ndarray] | None = None, hold_ranges: bool = False,
+              freeze_at: float = FREEZE_AT, calib_images: list[np.ndarray] | None = None, hold_ranges: bool = False,
               progress: bool = True) -> TrainResult:
     """A QaT run into cfg.out: the float model (fresh, or START's weights and schedule: hybrid-QaT)
     prepared with fake-quant, then trained by edgepick.train's loop with QatHooks."""

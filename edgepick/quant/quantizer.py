@@ -6,11 +6,12 @@ QDQ transformer turns them into QLinear* kernels: on every conv input and output
 a fused BN and ReLU), around elementwise add/mul, pooling, concat and activations, with
 uint8 affine activations and int8 per-channel symmetric weights (U8S8). Resize shares its
 input's quantization, so onnxruntime runs it on uint8 without Q/DQ around it.
+
+QuantConfig lives in edgepick/quant/config.py (no torch, for the command line) and is importable
+from here as well.
 """
 
 from __future__ import annotations
-
-from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import torch
@@ -30,10 +31,9 @@ from torchao.quantization.pt2e.quantizer import (
     SharedQuantizationSpec,
 )
 
-from edgepick.errors import ConfigError
+from edgepick.quant.config import CalibMethod, QuantConfig
 
 aten = torch.ops.aten
-CALIB_METHODS = ("minmax", "percentile", "entropy", "mse")
 CONV_OPS = {aten.conv2d.default}
 BN_OPS = {aten.batch_norm.default, aten._native_batch_norm_legit_no_training.default}
 FUSED_ACT_OPS = {aten.relu.default, aten.relu_.default, aten.hardtanh.default, aten.hardtanh_.default}
@@ -44,40 +44,6 @@ QUANT_OPS = {aten.hardswish.default, aten.hardswish_.default, aten.hardsigmoid.d
              aten.cat.default}
 # ops that keep their input's quantization (onnxruntime runs them on uint8 directly)
 SHARED_OPS = {aten.upsample_bilinear2d.vec, aten.upsample_nearest2d.vec, aten.max_pool2d.default}
-
-
-@dataclass
-class QuantConfig:
-    """How a model is quantized; written into the ONNX metadata (`edgepick.quant`)."""
-
-    # Activation ranges for static PTQ: minmax | percentile | entropy | mse (compared by benchmarks/calib_methods.py).
-    calib_method: str = "percentile"
-    percentile: float = 99.99
-    # 7-bit weights: onnxruntime's U8S8 kernels on AVX2 CPUs without VNNI (the thesis laptop) add pairs of
-    # u8*s8 products in int16, which saturates with 8-bit weights. Turn off for VNNI/AVX512 targets.
-    reduce_range: bool = True
-    # QaT: moving-average constant of the per-channel weight ranges (torch.ao's default 0.01; 1.0: each step's
-    # own range). With the conv-BN fusion the quantized weight is w * gamma / sqrt(running_var + eps), which moves
-    # with the BN statistics every step: a lagging range clips it (benchmarks/results/hybrid-start/).
-    weight_averaging: float = 0.01
-    # hardswish as x * hardsigmoid(x), both quantized (rewrites.GatedHardswish): onnxruntime then runs it on integer
-    # kernels; as one quantized op it dequantizes the map and runs in float (benchmarks/quant_speed.py times both).
-    hardswish_gate: bool = True
-    keep_float: list[str] = field(default_factory=list)  # module names (prefixes) left in float
-    skip: list[str] = field(default_factory=lambda: ["preprocess"])  # never quantized
-
-    def validate(self) -> "QuantConfig":
-        if self.calib_method not in CALIB_METHODS:
-            raise ConfigError(f"unknown calibration method {self.calib_method!r}; choose one of "
-                              f"{', '.join(CALIB_METHODS)}")
-        if not 50.0 < self.percentile <= 100.0:
-            raise ConfigError("--percentile must be in (50, 100]")
-        if not 0.0 < self.weight_averaging <= 1.0:
-            raise ConfigError("--weight-averaging must be in (0, 1]")
-        return self
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 class PercentileObserver(HistogramObserver):
@@ -125,11 +91,11 @@ class EntropyObserver(HistogramObserver):
 def activation_spec(config: QuantConfig, qat: bool) -> QuantizationSpec:
     if qat:  # the fused kernel's affine scales are the observer's to the last bit (unlike its symmetric ones)
         ctr = FusedMovingAvgObsFakeQuantize.with_args(eps=2 ** -12)
-    elif config.calib_method == "minmax":
+    elif config.calib_method == CalibMethod.MINMAX:
         ctr = MinMaxObserver.with_args(eps=2 ** -12)
-    elif config.calib_method == "percentile":
+    elif config.calib_method == CalibMethod.PERCENTILE:
         ctr = PercentileObserver.with_args(percentile=config.percentile, eps=2 ** -12)
-    elif config.calib_method == "entropy":
+    elif config.calib_method == CalibMethod.ENTROPY:
         ctr = EntropyObserver.with_args(eps=2 ** -12)
     else:
         ctr = HistogramObserver.with_args(eps=2 ** -12)  # L2-error (MSE) search
@@ -159,7 +125,7 @@ def module_path(node: Node) -> str:
     return path.removeprefix("L['self'].").removeprefix("L__self__.")
 
 
-def under(path: str, prefixes: list[str]) -> bool:
+def under(path: str, prefixes: tuple[str, ...]) -> bool:
     return any(path == p or path.startswith(p + ".") for p in prefixes)
 
 
@@ -178,7 +144,7 @@ class EdgeQuantizer(Quantizer):
 
     def __init__(self, config: QuantConfig, qat: bool = False, prefix: str = ""):
         super().__init__()
-        self.config = config.validate()
+        self.config = config
         self.qat = qat
         self.prefix = prefix  # the wrapper attribute in front of module names (e.g. 'model.')
         self.act = activation_spec(config, qat)

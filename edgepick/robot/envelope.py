@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from edgepick.errors import EdgepickError
+from edgepick.errors import EdgepickError, ParameterError
 
 UR3_REACH_M = 0.5
 UR3_SHOULDER_Z_M = 0.1519  # base joint to shoulder axis (UR3 DH d1)
@@ -21,8 +21,10 @@ class SafetyError(EdgepickError):
     """A target outside the envelope: refused before anything moved."""
 
 
-@dataclass
+@dataclass(frozen=True)
 class Envelope:
+    """The limits every target, path, speed and joint move is checked against; checked on creation."""
+
     box_min: tuple[float, float, float] = (-0.45, -0.45, -0.05)
     box_max: tuple[float, float, float] = (0.45, 0.45, 0.45)
     reach_m: float = UR3_REACH_M
@@ -35,6 +37,25 @@ class Envelope:
     max_joint_speed: float = 1.05  # moveJ, rad/s
     max_joint_acc: float = 1.4  # moveJ, rad/s^2
     joint_limit_rad: tuple[float, ...] = field(default=(2 * math.pi,) * 6)
+
+    def __post_init__(self) -> None:
+        for name in ("box_min", "box_max", "joint_limit_rad"):
+            object.__setattr__(self, name, tuple(float(v) for v in getattr(self, name)))
+        sides = list(zip(self.box_min, self.box_max))
+        if len(sides) != 3 or len(self.box_min) != len(self.box_max) or \
+                not all(math.isfinite(lo) and math.isfinite(hi) and lo < hi for lo, hi in sides):
+            raise ParameterError("{box_min} and {box_max}: three finite numbers each, every min below its max",
+                                 box_min=self.box_min, box_max=self.box_max)
+        if len(self.joint_limit_rad) != 6 or not all(math.isfinite(v) and v > 0 for v in self.joint_limit_rad):
+            raise ParameterError("{joint_limit_rad}: six positive limits (rad)", joint_limit_rad=self.joint_limit_rad)
+        for name in ("reach_m", "max_speed", "max_acc", "max_joint_speed", "max_joint_acc"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise ParameterError(f"{{{name}}}: must be a positive number", **{name: getattr(self, name)})
+        for name in ("reach_margin_m", "base_keepout_m", "clearance_m"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise ParameterError(f"{{{name}}}: must be 0 or more", **{name: getattr(self, name)})
+        if not math.isfinite(self.table_z_m):
+            raise ParameterError("{table_z_m}: must be a finite height", table_z_m=self.table_z_m)
 
     def pose_reason(self, pose: list[float] | tuple[float, ...]) -> str | None:
         """Why a TCP pose [x, y, z, rx, ry, rz] (metres, axis-angle) is refused, or None."""

@@ -18,18 +18,20 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from edgepick.errors import ConfigError
+from edgepick.errors import ParameterError
 from edgepick.frames import Camera, CameraError
 from edgepick.robot.base import RobotBase
 from edgepick.robot.envelope import Envelope, SafetyError
 from edgepick.runtime.marker import MarkerSpec, detect_marker
 
 TOOL_DOWN = (math.pi, 0.0, 0.0)  # rotation vector of a tool pointing straight down
-MAX_POSES = 1000  # a quarter of an hour of arm time at the default --settle and --speed; a fit needs tens
+MAX_POSES = 1000  # a quarter of an hour of arm time at the default settle_s and speed; a fit needs tens
 
 
-@dataclass
+@dataclass(frozen=True)
 class CollectConfig:
+    """How `calibrate collect` visits its positions, checked on creation."""
+
     poses: int = 12
     region: tuple[float, float, float, float, float, float] = (0.18, 0.38, -0.16, 0.16, 0.08, 0.24)  # x0,x1,y0,y1,z0,z1
     offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # marker centre from the TCP, tool frame
@@ -38,24 +40,29 @@ class CollectConfig:
     acc: float = 0.5
     settle_s: float = 0.5  # wait after each move before the frame is taken
 
-    def validate(self) -> "CollectConfig":
+    def __post_init__(self) -> None:
+        for name in ("region", "offset_m", "orientation"):
+            object.__setattr__(self, name, tuple(float(v) for v in getattr(self, name)))
         if self.poses < 4:
-            raise ConfigError(f"--poses {self.poses}: a fit needs at least 4 positions")
+            raise ParameterError("{poses}: a fit needs at least 4 positions", poses=self.poses)
         x0, x1, y0, y1, z0, z1 = self.region
         if not (x0 < x1 and y0 < y1 and z0 < z1) or not all(math.isfinite(v) for v in self.region):
-            raise ConfigError("--region XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX (metres, robot frame) needs each min below its max")
-        if not all(math.isfinite(v) and abs(v) < 0.5 for v in self.offset_m):
-            raise ConfigError("--marker-offset X,Y,Z is the marker centre from the TCP in metres (tool frame)")
+            raise ParameterError("{region}: XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX (metres, robot frame) needs each min below "
+                                 "its max", region=self.region)
+        if len(self.offset_m) != 3 or not all(math.isfinite(v) and abs(v) < 0.5 for v in self.offset_m):
+            raise ParameterError("{offset_m}: X,Y,Z is the marker centre from the TCP in metres (tool frame)",
+                                 offset_m=self.offset_m)
         if not (math.isfinite(self.settle_s) and 0 <= self.settle_s <= 30):
-            raise ConfigError(f"--settle {self.settle_s}: seconds in [0, 30]")
-        if not (math.isfinite(self.speed) and self.speed > 0 and math.isfinite(self.acc) and self.acc > 0):
-            raise ConfigError(f"--speed {self.speed}: must be a positive number of m/s")
+            raise ParameterError("{settle_s}: seconds in [0, 30]", settle_s=self.settle_s)
+        if not (math.isfinite(self.speed) and self.speed > 0):
+            raise ParameterError("{speed}: must be a positive number of m/s", speed=self.speed)
+        if not (math.isfinite(self.acc) and self.acc > 0):
+            raise ParameterError("{acc}: must be a positive number of m/s^2", acc=self.acc)
         if self.poses > MAX_POSES:
             each = self.seconds_per_position()
-            raise ConfigError(f"--poses {self.poses}: at most {MAX_POSES} (each position takes about {each:.1f} s, "
-                              f"its move at --speed {self.speed:g} plus --settle {self.settle_s:g}: "
-                              f"{_duration(self.poses * each)} in all)")
-        return self
+            raise ParameterError(f"{{poses}}: at most {MAX_POSES} (each position takes about {each:.1f} s, its move "
+                                 f"at {{speed}} plus {{settle_s}}: {_duration(self.poses * each)} in all)",
+                                 poses=self.poses, speed=self.speed, settle_s=self.settle_s)
 
     def seconds_per_position(self) -> float:
         """A rough time per position: the moveL over one grid step (accelerating at acc to speed and

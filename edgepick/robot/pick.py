@@ -7,34 +7,54 @@ JSON-lines log.
 
 from __future__ import annotations
 
+import enum
 import json
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Callable
 
 from edgepick.robot.base import RobotBase, RobotError
 from edgepick.robot.envelope import Envelope, SafetyError
+from edgepick.errors import ParameterError
 from edgepick.robot.motion import HOME_POSE
+from edgepick.schema import member
 
 
 OCCLUDED = 0.02  # share of an object's rim under other objects above which it is picked last
 BURIED = 0.2  # ... and above which it is not picked at all: lifting it would drag what lies on it
 
 
-@dataclass
+class Choose(enum.StrEnum):
+    """Which reachable object a cycle picks first."""
+
+    LARGEST = "largest"
+    CLOSEST = "closest"  # to the camera
+
+
+@dataclass(frozen=True)
 class PickConfig:
+    """What a pick cycle does, checked on creation (the envelope's caps are checked per plan)."""
+
     classes: tuple[str, ...] = ()  # only these classes; empty = any
-    choose: str = "largest"  # largest | closest (to the camera)
+    choose: Choose = Choose.LARGEST
     approach_m: float = 0.08  # above the grasp point
     lift_m: float = 0.10
     grasp_offset_m: float = 0.0  # added to the grasp point's z (negative = deeper)
-    place_pose: list[float] = field(default_factory=lambda: [-0.05, -0.32, 0.10, math.pi, 0.0, 0.0])
-    home_pose: list[float] = field(default_factory=lambda: list(HOME_POSE))
-    speed: float = 0.25
-    acc: float = 1.2
+    place_pose: tuple[float, ...] = (-0.05, -0.32, 0.10, math.pi, 0.0, 0.0)
+    home_pose: tuple[float, ...] = tuple(HOME_POSE)
+    speed: float = 0.25  # moveL, m/s
+    acc: float = 1.2  # moveL, m/s^2
     transit_radius_m: float = 0.18  # lift -> place passes the base no closer than this (via points on this circle)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "choose", member(Choose, "choose", self.choose))
+        for name in ("classes", "place_pose", "home_pose"):
+            object.__setattr__(self, name, tuple(getattr(self, name)))
+        for name in ("speed", "acc"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise ParameterError(f"{{{name}}}: must be a positive number", **{name: getattr(self, name)})
 
 
 @dataclass
@@ -119,7 +139,7 @@ def choose_target(records: list[dict], envelope: Envelope, cfg: PickConfig, star
     candidates = [r for r in records if not cfg.classes or r["class"] in cfg.classes]
     if not candidates:
         return None, [], "no object of the requested classes"
-    if cfg.choose == "closest":
+    if cfg.choose == Choose.CLOSEST:
         candidates.sort(key=lambda r: r["depth_m"] if r.get("depth_m") is not None else math.inf)
     else:
         candidates.sort(key=lambda r: -r["area_px"])

@@ -18,7 +18,7 @@ import multiprocessing as mp
 import os
 import time
 
-from edgepick.errors import ConfigError
+from edgepick.errors import ParameterError
 from edgepick.robot.base import RobotBase, RobotError, RobotHalted, RobotUnreachable, SafetyStatus
 from edgepick.robot.envelope import Envelope
 from edgepick.robot.motion import motion_time
@@ -41,7 +41,7 @@ def _worker(conn, host: str, debug_log: str | None = None) -> None:  # runs in t
     try:
         _own_output(debug_log)
     except OSError as exc:
-        conn.send(("log", f"--robot-log {debug_log} cannot be written: {exc.strerror or exc}"))
+        conn.send(("log", str(exc.strerror or exc)))
         return
     try:
         import rtde_control
@@ -142,7 +142,7 @@ class URRobot(RobotBase):
 
     def _connect(self) -> None:
         if importlib.util.find_spec("rtde_control") is None:
-            raise RobotError("--robot ur:HOST needs ur_rtde: pip install 'edgepick[robot]'")
+            raise RobotError("a UR robot needs ur_rtde: pip install 'edgepick[robot]'")
         ctx = mp.get_context("spawn")
         self.pipe, child = ctx.Pipe()
         self.proc = ctx.Process(target=_worker, args=(child, self.host, self.debug_log), daemon=True)
@@ -160,7 +160,7 @@ class URRobot(RobotBase):
         if status != "ok":
             self._kill()
             if status == "log":
-                raise ConfigError(value)
+                raise ParameterError(f"{{debug_log}} cannot be written: {value}", debug_log=self.debug_log)
             raise RobotUnreachable(f"cannot reach the robot at {self.host}: {value}")
 
     def _disconnect(self) -> None:

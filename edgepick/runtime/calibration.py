@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from edgepick.errors import EdgepickError
+from edgepick.errors import EdgepickError, ParameterError
 from edgepick.files import atomic_write
 from edgepick.schema import Where, as_dict, as_list, as_number, as_numbers, field, read_json, read_text
 
@@ -26,6 +26,10 @@ MIN_PAIRS = 4
 
 class CalibrationError(EdgepickError):
     """Calibration pairs or a calibration file that cannot give a valid rigid transform."""
+
+
+class PoorFitError(CalibrationError, ParameterError):
+    """A fit too poor to be a measurement; the message names the bound's parameter (max_rmse_m)."""
 
 
 @dataclass
@@ -135,24 +139,24 @@ def diagnose(cal: Calibration, camera: np.ndarray, robot: np.ndarray, max_rmse_m
     camera, robot = np.asarray(camera, np.float64), np.asarray(robot, np.float64)
     errors = residuals(cal, camera, robot)
     worst = int(np.argmax(errors))
-    head = f"the fit's RMSE is {cal.rmse_m * 1000:.1f} mm (bound {max_rmse_m * 1000:.0f} mm, --max-rmse; worst: " \
-           f"pair {worst + 1}, {errors[worst] * 1000:.0f} mm)"
+    head = f"the fit's RMSE is {cal.rmse_m * 1000:.1f} mm (bound {max_rmse_m * 1000:.0f} mm, {{max_rmse_m:name}}; " \
+           f"worst: pair {worst + 1}, {errors[worst] * 1000:.0f} mm)"
     spread_c = np.linalg.norm(camera - camera.mean(0), axis=1).mean()
     spread_r = np.linalg.norm(robot - robot.mean(0), axis=1).mean()
     scale = spread_r / spread_c if spread_c > 0 else float("inf")
     if not 0.5 < scale < 2:
-        raise CalibrationError(f"{head}: the robot points spread {scale:.3g}x as far as the camera points; "
-                               "are both sides in metres?")
+        raise PoorFitError(f"{head}: the robot points spread {scale:.3g}x as far as the camera points; are both "
+                           "sides in metres?", max_rmse_m=max_rmse_m)
     cc, cr = camera.mean(0), robot.mean(0)
     U, _, Vt = np.linalg.svd((camera - cc).T @ (robot - cr))
     d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
     mirror = Vt.T @ np.diag([1.0, 1.0, -d]) @ U.T  # the best fit of the other handedness than kabsch's
     mirrored = np.sqrt(np.mean(np.linalg.norm((camera - cc) @ mirror.T - (robot - cr), axis=1) ** 2))
     if mirrored < cal.rmse_m / 3:
-        raise CalibrationError(f"{head}; a mirror image of the camera points fits ({mirrored * 1000:.1f} mm): an axis "
-                               "has the wrong sign or two columns are swapped")
-    raise CalibrationError(f"{head}: the pairs are not the same physical points (a mis-detected marker, rows out "
-                           "of order?)")
+        raise PoorFitError(f"{head}; a mirror image of the camera points fits ({mirrored * 1000:.1f} mm): an axis "
+                           "has the wrong sign or two columns are swapped", max_rmse_m=max_rmse_m)
+    raise PoorFitError(f"{head}: the pairs are not the same physical points (a mis-detected marker, rows out of "
+                       "order?)", max_rmse_m=max_rmse_m)
 
 
 def residuals(cal: Calibration, camera: np.ndarray, robot: np.ndarray) -> np.ndarray:
@@ -225,11 +229,11 @@ def outliers(loo: np.ndarray, factor: float = 4.0, floor_m: float = 0.01) -> lis
 
 
 def check_subset_sizes(sizes: list[int], n_pairs: int) -> None:
-    """Refuse a --subsets size that cannot be fitted (below MIN_PAIRS) or measured (no pair left out)."""
+    """Refuse a subset size that cannot be fitted (below MIN_PAIRS) or measured (no pair left out)."""
     for k in sizes:
         if not MIN_PAIRS <= k < n_pairs:
-            raise CalibrationError(f"--subsets {k}: a subset needs {MIN_PAIRS} or more pairs and fewer than the "
-                                   f"{n_pairs} given (the rest measure it)")
+            raise ParameterError(f"{{sizes}}: a subset needs {MIN_PAIRS} or more pairs and fewer than the {n_pairs} "
+                                 "given (the rest measure it)", sizes=k)
 
 
 def subset_errors(camera: np.ndarray, robot: np.ndarray, sizes: list[int], trials: int = 200,

@@ -11,12 +11,12 @@ calibration, its pose in the robot base frame. numpy + OpenCV only.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import cv2
 import numpy as np
 
-from edgepick.errors import EdgepickError
+from edgepick.errors import EdgepickError, ParameterError
 from edgepick.runtime.calibration import Calibration
 from edgepick.geometry import Intrinsics, deproject
 from edgepick.runtime.regions import depth_holes, split_touching
@@ -24,8 +24,10 @@ from edgepick.runtime.regions import depth_holes, split_touching
 DEFAULT_CLASSES = ("background", "bearing", "disk", "adapter", "box")
 
 
-@dataclass
+@dataclass(frozen=True)
 class GraspConfig:
+    """The mask filters' and grasp geometry's settings, checked on creation."""
+
     median_ksize: int = 3
     dilate_ksize: int = 5
     min_area_px: int = 120  # regions smaller than this are noise, not objects
@@ -49,6 +51,14 @@ class GraspConfig:
     #                               shorter cut (an object a few pixels over the edge, a mask bleeding to it)
     #                               moves the centroid by 2 px or less
     rect_fill: float = 0.85  # a face filling this share of its minimum-area rectangle takes that rectangle's axis
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ParameterError(f"{{{f.name}}}: must be 0 or more", **{f.name: value})
+        if self.median_ksize % 2 != 1:
+            raise ParameterError("{median_ksize}: a median filter's size must be odd", median_ksize=self.median_ksize)
 
 
 def filter_class_masks(labels: np.ndarray, num_classes: int, cfg: GraspConfig) -> dict[int, tuple[int, int, np.ndarray]]:

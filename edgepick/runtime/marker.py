@@ -1,6 +1,6 @@
 """A fiducial marker on the robot's tool, seen by the camera: the camera half of a calibration pair.
 
-`--marker aruco:DICT:ID[:SIZE_MM]` names an ArUco marker (OpenCV's predefined dictionaries, e.g.
+`aruco:DICT:ID[:SIZE_MM]` names an ArUco marker (OpenCV's predefined dictionaries, e.g.
 4X4_50). `detect_marker` finds it with OpenCV's ArUco detector and turns its centre into a
 camera-frame 3D point: the pixel where the marker's diagonals cross, at the median depth of the
 marker's own valid depth pixels (a black-and-white print is matte, so the D415 reads it well,
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from edgepick.errors import ConfigError
+from edgepick.errors import ParameterError
 from edgepick.frames import Frame
 from edgepick.geometry import deproject
 
@@ -32,20 +32,22 @@ class MarkerSpec:
         """'aruco:DICT:ID[:SIZE_MM]', e.g. aruco:4X4_50:7:40."""
         parts = spec.split(":")
         if len(parts) not in (3, 4) or parts[0] != "aruco":
-            raise ConfigError(f"--marker {spec}: use aruco:DICT:ID[:SIZE_MM], e.g. aruco:4X4_50:7:40")
+            raise ParameterError("{spec}: use aruco:DICT:ID[:SIZE_MM], e.g. aruco:4X4_50:7:40", spec=spec)
         name = parts[1].upper()
         if not hasattr(cv2.aruco, f"DICT_{name}"):
             known = sorted(n[5:] for n in dir(cv2.aruco) if n.startswith("DICT_") and n[5:6].isdigit())
-            raise ConfigError(f"--marker {spec}: unknown ArUco dictionary {parts[1]} (e.g. {', '.join(known[:6])})")
+            raise ParameterError(f"{{spec}}: unknown ArUco dictionary {parts[1]} (e.g. {', '.join(known[:6])})",
+                                 spec=spec)
         try:
             marker_id = int(parts[2])
             size_m = float(parts[3]) / 1000 if len(parts) == 4 else None
         except ValueError:
-            raise ConfigError(f"--marker {spec}: the id and the size (mm) must be numbers") from None
+            raise ParameterError("{spec}: the id and the size (mm) must be numbers", spec=spec) from None
         if not 0 <= marker_id < cls(name, 0).dictionary_size():
-            raise ConfigError(f"--marker {spec}: dictionary {name} has ids 0 to {cls(name, 0).dictionary_size() - 1}")
+            raise ParameterError(f"{{spec}}: dictionary {name} has ids 0 to {cls(name, 0).dictionary_size() - 1}",
+                                 spec=spec)
         if size_m is not None and not (np.isfinite(size_m) and 0.005 <= size_m <= 0.5):
-            raise ConfigError(f"--marker {spec}: the size is the printed side in millimetres (5 to 500)")
+            raise ParameterError("{spec}: the size is the printed side in millimetres (5 to 500)", spec=spec)
         return cls(name, marker_id, size_m)
 
     def dictionary_size(self) -> int:

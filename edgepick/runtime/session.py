@@ -24,7 +24,8 @@ import onnxruntime as ort
 from edgepick.errors import EdgepickError
 from edgepick.files import atomic_write
 from edgepick.geometry import Size
-from edgepick.schema import Where, as_names, as_numbers
+from edgepick.runtime.engine import Engine
+from edgepick.schema import Where, as_names, as_numbers, member
 
 
 class ModelError(EdgepickError):
@@ -93,10 +94,6 @@ def read_info(session: ort.InferenceSession, path: Path) -> ModelInfo:
     return ModelInfo(list(classes), Size(w, h), meta["edgepick.colorspace"], meta["edgepick.precision"], dict(meta))
 
 
-ENGINES = ("onnxruntime", "openvino")
-AUTO = "auto"  # the faster of the two on this machine, measured once per model and cached
-
-
 def openvino_config(threads: int, precision: str = "f32") -> dict[str, object]:
     """OpenVINO CPU compile settings: THREADS threads, latency first, the model's float parts run in
     PRECISION ("f32" unless asked; "bf16" is only for benchmarks that name it)."""
@@ -154,11 +151,11 @@ def _median_ms(runs: dict[str, Callable[[np.ndarray], object]], image: np.ndarra
 
 
 def choose_engine(path: Path, threads: int, ort_run: Callable[[np.ndarray], object],
-                  size: Size) -> tuple[str, Callable[[np.ndarray], object] | None, dict]:
+                  size: Size) -> tuple[Engine, Callable[[np.ndarray], object] | None, dict]:
     """The faster engine for this model, thread count and CPU: read from the cache, or measured on a
     blank frame and written there. Returns (engine, its OpenVINO runner or None, the record)."""
     if importlib.util.find_spec("openvino") is None:
-        return "onnxruntime", None, {"engine": "onnxruntime", "why": "OpenVINO is not installed"}
+        return Engine.ONNXRUNTIME, None, {"engine": Engine.ONNXRUNTIME.value, "why": "OpenVINO is not installed"}
     key = f"{hashlib.sha256(path.read_bytes()).hexdigest()}:{threads}:{_cpu()}"
     cache = _cache_file()
     try:
@@ -167,17 +164,18 @@ def choose_engine(path: Path, threads: int, ort_run: Callable[[np.ndarray], obje
         known = {}
     record = known.get(key)
     ov_run = None
-    if record is None or record.get("engine") not in ENGINES:
+    if record is None or record.get("engine") not in (Engine.ONNXRUNTIME, Engine.OPENVINO):
         ov_run = _openvino_runner(path, threads)
-        ms = _median_ms({"onnxruntime": ort_run, "openvino": ov_run}, np.zeros((1, *size.hw, 3), np.uint8))
+        ms = _median_ms({Engine.ONNXRUNTIME.value: ort_run, Engine.OPENVINO.value: ov_run},
+                        np.zeros((1, *size.hw, 3), np.uint8))
         record = {"engine": min(ms, key=ms.__getitem__), "p50_ms": ms, "model": str(path)}
         try:
             atomic_write(cache, json.dumps({**known, key: record}, indent=1))
         except OSError:
             pass  # a read-only home: measured again next time
-    if record["engine"] == "openvino" and ov_run is None:
+    if record["engine"] == Engine.OPENVINO and ov_run is None:
         ov_run = _openvino_runner(path, threads)
-    return record["engine"], ov_run, record
+    return Engine(record["engine"]), ov_run, record
 
 
 class Segmenter:
@@ -186,21 +184,20 @@ class Segmenter:
     once per model, thread count and CPU, cached in ~/.cache/edgepick/engines.json; onnxruntime
     when OpenVINO is not installed)."""
 
-    def __init__(self, path: str | Path, threads: int = 2, engine: str = "onnxruntime"):
+    def __init__(self, path: str | Path, threads: int = 2, engine: Engine = Engine.ONNXRUNTIME):
         path = Path(path)
+        engine = member(Engine, "engine", engine)
         if not path.is_file():
             raise ModelError(f"no model file at {path}")
-        if engine not in (*ENGINES, AUTO):
-            raise ModelError(f"unknown engine {engine!r}: use {', '.join(ENGINES)} or {AUTO}")
         self.session = _session(path, threads)  # onnxruntime also checks the contract for the other engine
         self.info = read_info(self.session, path)
         self._run = lambda image: self.session.run(["labels"], {"image": image})[0]
         self.engine_choice = None
         ov_run = None
-        if engine == AUTO:
+        if engine == Engine.AUTO:
             engine, ov_run, self.engine_choice = choose_engine(path, threads, self._run, self.info.input_size)
         self.path, self.engine = path, engine
-        if engine == "openvino":
+        if engine == Engine.OPENVINO:
             self._run = ov_run or _openvino_runner(path, threads)
             self.session = None
 

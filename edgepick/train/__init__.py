@@ -5,9 +5,27 @@
     train(TrainConfig(data="data", out="run", epochs=30, size=Size(320, 240)))
 """
 
-from edgepick.train.checkpoint import Checkpoint, load_model
-from edgepick.train.config import TrainConfig
-from edgepick.train.loop import Hooks, fit, new_model, train
-from edgepick.train.run import Run
+import importlib
+from typing import TYPE_CHECKING
 
-__all__ = ["Checkpoint", "Hooks", "Run", "TrainConfig", "fit", "load_model", "new_model", "train"]
+_WHERE = {
+    "Checkpoint": "checkpoint", "Device": "config", "EpochRecord": "run", "fit": "loop", "Hooks": "loop",
+    "load_model": "checkpoint", "new_model": "loop", "resume_run": "loop", "Run": "run", "train": "loop",
+    "TrainConfig": "config", "TrainResult": "run"
+}
+__all__ = ["Checkpoint", "Device", "EpochRecord", "Hooks", "Run", "TrainConfig", "TrainResult", "fit",
+           "load_model", "new_model", "resume_run", "train"]
+
+if TYPE_CHECKING:
+    from edgepick.train.checkpoint import Checkpoint, load_model
+    from edgepick.train.config import Device, TrainConfig
+    from edgepick.train.loop import fit, Hooks, new_model, resume_run, train
+    from edgepick.train.run import EpochRecord, Run, TrainResult
+
+
+def __getattr__(name: str) -> object:
+    """The public objects are imported when first asked for, so that importing one light module of
+    the package (a config, an enum) does not import torch."""
+    if name in _WHERE:
+        return getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

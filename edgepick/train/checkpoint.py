@@ -11,7 +11,8 @@ import torch
 from edgepick.errors import CheckpointError, ConfigError
 from edgepick.files import atomic_path
 from edgepick.geometry import Size, check_size
-from edgepick.models.deeplabv3 import ARCHS, COLORSPACES, NORMALISATION, VARIANTS, DeepLabV3, ModelConfig, build_model
+from edgepick.models.config import Arch, ColorSpace, ModelConfig, Variant
+from edgepick.models.deeplabv3 import NORMALISATION, DeepLabV3, build_model
 from edgepick.schema import Where, as_dict, as_list, as_names, as_number, as_numbers, as_str
 from edgepick.schema import field as required_field
 from edgepick.train.config import TrainConfig
@@ -46,7 +47,7 @@ class Checkpoint:
             check_size(self.data_image_size, "Checkpoint data_image_size")
 
     @property
-    def colorspace(self) -> str:
+    def colorspace(self) -> ColorSpace:
         return self.model_config.colorspace
 
     @property
@@ -117,17 +118,17 @@ def check_model_config(value: object, where: Where) -> ModelConfig:
     if unknown:
         where.fail(f"has unknown fields {', '.join(map(str, unknown))}")
     checked = {
-        "arch": as_str(required_field(mc, "arch", where), where.at("arch"), ARCHS),
+        "arch": as_str(required_field(mc, "arch", where), where.at("arch"), tuple(Arch)),
         "num_classes": as_number(required_field(mc, "num_classes", where), where.at("num_classes"), integer=True,
                                  minimum=2, maximum=255),
         "output_stride": as_number(mc.get("output_stride", 16), where.at("output_stride"), integer=True),
-        "colorspace": as_str(mc.get("colorspace", "rgb"), where.at("colorspace"), COLORSPACES),
+        "colorspace": as_str(mc.get("colorspace", "rgb"), where.at("colorspace"), tuple(ColorSpace)),
         "aux_loss": _flag(mc.get("aux_loss", False), where.at("aux_loss")),
         "bn_momentum": as_number(mc.get("bn_momentum", 0.1), where.at("bn_momentum"), above=0, maximum=1),
-        "variant": as_str(mc.get("variant", "standard"), where.at("variant"), VARIANTS),
+        "variant": as_str(mc.get("variant", "standard"), where.at("variant"), tuple(Variant)),
     }
     try:
-        return ModelConfig(**checked).validate()
+        return ModelConfig(**checked)
     except ConfigError as exc:
         where.fail(str(exc))
 

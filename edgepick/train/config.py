@@ -1,33 +1,46 @@
-"""What a training run is asked to do (`TrainConfig`), recorded in each of its checkpoints and
-checked when read back."""
+"""What a training run is asked to do (`TrainConfig`), checked on creation, recorded in each of
+its checkpoints and checked again when read back. No torch: the command line builds its options
+and defaults from it."""
 
 from __future__ import annotations
 
+import enum
 import math
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, fields
 
-from edgepick.errors import ConfigError
+from edgepick.errors import ParameterError
 from edgepick.geometry import Size, check_size
-from edgepick.schema import Where, as_dict, as_list, as_number, as_numbers, as_str
+from edgepick.models.config import Arch, ColorSpace, OutputStride, Variant
+from edgepick.schema import Where, as_dict, as_list, as_number, as_numbers, as_str, member, plain
 from edgepick.schema import field as required_field
 
 
-@dataclass
+class Device(enum.StrEnum):
+    """Where a run trains: auto is the GPU if there is one, else the CPU."""
+
+    AUTO = "auto"
+    CPU = "cpu"
+    CUDA = "cuda"
+
+
+@dataclass(frozen=True)
 class TrainConfig:
+    """A training run's settings, each checked on creation (a list of keep_epochs is taken as a tuple)."""
+
     data: str
     out: str
-    arch: str = "mobilenetv3"
-    variant: str = "standard"  # edge: MobileNetV3 without SE/hardswish, 128-channel ASPP (quantization-friendly)
+    arch: Arch = Arch.MOBILENETV3
+    variant: Variant = Variant.STANDARD
     epochs: int = 100
     batch_size: int = 8
     lr: float = 1e-3
     weight_decay: float = 1e-4
     size: Size = Size(640, 480)  # the model's input
-    colorspace: str = "rgb"
-    output_stride: int = 16
+    colorspace: ColorSpace = ColorSpace.RGB
+    output_stride: OutputStride = OutputStride.SIXTEEN
     aux_loss: bool = False
-    device: str = "auto"
-    keep_epochs: list[int] = field(default_factory=list)
+    device: Device = Device.AUTO
+    keep_epochs: tuple[int, ...] = ()  # epochs whose checkpoints are kept (hybrid-QaT switch points)
     epoch_images: int = 0  # 0: an epoch is the whole train split; N: N images drawn afresh each epoch
     val_images: int = 0  # 0: validate on the whole val split; N: on N evenly spaced val images
     backbone_weights: str | None = None
@@ -37,10 +50,36 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         check_size(self.size, "TrainConfig size")
+        for name, kind in (("arch", Arch), ("variant", Variant), ("colorspace", ColorSpace), ("device", Device),
+                           ("output_stride", OutputStride)):
+            object.__setattr__(self, name, member(kind, name, getattr(self, name)))
+        object.__setattr__(self, "data", str(self.data))
+        object.__setattr__(self, "out", str(self.out))
+        object.__setattr__(self, "keep_epochs", tuple(self.keep_epochs))
+        for name in ("epochs", "batch_size"):
+            if getattr(self, name) < 1:
+                raise ParameterError(f"{{{name}}}: must be at least 1", **{name: getattr(self, name)})
+        if not (math.isfinite(self.lr) and 0 < self.lr < 1):
+            raise ParameterError("{lr}: the learning rate must be a number in (0, 1), e.g. 1e-3", lr=self.lr)
+        if not (math.isfinite(self.weight_decay) and self.weight_decay >= 0):
+            raise ParameterError("{weight_decay}: must be 0 or more", weight_decay=self.weight_decay)
+        for name in ("epoch_images", "val_images"):
+            if getattr(self, name) < 0:
+                raise ParameterError(f"{{{name}}}: must be 0 (all) or positive", **{name: getattr(self, name)})
+        if self.workers < -1:
+            raise ParameterError("{workers}: must be -1 (decode once into memory), 0 or more", workers=self.workers)
+        if self.seed < 0:
+            raise ParameterError("{seed}: must be 0 or positive", seed=self.seed)
+        outside = [e for e in self.keep_epochs if not 1 <= e <= self.epochs]
+        if outside:
+            raise ParameterError(f"{{keep_epochs}}: not an epoch of this run's budget (1..{self.epochs})",
+                                 keep_epochs=outside[0])
 
     def to_dict(self) -> dict:
-        """The form a checkpoint records (plain types; size as [H, W], docs/contracts.md#run-folder)."""
-        d = asdict(self)
+        """The config as a checkpoint records it (plain values; keep_epochs a list; size as [H, W],
+        docs/contracts.md#run-folder)."""
+        d = {f.name: plain(getattr(self, f.name)) for f in fields(self) if f.name != "size"}
+        d["keep_epochs"] = list(self.keep_epochs)
         d["size"] = list(self.size.hw)
         return d
 
@@ -59,7 +98,13 @@ class TrainConfig:
                     required_field(values, f.name, where)  # says which is missing
                 continue
             checked[f.name] = _typed(values[f.name], f.type, where.at(f.name))
-        return cls(**checked)
+        try:
+            return cls(**checked)
+        except ParameterError as exc:
+            where.fail(str(exc))
+
+
+CHOICES = {kind.__name__: kind for kind in (Arch, Variant, ColorSpace, OutputStride, Device)}
 
 
 def _typed(value: object, kind: str, where: Where) -> object:
@@ -76,24 +121,23 @@ def _typed(value: object, kind: str, where: Where) -> object:
         return as_number(value, where, integer=True)
     if kind == "float":
         return float(as_number(value, where))
+    if kind in CHOICES:
+        choices = CHOICES[kind]
+        if issubclass(choices, enum.IntEnum):
+            number = as_number(value, where, integer=True)
+            if number not in tuple(choices):
+                where.fail(f"must be one of {', '.join(str(m.value) for m in choices)}, got {number!r}")
+            return choices(number)
+        return choices(as_str(value, where, tuple(choices)))
     if kind == "Size":
         return Size.from_hw(as_numbers(value, where, 2, integer=True, minimum=1))
-    if kind == "list[int]":
-        return [as_number(v, where.at(i), integer=True) for i, v in enumerate(as_list(value, where))]
+    if kind == "tuple[int, ...]":
+        return tuple(as_number(v, where.at(i), integer=True) for i, v in enumerate(as_list(value, where)))
     raise TypeError(f"no check for a TrainConfig field of type {kind}")  # a new field needs one here
 
 
-def check_config(cfg: TrainConfig, world: int = 1) -> None:
-    if cfg.epochs < 1 or cfg.batch_size < 1:
-        raise ConfigError("--epochs and --batch-size must be at least 1")
-    if not (math.isfinite(cfg.lr) and 0 < cfg.lr < 1):
-        raise ConfigError(f"--lr {cfg.lr}: the learning rate must be a number in (0, 1), e.g. 1e-3")
-    if cfg.epoch_images < 0 or cfg.val_images < 0:
-        raise ConfigError("--epoch-images and --val-images must be 0 (all) or positive")
+def check_world(cfg: TrainConfig, world: int) -> None:
+    """What a run's config must also meet under WORLD processes (DDP)."""
     if cfg.epoch_images and world > 1:
-        raise ConfigError("--epoch-images is for single-process runs (DDP shards the whole split)")
-    if cfg.seed < 0:
-        raise ConfigError(f"--seed {cfg.seed}: must be 0 or positive")
-    outside = [e for e in cfg.keep_epochs if not 1 <= e <= cfg.epochs]
-    if outside:
-        raise ConfigError(f"--keep-epochs {outside[0]}: not an epoch of this run's budget (1..{cfg.epochs})")
+        raise ParameterError("{epoch_images} is for single-process runs (DDP shards the whole split)",
+                             epoch_images=cfg.epoch_images)

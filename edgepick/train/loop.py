@@ -2,8 +2,8 @@
 
 Per epoch: train with augmentation, validate (mIoU), write the run folder's checkpoints and
 metrics (edgepick/train/run.py: best.pt when validation mIoU improves, epoch_NNN.pt at
---keep-epochs, the hybrid-QaT switch points, then last.pt). --resume continues from last.pt,
-losing at most one epoch.
+the kept epochs, the hybrid-QaT switch points, then last.pt). `resume_run` continues from
+last.pt, losing at most one epoch.
 
 `fit` trains whatever model it is given and knows nothing of quantization: a model that needs
 more from the loop (a QaT graph: its own train/eval switch, an eval copy for validation, a change
@@ -17,6 +17,7 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -24,14 +25,15 @@ import torch.distributed as dist
 import torch.nn.functional as F
 
 from edgepick.data.native import NativeDataset
-from edgepick.errors import CheckpointError, ConfigError
+from edgepick.errors import CheckpointError, ConfigError, ParameterError
 from edgepick.files import made_by, mark
 from edgepick.geometry import Size
 from edgepick.metrics import segmentation_metrics
-from edgepick.models.deeplabv3 import DeepLabV3, ModelConfig, build_model, load_backbone_weights
+from edgepick.models.config import ModelConfig
+from edgepick.models.deeplabv3 import DeepLabV3, build_model, load_backbone_weights
 from edgepick.progress import progress as progress_bar
 from edgepick.train.checkpoint import Checkpoint
-from edgepick.train.config import TrainConfig, check_config
+from edgepick.train.config import TrainConfig, check_world
 from edgepick.train.data import IGNORE, augment, class_weights
 from edgepick.train.run import EpochRecord, Run, TrainResult
 from edgepick.train.setup import device_for, dist_env, log, logits, make_loaders, validate
@@ -63,17 +65,14 @@ class Hooks:
 
 
 def model_config(cfg: TrainConfig, classes: list[str]) -> ModelConfig:
-    model_cfg = ModelConfig(cfg.arch, len(classes), cfg.output_stride, cfg.colorspace, cfg.aux_loss,
-                            variant=cfg.variant)
-    model_cfg.validate()
-    return model_cfg
+    """The architecture a run of CFG on CLASSES trains."""
+    return ModelConfig(cfg.arch, len(classes), cfg.output_stride, cfg.colorspace, cfg.aux_loss, variant=cfg.variant)
 
 
 def new_model(cfg: TrainConfig, start: Checkpoint | None = None) -> DeepLabV3:
     """The float model a run begins with: fresh (seeded with cfg.seed, cfg.backbone_weights if
     given), or the weights of START, a checkpoint the run continues (a float run's epoch_NNN.pt)."""
     classes = NativeDataset.open(cfg.data, "train").classes  # validates the layout before anything is written
-    check_config(cfg)
     torch.manual_seed(cfg.seed)  # before the model: same seed, same initial weights
     model = build_model(model_config(cfg, classes))
     if cfg.backbone_weights:
@@ -89,21 +88,30 @@ def new_model(cfg: TrainConfig, start: Checkpoint | None = None) -> DeepLabV3:
 
 
 def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> TrainResult:
-    """Train a float DeepLabV3 on a native data set (resume: continue cfg.out from its last.pt);
-    returns the final summary."""
-    last = None
+    """Train a float DeepLabV3 on a native data set (resume: continue cfg.out from its last.pt, see
+    resume_run); returns the final summary."""
     if resume:
-        run = Run(cfg.out)
-        if not run.holds_run():
-            raise ConfigError(f"nothing to resume: {run.last} does not exist")
-        last = Checkpoint.load(run.last)
-        if last.is_qat:
-            raise CheckpointError(f"{cfg.out} is a QaT run; run its quantize command again to start it anew")
-        if last.train_config is None:
-            raise CheckpointError(f"{last.path} has no train_config to resume with")
-        # epochs 0: the run's own budget; DATA: the data set given now (a run moves with its data), checked
-        cfg = replace(last.train_config, epochs=max(cfg.epochs or last.train_config.epochs, last.epoch), data=cfg.data)
-        check_same_data(last, cfg.data)
+        return resume_run(cfg.out, cfg.data, cfg.epochs, progress)
+    return fit(cfg, new_model(cfg), progress=progress)
+
+
+def resume_run(out: str | Path, data: str | Path, epochs: int | None = None, progress: bool = True) -> TrainResult:
+    """Continue the float run in OUT from its last.pt on DATA (the run's own data set, at any path:
+    a run moves with its data), to a budget of EPOCHS (None: the run's own), never below the epochs
+    it has done; returns the final summary."""
+    if epochs is not None and epochs < 1:
+        raise ParameterError("{epochs}: must be at least 1", epochs=epochs)
+    run = Run(out)
+    if not run.holds_run():
+        raise ConfigError(f"nothing to resume: {run.last} does not exist")
+    last = Checkpoint.load(run.last)
+    if last.is_qat:
+        raise CheckpointError(f"{out} is a QaT run; run its quantize command again to start it anew")
+    if last.train_config is None:
+        raise CheckpointError(f"{last.path} has no train_config to resume with")
+    budget = last.train_config.epochs if epochs is None else epochs
+    cfg = replace(last.train_config, epochs=max(budget, last.epoch), data=str(data))
+    check_same_data(last, cfg.data)
     return fit(cfg, new_model(cfg), resume=last, progress=progress)
 
 
@@ -180,11 +188,11 @@ def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, st
     rank, world, local_rank = dist_env()
     device = device_for(cfg.device, local_rank)
     run = Run(cfg.out)
-    if resume is None and run.holds_run():
-        raise ConfigError(f"{run.path} already holds a training run; pass --resume or choose a new --out")
+    if resume is None:
+        run.check_new()
     train_ds, val_ds = NativeDataset.open(cfg.data, "train"), NativeDataset.open(cfg.data, "val")
     classes = train_ds.classes
-    check_config(cfg, world)
+    check_world(cfg, world)
     cuda = device.type == "cuda"
     amp = cuda and hooks.bf16  # bf16 autocast on GPU; CPU fp32
     if world > 1 and not dist.is_initialized():

@@ -1,6 +1,6 @@
 """A training run's folder (docs/contracts.md#run-folder): the one place that knows its file names.
 
-    RUN/last.pt        the latest epoch: weights, AdamW and schedule (what --resume continues)
+    RUN/last.pt        the latest epoch: weights, AdamW and schedule (what a resumed run continues)
     RUN/best.pt        the epoch with the best validation mIoU, without the optimizer state
     RUN/epoch_NNN.pt   copies of last.pt at the kept epochs (hybrid-QaT's switch points)
     RUN/metrics.json   the run's summary and per-epoch history
@@ -16,6 +16,7 @@ import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from edgepick.errors import ParameterError
 from edgepick.files import atomic_write
 
 _EPOCH = re.compile(r"epoch_(\d{3,})\.pt")
@@ -89,6 +90,12 @@ class Run:
     def holds_run(self) -> bool:
         """Whether the folder holds a run that has finished at least one epoch."""
         return self.last.is_file()
+
+    def check_new(self) -> None:
+        """Refuse to start a run here when the folder holds one already (continuing it is resuming)."""
+        if self.holds_run():
+            raise ParameterError("{out} already holds a training run; pass {resume} or choose another {out:name}",
+                                 out=self.path, resume=True)
 
     def write_metrics(self, summary: dict) -> None:
         self.path.mkdir(parents=True, exist_ok=True)

@@ -8,19 +8,16 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 from torch.utils.data import DataLoader, DistributedSampler, RandomSampler, Sampler, Subset
 
 from edgepick.data.native import NativeDataset
-from edgepick.errors import ConfigError
+from edgepick.errors import ConfigError, ParameterError
 from edgepick.metrics import confusion_matrix
+from edgepick.train.config import Device, TrainConfig
 from edgepick.train.data import SegmentationSet
-
-if TYPE_CHECKING:
-    from edgepick.train.loop import TrainConfig
 
 
 def _env_int(name: str, default: int) -> int:
@@ -52,17 +49,13 @@ def dist_env() -> tuple[int, int, int]:
     return rank, world, local_rank
 
 
-def device_for(name: str, local_rank: int) -> torch.device:
-    """auto, cpu or cuda -> the device this process trains on."""
-    if name == "auto":
-        name = "cuda" if torch.cuda.is_available() else "cpu"
-    if name == "cuda":
-        if not torch.cuda.is_available():
-            raise ConfigError("--device cuda asked for, but no CUDA device is available")
-        return torch.device("cuda", local_rank)
-    if name != "cpu":
-        raise ConfigError(f"unknown device {name!r}; choose auto, cpu or cuda")
-    return torch.device("cpu")
+def device_for(device: Device, local_rank: int) -> torch.device:
+    """auto, cpu or cuda (a TrainConfig's device) -> the device this process trains on."""
+    if device == Device.AUTO:
+        device = Device.CUDA if torch.cuda.is_available() else Device.CPU
+    if device == Device.CUDA and not torch.cuda.is_available():
+        raise ParameterError("{device}: asked for, but no CUDA device is available", device=device)
+    return torch.device("cuda", local_rank) if device == Device.CUDA else torch.device("cpu")
 
 
 def available_memory() -> int:
@@ -89,10 +82,10 @@ class Loaders:
     n_val: int  # validation images over all ranks
 
 
-def make_loaders(cfg: "TrainConfig", train_ds: NativeDataset, val_ds: NativeDataset, cuda: bool, rank: int,
+def make_loaders(cfg: TrainConfig, train_ds: NativeDataset, val_ds: NativeDataset, cuda: bool, rank: int,
                  world: int) -> Loaders:
-    """The train loader (shuffled, an --epoch-images draw, or sharded under DDP) and the val loader
-    (--val-images evenly spaced images, sharded). With --workers -1 the images are decoded once into
+    """The train loader (shuffled, an epoch_images draw, or sharded under DDP) and the val loader
+    (val_images evenly spaced images, sharded). With workers -1 the images are decoded once into
     memory when they fit in a third of the free memory (up front on a GPU, off its critical path)."""
     train_set, val_set = SegmentationSet(train_ds, cfg.size), SegmentationSet(val_ds, cfg.size)
     n_val = min(cfg.val_images or len(val_set), len(val_set))

@@ -11,7 +11,7 @@ import pytest
 from edgepick.cli import run
 from edgepick.data.importers import ImportConfig, assign_splits, import_dataset
 from edgepick.data.native import IGNORE, NativeDataset
-from edgepick.errors import DatasetError
+from edgepick.errors import ConfigError, DatasetError
 from tests.conftest import run_cli
 
 H, W = 24, 32
@@ -317,11 +317,11 @@ def test_there_are_at_least_20_bad_trees():
 
 
 def test_import_refuses_unknown_format_missing_source_and_bad_splits(tmp_path):
-    with pytest.raises(DatasetError, match="unknown format"):
+    with pytest.raises(ConfigError, match="fmt='.*': must be one of cityscapes, bop, cvat"):
         import_dataset("voc", tmp_path, tmp_path / "o")
     with pytest.raises(DatasetError, match="does not exist"):
         import_dataset("bop", tmp_path / "nope", tmp_path / "o")
-    with pytest.raises(DatasetError, match="sum to 1"):
+    with pytest.raises(ConfigError, match="split_fractions=.*sum to 1"):
         import_dataset("bop", tmp_path, tmp_path / "o", ImportConfig(split_fractions=(0.5, 0.1, 0.1)))
     with pytest.raises(DatasetError, match="too few"):
         assign_splits(["a", "b"], (0.8, 0.1, 0.1))

@@ -195,12 +195,11 @@ def test_an_upper_case_onnx_suffix_is_taken_by_every_check_alike(tmp_path):
     import torch
 
     from edgepick.errors import ConfigError
-    from edgepick.export.onnx_export import export_onnx
+    from edgepick.export.onnx_export import check_onnx_out, export_onnx
     from edgepick.files import check_output
-    from edgepick.quant.passes import _check_out
 
     check_output(tmp_path / "q.ONNX", "--out", suffixes=(".onnx",))
-    _check_out(tmp_path / "q.ONNX")
+    check_onnx_out(tmp_path / "q.ONNX")
     with pytest.raises(ConfigError, match="unknown export pass"):  # past the suffix check, before any export
         export_onnx(torch.nn.Identity(), tmp_path / "q.ONNX", {}, (32, 32), passes=("nope",))
 

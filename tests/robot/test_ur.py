@@ -173,9 +173,10 @@ def test_a_worker_that_dies_while_connecting_is_noticed_at_once():
 
 def test_an_unwritable_robot_log_is_one_line_about_the_file(tmp_path, capfd):
     """ur_rtde's output file cannot be opened (here: it is a folder): said at once, in one line that
-    names --robot-log, with no traceback from the worker and no attempt to reach the robot."""
+    names debug_log (the command line's --robot-log), with no traceback from the worker and no attempt to
+    reach the robot."""
     t0 = time.monotonic()
-    with pytest.raises(ConfigError, match=f"--robot-log {tmp_path} cannot be written: Is a directory"):
+    with pytest.raises(ConfigError, match=f"debug_log='{tmp_path}' cannot be written: Is a directory"):
         URRobot("127.0.0.254", debug_log=str(tmp_path)).connect()
     assert time.monotonic() - t0 < 5
     assert "Traceback" not in capfd.readouterr().err

@@ -12,6 +12,7 @@ import pytest
 onnx = pytest.importorskip("onnx")
 from onnx import TensorProto, helper  # noqa: E402
 
+from edgepick.errors import ConfigError  # noqa: E402
 from edgepick.geometry import Size  # noqa: E402
 from edgepick.runtime.session import ModelError, Segmenter  # noqa: E402
 
@@ -76,7 +77,7 @@ def test_openvino_engine_gives_the_same_labels(tmp_path):
 
 
 def test_unknown_engine_is_refused(tmp_path):
-    with pytest.raises(ModelError, match="unknown engine"):
+    with pytest.raises(ConfigError, match="engine='tensorrt': must be one of onnxruntime, openvino, auto"):
         Segmenter(red_channel_model(tmp_path / "m.onnx"), engine="tensorrt")
 
 
@@ -104,7 +105,7 @@ def test_engine_auto_measures_once_per_model_and_caches(tmp_path, monkeypatch):
     monkeypatch.setattr(session, "_median_ms", lambda *a, **k: pytest.fail("measured again"))
     again = session.Segmenter(model, engine="auto")
     assert again.engine == first.engine and again.labels(np.zeros((240, 320, 3), np.uint8)).shape == (240, 320)
-    with pytest.raises(session.ModelError, match="unknown engine"):
+    with pytest.raises(ConfigError, match="engine='fastest': must be one of"):
         session.Segmenter(model, engine="fastest")
 
 

@@ -42,7 +42,7 @@ def test_a_good_checkpoint_reads_and_its_train_config_too(tmp_path):
     torch.save(GOOD, tmp_path / "c.pt")
     ckpt = Checkpoint.load(tmp_path / "c.pt")
     assert ckpt.path == tmp_path / "c.pt" and ckpt.classes == ("background", "a", "b") and ckpt.epoch == 3
-    assert ckpt.train_config.size == Size(128, 96) and ckpt.train_config.keep_epochs == [9]
+    assert ckpt.train_config.size == Size(128, 96) and ckpt.train_config.keep_epochs == (9,)
     assert ckpt.input_size == Size(128, 96)
     ckpt.save(tmp_path / "again.pt")
     saved = torch.load(tmp_path / "again.pt", weights_only=False)  # the file keeps [H, W] (docs/contracts.md#run-folder)
@@ -82,7 +82,7 @@ def test_the_field_at_fault_is_named(tmp_path, change, message):
 def test_sizes_are_size_objects_and_a_tuple_is_refused():
     """The Python API takes Size(width, height); a bare tuple (whose order would be a guess) is one line."""
     from edgepick.errors import ConfigError
-    from edgepick.models.deeplabv3 import ModelConfig
+    from edgepick.models.config import ModelConfig
     from edgepick.train.config import TrainConfig
 
     assert TrainConfig(data="d", out="r").size == Size(640, 480)
@@ -92,3 +92,21 @@ def test_sizes_are_size_objects_and_a_tuple_is_refused():
     assert cfg.to_dict()["size"] == [96, 128] and TrainConfig.from_dict(cfg.to_dict()) == cfg
     with pytest.raises(ConfigError, match=r"Checkpoint input_size must be a Size\(width, height\)"):
         Checkpoint(model_config=ModelConfig(num_classes=3), classes=("a", "b", "c"), input_size=(96, 128), model={})
+
+
+def test_a_saved_checkpoint_holds_plain_values_that_read_back_as_the_configs(tmp_path):
+    """The configs' choices (enums) are written as their strings and numbers: the file loads with
+    torch's weights_only unpickler, which refuses every class of edgepick's, and reads back equal."""
+    from edgepick.models.config import ModelConfig
+    from edgepick.train.config import TrainConfig
+
+    tc = TrainConfig(data="d", out="r", epochs=10, size=Size(128, 96), keep_epochs=[9], device="cpu", output_stride=8)
+    ckpt = Checkpoint(model_config=ModelConfig("resnet50", 3, 8, "hsv"), classes=("background", "a", "b"),
+                      input_size=Size(128, 96), model=dict(GOOD["model"]), train_config=tc)
+    ckpt.save(tmp_path / "c.pt")
+    d = torch.load(tmp_path / "c.pt", weights_only=True)
+    assert d["model_config"]["arch"] == "resnet50" and type(d["model_config"]["arch"]) is str
+    assert type(d["train_config"]["device"]) is str and type(d["train_config"]["output_stride"]) is int
+    assert d["train_config"]["keep_epochs"] == [9] and d["train_config"]["size"] == [96, 128]
+    again = Checkpoint.load(tmp_path / "c.pt")
+    assert again.model_config == ckpt.model_config and again.train_config == tc

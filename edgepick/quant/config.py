@@ -1,0 +1,56 @@
+"""How a model is quantized (`QuantConfig`), its calibration methods and the passes' shared
+defaults, without torch: the command line builds its options and defaults from them."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, fields
+
+from edgepick.errors import ParameterError
+from edgepick.schema import member, plain
+
+DEFAULT_CALIB_IMAGES = 64  # or the whole train split when it is smaller
+FREEZE_AT = 0.7  # share of the QaT steps after which observers and BN statistics are frozen
+MAX_FLOAT_LAYERS = 6  # accuracy-aware static PTQ: the most layers it keeps in float
+
+
+class CalibMethod(enum.StrEnum):
+    """How static PTQ sets activation ranges (compared by benchmarks/calib_methods.py)."""
+
+    MINMAX = "minmax"
+    PERCENTILE = "percentile"  # a percentile of each histogram: clips rare outliers
+    ENTROPY = "entropy"  # KL-divergence minimisation (TensorRT's entropy calibration)
+    MSE = "mse"  # L2 error of the histogram's quantization (slower)
+
+
+@dataclass(frozen=True)
+class QuantConfig:
+    """How a model is quantized, checked on creation; written into the ONNX metadata (`edgepick.quant`)."""
+
+    calib_method: CalibMethod = CalibMethod.PERCENTILE  # activation ranges for static PTQ
+    percentile: float = 99.99
+    # 7-bit weights: onnxruntime's U8S8 kernels on AVX2 CPUs without VNNI (the thesis laptop) add pairs of
+    # u8*s8 products in int16, which saturates with 8-bit weights. Turn off for VNNI/AVX512 targets.
+    reduce_range: bool = True
+    # QaT: moving-average constant of the per-channel weight ranges (torch.ao's default 0.01; 1.0: each step's
+    # own range). With the conv-BN fusion the quantized weight is w * gamma / sqrt(running_var + eps), which moves
+    # with the BN statistics every step: a lagging range clips it (benchmarks/results/hybrid-start/).
+    weight_averaging: float = 0.01
+    # hardswish as x * hardsigmoid(x), both quantized (rewrites.GatedHardswish): onnxruntime then runs it on integer
+    # kernels; as one quantized op it dequantizes the map and runs in float (benchmarks/quant_speed.py times both).
+    hardswish_gate: bool = True
+    keep_float: tuple[str, ...] = ()  # module names (prefixes) left in float
+    skip: tuple[str, ...] = ("preprocess",)  # never quantized
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "calib_method", member(CalibMethod, "calib_method", self.calib_method))
+        object.__setattr__(self, "keep_float", tuple(self.keep_float))
+        object.__setattr__(self, "skip", tuple(self.skip))
+        if not 50.0 < self.percentile <= 100.0:
+            raise ParameterError("{percentile}: must be in (50, 100]", percentile=self.percentile)
+        if not 0.0 < self.weight_averaging <= 1.0:
+            raise ParameterError("{weight_averaging}: must be in (0, 1]", weight_averaging=self.weight_averaging)
+
+    def to_dict(self) -> dict:
+        """The config as ONNX metadata and QaT checkpoints record it (plain values, lists)."""
+        return {f.name: list(v) if isinstance(v := plain(getattr(self, f.name)), tuple) else v for f in fields(self)}
