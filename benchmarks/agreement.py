@@ -19,7 +19,7 @@ import onnxruntime as ort
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import add_output, machine_line, emit  # noqa: E402
+from _common import add_output, emit, machine_line  # noqa: E402
 
 from edgepick.export.onnx_export import contract_metadata, export_onnx  # noqa: E402
 from edgepick.quant.graph import as_input, convert, prepare  # noqa: E402

@@ -14,7 +14,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import add_output, machine_line, emit  # noqa: E402
+from _common import add_output, emit, machine_line  # noqa: E402
 
 from edgepick.evaluation import evaluate  # noqa: E402
 from edgepick.export.onnx_export import export_checkpoint  # noqa: E402

@@ -15,15 +15,15 @@ from dataclasses import replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import add_output, machine_line, emit  # noqa: E402
+from _common import add_output, emit, machine_line  # noqa: E402
 
 from edgepick.data.synth import SynthConfig, synthesize  # noqa: E402
 from edgepick.geometry import Size  # noqa: E402
 from edgepick.quant.qat import train_qat  # noqa: E402
 from edgepick.quant.quantizer import QuantConfig  # noqa: E402
 from edgepick.train.checkpoint import Checkpoint  # noqa: E402
-from edgepick.train.run import Run  # noqa: E402
 from edgepick.train.loop import TrainConfig, train  # noqa: E402
+from edgepick.train.run import Run  # noqa: E402
 
 
 def main() -> None:

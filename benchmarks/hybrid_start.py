@@ -25,14 +25,14 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import add_output, machine_line, emit  # noqa: E402
+from _common import add_output, emit, machine_line  # noqa: E402
 
-from edgepick.data.native import NativeDataset  # noqa: E402
 from edgepick.cli.options import model_size  # noqa: E402
+from edgepick.data.native import NativeDataset  # noqa: E402
 from edgepick.data.synth import SynthConfig, synthesize  # noqa: E402
-from edgepick.models.deeplabv3 import LogitsNet  # noqa: E402
 from edgepick.geometry import Size  # noqa: E402
 from edgepick.metrics import confusion_matrix, segmentation_metrics  # noqa: E402
+from edgepick.models.deeplabv3 import LogitsNet  # noqa: E402
 from edgepick.quant.graph import as_input, convert, prepare  # noqa: E402
 from edgepick.quant.passes import model_images  # noqa: E402
 from edgepick.quant.qat import calibrate_activations, to_eval  # noqa: E402

@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import add_output, machine_line, emit, interleaved_times  # noqa: E402
+from _common import add_output, emit, interleaved_times, machine_line  # noqa: E402
 
 from edgepick.data.native import NativeDataset  # noqa: E402
 from edgepick.geometry import Size  # noqa: E402
@@ -128,8 +128,7 @@ def main() -> None:
     from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
 
     from edgepick.export.onnx_export import export_checkpoint
-    from edgepick.quant.passes import model_images
-    from edgepick.quant.passes import agreement_images, folder_images
+    from edgepick.quant.passes import agreement_images, folder_images, model_images
     from edgepick.quant.passes import quantize_static as edgepick_static
 
     work = Path(tempfile.mkdtemp(prefix="peers-"))
@@ -188,7 +187,7 @@ def main() -> None:
         images = [ds.rgb(sid) for sid in ds.ids[:10]]
         reference = None
         accuracy = []
-        for name, model, mbytes in rows:
+        for _name, model, _mbytes in rows:
             result, agree = evaluate(model, ds, reference)
             if reference is None:
                 reference = result["labels"]

@@ -23,17 +23,17 @@ import numpy as np
 import onnxruntime as ort
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import add_output, machine_line, emit, untrained_checkpoint  # noqa: E402
+from _common import add_output, emit, machine_line, untrained_checkpoint  # noqa: E402
 
 from edgepick.data.render import CLASSES  # noqa: E402
 from edgepick.geometry import Size  # noqa: E402
 from edgepick.robot.grippers import DigitalGripper  # noqa: E402
 from edgepick.robot.loop import run_cycles  # noqa: E402
 from edgepick.robot.pick import CommandLog, PickConfig  # noqa: E402
-from edgepick.sim.robot import SimRobot  # noqa: E402
-from edgepick.sim.camera import SynthCamera  # noqa: E402
 from edgepick.runtime.pipeline import Pipeline  # noqa: E402
 from edgepick.runtime.session import Segmenter  # noqa: E402
+from edgepick.sim.camera import SynthCamera  # noqa: E402
+from edgepick.sim.robot import SimRobot  # noqa: E402
 
 
 def default_models(work: Path) -> list[str]:

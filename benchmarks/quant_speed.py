@@ -23,7 +23,7 @@ import numpy as np
 import onnxruntime as ort
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import add_output, machine_line, emit, interleaved_times, untrained_checkpoint  # noqa: E402
+from _common import add_output, emit, interleaved_times, machine_line, untrained_checkpoint  # noqa: E402
 
 WHOLE = "int8, convs whole"
 FLOAT_ACT = "int8, float activations"

@@ -23,7 +23,7 @@ import numpy as np
 import onnxruntime as ort
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import add_output, machine_line, emit, untrained_checkpoint  # noqa: E402
+from _common import add_output, emit, machine_line, untrained_checkpoint  # noqa: E402
 
 from edgepick.data.render import CLASSES, SceneRenderer  # noqa: E402
 from edgepick.frames import Frame  # noqa: E402

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import add_output, machine_line, emit, untrained_checkpoint  # noqa: E402
+from _common import add_output, emit, machine_line, untrained_checkpoint  # noqa: E402
 from quant_speed import latency  # noqa: E402
 
 
@@ -42,8 +42,8 @@ def main() -> None:
     from edgepick.data.render import CLASSES
     from edgepick.data.synth import SynthConfig, synthesize
     from edgepick.evaluation import evaluate
-    from edgepick.geometry import Size
     from edgepick.export.onnx_export import export_checkpoint
+    from edgepick.geometry import Size
     from edgepick.quant.passes import agreement_images, folder_images, quantize_static
     from edgepick.quant.quantizer import QuantConfig
     from edgepick.train.checkpoint import load_model

@@ -21,7 +21,6 @@ import click
 from edgepick.files import output_dir
 from edgepick.geometry import Size
 
-
 CELL_CYCLES = 20  # pick cycles per model for the demo's grasp success column (bench --cell)
 PICK_CYCLES = 10  # the demo's pick step
 
@@ -109,10 +108,10 @@ def pick_demo(workdir: Path, model: Path, cycles: int = PICK_CYCLES) -> dict:
     from edgepick.robot.grippers import DigitalGripper
     from edgepick.robot.loop import cycles_summary, run_cycles
     from edgepick.robot.pick import CommandLog, PickConfig
-    from edgepick.sim.robot import SimRobot
-    from edgepick.sim.camera import SynthCamera
     from edgepick.runtime.pipeline import Pipeline
     from edgepick.runtime.session import Segmenter
+    from edgepick.sim.camera import SynthCamera
+    from edgepick.sim.robot import SimRobot
 
     _step(f"6/8 pick and place on the simulated UR3: {cycles} synthetic scenes, {model.name}")
     camera = SynthCamera(seed=100, mount_height_m=0.7)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import enum
 import re
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 # {name}: the parameter NAME and its value; {name:name}: its name alone
 _PLACE = re.compile(r"\{(\w+)(:name)?\}")

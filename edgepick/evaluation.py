@@ -15,7 +15,7 @@ from edgepick.progress import progress as progress_bar
 from edgepick.runtime.engine import Engine
 
 
-def evaluate(model_path: str | Path, data: str | Path, split: Split = Split.TEST, progress: bool = True,
+def evaluate(model_path: str | Path, data: str | Path, split: Split | str = Split.TEST, progress: bool = True,
              engine: Engine = Engine.ONNXRUNTIME) -> dict:
     """Pixel accuracy, per-class IoU, mIoU and confusion matrix of MODEL on DATA/<split>.
 

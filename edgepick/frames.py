@@ -37,7 +37,7 @@ class Camera:
 
     intrinsics: Intrinsics
 
-    def open(self) -> "Camera":
+    def open(self) -> Camera:
         return self
 
     def read(self) -> Frame:
@@ -46,7 +46,7 @@ class Camera:
     def close(self) -> None:
         pass
 
-    def __enter__(self) -> "Camera":
+    def __enter__(self) -> Camera:
         return self.open()
 
     def __exit__(self, *exc) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numbers
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -29,7 +30,7 @@ class Size:
             object.__setattr__(self, name, int(value))
 
     @classmethod
-    def parse(cls, text: str) -> "Size":
+    def parse(cls, text: str) -> Size:
         """'640x480' (WIDTHxHEIGHT, the command line's form) -> Size(640, 480)."""
         try:
             width, height = (int(v) for v in str(text).lower().split("x"))
@@ -38,13 +39,13 @@ class Size:
         return cls(width, height)
 
     @classmethod
-    def from_hw(cls, hw: tuple[int, int]) -> "Size":
+    def from_hw(cls, hw: Sequence[int]) -> Size:
         """The size of a (height, width) pair: an array's shape[:2] or a file's [H, W] metadata."""
         height, width = hw
         return cls(width, height)
 
     @classmethod
-    def of(cls, image: np.ndarray) -> "Size":
+    def of(cls, image: np.ndarray) -> Size:
         """The size of an HxW or HxWxC image array."""
         return cls.from_hw(image.shape[:2])
 
@@ -81,13 +82,13 @@ class Intrinsics:
     depth_scale: float = 0.001
 
     @classmethod
-    def d415(cls, width: int = 640, height: int = 480) -> "Intrinsics":
+    def d415(cls, width: int = 640, height: int = 480) -> Intrinsics:
         """Typical D415 colour intrinsics scaled to the given resolution."""
         f = D415_FOCAL_640 * width / 640.0
         return cls(width, height, f, f, (width - 1) / 2.0, (height - 1) / 2.0)
 
     @classmethod
-    def from_dict(cls, d: dict, where: Where | None = None) -> "Intrinsics":
+    def from_dict(cls, d: dict, where: Where | None = None) -> Intrinsics:
         """Intrinsics from their JSON object, every field checked (WHERE names the file in errors)."""
         where = where or Where("intrinsics")
         d = as_dict(d, where)
@@ -100,7 +101,7 @@ class Intrinsics:
                    float(centre["cy"]), float(scale))
 
     @classmethod
-    def load(cls, path: str | Path) -> "Intrinsics":
+    def load(cls, path: str | Path) -> Intrinsics:
         """intrinsics.json (docs/contracts.md#intrinsics-and-calibration), or a data set's meta.json,
         whose "intrinsics" entry holds the same object."""
         value = read_json(path, "intrinsics file")

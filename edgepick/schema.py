@@ -39,7 +39,7 @@ class Where:
     file: str
     path: str = ""
 
-    def at(self, key: str | int) -> "Where":
+    def at(self, key: str | int) -> Where:
         step = f"[{key}]" if isinstance(key, int) else (f".{key}" if self.path else str(key))
         return Where(self.file, self.path + step)
 

@@ -15,8 +15,8 @@ from edgepick.data.config import Split
 from edgepick.errors import ParameterError
 from edgepick.evaluation import evaluate
 from edgepick.runtime.camera import FolderCamera
-from edgepick.runtime.pipeline import Pipeline
 from edgepick.runtime.engine import Engine
+from edgepick.runtime.pipeline import Pipeline
 from edgepick.runtime.session import Segmenter
 from edgepick.schema import member
 

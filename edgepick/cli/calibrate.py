@@ -71,8 +71,16 @@ def fit(pairs: str, out: str, max_rmse: float, drop_outliers: bool, subsets: str
     refuses coincident or collinear points, and a fit too poor to be a measurement (mixed
     units, a mirrored axis, pairs of different points).
     """
-    from edgepick.runtime.calibration import (check_subset_sizes, diagnose, kabsch, leave_one_out, outliers,
-                                              read_pairs, residuals, subset_errors)
+    from edgepick.runtime.calibration import (
+        check_subset_sizes,
+        diagnose,
+        kabsch,
+        leave_one_out,
+        outliers,
+        read_pairs,
+        residuals,
+        subset_errors,
+    )
 
     if not (math.isfinite(max_rmse) and max_rmse > 0):
         raise ConfigError(f"--max-rmse {max_rmse}: must be a positive number of millimetres")

@@ -110,8 +110,8 @@ def data_import(fmt: str, src: str, out: str, cityscapes_classes: str, splits: s
 @click.option("--size", default="640x480", show_default=True, help="Camera stream size, WIDTHxHEIGHT.")
 def data_capture(out: str, camera: str, count: int, interval: float, size: str) -> None:
     """Save aligned RGB + depth + intrinsics.json from a camera into OUT, for annotation (e.g. CVAT)."""
-    from edgepick.data.capture import capture, check_count
     from edgepick.cli.cameras import open_camera
+    from edgepick.data.capture import capture, check_count
 
     source = camera.partition(":")[2] if camera.startswith("dir:") else None
     check_output(out, "OUT", kind="dir", inputs=(source,))

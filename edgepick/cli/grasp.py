@@ -47,9 +47,9 @@ def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, d
     import cv2
     import numpy as np
 
-    from edgepick.runtime.calibration import Calibration
     from edgepick.frames import Frame, read_depth, read_rgb
     from edgepick.geometry import Intrinsics
+    from edgepick.runtime.calibration import Calibration
     from edgepick.runtime.grasp import DEFAULT_CLASSES, draw_overlay, grasp_records
     from edgepick.runtime.pipeline import Pipeline, median_ms
 

@@ -12,7 +12,8 @@ import dataclasses
 import enum
 import inspect
 import json
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import click
 

@@ -7,8 +7,7 @@ from pathlib import Path
 
 import click
 
-from edgepick.cli.options import (check_data_orientation, choice, default_of, emit, epoch_subset, model_size,
-                                  with_options)
+from edgepick.cli.options import check_data_orientation, choice, default_of, emit, epoch_subset, model_size, with_options
 from edgepick.data.config import Split
 from edgepick.demo import run_demo
 from edgepick.errors import ConfigError

@@ -14,7 +14,6 @@ from edgepick.data.native import atomic_folder
 from edgepick.errors import ConfigError, ParameterError
 from edgepick.frames import Camera
 
-
 MAX_FRAMES = 100_000  # about 90 GB of 640x480 PNGs
 
 

@@ -13,8 +13,8 @@ import numpy as np
 from edgepick.data.config import Split
 from edgepick.errors import ConfigError, DatasetError
 from edgepick.files import atomic_dir
-from edgepick.geometry import Intrinsics
 from edgepick.frames import read_grasps
+from edgepick.geometry import Intrinsics
 from edgepick.schema import Where, as_dict, as_names, as_number, field, member, read_json
 
 IGNORE = 255  # mask value of pixels that are neither trained on nor scored (e.g. Cityscapes' void)
@@ -31,7 +31,7 @@ class NativeDataset:
     intrinsics: Intrinsics | None
 
     @classmethod
-    def open(cls, root: str | Path, split: Split) -> "NativeDataset":
+    def open(cls, root: str | Path, split: Split | str) -> NativeDataset:
         root = Path(root)
         if not (root / "meta.json").is_file():
             raise DatasetError(f"{root} is not an edgepick data set (no meta.json)")

@@ -8,8 +8,8 @@ holes on shiny metal, at depth edges and in the left invalid band).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import cv2
 import numpy as np

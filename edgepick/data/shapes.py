@@ -8,8 +8,8 @@ Everything is numpy; the renderer in `synth.py` ray-casts these per pixel.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import cv2
 import numpy as np

@@ -11,7 +11,7 @@ _WHERE = {
 __all__ = ["EXPORT_PASSES", "ExportResult", "export_checkpoint", "export_onnx"]
 
 if TYPE_CHECKING:
-    from edgepick.export.onnx_export import export_checkpoint, export_onnx, EXPORT_PASSES, ExportResult
+    from edgepick.export.onnx_export import EXPORT_PASSES, ExportResult, export_checkpoint, export_onnx
 
 
 def __getattr__(name: str) -> object:

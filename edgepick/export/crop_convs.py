@@ -13,10 +13,9 @@ and the regions' uint8 outputs are joined by Concat. Region nodes are named `<co
 
 from __future__ import annotations
 
-from typing import Any
-
 from dataclasses import dataclass
 from itertools import pairwise
+from typing import Any
 
 import numpy as np
 

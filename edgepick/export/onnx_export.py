@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import json
 import warnings
-from dataclasses import asdict, dataclass
 from collections.abc import Callable
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -18,10 +18,10 @@ import torch
 from torch import Tensor, nn
 
 from edgepick.errors import ConfigError, ParameterError
-from edgepick.files import atomic_path, sha256_of
-from edgepick.geometry import Size
 from edgepick.export.crop_convs import crop_padded_convs
 from edgepick.export.int8_activations import integer_activations
+from edgepick.files import atomic_path, sha256_of
+from edgepick.geometry import Size
 from edgepick.models.deeplabv3 import LogitsNet
 from edgepick.train.checkpoint import Checkpoint, load_model
 from edgepick.train.run import Run

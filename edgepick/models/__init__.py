@@ -14,8 +14,14 @@ __all__ = ["Arch", "ColorSpace", "DeepLabV3", "LogitsNet", "ModelConfig", "Outpu
            "deeplabv3_mobilenet_v3_large", "deeplabv3_resnet50", "deeplabv3_resnet101"]
 
 if TYPE_CHECKING:
-    from edgepick.models.deeplabv3 import (DeepLabV3, LogitsNet, build_model, deeplabv3_mobilenet_v3_large,
-                                           deeplabv3_resnet50, deeplabv3_resnet101)
+    from edgepick.models.deeplabv3 import (
+        DeepLabV3,
+        LogitsNet,
+        build_model,
+        deeplabv3_mobilenet_v3_large,
+        deeplabv3_resnet50,
+        deeplabv3_resnet101,
+    )
 
 
 def __getattr__(name: str) -> object:

@@ -23,7 +23,7 @@ __all__ = ["AccuracyAwareResult", "CalibMethod", "PassResult", "QatHooks", "Quan
 
 if TYPE_CHECKING:
     from edgepick.quant.config import CalibMethod, QuantConfig
-    from edgepick.quant.graph import calibrate, convert, prepare, QuantizationError
+    from edgepick.quant.graph import QuantizationError, calibrate, convert, prepare
     from edgepick.quant.inspect import inspect, quantize_accuracy_aware
     from edgepick.quant.passes import agreement_images, folder_images, quantize_hybrid, quantize_qat, quantize_static
     from edgepick.quant.qat import QatHooks

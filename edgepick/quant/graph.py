@@ -14,8 +14,7 @@ import torch
 
 from edgepick.errors import ConfigError, EdgepickError, ParameterError
 from edgepick.geometry import Size
-from edgepick.models.deeplabv3 import LogitsNet
-from edgepick.models.deeplabv3 import trim_dilated_convs
+from edgepick.models.deeplabv3 import LogitsNet, trim_dilated_convs
 from edgepick.quant.config import QuantConfig
 from edgepick.quant.quantizer import EdgeQuantizer, count_quant_nodes, module_path, under
 from edgepick.quant.rewrites import drop_fake_quants_after_dropout, gate_hardswish, snap_conv_biases

@@ -59,7 +59,7 @@ def conv_group_outputs(gm: torch.fx.GraphModule) -> dict[torch.fx.Node, str]:
 class _Recorder(torch.fx.Interpreter):
     def __init__(self, gm: torch.fx.GraphModule, wanted: dict[torch.fx.Node, str]):
         super().__init__(gm)
-        self.wanted, self.values = wanted, {}
+        self.wanted, self.values = wanted, dict[str, torch.Tensor]()
 
     def run_node(self, n: torch.fx.Node):
         result = super().run_node(n)
@@ -174,7 +174,8 @@ def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str |
         base = evaluate(fp32, data, "val", progress=False)["miou"]
         candidates = ranked(inspect(ckpt, calib, compared, config, progress=progress))
         keep = list(config.keep_float)
-        steps, chosen = [], None
+        steps: list[dict] = []
+        chosen: dict | None = None
         while True:
             cfg = replace(config, keep_float=tuple(keep))
             path = work / f"step{len(steps)}.onnx"

@@ -24,8 +24,16 @@ from edgepick.export.checks import conv_weight_report, label_agreement
 from edgepick.export.onnx_export import EXPORT_PASSES, check_onnx_out, contract_metadata, export_onnx
 from edgepick.geometry import Size
 from edgepick.quant.config import DEFAULT_CALIB_IMAGES, FREEZE_AT, QuantConfig
-from edgepick.quant.graph import (QuantizationError, at_input_size, calibrate, check_keep_float, convert,
-                                  expected_int8_convs, first_of, prepare)
+from edgepick.quant.graph import (
+    QuantizationError,
+    at_input_size,
+    calibrate,
+    check_keep_float,
+    convert,
+    expected_int8_convs,
+    first_of,
+    prepare,
+)
 from edgepick.quant.qat import load_qat, qat_config, train_qat
 from edgepick.quant.quantizer import count_quant_nodes
 from edgepick.quant.results import Int8File, PassResult
@@ -233,7 +241,7 @@ def _switch_point(run: Path, data: str | Path, qat_fraction: float) -> tuple[Che
     if switch >= cfg.epochs:
         raise ParameterError(f"{{qat_fraction}} of {cfg.epochs} epochs is less than one epoch",
                              qat_fraction=qat_fraction)
-    init = Run(last.path.parent).epoch(switch)
+    init = Run(last.path.parent if last.path else run).epoch(switch)
     if not init.is_file():
         raise ParameterError(f"{init} does not exist: train the float run with {{keep_epochs}}", keep_epochs=(switch,))
     return Checkpoint.load(init), cfg

@@ -15,16 +15,16 @@ are kept in check in torchao_compat.py.
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable
 from dataclasses import replace
-from typing import Callable
 
 import numpy as np
 import torch
 
 from edgepick.errors import CheckpointError
 from edgepick.models.deeplabv3 import build_model
-from edgepick.quant.graph import PREFIX, calibrate, prepare
 from edgepick.quant.config import FREEZE_AT, QuantConfig
+from edgepick.quant.graph import PREFIX, calibrate, prepare
 from edgepick.quant.quantizer import PercentileObserver
 from edgepick.quant.torchao_compat import set_mode
 from edgepick.train.checkpoint import Checkpoint
@@ -146,6 +146,7 @@ class QatHooks(Hooks):
     def eval_model(self, model: torch.nn.Module) -> torch.nn.Module:
         if self.frozen:  # in eval mode for good
             return model
+        assert self.evaluator is not None, "begin() makes the evaluation copy"
         self.evaluator.load_state_dict(model.state_dict())
         return self.evaluator
 
@@ -167,7 +168,7 @@ def train_qat(cfg: TrainConfig, config: QuantConfig, start: Checkpoint | None = 
 
 def qat_config(checkpoint: Checkpoint) -> QuantConfig:
     """The QuantConfig a QaT run's checkpoint was trained with."""
-    if not checkpoint.is_qat:
+    if checkpoint.qat is None:
         raise CheckpointError(f"{checkpoint.path} is not a QaT run's checkpoint")
     return QuantConfig(**checkpoint.qat["quant"])
 

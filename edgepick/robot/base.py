@@ -114,7 +114,7 @@ class RobotBase:
         raise NotImplementedError
 
     # -- guarded commands ---------------------------------------------------------------------
-    def connect(self) -> "RobotBase":
+    def connect(self) -> RobotBase:
         self._connect()
         self.connected = True
         self._after("connect", True)
@@ -216,7 +216,7 @@ class RobotBase:
             finally:
                 self.connected = False
 
-    def __enter__(self) -> "RobotBase":
+    def __enter__(self) -> RobotBase:
         return self.connect()
 
     def __exit__(self, *exc) -> None:

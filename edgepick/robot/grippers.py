@@ -7,7 +7,6 @@ does not answer raises RobotUnreachable (exit status 3 on the command line)."""
 from __future__ import annotations
 
 import http.client
-import socket
 import xmlrpc.client
 
 from edgepick.robot.base import RobotBase, RobotError, RobotUnreachable, output_reason
@@ -74,7 +73,7 @@ class RG2Gripper:
             return getattr(self.proxy, name)(*args)
         except xmlrpc.client.Fault as exc:
             raise GripperFailed(f"the RG2 gripper at {self.where} refused {name}: {exc.faultString}") from None
-        except (OSError, socket.timeout, http.client.HTTPException, xmlrpc.client.Error) as exc:
+        except (TimeoutError, OSError, http.client.HTTPException, xmlrpc.client.Error) as exc:
             why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc) or type(exc).__name__
             raise RobotUnreachable(f"cannot reach the RG2 gripper at {self.where}: {why}") from None
 

@@ -11,16 +11,16 @@ import enum
 import json
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Callable
+from typing import IO
 
+from edgepick.errors import ParameterError
 from edgepick.robot.base import RobotBase, RobotError
 from edgepick.robot.envelope import Envelope, SafetyError
-from edgepick.errors import ParameterError
 from edgepick.robot.motion import HOME_POSE
 from edgepick.schema import member
-
 
 OCCLUDED = 0.02  # share of an object's rim under other objects above which it is picked last
 BURIED = 0.2  # ... and above which it is not picked at all: lifting it would drag what lies on it

@@ -50,7 +50,7 @@ class Calibration:
         atomic_write(path, json.dumps(self.to_dict(), indent=1))
 
     @classmethod
-    def load(cls, path: str | Path) -> "Calibration":
+    def load(cls, path: str | Path) -> Calibration:
         """Read a calib.json, every field checked: a malformed file is one line naming the file and
         the field, never a transform taken as if fine."""
         where = Where(str(path))

@@ -72,7 +72,7 @@ class RealSenseCamera(Camera):
         self.pipeline = None
         self.index = 0
 
-    def open(self) -> "RealSenseCamera":
+    def open(self) -> RealSenseCamera:
         try:
             import pyrealsense2 as rs
         except ImportError as exc:  # not installed, or its libusb is missing

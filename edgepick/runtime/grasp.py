@@ -17,8 +17,8 @@ import cv2
 import numpy as np
 
 from edgepick.errors import EdgepickError, ParameterError
-from edgepick.runtime.calibration import Calibration
 from edgepick.geometry import Intrinsics, deproject
+from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.regions import depth_holes, split_touching
 
 DEFAULT_CLASSES = ("background", "bearing", "disk", "adapter", "box")

@@ -28,7 +28,7 @@ class MarkerSpec:
     size_m: float | None = None  # printed side length of the black square, when known
 
     @classmethod
-    def parse(cls, spec: str) -> "MarkerSpec":
+    def parse(cls, spec: str) -> MarkerSpec:
         """'aruco:DICT:ID[:SIZE_MM]', e.g. aruco:4X4_50:7:40."""
         parts = spec.split(":")
         if len(parts) not in (3, 4) or parts[0] != "aruco":

@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from edgepick.runtime.calibration import Calibration
 from edgepick.frames import Frame
+from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.grasp import GraspConfig, grasp_records
 from edgepick.runtime.session import Segmenter
 

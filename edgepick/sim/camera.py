@@ -7,8 +7,8 @@ robot's tool (`ToolMarker`) where the arm's reported pose puts it, for `calibrat
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import cv2
 import numpy as np

@@ -296,7 +296,7 @@ def serve_script(ctl: Controller, conn: socket.socket) -> None:
         while not ctl.dropped.is_set():
             try:
                 chunk = conn.recv(65536)
-            except socket.timeout:
+            except TimeoutError:
                 if buf:
                     ctl.script_uploaded(buf)
                     buf = ""

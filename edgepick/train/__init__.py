@@ -19,7 +19,7 @@ __all__ = ["Checkpoint", "Device", "EpochRecord", "Hooks", "Run", "TrainConfig",
 if TYPE_CHECKING:
     from edgepick.train.checkpoint import Checkpoint, load_model
     from edgepick.train.config import Device, TrainConfig
-    from edgepick.train.loop import fit, Hooks, new_model, resume_run, train
+    from edgepick.train.loop import Hooks, fit, new_model, resume_run, train
     from edgepick.train.run import EpochRecord, Run, TrainResult
 
 

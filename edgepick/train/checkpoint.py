@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -74,12 +75,12 @@ class Checkpoint:
         with atomic_path(path) as tmp:
             torch.save(self.to_dict(), tmp)
 
-    def without_optimizer(self) -> "Checkpoint":
+    def without_optimizer(self) -> Checkpoint:
         """The weights and bookkeeping only: what export and the passes need, a third of the size."""
         return replace(self, optimizer=None, scheduler=None)
 
     @classmethod
-    def load(cls, path: str | Path) -> "Checkpoint":
+    def load(cls, path: str | Path) -> Checkpoint:
         """A checkpoint file (or a RUN folder's best.pt), every field checked once, here."""
         path = checkpoint_path(path)
         if not path.is_file():
@@ -117,7 +118,7 @@ def check_model_config(value: object, where: Where) -> ModelConfig:
     unknown = sorted(set(mc) - {f.name for f in fields(ModelConfig)})
     if unknown:
         where.fail(f"has unknown fields {', '.join(map(str, unknown))}")
-    checked = {
+    checked: dict[str, Any] = {
         "arch": as_str(required_field(mc, "arch", where), where.at("arch"), tuple(Arch)),
         "num_classes": as_number(required_field(mc, "num_classes", where), where.at("num_classes"), integer=True,
                                  minimum=2, maximum=255),

@@ -7,6 +7,7 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass, fields
+from typing import Any
 
 from edgepick.errors import ParameterError
 from edgepick.geometry import Size, check_size
@@ -84,27 +85,27 @@ class TrainConfig:
         return d
 
     @classmethod
-    def from_dict(cls, values: dict, where: Where | None = None) -> "TrainConfig":
+    def from_dict(cls, values: dict, where: Where | None = None) -> TrainConfig:
         """The config a checkpoint recorded, each field's type checked (WHERE names the file in errors)."""
         where = where or Where("train_config")
         values = as_dict(values, where)
         unknown = sorted(set(values) - {f.name for f in fields(cls)})
         if unknown:
             where.fail(f"has unknown fields {', '.join(map(str, unknown))}")
-        checked = {}
+        checked: dict[str, Any] = {}
         for f in fields(cls):
             if f.name not in values:
                 if f.name in ("data", "out"):
                     required_field(values, f.name, where)  # says which is missing
                 continue
-            checked[f.name] = _typed(values[f.name], f.type, where.at(f.name))
+            checked[f.name] = _typed(values[f.name], str(f.type), where.at(f.name))
         try:
             return cls(**checked)
         except ParameterError as exc:
             where.fail(str(exc))
 
 
-CHOICES = {kind.__name__: kind for kind in (Arch, Variant, ColorSpace, OutputStride, Device)}
+CHOICES: dict[str, Any] = {kind.__name__: kind for kind in (Arch, Variant, ColorSpace, OutputStride, Device)}
 
 
 def _typed(value: object, kind: str, where: Where) -> object:

@@ -18,6 +18,7 @@ import time
 import warnings
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -155,7 +156,7 @@ def _starting_state(model: torch.nn.Module, opt: torch.optim.Optimizer, sched: t
                     resume: Checkpoint | None) -> dict:
     """The run's bookkeeping (epoch, history, best mIoU, times) at its first epoch: fresh, continuing
     START's schedule (and its AdamW moments), or RESUME's own state (weights, optimizer, schedule)."""
-    state = {"epoch": 0, "history": [], "best_miou": -1.0, "train_time_s": 0.0, "phase_start": 0,
+    state: dict[str, Any] = {"epoch": 0, "history": [], "best_miou": -1.0, "train_time_s": 0.0, "phase_start": 0,
              "init_train_time_s": 0.0}
     if start is not None:
         if carry_optimizer:
@@ -209,7 +210,7 @@ def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, st
     if resume is not None:
         log(f"resuming {run.path} after epoch {state['epoch']}", rank)
     ddp = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
-    meta = {"model_config": model_config(cfg, classes), "classes": tuple(classes), "input_size": cfg.size,
+    meta: dict[str, Any] = {"model_config": model_config(cfg, classes), "classes": tuple(classes), "input_size": cfg.size,
             "train_config": cfg, "world_size": world, "data_image_size": Size.of(train_ds.rgb(train_ds.ids[0]))}
     gen = torch.Generator().manual_seed(cfg.seed * 1000 + state["epoch"] + rank)
     hooks.begin(model, device, state["phase_start"] * steps_per_epoch, cfg.epochs * steps_per_epoch)

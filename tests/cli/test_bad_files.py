@@ -251,7 +251,7 @@ OUTPUT_VARIANTS = [("/proc/edgepick/out{ext}", "inside /proc"), ("/sys/edgepick{
                    ("{O}/dang{ext}", "broken symbolic link"), ("{O}/loop{ext}", "broken symbolic link"),
                    ("{O}/fifo{ext}", "FIFO"), ("{O}/" + LONG + "{ext}", "bytes; this file system takes")]
 OUTPUT_CASES = []
-for command, (args, ext, kind) in WRITERS.items():
+for _command, (args, ext, kind) in WRITERS.items():
     variants = OUTPUT_VARIANTS + ([("{O}/full{ext}", "character device")] if ROOT else [])
     variants += [("{O}/lnk{ext}", "symbolic link")] if kind == "file" else \
         [("{O}/lnkdir", "symbolic link"), (".", "working folder"), ("{O}/target.txt", "is a file")]

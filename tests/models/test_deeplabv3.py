@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from edgepick.models import ModelConfig, build_model, deeplabv3_mobilenet_v3_large, deeplabv3_resnet50, deeplabv3_resnet101
 from edgepick.errors import ConfigError
+from edgepick.models import ModelConfig, build_model, deeplabv3_mobilenet_v3_large, deeplabv3_resnet50, deeplabv3_resnet101
 from edgepick.models.deeplabv3 import load_backbone_weights, rgb_to_hsv
 
 FIXTURE = Path(__file__).parent / "fixtures" / "torchvision_deeplabv3_keys.json"

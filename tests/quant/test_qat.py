@@ -86,8 +86,7 @@ def test_qat_graph_keeps_the_models_batchnorm_eps(after):
     import torch
     from torchao.quantization.pt2e import disable_fake_quant, disable_observer
 
-    from edgepick.models.deeplabv3 import ModelConfig, build_model
-    from edgepick.models.deeplabv3 import LogitsNet
+    from edgepick.models.deeplabv3 import LogitsNet, ModelConfig, build_model
     from edgepick.quant.graph import prepare
     from edgepick.quant.qat import to_eval
     from edgepick.quant.quantizer import QuantConfig

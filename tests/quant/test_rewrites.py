@@ -11,8 +11,8 @@ def test_gated_hardswish_is_the_same_function_and_quantizes_both_halves():
 
     from edgepick.models.deeplabv3 import ModelConfig, build_model
     from edgepick.quant.graph import prepare
-    from edgepick.quant.rewrites import GatedHardswish, gate_hardswish
     from edgepick.quant.quantizer import QuantConfig
+    from edgepick.quant.rewrites import GatedHardswish, gate_hardswish
 
     torch.manual_seed(0)
     model = build_model(ModelConfig(num_classes=3)).eval()

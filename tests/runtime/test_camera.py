@@ -8,12 +8,12 @@ import cv2
 import numpy as np
 import pytest
 
-from edgepick.data.synth import SynthConfig, synthesize
 from edgepick.cli.cameras import open_camera
+from edgepick.data.synth import SynthConfig, synthesize
 from edgepick.frames import CameraError
+from edgepick.geometry import Intrinsics, Size
 from edgepick.runtime.camera import FolderCamera, RealSenseCamera
 from edgepick.sim.camera import SynthCamera
-from edgepick.geometry import Intrinsics, Size
 
 
 @pytest.fixture(scope="module")

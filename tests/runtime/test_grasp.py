@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from edgepick.errors import EdgepickError
-from edgepick.runtime.calibration import Calibration
 from edgepick.geometry import Intrinsics, deproject
+from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.grasp import grasp_records
 from tests.conftest import run_cli
 

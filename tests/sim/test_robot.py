@@ -9,8 +9,8 @@ import pytest
 from edgepick.robot.base import RobotError, RobotHalted, SafetyStatus
 from edgepick.robot.envelope import SafetyError
 from edgepick.robot.grippers import DigitalGripper
-from edgepick.robot.pick import CommandLog, PickConfig, choose_target, execute, plan_pick
 from edgepick.robot.motion import motion_time
+from edgepick.robot.pick import CommandLog, PickConfig, choose_target, execute, plan_pick
 from edgepick.sim.robot import SimRobot
 
 DOWN = [math.pi, 0.0, 0.0]
