@@ -61,7 +61,7 @@ class Size:
 def check_size(value: object, what: str) -> Size:
     """VALUE when it is a Size; a (height, width) or (width, height) tuple is refused rather than guessed."""
     if not isinstance(value, Size):
-        raise ConfigError(f"{what} must be a Size(width, height) (from edgepick.geometry), got {value!r}")
+        raise ConfigError(f"{what} must be a Size(width, height) (edgepick.Size), got {value!r}")
     return value
 
 

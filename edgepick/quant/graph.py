@@ -13,7 +13,7 @@ import numpy as np
 import torch
 
 from edgepick.errors import ConfigError, EdgepickError, ParameterError
-from edgepick.geometry import Size
+from edgepick.geometry import Size, check_size
 from edgepick.models.deeplabv3 import LogitsNet, trim_dilated_convs
 from edgepick.quant.config import QuantConfig
 from edgepick.quant.quantizer import EdgeQuantizer, count_quant_nodes, module_path, under
@@ -80,6 +80,7 @@ def prepare(model: torch.nn.Module, config: QuantConfig, size: Size, qat: bool) 
     fake-quant was inserted (the silent-float trap)."""
     from torchao.quantization.pt2e.quantize_pt2e import prepare_pt2e, prepare_qat_pt2e
 
+    check_size(size, "size")
     check_keep_float(model, config.keep_float)
     trim_dilated_convs(model, size)  # exact; int8 kernels do not skip taps that only see padding
     if config.hardswish_gate:

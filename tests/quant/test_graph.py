@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import pytest
 
+from edgepick.geometry import Size
+
 
 def test_a_quantizer_that_marks_nothing_is_refused(trained_run, monkeypatch):
     from edgepick.quant import graph
@@ -13,4 +15,4 @@ def test_a_quantizer_that_marks_nothing_is_refused(trained_run, monkeypatch):
     monkeypatch.setattr(EdgeQuantizer, "annotate", lambda self, model: model)
     model, _ = load_model(trained_run)
     with pytest.raises(graph.QuantizationError):
-        graph.prepare(model, QuantConfig(), (96, 128), qat=False)
+        graph.prepare(model, QuantConfig(), Size(128, 96), qat=False)

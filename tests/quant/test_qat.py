@@ -6,6 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 
+from edgepick.geometry import Size
 from edgepick.train.checkpoint import Checkpoint
 
 
@@ -103,7 +104,7 @@ def test_qat_graph_keeps_the_models_batchnorm_eps(after):
     x = torch.rand(2, 3, 64, 96) * 255
     with torch.no_grad():
         want = LogitsNet(model)(x)
-    prepared = prepare(model, QuantConfig(), (64, 96), qat=True)
+    prepared = prepare(model, QuantConfig(), Size(96, 64), qat=True)
     if after == "train_switch":
         prepared.train()  # what the training loop does before its first step; nothing else is called
     prepared.apply(disable_observer)
@@ -120,7 +121,7 @@ def test_weight_range_averaging_reaches_the_fake_quants():
     from edgepick.quant.graph import prepare
     from edgepick.quant.quantizer import QuantConfig
 
-    prepared = prepare(build_model(ModelConfig(num_classes=4)), QuantConfig(weight_averaging=1.0), (64, 96), qat=True)
+    prepared = prepare(build_model(ModelConfig(num_classes=4)), QuantConfig(weight_averaging=1.0), Size(96, 64), qat=True)
     weight_fqs = [m for m in prepared.modules() if getattr(m, "is_per_channel", False)]
     assert weight_fqs and {m.activation_post_process.averaging_constant for m in weight_fqs} == {1.0}
     x = torch.rand(2, 3, 64, 96) * 255
@@ -201,7 +202,7 @@ def test_no_fake_quant_learns_from_training_dropout():
     from edgepick.quant.graph import prepare
     from edgepick.quant.quantizer import QuantConfig
 
-    prepared = prepare(build_model(ModelConfig(num_classes=4)), QuantConfig(), (64, 96), qat=True)
+    prepared = prepare(build_model(ModelConfig(num_classes=4)), QuantConfig(), Size(96, 64), qat=True)
     dropouts = [n for n in prepared.graph.nodes if n.target == torch.ops.aten.dropout.default]
     assert len(dropouts) == 1
     (drop,) = dropouts
@@ -217,7 +218,7 @@ def test_qat_state_loads_only_into_the_graph_it_came_from():
     from edgepick.quant.qat import load_qat_state
     from edgepick.quant.quantizer import QuantConfig
 
-    prepared = prepare(build_model(ModelConfig(num_classes=4)), QuantConfig(), (64, 96), qat=True)
+    prepared = prepare(build_model(ModelConfig(num_classes=4)), QuantConfig(), Size(96, 64), qat=True)
     load_qat_state(prepared, prepared.state_dict())
     extra_fake_quant = {**prepared.state_dict(), "activation_post_process_999.scale": torch.ones(1)}
     for state in (extra_fake_quant, {**prepared.state_dict(), "model.extra.weight": torch.ones(1)}):
@@ -238,7 +239,7 @@ def test_eval_copy_is_an_exact_eval_graph():
     from edgepick.quant.quantizer import QuantConfig
 
     torch.manual_seed(0)
-    model = prepare(build_model(ModelConfig()), QuantConfig(), (64, 96), qat=True)
+    model = prepare(build_model(ModelConfig()), QuantConfig(), Size(96, 64), qat=True)
     evaluator = eval_copy(model)
     x = torch.rand(4, 3, 64, 96) * 255
     opt = torch.optim.SGD(model.parameters(), 0.01)
@@ -253,7 +254,7 @@ def test_eval_copy_is_an_exact_eval_graph():
         m.apply(disable_observer)  # eval-mode observers still update their ranges on each call
     with torch.no_grad():
         assert torch.equal(evaluator(x), reference(x))
-        stale = eval_copy(prepare(build_model(ModelConfig()), QuantConfig(), (64, 96), qat=True))
+        stale = eval_copy(prepare(build_model(ModelConfig()), QuantConfig(), Size(96, 64), qat=True))
         stale(x)  # its own (untrained) ranges: a never-observed per-channel fake-quant has no scales yet
         stale.apply(disable_observer)
         assert not torch.equal(stale(x), reference(x))  # the check can fail
@@ -267,7 +268,7 @@ def test_hybrid_qat_continues_with_the_float_runs_optimizer_moments(trained_run)
     from edgepick.train.loop import carry_optimizer_state
 
     start = Checkpoint.load(trained_run / "epoch_002.pt")
-    model = prepare(build_model(start.model_config), QuantConfig(), (64, 96), qat=True)
+    model = prepare(build_model(start.model_config), QuantConfig(), Size(96, 64), qat=True)
     opt = torch.optim.AdamW(model.parameters())
     params = dict(model.named_parameters())
     float_shapes = {k: v.shape for k, v in start.model.items()}

@@ -3,6 +3,8 @@ conv biases snapped to onnxruntime's int32 grid."""
 
 from __future__ import annotations
 
+from edgepick.geometry import Size
+
 
 def test_gated_hardswish_is_the_same_function_and_quantizes_both_halves():
     """hardswish -> x * hardsigmoid(x): the float outputs do not move, and pt2e then sees a
@@ -24,11 +26,11 @@ def test_gated_hardswish_is_the_same_function_and_quantizes_both_halves():
     assert torch.allclose(before, after, atol=1e-5)
     assert not any(isinstance(m, torch.nn.Hardswish) for m in model.modules())
     assert sum(isinstance(m, GatedHardswish) for m in model.modules()) == 20
-    ops = [str(n.target) for n in prepare(build_model(ModelConfig(num_classes=3)), QuantConfig(), (64, 96),
+    ops = [str(n.target) for n in prepare(build_model(ModelConfig(num_classes=3)), QuantConfig(), Size(96, 64),
                                           qat=False).graph.nodes]
     assert not any("hardswish" in o for o in ops)
     assert sum("hardsigmoid" in o for o in ops) == 20 + 8  # the gates and the SE blocks
-    old = prepare(build_model(ModelConfig(num_classes=3)), QuantConfig(hardswish_gate=False), (64, 96), qat=False)
+    old = prepare(build_model(ModelConfig(num_classes=3)), QuantConfig(hardswish_gate=False), Size(96, 64), qat=False)
     assert sum("hardswish" in str(n.target) for n in old.graph.nodes) == 20
 
 

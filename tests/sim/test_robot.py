@@ -49,7 +49,7 @@ def test_a_full_pick_cycle_is_logged(tmp_path):
     log.close()
     lines = (tmp_path / "log.jsonl").read_text().splitlines()
     assert len(lines) == len(plan) == 10 and all('"result": "ok"' in line for line in lines)
-    assert robot.tcp_pose() == PickConfig().home_pose and robot.outputs[False][0] is False  # released
+    assert tuple(robot.tcp_pose()) == PickConfig().home_pose and robot.outputs[False][0] is False  # released
 
 
 @pytest.mark.parametrize("fault", ["protective_stop_on", "drop_link_on"])
