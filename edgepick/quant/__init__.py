@@ -7,8 +7,9 @@ Calibration data is the caller's: any iterable of HxWx3 uint8 RGB images (`folde
 them from a data set).
 """
 
-import importlib
 from typing import TYPE_CHECKING
+
+from edgepick.lazy import lazy_attributes
 
 _WHERE = {
     "AccuracyAwareResult": "results", "agreement_images": "passes", "CalibMethod": "config", "calibrate": "graph",
@@ -30,9 +31,4 @@ if TYPE_CHECKING:
     from edgepick.quant.results import AccuracyAwareResult, PassResult
 
 
-def __getattr__(name: str) -> object:
-    """The public objects are imported when first asked for, so that importing one light module of
-    the package (a config, an enum) does not import torch."""
-    if name in _WHERE:
-        return getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_attributes(__name__, _WHERE)

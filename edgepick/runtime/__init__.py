@@ -3,8 +3,9 @@
 Nothing under this package may import torch (tests/runtime/test_no_torch.py enforces it).
 """
 
-import importlib
 from typing import TYPE_CHECKING
+
+from edgepick.lazy import lazy_attributes
 
 _WHERE = {
     "Calibration": "calibration", "draw_overlay": "grasp", "Engine": "engine", "FolderCamera": "camera",
@@ -23,9 +24,4 @@ if TYPE_CHECKING:
     from edgepick.runtime.session import ModelError, Segmenter
 
 
-def __getattr__(name: str) -> object:
-    """The public objects are imported when first asked for, so that importing one light module of
-    the package (a config, an enum) does not import onnxruntime and OpenCV."""
-    if name in _WHERE:
-        return getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_attributes(__name__, _WHERE)

@@ -5,8 +5,9 @@
     train(TrainConfig(data="data", out="run", epochs=30, size=Size(320, 240)))
 """
 
-import importlib
 from typing import TYPE_CHECKING
+
+from edgepick.lazy import lazy_attributes
 
 _WHERE = {
     "Checkpoint": "checkpoint", "Device": "config", "EpochRecord": "run", "fit": "loop", "Hooks": "loop",
@@ -23,9 +24,4 @@ if TYPE_CHECKING:
     from edgepick.train.run import EpochRecord, Run, TrainResult
 
 
-def __getattr__(name: str) -> object:
-    """The public objects are imported when first asked for, so that importing one light module of
-    the package (a config, an enum) does not import torch."""
-    if name in _WHERE:
-        return getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_attributes(__name__, _WHERE)
