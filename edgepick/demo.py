@@ -97,8 +97,9 @@ def quantize_demo(workdir: Path, epochs: int) -> dict:
                      "smaller_than_fp32": round(fp32_size / f.size_bytes, 2),
                      "agreement_vs_torch": getattr(f, "agreement_vs_torch", None), "test_miou": res["miou"],
                      "test_pixel_acc": res["pixel_acc"]}
+        agreement = out[name]["agreement_vs_torch"]
         click.echo(f"{name:7s} {out[name]['size_mb']:6.2f} MB ({out[name]['smaller_than_fp32']}x smaller)  "
-                   f"test mIoU {res['miou']:.3f}  onnxruntime-vs-torch agreement {f.get('agreement_vs_torch', '-')}",
+                   f"test mIoU {res['miou']:.3f}  onnxruntime-vs-torch agreement {'-' if agreement is None else agreement}",
                    err=True)
     return out
 
