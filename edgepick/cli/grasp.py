@@ -33,7 +33,8 @@ from edgepick.runtime.engine import Engine
                    "once per model and cached in ~/.cache/edgepick).")
 @click.option("--overlay", default=None, type=click.Path(dir_okay=False), help="Write a PNG with centroids, axes, fingers.")
 @click.option("--profile", is_flag=True,
-              help="Print per-stage milliseconds (pre, inference, post, grasp) to stderr: median of 5 runs after one warm-up.")
+              help="Print per-stage milliseconds (pre, inference, post, grasp) and the grasp step's sub-steps to stderr: "
+                   "median of 5 runs after one warm-up.")
 def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, depth_path: str, intrinsics: str,
           calib: str | None, classes: str | None, threads: int, engine: str, overlay: str | None,
           profile: bool) -> None:
@@ -50,7 +51,7 @@ def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, d
     from edgepick.frames import Frame, read_depth, read_rgb
     from edgepick.geometry import Intrinsics
     from edgepick.runtime.calibration import Calibration
-    from edgepick.runtime.grasp import DEFAULT_CLASSES, draw_overlay, grasp_records
+    from edgepick.runtime.grasp import DEFAULT_CLASSES, Laps, draw_overlay, grasp_records
     from edgepick.runtime.pipeline import Pipeline, median_ms
 
     if bool(mask_path) == bool(model_path):
@@ -75,9 +76,10 @@ def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, d
         from edgepick.runtime.session import Segmenter
 
         frame = Frame(read_rgb(rgb_path), depth, intr, Path(rgb_path).stem)
-        pipeline = Pipeline(Segmenter(model_path, threads=threads, engine=engine), cal)
+        pipeline = Pipeline(Segmenter(model_path, threads=threads, engine=engine), cal, profile=profile)
         runs = [pipeline(frame) for _ in range(6 if profile else 1)]
         labels, records, timings = runs[-1].labels, runs[-1].records, [r.ms for r in runs[1:]]
+        steps = [r.grasp_ms for r in runs[1:]]
         picture = frame.rgb
     else:
         labels = cv2.imread(mask_path, cv2.IMREAD_UNCHANGED)
@@ -87,12 +89,14 @@ def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, d
         if unnamed:
             click.echo(f"edgepick: warning: label ids {', '.join(map(str, unnamed))} of {mask_path} have no name "
                        f"in the {len(names)} classes; those regions are skipped", err=True)
-        timings = []
+        timings, steps = [], []
         for _ in range(6 if profile else 1):
+            laps = Laps() if profile else None
             t0 = time.perf_counter()
-            records = grasp_records(labels, depth, intr, names, cal)
+            records = grasp_records(labels, depth, intr, names, cal, laps=laps)
             timings.append({"grasp": 1000 * (time.perf_counter() - t0)})
-        timings = timings[1:]
+            steps.append(laps.ms if laps else {})
+        timings, steps = timings[1:], steps[1:]
         picture = labels
     if overlay is not None:
         with atomic_path(overlay) as tmp:
@@ -101,5 +105,7 @@ def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, d
     if profile:
         med = median_ms(timings)
         click.echo(" | ".join(f"{k} {v:.2f} ms" for k, v in med.items()), err=True)
+        click.echo("grasp sub-steps: " + " | ".join(f"{k} {np.median([s[k] for s in steps]):.2f} ms" for k in Laps.STEPS),
+                   err=True)
     click.echo(json.dumps(records, indent=1))
 

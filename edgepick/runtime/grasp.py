@@ -11,6 +11,8 @@ calibration, its pose in the robot base frame. numpy + OpenCV only.
 from __future__ import annotations
 
 import math
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, fields
 
 import cv2
@@ -59,6 +61,30 @@ class GraspConfig:
                 raise ParameterError(f"{{{f.name}}}: must be 0 or more", **{f.name: value})
         if self.median_ksize % 2 != 1:
             raise ParameterError("{median_ksize}: a median filter's size must be odd", median_ksize=self.median_ksize)
+
+
+class Laps:
+    """Milliseconds spent in each sub-step of the grasp step over one or more frames, for `grasp
+    --profile` and benchmarks/runtime_stages.py: call it with a step's name when that step ends."""
+
+    STEPS = ("filters", "regions", "splits", "depth", "top face", "moments", "3d", "occlusion")
+
+    def __init__(self) -> None:
+        self.ms = dict.fromkeys(self.STEPS, 0.0)
+        self.start()
+
+    def start(self) -> None:
+        """Start timing the next step from now."""
+        self.t = time.perf_counter()
+
+    def __call__(self, step: str) -> None:
+        now = time.perf_counter()
+        self.ms[step] += 1000 * (now - self.t)
+        self.t = now
+
+
+def _no_lap(step: str) -> None:
+    """The lap function when nobody is timing the sub-steps."""
 
 
 def filter_class_masks(labels: np.ndarray, num_classes: int, cfg: GraspConfig) -> dict[int, tuple[int, int, np.ndarray]]:
@@ -205,16 +231,24 @@ def top_down_pose(cal: Calibration, intr: Intrinsics, cx: float, cy: float, z: f
 
 
 def grasp_records(labels: np.ndarray, depth: np.ndarray, intr: Intrinsics, classes: list[str] | tuple[str, ...] =
-                  DEFAULT_CLASSES, calib: Calibration | None = None, cfg: GraspConfig | None = None) -> list[dict]:
-    """One record per object region (docs/contracts.md#grasp-record), largest first."""
+                  DEFAULT_CLASSES, calib: Calibration | None = None, cfg: GraspConfig | None = None,
+                  laps: Laps | None = None) -> list[dict]:
+    """One record per object region (docs/contracts.md#grasp-record), largest first. LAPS, when
+    given, adds up the time of each sub-step."""
     cfg = cfg or GraspConfig()
+    lap: Callable[[str], None] = _no_lap
+    if laps is not None:
+        laps.start()
+        lap = laps
     if labels.shape != depth.shape:
         raise EdgepickError(f"label image {labels.shape[::-1]} and depth {depth.shape[::-1]} differ in size")
     if (labels.shape[1], labels.shape[0]) != (intr.width, intr.height):
         raise EdgepickError(f"image size {labels.shape[1]}x{labels.shape[0]} differs from the intrinsics "
                             f"{intr.width}x{intr.height}")
     records = []
-    for c, (ox, oy, mask) in filter_class_masks(labels, len(classes), cfg).items():
+    masks = filter_class_masks(labels, len(classes), cfg)
+    lap("filters")
+    for c, (ox, oy, mask) in masks.items():
         n, comp, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
         for k in range(1, n):
             x, y, w, h, area = (int(v) for v in stats[k])
@@ -224,25 +258,31 @@ def grasp_records(labels: np.ndarray, depth: np.ndarray, intr: Intrinsics, class
             region = (comp[y:y + h, x:x + w] == k).view(np.uint8)
             background = labels[y + oy:y + oy + h, x + ox:x + ox + w] == 0
             depth_m = depth[y + oy:y + oy + h, x + ox:x + ox + w].astype(np.float32) * intr.depth_scale
-            for part in split_touching(region, cfg, background, depth_m):
-                rec = _record(part, x + ox, y + oy, c, labels, depth, intr, classes, calib, cfg)
+            lap("regions")
+            parts = split_touching(region, cfg, background, depth_m)
+            lap("splits")
+            for part in parts:
+                rec = _record(part, x + ox, y + oy, c, labels, depth, intr, classes, calib, cfg, lap)
                 if rec is not None:  # cut by the image border: its centroid is that of the part in view
                     rec["partial"] = border_contact(part, x + ox, y + oy, labels.shape) >= \
                         cfg.partial_contact * math.sqrt(rec["area_px"])
                     records.append(rec)
+                lap("regions")
     records.sort(key=lambda r: -r["area_px"])
     return records
 
 
 def _record(region: np.ndarray, x: int, y: int, c: int, labels: np.ndarray, depth: np.ndarray, intr: Intrinsics,
-            classes, calib: Calibration | None, cfg: GraspConfig) -> dict | None:
+            classes, calib: Calibration | None, cfg: GraspConfig, lap: Callable[[str], None] = _no_lap) -> dict | None:
     """The grasp record of one object's mask REGION, whose top left is frame pixel (x, y)."""
     h, w = region.shape
     if cv2.countNonZero(region) < cfg.min_area_px:
         return None
     cx, cy, angle, defined, area = moments_pose(region, cfg.round_ratio)
+    lap("moments")
     own = (labels[y:y + h, x:x + w] == c) & (region > 0)  # unfiltered pixels: not the dilated rim
     z = grasp_depth(depth[y:y + h, x:x + w], own, cx, cy, area, intr.depth_scale, cfg)
+    lap("depth")
     pixels = None if z is None else top_pixels(depth[y:y + h, x:x + w], own, z, intr.depth_scale, cfg)
     if pixels is not None:  # the grasp point and axis of the top face, not of the silhouette with its walls
         cx, cy, angle, defined, _ = moments_pose(hull_mask(pixels), cfg.round_ratio)
@@ -252,6 +292,7 @@ def _record(region: np.ndarray, x: int, y: int, c: int, labels: np.ndarray, dept
         axis = hull_mask(pixels | (depth_holes(own, depth[y:y + h, x:x + w]) > 0)) if defined else None
         if axis is not None and rectangularity(axis) >= cfg.rect_fill:
             angle = rect_axis_deg(axis)
+    lap("top face")
     cx, cy = cx + x, cy + y
     rec: dict = {"class": classes[c], "pixel": [round(cx, 2), round(cy, 2)], "angle_deg": angle,
                  "orientation_defined": defined, "area_px": area}
@@ -261,8 +302,10 @@ def _record(region: np.ndarray, x: int, y: int, c: int, labels: np.ndarray, dept
         rec.update(depth_m=round(z, 5), point_camera_m=[round(float(v), 5) for v in deproject(intr, cx, cy, z)])
         if calib is not None:
             rec["pose_robot"] = top_down_pose(calib, intr, cx, cy, z, angle, defined)
+        lap("3d")
         rec["occluded"] = occluded_fraction(region, labels[y:y + h, x:x + w], depth[y:y + h, x:x + w], z,
                                             intr.depth_scale)
+        lap("occlusion")
     return rec
 
 

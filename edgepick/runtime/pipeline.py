@@ -13,7 +13,7 @@ import numpy as np
 
 from edgepick.frames import Frame
 from edgepick.runtime.calibration import Calibration
-from edgepick.runtime.grasp import GraspConfig, grasp_records
+from edgepick.runtime.grasp import GraspConfig, Laps, grasp_records
 from edgepick.runtime.session import Segmenter
 
 STAGES = ("pre", "inference", "post", "grasp")
@@ -24,13 +24,16 @@ class Perception:
     labels: np.ndarray  # class ids at the frame's resolution
     records: list[dict]  # docs/contracts.md#grasp-record, largest first
     ms: dict[str, float] = field(default_factory=dict)  # per stage
+    grasp_ms: dict[str, float] = field(default_factory=dict)  # per sub-step of the grasp stage (Laps.STEPS), profiling only
 
 
 class Pipeline:
-    """One segmentation session plus the grasp step; built once, called per frame."""
+    """One segmentation session plus the grasp step; built once, called per frame. PROFILE also
+    times the grasp step's sub-steps (Perception.grasp_ms)."""
 
-    def __init__(self, segmenter: Segmenter, calib: Calibration | None = None, cfg: GraspConfig | None = None):
-        self.segmenter, self.calib, self.cfg = segmenter, calib, cfg or GraspConfig()
+    def __init__(self, segmenter: Segmenter, calib: Calibration | None = None, cfg: GraspConfig | None = None,
+                 profile: bool = False):
+        self.segmenter, self.calib, self.cfg, self.profile = segmenter, calib, cfg or GraspConfig(), profile
         self.classes = segmenter.info.classes
 
     def __call__(self, frame: Frame) -> Perception:
@@ -41,10 +44,11 @@ class Pipeline:
         t2 = time.perf_counter()
         labels = self.segmenter.restore(small, frame.rgb.shape[:2])
         t3 = time.perf_counter()
-        records = grasp_records(labels, frame.depth, frame.intrinsics, self.classes, self.calib, self.cfg)
+        laps = Laps() if self.profile else None
+        records = grasp_records(labels, frame.depth, frame.intrinsics, self.classes, self.calib, self.cfg, laps)
         t4 = time.perf_counter()
         ms = dict(zip(STAGES, (1000 * (b - a) for a, b in ((t0, t1), (t1, t2), (t2, t3), (t3, t4)))))
-        return Perception(labels, records, ms)
+        return Perception(labels, records, ms, laps.ms if laps else {})
 
 
 def median_ms(runs: list[dict[str, float]]) -> dict[str, float]:

@@ -63,6 +63,7 @@ def test_cli_model_mode_with_profile_and_overlay(tmp_path):
     assert json.loads(model.stdout) == json.loads(mask.stdout) and len(json.loads(model.stdout)) == 2
     for stage in (*STAGES, "outside_inference"):
         assert f"{stage} " in model.stderr
+    assert "grasp sub-steps: filters " in model.stderr and "top face " in model.stderr
     assert cv2.imread(str(tmp_path / "o.png")).shape == (240, 320, 3)
 
 
