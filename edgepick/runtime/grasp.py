@@ -21,7 +21,8 @@ import numpy as np
 from edgepick.errors import EdgepickError, ParameterError
 from edgepick.geometry import Intrinsics, deproject
 from edgepick.runtime.calibration import Calibration
-from edgepick.runtime.regions import depth_holes, split_touching
+from edgepick.runtime.readings import histogram, median, percentile_25, readings
+from edgepick.runtime.regions import components, depth_holes, outline_points, split_touching
 
 DEFAULT_CLASSES = ("background", "bearing", "disk", "adapter", "box")
 
@@ -130,20 +131,15 @@ def moments_pose(region: np.ndarray, round_ratio: float) -> tuple[float, float, 
     return cx, cy, angle, defined, area
 
 
-def rectangularity(face: np.ndarray) -> float:
-    """The face's area over that of its minimum-area rectangle: ~1 for a box's top, pi/4 for an ellipse."""
-    (_, _), (w, h), _ = cv2.minAreaRect(cv2.findNonZero(face))
-    return cv2.countNonZero(face) / max(1.0, w * h)
-
-
-def rect_axis_deg(face: np.ndarray) -> float:
-    """The long side's direction of the face's minimum-area rectangle, in (-90, 90] degrees like
+def rect_fill_and_axis(face: np.ndarray) -> tuple[float, float]:
+    """The face's area over that of its minimum-area rectangle (~1 for a box's top, pi/4 for an
+    ellipse), and the direction of that rectangle's long side in (-90, 90] degrees like
     moments_pose: a box's or adapter's axis even when a depth hole cuts a corner off its top face,
     which tilts the moments' axis of a nearly square face by tens of degrees."""
-    (_, _), (w, h), a = cv2.minAreaRect(cv2.findNonZero(face))
+    (_, _), (w, h), a = cv2.minAreaRect(outline_points(face))
     angle = a if w >= h else a + 90.0
     angle = (angle + 90.0) % 180.0 - 90.0
-    return round(90.0 if angle == -90.0 else angle, 2)
+    return cv2.countNonZero(face) / max(1.0, w * h), round(90.0 if angle == -90.0 else angle, 2)
 
 
 def object_depth(depth: np.ndarray, region: np.ndarray, depth_scale: float, min_px: int,
@@ -152,16 +148,24 @@ def object_depth(depth: np.ndarray, region: np.ndarray, depth_scale: float, min_
     are valid: the nearest depth level (LEVEL_M bins, three at a time) that holds SHARE of them,
     then the 25th percentile of the pixels within 2 x LEVEL_M of its median. Not the median, nor
     a fixed percentile of all: a mask that bleeds onto the table, or covers a ring's hole, over a
-    shiny object that returns few depth pixels may hold more table pixels than object ones."""
-    vals = depth[(region > 0) & (depth > 0)].astype(np.float64) * depth_scale
-    if vals.size < min_px:
+    shiny object that returns few depth pixels may hold more table pixels than object ones.
+
+    Worked on the distinct depth readings and their counts (runtime/readings.py): the same result,
+    to the last bit, as np.histogram, np.median and np.percentile on every pixel's value."""
+    units = depth[(region > 0) & (depth > 0)]
+    if units.size < min_px:
         return None
-    counts, edges = np.histogram(vals, bins=max(1, int(np.ptp(vals) / level_m) + 1))
-    near = np.convolve(np.pad(counts, 1), np.ones(3, int), mode="valid")
-    i = int(np.argmax(near >= max(min_px, share * vals.size)))  # near[argmax of counts] always qualifies
-    lo, hi = edges[max(i - 1, 0)], edges[min(i + 2, counts.size)]
-    level = float(np.median(vals[(vals >= lo) & (vals <= hi)]))
-    return float(np.percentile(vals[np.abs(vals - level) <= 2 * level_m], 25.0))
+    vals, counts = readings(units, depth_scale, np.float64)
+    hist, edges = histogram(vals, counts, max(1, int((vals[-1] - vals[0]) / level_m) + 1))
+    near = hist.copy()  # a level may straddle two bins: count three at a time
+    near[1:] += hist[:-1]
+    near[:-1] += hist[1:]
+    i = int(np.argmax(near >= max(min_px, share * units.size)))  # near[argmax of hist] always qualifies
+    lo, hi = edges[max(i - 1, 0)], edges[min(i + 2, hist.size)]
+    at_level = (vals >= lo) & (vals <= hi)
+    level = median(vals[at_level], counts[at_level])
+    close = np.abs(vals - level) <= 2 * level_m
+    return percentile_25(vals[close], counts[close])
 
 
 def grasp_depth(depth: np.ndarray, own: np.ndarray, cx: float, cy: float, area: int, depth_scale: float,
@@ -205,7 +209,7 @@ def top_pixels(depth: np.ndarray, own: np.ndarray, z_top: float, depth_scale: fl
 def hull_mask(pixels: np.ndarray) -> np.ndarray:
     """The filled convex hull of PIXELS (uint8 0/1): it bridges the depth holes of a shiny top and
     a ring's bore."""
-    hull = cv2.convexHull(cv2.findNonZero(pixels.view(np.uint8)))
+    hull = cv2.convexHull(outline_points(pixels))
     return cv2.fillConvexPoly(np.zeros(pixels.shape, np.uint8), hull, 1)
 
 
@@ -249,17 +253,14 @@ def grasp_records(labels: np.ndarray, depth: np.ndarray, intr: Intrinsics, class
     masks = filter_class_masks(labels, len(classes), cfg)
     lap("filters")
     for c, (ox, oy, mask) in masks.items():
-        n, comp, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-        for k in range(1, n):
-            x, y, w, h, area = (int(v) for v in stats[k])
-            if area < cfg.min_area_px:
-                continue
+        n, comp, sizes = components(mask)
+        for k in np.flatnonzero(sizes[1:] >= cfg.min_area_px) + 1:
             # work on the region's bounding box, not the whole frame (this runs every frame)
+            x, y, w, h = cv2.boundingRect((comp == k).view(np.uint8))
             region = (comp[y:y + h, x:x + w] == k).view(np.uint8)
             background = labels[y + oy:y + oy + h, x + ox:x + ox + w] == 0
-            depth_m = depth[y + oy:y + oy + h, x + ox:x + ox + w].astype(np.float32) * intr.depth_scale
             lap("regions")
-            parts = split_touching(region, cfg, background, depth_m)
+            parts = split_touching(region, cfg, background, depth[y + oy:y + oy + h, x + ox:x + ox + w], intr.depth_scale)
             lap("splits")
             for part in parts:
                 rec = _record(part, x + ox, y + oy, c, labels, depth, intr, classes, calib, cfg, lap)
@@ -289,9 +290,9 @@ def _record(region: np.ndarray, x: int, y: int, c: int, labels: np.ndarray, dept
         # the axis counts the top's blobs with no depth reading as top: a black adapter may return
         # depth on a third of its top, whose hull is no longer its shape (not for the centroid: a
         # disk's shiny friction ring would pull that of its raised hub)
-        axis = hull_mask(pixels | (depth_holes(own, depth[y:y + h, x:x + w]) > 0)) if defined else None
-        if axis is not None and rectangularity(axis) >= cfg.rect_fill:
-            angle = rect_axis_deg(axis)
+        if defined:
+            fill, axis = rect_fill_and_axis(hull_mask(pixels | (depth_holes(own, depth[y:y + h, x:x + w]) > 0)))
+            angle = axis if fill >= cfg.rect_fill else angle
     lap("top face")
     cx, cy = cx + x, cy + y
     rec: dict = {"class": classes[c], "pixel": [round(cx, 2), round(cy, 2)], "angle_deg": angle,

@@ -10,17 +10,19 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
+from edgepick.runtime.readings import histogram, readings
+
 if TYPE_CHECKING:
     from edgepick.runtime.grasp import GraspConfig
 
 
 def split_touching(region: np.ndarray, cfg: GraspConfig, background: np.ndarray | None = None,
-                   depth_m: np.ndarray | None = None) -> list[np.ndarray]:
+                   depth: np.ndarray | None = None, depth_scale: float = 0.001) -> list[np.ndarray]:
     """One class region -> one mask per object. Touching objects of one class (two bearings side by
     side) form one connected region whose centroid lies between them. Seeds: the region's holes when
     it has two or more (rings: one hole each; a hole is BACKGROUND, the table, enclosed by the region
-    and other objects lying on it), else its top faces at different heights (DEPTH_M, metres: two
-    boxes of different heights side by side); a region with holes but not two large ones is one
+    and other objects lying on it), else its top faces at different heights (DEPTH, the camera's
+    readings, DEPTH_SCALE metres each: two boxes of different heights side by side); a region with holes but not two large ones is one
     ring (a disk whose rim other objects cover in places, with its bolt holes) and goes no further;
     else the two sides of a cut between the two deepest notches of its outline (two boxes side by
     side at one height), else its cores, the pixels farther than cfg.split_core x the region's
@@ -29,8 +31,9 @@ def split_touching(region: np.ndarray, cfg: GraspConfig, background: np.ndarray 
     holes = _holes(region, cfg, background)
     hole_area = sum(cv2.countNonZero(h) for h in holes)
     seeds = [h for h in holes if cv2.countNonZero(h) >= cfg.split_min_share * hole_area]
-    if len(seeds) < 2 and depth_m is not None:
-        seeds = _top_faces(region, depth_m, cfg)
+    depth_m = None if depth is None else depth.astype(np.float32) * depth_scale
+    if len(seeds) < 2 and depth is not None and depth_m is not None:
+        seeds = _top_faces(region, depth, depth_scale, depth_m, cfg)
     if len(seeds) < 2 and not holes:
         seeds = _notch_cut(region, cfg, depth_m)
     if len(seeds) < 2 and not holes:
@@ -43,22 +46,27 @@ def split_touching(region: np.ndarray, cfg: GraspConfig, background: np.ndarray 
     return [((nearest == i) & (region > 0)).view(np.uint8) for i in range(len(seeds))]
 
 
-def _top_faces(region: np.ndarray, depth_m: np.ndarray, cfg: GraspConfig) -> list[np.ndarray]:
+def _top_faces(region: np.ndarray, depth: np.ndarray, depth_scale: float, depth_m: np.ndarray,
+               cfg: GraspConfig) -> list[np.ndarray]:
     """Flat faces of the region at different heights: for each peak of its depth histogram holding
     cfg.split_min_share of its depth pixels, the connected parts at that depth that are large and
     compact (cfg.face_compactness: a side wall seen at an angle is a long, thin band). Two faces
     each of whose centroid lies in the other's convex hull are one object (a disk's hub inside its
     friction ring); faces left apart are objects side by side or one on another (two boxes of
     different heights)."""
-    inside = (region > 0) & (depth_m > 0)
-    vals = depth_m[inside]
-    if vals.size < cfg.min_depth_px:
+    inside = (region > 0) & (depth > 0)
+    vals, found = readings(depth[inside], depth_scale, np.float32)  # DEPTH_M's values, once each
+    total = int(found.sum())
+    if total < cfg.min_depth_px:
         return []
     tol = cfg.top_tolerance_m
-    counts, edges = np.histogram(vals, bins=max(1, int(np.ptp(vals) / (tol / 2)) + 1))
-    near = np.convolve(np.pad(counts, 1), np.ones(3, int), mode="valid")  # a level may straddle two bins
+    counts, edges = histogram(vals, found, max(1, int((vals[-1] - vals[0]) / (tol / 2)) + 1))
+    near = counts.copy()  # a level may straddle two bins: count three at a time
+    near[1:] += counts[:-1]
+    near[:-1] += counts[1:]
     faces: list[np.ndarray] = []
-    for i in map(int, np.flatnonzero(near >= cfg.split_min_share * vals.size)):
+    holes = None
+    for i in map(int, np.flatnonzero(near >= cfg.split_min_share * total)):
         if (i > 0 and counts[i - 1] > counts[i]) or (i + 1 < counts.size and counts[i + 1] >= counts[i]):
             continue  # not a peak
         level = (edges[i] + edges[i + 1]) / 2
@@ -67,12 +75,13 @@ def _top_faces(region: np.ndarray, depth_m: np.ndarray, cfg: GraspConfig) -> lis
         # blobs with no depth (shiny metal, a black part) join the parts they lie between: one
         # object's top broken by depth holes is one face; two objects at one height, with the table
         # between them, are two.
-        n, comp, stats, _ = cv2.connectedComponentsWithStats(at | depth_holes(region, depth_m), connectivity=8)
-        for k in range(1, n):
+        holes = depth_holes(region, depth_m) if holes is None else holes
+        n, comp, sizes = components(at | holes)
+        least = cfg.split_min_share * cv2.countNonZero(region)
+        for k in np.flatnonzero(sizes[1:] >= least) + 1:  # a smaller part holds fewer face pixels
             part = (comp == k).view(np.uint8)
             area, thick = cv2.countNonZero(part & at), float(_edge_distance(part).max())
-            if area >= cfg.split_min_share * cv2.countNonZero(region) and stats[k, cv2.CC_STAT_AREA] <= \
-                    cfg.face_compactness * thick ** 2:
+            if area >= least and sizes[k] <= cfg.face_compactness * thick ** 2:
                 faces.append(part & at)
     groups: list[list[int]] = []
     for i in range(len(faces)):
@@ -81,17 +90,36 @@ def _top_faces(region: np.ndarray, depth_m: np.ndarray, cfg: GraspConfig) -> lis
     return [np.bitwise_or.reduce([faces[j] for j in g]) for g in groups] if len(groups) > 1 else []
 
 
+def components(mask: np.ndarray, connectivity: int = 8) -> tuple[int, np.ndarray, np.ndarray]:
+    """(count, labels, pixels per label) of MASK's connected components: connectedComponentsWithStats's
+    labels and areas, at a third of its cost (OpenCV's per-label statistics cost more than the labelling)."""
+    n, comp = cv2.connectedComponents(mask, connectivity=connectivity)
+    return n, comp, np.bincount(comp.ravel(), minlength=n)
+
+
 def depth_holes(mask: np.ndarray, depth: np.ndarray) -> np.ndarray:
     """MASK's pixels with no depth reading, in blobs of 5x5 or more (uint8 0/1): the holes a shiny
     or black surface leaves, not the thin lines of missing depth along every object's outline."""
     return cv2.morphologyEx(((mask > 0) & (depth <= 0)).view(np.uint8), cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
 
 
+def outline_points(mask: np.ndarray) -> np.ndarray:
+    """The pixels on the outer outlines of MASK's blobs (Nx1x2 int32), each once and in raster order
+    as cv2.findNonZero lists them: every point of the blobs' convex hull is one of them, so a hull or
+    a minimum-area rectangle made from them is the one all their pixels make (the same vertices from
+    the same start, hence the same rectangle where two tie), at a fraction of the cost."""
+    contours, _ = cv2.findContours(mask.view(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    points = np.concatenate(contours).reshape(-1, 2)
+    width = mask.shape[1]
+    raster = np.unique(points[:, 1] * width + points[:, 0])
+    return np.stack([raster % width, raster // width], axis=1).astype(np.int32).reshape(-1, 1, 2)
+
+
 def _nested(a: np.ndarray, b: np.ndarray) -> bool:
     """Whether each mask's centroid lies in the other's convex hull (concentric parts of one object)."""
     for one, other in ((a, b), (b, a)):
         m = cv2.moments(one, binaryImage=True)
-        hull = cv2.convexHull(cv2.findNonZero(other))
+        hull = cv2.convexHull(outline_points(other))
         if cv2.pointPolygonTest(hull, (m["m10"] / m["m00"], m["m01"] / m["m00"]), False) < 0:
             return False
     return True
@@ -127,8 +155,8 @@ def _notch_cut(region: np.ndarray, cfg: GraspConfig, depth_m: np.ndarray | None 
     p, q = (tuple(int(v) for v in contour[i, 0]) for i in two[:, 2])
     cut = region.copy()
     cv2.line(cut, p, q, 0, 2)
-    n, comp, stats, _ = cv2.connectedComponentsWithStats(cut, connectivity=4)
-    sides = [(comp == k).view(np.uint8) for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= cfg.split_min_part * area]
+    n, comp, sizes = components(cut, connectivity=4)
+    sides = [(comp == k).view(np.uint8) for k in range(1, n) if sizes[k] >= cfg.split_min_part * area]
     convex = cfg.split_solidity
     if two[:, 3].min() / 256.0 > cfg.deep_notch * math.sqrt(area) and depth_m is not None and \
             all(_opens_onto_table(region, contour, d, depth_m, cfg) for d in two):
@@ -160,13 +188,14 @@ def _solidity(mask: np.ndarray) -> float:
 def _edge_distance(mask: np.ndarray) -> np.ndarray:
     """Each pixel's distance to the nearest pixel outside MASK, the crop's border counting as
     outside (a region is worked on its bounding box, which it touches on every side)."""
-    return cv2.distanceTransform(np.pad(mask, 1), cv2.DIST_L2, 5)[1:-1, 1:-1]
+    return cv2.distanceTransform(cv2.copyMakeBorder(mask, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0), cv2.DIST_L2,
+                                 5)[1:-1, 1:-1]
 
 
 def _components(mask: np.ndarray, cfg: GraspConfig) -> list[np.ndarray]:
     """The connected components of MASK that hold cfg.split_min_share of its area or more."""
-    n, comp, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    areas = stats[1:, cv2.CC_STAT_AREA]
+    n, comp, sizes = components(mask)
+    areas = sizes[1:]
     return [(comp == k + 1).view(np.uint8) for k in np.flatnonzero(areas >= cfg.split_min_share * areas.sum())] \
         if n > 2 else []
 
@@ -177,14 +206,14 @@ def _holes(region: np.ndarray, cfg: GraspConfig, background: np.ndarray | None) 
     itself: a ring's bore, even with an object lying across it, but not a pocket of table closed
     off by a box and the objects lying around it. One mask per hole, in the region's frame."""
     free = (region == 0) if background is None else (background & (region == 0))
-    outside = np.pad(free.view(np.uint8), 1, constant_values=1)
-    n, comp, stats, _ = cv2.connectedComponentsWithStats(outside, connectivity=4)
+    outside = cv2.copyMakeBorder(free.view(np.uint8), 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=1)
+    n, comp, sizes = components(outside, connectivity=4)
     if n <= 2:
         return []
-    edge, padded = comp[0, 0], np.pad(region, 1)
+    edge, padded = comp[0, 0], cv2.copyMakeBorder(region, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
     holes = []
     for k in range(1, n):
-        if k == edge or stats[k, cv2.CC_STAT_AREA] < 20:
+        if k == edge or sizes[k] < 20:
             continue
         hole = (comp == k).view(np.uint8)
         rim = (cv2.dilate(hole, np.ones((3, 3), np.uint8)) > 0) & (hole == 0)

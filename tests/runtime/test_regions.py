@@ -6,8 +6,11 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from edgepick.runtime.grasp import grasp_records
+from edgepick.runtime.regions import outline_points
 from tests.runtime.test_grasp import BEARING, BOX, INTR, flat_depth, rect
 
 
@@ -139,3 +142,21 @@ def test_a_top_broken_by_depth_holes_is_one_face():
     depth[labels == BOX] = 600
     labels[200:280, 300:341] = BOX  # the mask spills over the table between them, which keeps its depth
     assert sorted(r["pixel"][0] for r in grasp_records(labels, depth, INTR)) == pytest.approx([250.0, 390.0], abs=3.0)
+
+
+@settings(max_examples=300, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), size=st.integers(3, 120), blobs=st.integers(1, 3))
+def test_outline_points_make_the_hull_and_rectangle_all_pixels_make(seed, size, blobs):
+    rng = np.random.default_rng(seed)
+    mask = np.zeros((size + 8, size + 8), np.uint8)
+    for _ in range(blobs):  # filled convex polygons, as hull_mask makes them, and ragged blobs
+        points = rng.integers(2, size + 6, (int(rng.integers(3, 9)), 2)).astype(np.int32)
+        if rng.random() < 0.5:
+            cv2.fillConvexPoly(mask, cv2.convexHull(points), 1)
+        else:
+            cv2.fillPoly(mask, [points], 1)
+    if not mask.any():
+        return
+    every = cv2.findNonZero(mask)
+    assert np.array_equal(cv2.convexHull(outline_points(mask)), cv2.convexHull(every))
+    assert cv2.minAreaRect(outline_points(mask)) == cv2.minAreaRect(every)
