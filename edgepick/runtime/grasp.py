@@ -152,7 +152,12 @@ def object_depth(depth: np.ndarray, region: np.ndarray, depth_scale: float, min_
 
     Worked on the distinct depth readings and their counts (runtime/readings.py): the same result,
     to the last bit, as np.histogram, np.median and np.percentile on every pixel's value."""
-    units = depth[(region > 0) & (depth > 0)]
+    return readings_depth(depth[(region > 0) & (depth > 0)], depth_scale, min_px, share, level_m)
+
+
+def readings_depth(units: np.ndarray, depth_scale: float, min_px: int, share: float = 0.08,
+                   level_m: float = 0.004) -> float | None:
+    """object_depth of the valid depth readings UNITS (1-D, > 0) of an object's pixels."""
     if units.size < min_px:
         return None
     vals, counts = readings(units, depth_scale, np.float64)
@@ -175,11 +180,12 @@ def grasp_depth(depth: np.ndarray, own: np.ndarray, cx: float, cy: float, area: 
     its equivalent radius). A disk's centroid lands on its raised hub, nearer than the friction
     ring, whose shiny top may leave few depth pixels; a ring's centroid falls in its hole, where a
     mask that covers the hole sees the table, farther than the ring."""
-    top = object_depth(depth, own, depth_scale, cfg.min_depth_px)
-    yy, xx = np.ogrid[:own.shape[0], :own.shape[1]]
-    r2 = (xx - cx) ** 2 + (yy - cy) ** 2
+    ys, xs = np.nonzero(own & (depth > 0))  # the pixels with a reading, once for the three estimates
+    units = depth[ys, xs]
+    top = readings_depth(units, depth_scale, cfg.min_depth_px)
+    r2 = (xs - cx) ** 2 + (ys - cy) ** 2
     for fraction in (cfg.centre_fraction, 2 * cfg.centre_fraction):
-        z = object_depth(depth, own & (r2 <= fraction ** 2 * area / math.pi), depth_scale, cfg.min_depth_px)
+        z = readings_depth(units[r2 <= fraction ** 2 * area / math.pi], depth_scale, cfg.min_depth_px)
         if z is not None:
             return z if top is None else min(z, top)
     return top
