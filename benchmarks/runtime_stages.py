@@ -82,7 +82,7 @@ def main() -> None:
     columns = list(next(iter(rows.values())))
     lines = [f"# Runtime per-stage time in the synthetic cell, 640x480, {args.threads} threads", "",
              f"Command: `python benchmarks/runtime_stages.py {' '.join(sys.argv[1:])}`  ",
-             f"{machine_line()}; {args.engine}, onnxruntime {ort.__version__}; {len(frames)} frames of the synthetic "
+             f"{machine_line()}; engine {args.engine}, onnxruntime {ort.__version__}; {len(frames)} frames of the synthetic "
              f"cell (seeds 0-{(len(frames) - 1) // PER_SEED}, camera {MOUNT_M} m over the table), one process, "
              "after 3 warm-up frames. ms, p50 / p95 over the frames; a sub-step's time is its sum over the frame's "
              "objects.", "",

@@ -80,9 +80,13 @@ def make_gripper(spec: tuple[str, int | str], robot):
               help="Inference engine (openvino: the [peers] extra; auto: the faster one here, measured once per "
                    "model and cached in ~/.cache/edgepick).")
 @click.option("--size", default="640x480", show_default=True, help="Camera frame size, WIDTHxHEIGHT.")
+@click.option("--overlap", is_flag=True,
+              help="Read and segment the next frame while the arm places the object and returns home, so the arm "
+                   "waits only for the plan (each cycle reports frame_to_frame_ms and arm_wait_ms). Only where the "
+                   "camera sees neither the arm nor the part it holds once the arm is above the place pose.")
 def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: str, execute: bool, cycles: int,
          classes: tuple[str, ...], choose: str, speed: float, acc: float, log_path: str, robot_log: str | None,
-         overlay_dir: str | None, threads: int, engine: str, size: str) -> None:
+         overlay_dir: str | None, threads: int, engine: str, size: str, overlap: bool) -> None:
     """Pick and place: camera -> segmentation -> grasp records -> target -> robot.
 
     Each cycle chooses the largest (or closest) object whose whole plan passes the safety
@@ -150,7 +154,7 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
                     grip.probe()  # a gripper that cannot be reached is found before the arm is sent anything
                     with robot:
                         results = run_cycles(source, pipeline, robot, grip, cfg=cfg, cycles=cycles, log=log,
-                                             overlay_dir=overlay_dir, echo=echo, truth_cal=truth_cal)
+                                             overlay_dir=overlay_dir, echo=echo, truth_cal=truth_cal, overlap=overlap)
                 except RobotError as exc:
                     if getattr(exc, "exit_code", 2) != 3:
                         raise

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict
 from pathlib import Path
 
@@ -64,32 +65,87 @@ def stopped_verdict(verdict: dict) -> dict:
     return {**verdict, "success": False, "failure": "robot stopped"}
 
 
+class Lookahead:
+    """The next frame, read and segmented on a worker thread while the arm finishes the cycle
+    (`pick --overlap`): started once the arm has left the pick area (Step.clears_view), taken by
+    the next cycle, which then plans at once."""
+
+    def __init__(self, camera: Camera, pipeline: Pipeline):
+        self.camera, self.pipeline = camera, pipeline
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="edgepick-lookahead")
+        self._pending: Future | None = None
+
+    def start(self) -> None:
+        """Read and segment the next frame from now on (once per cycle)."""
+        if self._pending is None:
+            self._pending = self._pool.submit(self._see)
+
+    def _see(self):
+        frame = self.camera.read()
+        return frame, time.perf_counter(), self.pipeline(frame)
+
+    def take(self):
+        """(frame, the time it was read, its Perception), or None when none was started; raises
+        what reading or segmenting it raised (StopIteration: the camera has no more frames)."""
+        pending, self._pending = self._pending, None
+        return None if pending is None else pending.result()
+
+    def close(self) -> None:
+        """Wait for a frame still being read or segmented, and stop the worker."""
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+
 def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None,
                gripper: DigitalGripper | RG2Gripper | None, *, cfg: PickConfig, cycles: int, log: CommandLog,
                overlay_dir: str | Path | None = None, echo: Callable[[str], object] = print,
-               truth_cal: Calibration | None = None) -> list[dict]:
+               truth_cal: Calibration | None = None, overlap: bool = False) -> list[dict]:
     """Run up to `cycles` pick cycles (robot None = plan only). Stops early when the robot halts
     (a failed gripper halts it too). Each plan passes the envelope and, with a robot, the
     controller's own safety limits before its first command. TRUTH_CAL (the synthetic cell's true
-    calibration) lets each cycle be judged against the truth. ECHO gets each cycle's line."""
-    results = []
+    calibration) lets each cycle be judged against the truth. ECHO gets each cycle's line.
+    OVERLAP (with a robot): the next frame is read and segmented while the arm places the object
+    and returns (Lookahead), so the arm waits only for the plan; the cell's camera must then not
+    see the arm, nor the part it holds, from the place approach pose on."""
+    ahead = Lookahead(camera, pipeline) if overlap and robot is not None else None
+    try:
+        return _cycles(camera, pipeline, robot, gripper, cfg, cycles, log, overlay_dir, echo, truth_cal, ahead)
+    finally:
+        if ahead is not None:
+            ahead.close()
+
+
+def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper: DigitalGripper | RG2Gripper | None,
+            cfg: PickConfig, cycles: int, log: CommandLog, overlay_dir: str | Path | None, echo: Callable[[str], object],
+            truth_cal: Calibration | None, ahead: Lookahead | None) -> list[dict]:
+    """run_cycles' loop. Per cycle, besides the outcome: plan_ms (frame read -> checked plan),
+    frame_to_command_ms (-> the first command sent), frame_to_frame_ms (since the previous frame was
+    read) and arm_wait_ms (the previous cycle's last command done -> this one's first sent)."""
+    results: list[dict] = []
     envelope = robot.envelope if robot is not None else Envelope()
     limits = robot.limits_reason if robot is not None else None  # plan only: no controller to ask
     if overlay_dir:
         Path(overlay_dir).mkdir(parents=True, exist_ok=True)
+    previous_frame = arm_free = None
     for cycle in range(1, cycles + 1):
         try:
-            frame: Frame = camera.read()
+            early = ahead.take() if ahead is not None else None
+            if early is None:
+                frame: Frame = camera.read()
+                t0 = time.perf_counter()
+                seen = pipeline(frame)
+            else:
+                frame, t0, seen = early
         except StopIteration:
             echo(f"cycle {cycle}: the camera has no more frames")
             break
         start = robot.tcp_pose() if robot is not None else None  # plan only: from the home pose
-        t0 = time.perf_counter()
-        seen = pipeline(frame)
         record, plan, note = choose_target(seen.records, envelope, cfg, start, limits)
         t_plan = time.perf_counter()
         result = {"cycle": cycle, "frame": frame.name, "objects": len(seen.records), "stage_ms": seen.ms,
                   "plan_ms": round(1000 * (t_plan - t0), 2)}
+        if previous_frame is not None:
+            result["frame_to_frame_ms"] = round(1000 * (t0 - previous_frame), 2)
+        previous_frame = t0
         if record is None:
             result.update(outcome="skipped", reason=note)
             log.write(cycle=cycle, command="none", target=None, result=f"skipped: {note}")
@@ -107,10 +163,14 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None,
                     first.setdefault("t", time.perf_counter())
 
                 robot.on_send = mark
-                stopped = execute(plan, robot, gripper, log, cycle, cfg)
+                next_frame = ahead.start if ahead is not None and cycle < cycles else None
+                stopped = execute(plan, robot, gripper, log, cycle, cfg, on_clear=next_frame)
                 robot.on_send = None
                 if "t" in first:
                     result["frame_to_command_ms"] = round(1000 * (first["t"] - t0), 2)
+                    if arm_free is not None:
+                        result["arm_wait_ms"] = round(1000 * (first["t"] - arm_free), 2)
+                arm_free = time.perf_counter()
                 result["motion_s"] = round(getattr(robot, "motion_s", 0.0) - motion0, 3)
                 result.update(outcome="done" if stopped is None else "stopped", reason=stopped)
                 if stopped is not None and "verdict" in result:
@@ -136,8 +196,8 @@ def cycles_summary(results: list[dict]) -> dict:
             "within_1cm": sum(bool(r.get("within_1cm")) for r in results),
             "grasp_error_mm_median": None if error is None else round(1000 * error, 2),
             **summarize(results),
-            "frame_to_command_ms_median": median([r["frame_to_command_ms"] for r in results
-                                                  if "frame_to_command_ms" in r])}
+            **{f"{key}_median": median([r[key] for r in results if key in r])
+               for key in ("frame_to_command_ms", "frame_to_frame_ms", "arm_wait_ms")}}
 
 
 def cycle_line(r: dict) -> str:

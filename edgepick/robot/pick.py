@@ -62,6 +62,7 @@ class Step:
     command: str  # moveL | open | grip | release
     target: list[float] | None
     note: str
+    clears_view: bool = False  # once done, the arm and what it holds have left the pick area: the next frame may be taken
 
 
 def _above(pose: list[float], dz: float) -> list[float]:
@@ -97,7 +98,7 @@ def plan_pick(record: dict, cfg: PickConfig) -> list[Step]:
             Step("moveL", _above(grasp, cfg.lift_m), "lift"),
             *[Step("moveL", via, "around the base") for via in _around_the_base(_above(grasp, cfg.lift_m),
                                                                                 _above(place, cfg.approach_m), cfg)],
-            Step("moveL", _above(place, cfg.approach_m), "above the place pose"),
+            Step("moveL", _above(place, cfg.approach_m), "above the place pose", clears_view=True),
             Step("moveL", place, "place"),
             Step("release", None, "open / magnet off"),
             Step("moveL", _above(place, cfg.approach_m), "retreat"),
@@ -189,10 +190,12 @@ class CommandLog:
             self.file = None
 
 
-def execute(plan: list[Step], robot: RobotBase, gripper, log: CommandLog, cycle: int, cfg: PickConfig) -> str | None:
+def execute(plan: list[Step], robot: RobotBase, gripper, log: CommandLog, cycle: int, cfg: PickConfig,
+            on_clear: Callable[[], object] | None = None) -> str | None:
     """Run the plan; returns None when every step was carried out, else the reason it stopped.
     Any robot error ends the cycle and leaves the arm stopped; a halt sends nothing more. A
-    gripper that fails halts the robot too: what it holds, or not, is unknown."""
+    gripper that fails halts the robot too: what it holds, or not, is unknown. ON_CLEAR is
+    called once the step that takes the arm out of the pick area (Step.clears_view) is done."""
     for step in plan:
         try:
             if step.command == "moveL":
@@ -206,4 +209,6 @@ def execute(plan: list[Step], robot: RobotBase, gripper, log: CommandLog, cycle:
                 robot.halt(str(exc))
             return str(exc)
         log.write(cycle=cycle, command=step.command, target=step.target, note=step.note, result="ok")
+        if step.clears_view and on_clear is not None:
+            on_clear()
     return None

@@ -8,6 +8,7 @@ so the pick loop's stop and refusal handling is testable without an arm.
 from __future__ import annotations
 
 import math
+import time
 
 from edgepick.robot.base import RobotBase, SafetyStatus
 from edgepick.robot.envelope import Envelope
@@ -22,8 +23,9 @@ class SimRobot(RobotBase):
 
     def __init__(self, envelope: Envelope | None = None, start_pose: list[float] | None = None,
                  protective_stop_on: int | None = None, drop_link_on: int | None = None,
-                 refuse_poses_beyond_x: float | None = None):
+                 refuse_poses_beyond_x: float | None = None, realtime: float = 0.0):
         super().__init__(envelope)
+        self.realtime = realtime  # wall seconds slept per simulated second of motion (0: motion takes no time)
         self.refuse_poses_beyond_x = refuse_poses_beyond_x
         self.pose = list(start_pose or HOME_POSE)
         self.q = [0.0, -1.57, 1.57, -1.57, -1.57, 0.0]
@@ -54,16 +56,22 @@ class SimRobot(RobotBase):
     def _move_l(self, pose: list[float], speed: float, acc: float) -> bool:
         if self._fault(pose):
             return False
-        self.motion_s += motion_time(math.dist(self.pose[:3], pose[:3]), speed, acc)
+        self._move(motion_time(math.dist(self.pose[:3], pose[:3]), speed, acc))
         self.pose = list(pose)
         return True
 
     def _move_j(self, q: list[float], speed: float, acc: float) -> bool:
         if self._fault(self.pose):
             return False
-        self.motion_s += motion_time(max(abs(a - b) for a, b in zip(self.q, q)), speed, acc)
+        self._move(motion_time(max(abs(a - b) for a, b in zip(self.q, q)), speed, acc))
         self.q = list(q)
         return True
+
+    def _move(self, seconds: float) -> None:
+        """Count a motion's time, and spend its share of wall time (realtime), as an arm's blocking move would."""
+        self.motion_s += seconds
+        if self.realtime > 0:
+            time.sleep(seconds * self.realtime)
 
     def _stop(self) -> None:
         pass

@@ -43,8 +43,9 @@ def pick(tmp_path, boxes, *extra):
                    "--calib", str(tmp_path / "calib.json"), "--log", str(tmp_path / "log.jsonl"), *extra)
 
 
-def test_pick_cycles_on_the_sim_robot(tmp_path):
-    proc = pick(tmp_path, [(160, 120), (140, 100)], "--cycles", "3", "--overlay-dir", str(tmp_path / "ov"))
+@pytest.mark.parametrize("overlap", [[], ["--overlap"]], ids=["plain", "overlap"])
+def test_pick_cycles_on_the_sim_robot(tmp_path, overlap):
+    proc = pick(tmp_path, [(160, 120), (140, 100)], "--cycles", "3", "--overlay-dir", str(tmp_path / "ov"), *overlap)
     assert proc.returncode == 0, proc.stderr
     summary = json.loads(proc.stdout)
     assert summary["cycles"] == 2 and summary["done"] == 2  # the folder holds two frames
@@ -184,3 +185,44 @@ def test_a_gripper_failure_mid_cycle_ends_pick_as_a_halt(tmp_path, capfd, rg2_th
 def _calib(tmp_path):
     (tmp_path / "calib.json").write_text(json.dumps(CALIB))
     return tmp_path / "calib.json"
+
+
+def test_overlap_reads_the_next_frame_once_the_arm_has_left_and_changes_no_decision():
+    """pick --overlap: each next frame is read and segmented right after the arm reaches the place
+    approach pose, on a worker thread, and every cycle chooses, plans and is judged as without it."""
+    from edgepick.data.render import CLASSES
+    from edgepick.robot.grippers import DigitalGripper
+    from edgepick.robot.loop import run_cycles
+    from edgepick.robot.pick import CommandLog, PickConfig
+    from edgepick.sim.camera import SynthCamera
+    from edgepick.sim.oracle import TruthPipeline
+    from edgepick.sim.robot import SimRobot
+
+    def run(overlap):
+        cam, robot = SynthCamera(640, 480, seed=3, mount_height_m=0.7), SimRobot(realtime=0.002)
+        reads, read = [], cam.read
+
+        def watched_read():
+            reads.append((threading.current_thread() is threading.main_thread(), [round(v, 4) for v in robot.pose[:3]]))
+            return read()
+
+        cam.read = watched_read
+        cal = cam.calibration()
+        with cam, robot:
+            results = run_cycles(cam, TruthPipeline(list(CLASSES), cal), robot, DigitalGripper(robot, 0), cfg=PickConfig(),
+                                 cycles=6, log=CommandLog(None), echo=lambda line: None, truth_cal=cal, overlap=overlap)
+        return results, reads
+
+    plain, plain_reads = run(False)
+    ahead, ahead_reads = run(True)
+    keys = ("frame", "target", "pixel", "pose_robot", "verdict", "outcome")
+    assert [{k: r.get(k) for k in keys} for r in ahead] == [{k: r.get(k) for k in keys} for r in plain]
+    assert len(ahead_reads) == len(plain_reads) == 6  # no frame read beyond the last cycle
+    assert all(main for main, _ in plain_reads)
+    cfg = PickConfig()
+    place = [round(v, 4) for v in cfg.place_pose[:3]]
+    left = [place[:2] + [round(place[2] + cfg.approach_m, 4)], place, [round(v, 4) for v in cfg.home_pose[:3]]]
+    for (main, arm), result in zip(ahead_reads[1:], ahead):
+        if result["outcome"] == "done":  # the next frame was read by the worker, the arm past the place approach
+            assert not main and arm in left
+    assert all("frame_to_frame_ms" in r for r in ahead[1:]) and any("arm_wait_ms" in r for r in ahead)
