@@ -200,10 +200,12 @@ def top_pixels(depth: np.ndarray, own: np.ndarray, z_top: float, depth_scale: fl
     those pixels apart from the rest (cfg.stray_gap_px) and small (cfg.stray_share) are left out:
     a mask that spills onto a neighbour whose top lies at the same height would stretch the face
     to it."""
-    d = depth.astype(np.float32) * depth_scale
-    top = own & (d > 0) & (np.abs(d - z_top) <= cfg.top_tolerance_m)
-    if int(top.sum()) < cfg.min_depth_px:
+    ys, xs = np.nonzero(own & (depth > 0))
+    near = np.abs(depth[ys, xs].astype(np.float32) * depth_scale - z_top) <= cfg.top_tolerance_m
+    if int(near.sum()) < cfg.min_depth_px:
         return None
+    top = np.zeros(own.shape, bool)
+    top[ys[near], xs[near]] = True
     k = cfg.stray_gap_px
     n, groups = cv2.connectedComponents(cv2.dilate(top.view(np.uint8), np.ones((k, k), np.uint8)), connectivity=8)
     if n > 2:
@@ -320,12 +322,12 @@ def occluded_fraction(region: np.ndarray, labels: np.ndarray, depth: np.ndarray,
                       step_m: float = 0.005) -> float:
     """Share of the region's rim where another object lies nearer the camera than this one (by
     STEP_M): an object partly under another, whose visible centroid is not its own."""
-    rim = (cv2.dilate(region, np.ones((5, 5), np.uint8)) > 0) & (region == 0)
-    total = int(rim.sum())
-    if total == 0:
+    ys, xs = np.nonzero(cv2.dilate(region, np.ones((5, 5), np.uint8)) > region)  # the rim
+    if ys.size == 0:
         return 0.0
-    above = rim & (labels != 0) & (depth > 0) & (depth * depth_scale < z - step_m)
-    return round(int(above.sum()) / total, 3)
+    d = depth[ys, xs]
+    above = (labels[ys, xs] != 0) & (d > 0) & (d * depth_scale < z - step_m)
+    return round(int(above.sum()) / ys.size, 3)
 
 
 def draw_overlay(rgb_or_labels: np.ndarray, records: list[dict], finger_px: float = 30.0) -> np.ndarray:
