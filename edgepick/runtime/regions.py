@@ -22,18 +22,20 @@ def split_touching(region: np.ndarray, cfg: GraspConfig, background: np.ndarray 
     side) form one connected region whose centroid lies between them. Seeds: the region's holes when
     it has two or more (rings: one hole each; a hole is BACKGROUND, the table, enclosed by the region
     and other objects lying on it), else its top faces at different heights (DEPTH, the camera's
-    readings, DEPTH_SCALE metres each: two boxes of different heights side by side); a region with holes but not two large ones is one
-    ring (a disk whose rim other objects cover in places, with its bolt holes) and goes no further;
-    else the two sides of a cut between the two deepest notches of its outline (two boxes side by
-    side at one height), else its cores, the pixels farther than cfg.split_core x the region's
-    largest distance from its edge. Each pixel goes to its nearest seed; a region with one seed is
-    returned as it is."""
+    readings, DEPTH_SCALE metres each: two boxes of different heights side by side); a region with
+    holes but not two large ones is one ring (a disk whose rim other objects cover in places, with
+    its bolt holes) and goes no further; else the two sides of a cut between the two deepest
+    notches of its outline (two boxes side by side at one height), else its cores, the pixels
+    farther than cfg.split_core x the region's largest distance from its edge. Each pixel goes to
+    its nearest seed; a region with one seed is returned as it is."""
     holes = _holes(region, cfg, background)
     hole_area = sum(cv2.countNonZero(h) for h in holes)
     seeds = [h for h in holes if cv2.countNonZero(h) >= cfg.split_min_share * hole_area]
-    depth_m = None if depth is None else depth.astype(np.float32) * depth_scale
-    if len(seeds) < 2 and depth is not None and depth_m is not None:
-        seeds = _top_faces(region, depth, depth_scale, depth_m, cfg)
+    depth_m = None
+    if depth is not None:
+        depth_m = depth.astype(np.float32) * depth_scale
+        if len(seeds) < 2:
+            seeds = _top_faces(region, depth, depth_scale, depth_m, cfg)
     if len(seeds) < 2 and not holes:
         seeds = _notch_cut(region, cfg, depth_m)
     if len(seeds) < 2 and not holes:
