@@ -18,7 +18,7 @@ from edgepick.models.deeplabv3 import LogitsNet, trim_dilated_convs
 from edgepick.quant.config import QuantConfig
 from edgepick.quant.quantizer import EdgeQuantizer, count_quant_nodes, module_path, under
 from edgepick.quant.rewrites import drop_fake_quants_after_dropout, gate_hardswish, snap_conv_biases
-from edgepick.quant.torchao_compat import bn_folds_with_own_eps, install_train_eval, set_mode
+from edgepick.quant.torchao_compat import bn_folds_with_own_eps, install_train_eval, patterns_traced_once, set_mode
 
 PREFIX = "model."  # LogitsNet's attribute in front of every module name
 
@@ -87,7 +87,7 @@ def prepare(model: torch.nn.Module, config: QuantConfig, size: Size, qat: bool) 
         gate_hardswish(model)
     net = LogitsNet(model).train(qat)
     example = (torch.rand(2 if qat else 1, 3, *size.hw) * 255,)
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), patterns_traced_once():
         warnings.simplefilter("ignore")
         batch = torch.export.Dim("batch", min=1, max=4096)  # QaT trains on batches
         graph = torch.export.export(net, example, dynamic_shapes=({0: batch},) if qat else None).module()
@@ -112,7 +112,7 @@ def convert(prepared: torch.fx.GraphModule, snap_biases: bool = True) -> torch.f
     from torchao.quantization.pt2e.quantize_pt2e import convert_pt2e
 
     set_mode(prepared, training=False)
-    with warnings.catch_warnings(), bn_folds_with_own_eps(prepared):
+    with warnings.catch_warnings(), bn_folds_with_own_eps(prepared), patterns_traced_once():
         warnings.simplefilter("ignore")
         converted = convert_pt2e(prepared)
     if snap_biases:

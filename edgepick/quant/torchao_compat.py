@@ -12,12 +12,27 @@
    tests/quant/test_qat.py::test_qat_graph_keeps_the_models_batchnorm_eps and
    ::test_converted_qat_graph_computes_what_qat_trained.
    Delete when torchao takes eps/momentum from the BN node it replaces (check that TODO).
+
+2. Pattern tracing. The QaT conv-BN rewrite in `prepare_qat_pt2e` and the fold in `convert_pt2e`
+   torch.export their match and replacement patterns again on every call, for every conv kind
+   and flag combination: 12 exports in prepare and 96 in convert, about 5 s and 20 s on a 2-core
+   CPU, most of each QaT pass's own time. PyTorch PR #116440 ("_fold_conv_bn_qat is taking a long
+   time currently ... cache the patterns if possible") left it at that. `patterns_traced_once`
+   keeps each traced pattern (by its code, the flags it closes over and its example inputs'
+   shapes) and hands out copies, so every prepare and convert after the first in a process
+   traces none; the graphs they make are the same. Test that fails without it:
+   tests/quant/test_torchao_compat.py::test_a_pattern_is_traced_once_per_flags_and_shapes_and_handed_out_as_copies
+   (and every QaT test shows the graphs stay right).
+   Delete when torchao caches its patterns.
 """
 
 from __future__ import annotations
 
 import contextlib
+import copy
 import types
+from collections.abc import Callable, Iterator
+from typing import Any
 
 import torch
 
@@ -109,3 +124,46 @@ def set_mode(prepared: torch.fx.GraphModule, training: bool) -> torch.fx.GraphMo
     (move_exported_model_to_train if training else move_exported_model_to_eval)(prepared)
     restore_bn_literals(prepared)
     return prepared
+
+
+_TRACED: dict[tuple, torch.fx.GraphModule] = {}
+
+
+def _shape_of(value: Any) -> Any:
+    """What a traced pattern depends on in a value: a tensor's shape, dtype and device, else the value."""
+    if isinstance(value, torch.Tensor):
+        return ("tensor", tuple(value.shape), value.dtype, value.device.type)
+    if isinstance(value, (tuple, list)):
+        return tuple(_shape_of(v) for v in value)
+    return value
+
+
+def _cached(trace: Callable[..., torch.fx.GraphModule]) -> Callable[..., torch.fx.GraphModule]:
+    """TRACE (torchao's _get_aten_graph_module_for_pattern) with its results kept and copied out."""
+    def traced_once(pattern: Callable, example_inputs: tuple, is_cuda: bool = False, **kwargs: Any) -> torch.fx.GraphModule:
+        fn = getattr(pattern, "fn", pattern)  # torchao wraps each pattern function in a WrapperModule
+        try:
+            key = (fn.__code__, tuple(_shape_of(c.cell_contents) for c in fn.__closure__ or ()),
+                   _shape_of(tuple(example_inputs)), is_cuda, tuple(sorted((k, _shape_of(v)) for k, v in kwargs.items())))
+            hash(key)
+        except (AttributeError, TypeError, ValueError):  # not a plain function of hashable flags: trace it
+            return trace(pattern, example_inputs, is_cuda, **kwargs)
+        if key not in _TRACED:
+            _TRACED[key] = trace(pattern, example_inputs, is_cuda, **kwargs)
+        return copy.deepcopy(_TRACED[key])
+
+    return traced_once
+
+
+@contextlib.contextmanager
+def patterns_traced_once() -> Iterator[None]:
+    """Within: torchao's pt2e pattern tracing served from a per-process cache (workaround 2)."""
+    from torchao.quantization.pt2e import qat_utils, utils
+
+    original = utils._get_aten_graph_module_for_pattern
+    cached = _cached(original)
+    qat_utils._get_aten_graph_module_for_pattern = utils._get_aten_graph_module_for_pattern = cached
+    try:
+        yield
+    finally:
+        qat_utils._get_aten_graph_module_for_pattern = utils._get_aten_graph_module_for_pattern = original
