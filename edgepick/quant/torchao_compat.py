@@ -13,8 +13,8 @@
    ::test_converted_qat_graph_computes_what_qat_trained.
    Delete when torchao takes eps/momentum from the BN node it replaces (check that TODO).
 
-2. Pattern tracing. The QaT conv-BN rewrite in `prepare_qat_pt2e` and the fold in `convert_pt2e`
-   torch.export their match and replacement patterns again on every call, for every conv kind
+2. Pattern tracing. The QaT conv-BN rewrite in `prepare_qat_pt2e`, the fold in `convert_pt2e` and
+   the train/eval switches torch.export their match and replacement patterns again on every call, for every conv kind
    and flag combination: 12 exports in prepare and 96 in convert, about 5 s and 20 s on a 2-core
    CPU, most of each QaT pass's own time. PyTorch PR #116440 ("_fold_conv_bn_qat is taking a long
    time currently ... cache the patterns if possible") left it at that. `patterns_traced_once`
@@ -121,7 +121,8 @@ def set_mode(prepared: torch.fx.GraphModule, training: bool) -> torch.fx.GraphMo
     """torchao's train/eval rewrite of PREPARED, then its BatchNorms' own literals back."""
     from torchao.quantization.pt2e import move_exported_model_to_eval, move_exported_model_to_train
 
-    (move_exported_model_to_train if training else move_exported_model_to_eval)(prepared)
+    with patterns_traced_once():  # the switch traces its dropout and BatchNorm patterns too
+        (move_exported_model_to_train if training else move_exported_model_to_eval)(prepared)
     restore_bn_literals(prepared)
     return prepared
 
