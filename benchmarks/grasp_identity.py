@@ -69,14 +69,14 @@ def evaluate(seeds: list[int], cycles: int, threads: int, count_splits: bool = F
 
         grasp_module.split_touching = counting
     t0 = time.perf_counter()
-    for seed, camera, frame in cell_frames(seeds, cycles):
+    for seed, camera, frame in cell_frames(seeds, cycles):  # one Pipeline per seed: its cell's calibration
         pipeline = pipelines.setdefault(seed, Pipeline(segmenter, camera.calibration()))
         splits.append(0)
         seen = pipeline(frame)
         truth = grasp_records(frame.labels, frame.depth, frame.intrinsics, CLASSES, pipeline.calib)
-        rows.append({"frame": frame.name, "seed": seed, "labels": digest(seen.labels), "model": digest(seen.records),
-                     "truth": digest(truth), "splits": splits[-1], "grasp_ms": seen.ms["grasp"],
-                     "label_image": seen.labels, "model_records": seen.records, "truth_records": truth})
+        rows.append({"frame": frame.name, "labels": digest(seen.labels), "model": digest(seen.records),
+                     "truth": digest(truth), "splits": splits[-1], "label_image": seen.labels,
+                     "model_records": seen.records, "truth_records": truth})
         if len(rows) % 50 == 0:
             print(f"{len(rows)} frames, {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     return rows

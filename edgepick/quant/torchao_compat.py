@@ -13,16 +13,16 @@
    ::test_converted_qat_graph_computes_what_qat_trained.
    Delete when torchao takes eps/momentum from the BN node it replaces (check that TODO).
 
-2. Pattern tracing. The QaT conv-BN rewrite in `prepare_qat_pt2e`, the fold in `convert_pt2e` and
-   the train/eval switches torch.export their match and replacement patterns again on every call, for every conv kind
-   and flag combination: 12 exports in prepare and 96 in convert, about 5 s and 20 s on a 2-core
-   CPU, most of each QaT pass's own time. PyTorch PR #116440 ("_fold_conv_bn_qat is taking a long
-   time currently ... cache the patterns if possible") left it at that. `patterns_traced_once`
-   keeps each traced pattern (by its code, the flags it closes over and its example inputs'
-   shapes) and hands out copies, so every prepare and convert after the first in a process
-   traces none; the graphs they make are the same. Test that fails without it:
-   tests/quant/test_torchao_compat.py::test_a_pattern_is_traced_once_per_flags_and_shapes_and_handed_out_as_copies
-   (and every QaT test shows the graphs stay right).
+2. Pattern tracing. The QaT conv-BN rewrite in `prepare_qat_pt2e`, the fold in `convert_pt2e`
+   and the train/eval switches torch.export their match and replacement patterns again on every
+   call, for every conv kind and flag combination: 12 exports in prepare and 96 in convert, about
+   5 s and 20 s on a 2-core CPU, most of each QaT pass's own time. PyTorch PR #116440
+   ("_fold_conv_bn_qat is taking a long time currently ... cache the patterns if possible") left
+   it at that. `patterns_traced_once` keeps each traced pattern (by its code, the flags it closes
+   over and its example inputs' shapes) and hands out copies, so every prepare, convert and switch
+   after the first in a process traces none. Test that fails without it:
+   tests/quant/test_torchao_compat.py::test_a_pattern_is_traced_once_per_flags_and_shapes_and_handed_out_as_copies;
+   every QaT test in tests/quant runs on the cached patterns.
    Delete when torchao caches its patterns.
 """
 

@@ -37,7 +37,7 @@ def test_the_grasp_step_makes_the_records_it_made_before(stored):
     assert grasp_records(frame.labels, frame.depth, frame.intrinsics, CLASSES, calibration) == stored["truth_records"]
 
 
-def test_the_fixture_covers_split_regions_and_every_class():
+def test_the_fixture_covers_every_class_and_objects_cut_by_the_border_or_under_others():
     records = [r for f in STORED["frames"] for r in f["model_records"]]
     assert {r["class"] for r in records} == set(CLASSES[1:])
     assert len(STORED["frames"]) >= 30
