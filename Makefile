@@ -4,6 +4,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 DEMO_DIR ?= demo-out
+TEST_WORKERS ?= 2  # pytest-xdist workers; tests/conftest.py says why
 
 .PHONY: setup demo test clean
 
@@ -23,7 +24,7 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m ruff check edgepick benchmarks tests
 	$(PY) -m mypy edgepick/__init__.py edgepick/train edgepick/quant edgepick/export edgepick/runtime
-	$(PY) -m pytest -q -p no:cacheprovider
+	$(PY) -m pytest -q -p no:cacheprovider -n $(TEST_WORKERS) --dist loadgroup
 
 clean:
 	rm -rf $(VENV) $(DEMO_DIR) build *.egg-info

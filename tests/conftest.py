@@ -1,15 +1,23 @@
-"""Shared fixtures: one small synthetic data set and one short training run per test session."""
+"""Shared fixtures: one small synthetic data set and one short training run per test session.
+
+`make test` runs the suite on two pytest-xdist workers: most of a quantization test's time is
+single-threaded Python (torch.export, pattern matching), so one worker alone leaves a 2-core machine
+half idle. The session fixtures are built once for all workers (under a file lock) and read only."""
 
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from filelock import FileLock
 
-os.environ.setdefault("OMP_NUM_THREADS", "2")
+# one thread per xdist worker: two workers with two spinning OpenMP threads each would oversubscribe 2 cores
+os.environ.setdefault("OMP_NUM_THREADS", "1" if "PYTEST_XDIST_WORKER" in os.environ else "2")
 REPO = Path(__file__).resolve().parents[1]
 EPOCHS = 25  # ~60 s on 2 cores
 
@@ -23,14 +31,37 @@ def run_cli(*args: str, check: bool = False, timeout: float = 600, env: dict | N
     return proc
 
 
+def worker_index() -> int:
+    """This pytest-xdist worker's number (gw0 -> 0), 0 without xdist."""
+    return int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0)
+
+
+def shared(tmp_path_factory: pytest.TempPathFactory, name: str, make: Callable[[Path], None]) -> Path:
+    """The folder NAME that MAKE(folder) builds, once for all xdist workers of this session: the
+    first worker to ask builds it while the others wait on the lock; a `.done` file beside it says
+    it is whole (a run records its own folder, so it is built where it stays)."""
+    root = tmp_path_factory.getbasetemp()
+    if "PYTEST_XDIST_WORKER" in os.environ:
+        root = root.parent  # the session's base folder, above the workers' own
+    out = root / "shared" / name
+    out.parent.mkdir(exist_ok=True)
+    done = out.with_name(name + ".done")
+    with FileLock(str(out) + ".lock"):
+        if not done.exists():
+            shutil.rmtree(out, ignore_errors=True)
+            make(out)
+            done.touch()
+    return out
+
+
 @pytest.fixture(scope="session")
 def small_data(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """48 scenes at 320x240 (train 36 / val 8 / test 4)."""
     from edgepick.data.synth import SynthConfig, synthesize
 
-    out = tmp_path_factory.mktemp("data") / "synth"
-    synthesize(out, SynthConfig(scenes=48, width=320, height=240, seed=7, splits=(36, 8, 4)), progress=False)
-    return out
+    def make(out: Path) -> None:
+        synthesize(out, SynthConfig(scenes=48, width=320, height=240, seed=7, splits=(36, 8, 4)), progress=False)
+    return shared(tmp_path_factory, "synth", make)
 
 
 @pytest.fixture(scope="session")
@@ -39,7 +70,7 @@ def trained_run(small_data: Path, tmp_path_factory: pytest.TempPathFactory) -> P
     from edgepick.geometry import Size
     from edgepick.train.loop import TrainConfig, train
 
-    out = tmp_path_factory.mktemp("runs") / "run"
-    train(TrainConfig(data=str(small_data), out=str(out), epochs=EPOCHS, batch_size=4, size=Size(128, 96), device="cpu",
-                      lr=2e-3, keep_epochs=[2, EPOCHS - 1]), progress=False)
-    return out
+    def make(out: Path) -> None:
+        train(TrainConfig(data=str(small_data), out=str(out), epochs=EPOCHS, batch_size=4, size=Size(128, 96),
+                          device="cpu", lr=2e-3, keep_epochs=[2, EPOCHS - 1]), progress=False)
+    return shared(tmp_path_factory, "run", make)

@@ -13,7 +13,7 @@ import pytest
 pytest.importorskip("onnx")
 
 from edgepick.geometry import Intrinsics  # noqa: E402
-from tests.conftest import run_cli  # noqa: E402
+from tests.conftest import run_cli, worker_index  # noqa: E402
 from tests.runtime.test_pipeline import red_model  # noqa: E402
 
 INTR = Intrinsics.d415(320, 240)
@@ -150,7 +150,7 @@ def rg2_that_faults_on_grip():
     opens, and answers a grip with a fault. Yields its host."""
     from xmlrpc.server import SimpleXMLRPCServer
 
-    host = f"127.0.41.{20 + os.getpid() % 200}"
+    host = f"127.{1 + worker_index()}.41.{20 + os.getpid() % 200}"
     server = SimpleXMLRPCServer((host, 41414), logRequests=False, allow_none=True)
 
     def rg_grip(width, force, tool, blocking, depth_comp, popup):

@@ -22,7 +22,7 @@ from edgepick.robot.envelope import SafetyError  # noqa: E402
 from edgepick.robot.grippers import DigitalGripper  # noqa: E402
 from edgepick.robot.pick import CommandLog, PickConfig, choose_target, execute, plan_pick  # noqa: E402
 from edgepick.robot.ur import URRobot  # noqa: E402
-from tests.conftest import REPO  # noqa: E402
+from tests.conftest import REPO, worker_index  # noqa: E402
 
 DOWN = [math.pi, 0.0, 0.0]
 RECORD = {"class": "box", "area_px": 900, "depth_m": 0.62, "pose_robot": [0.3, -0.05, 0.06, *DOWN]}
@@ -31,12 +31,12 @@ _next = [20 + os.getpid() % 200]
 
 @pytest.fixture()
 def peer(tmp_path):
-    """Start a controller peer on a fresh 127.0.0.N; yields (host, log reader, options setter)."""
+    """Start a controller peer on a fresh loopback address; yields (host, log reader, options setter)."""
     procs = []
 
     def start(*options: str) -> tuple[str, callable]:
         _next[0] = 20 + (_next[0] - 19) % 230
-        host = f"127.0.0.{_next[0]}"
+        host = f"127.{1 + worker_index()}.0.{_next[0]}"  # a block of addresses per xdist worker
         log = tmp_path / f"peer-{host}.jsonl"
         proc = subprocess.Popen([sys.executable, "-m", "edgepick.sim.ur_peer", "--host", host, "--lifetime", "90",
                                  "--time-scale", "0.2", "--log", str(log), *options], cwd=REPO,
@@ -141,7 +141,7 @@ def test_refused_connection_is_a_clear_error():
 def test_a_worker_that_dies_while_connecting_is_noticed_at_once():
     """The ur_rtde worker killed while it waits on a controller that accepts and never answers: an
     end of the pipe, not the 15 s connect timeout."""
-    host = f"127.0.0.{20 + (os.getpid() + 7) % 230}"
+    host = f"127.{1 + worker_index()}.1.{20 + (os.getpid() + 7) % 230}"
     silent = socket.socket()
     silent.bind((host, 30004))
     silent.listen(4)  # accepts the RTDE connection, never replies
