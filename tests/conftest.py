@@ -2,7 +2,10 @@
 
 `make test` runs the suite on two pytest-xdist workers: most of a quantization test's time is
 single-threaded Python (torch.export, pattern matching), so one worker alone leaves a 2-core machine
-half idle. The session fixtures are built once for all workers (under a file lock) and read only."""
+half idle. Each test file runs on one worker (`--dist loadfile`), so a module fixture is built
+once (`--dist loadgroup` would be finer, but with pytest 9.2 xdist 3.8 ignores its groups:
+pytest-dev/pytest-xdist#1386). The session fixtures are built once for all workers (under a file
+lock) and read only."""
 
 from __future__ import annotations
 

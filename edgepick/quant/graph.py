@@ -87,12 +87,13 @@ def prepare(model: torch.nn.Module, config: QuantConfig, size: Size, qat: bool) 
         gate_hardswish(model)
     net = LogitsNet(model).train(qat)
     example = (torch.rand(2 if qat else 1, 3, *size.hw) * 255,)
-    with warnings.catch_warnings(), patterns_traced_once():
+    with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         batch = torch.export.Dim("batch", min=1, max=4096)  # QaT trains on batches
         graph = torch.export.export(net, example, dynamic_shapes=({0: batch},) if qat else None).module()
         quantizer = EdgeQuantizer(config, qat=qat, prefix=PREFIX)
-        prepared = prepare_qat_pt2e(graph, quantizer) if qat else prepare_pt2e(graph, quantizer)
+        with patterns_traced_once(graph):
+            prepared = prepare_qat_pt2e(graph, quantizer) if qat else prepare_pt2e(graph, quantizer)
     # drop fake-quants nobody reads (left by the QaT conv-BN rewrite); train()/eval() would drop them
     # later anyway, and a checkpoint must load into a freshly prepared graph
     prepared.graph.eliminate_dead_code()
@@ -112,7 +113,7 @@ def convert(prepared: torch.fx.GraphModule, snap_biases: bool = True) -> torch.f
     from torchao.quantization.pt2e.quantize_pt2e import convert_pt2e
 
     set_mode(prepared, training=False)
-    with warnings.catch_warnings(), bn_folds_with_own_eps(prepared), patterns_traced_once():
+    with warnings.catch_warnings(), bn_folds_with_own_eps(prepared), patterns_traced_once(prepared):
         warnings.simplefilter("ignore")
         converted = convert_pt2e(prepared)
     if snap_biases:

@@ -172,7 +172,7 @@ def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str |
     try:
         fp32 = export_checkpoint(checkpoint, work / "fp32.onnx").out
         base = evaluate(fp32, data, "val", progress=False)["miou"]
-        candidates = ranked(inspect(ckpt, calib, compared, config, progress=progress))
+        candidates: list[str] | None = None  # ranked by `inspect` only once a step misses the budget
         keep = list(config.keep_float)
         steps: list[dict] = []
         chosen: dict | None = None
@@ -186,7 +186,11 @@ def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str |
             if chosen is None or drop < chosen["drop_pp"]:
                 chosen = {**steps[-1], "result": res}
             added = len(keep) - len(config.keep_float)
-            if drop <= max_drop_pp or added >= max_float_layers or not candidates:
+            if drop <= max_drop_pp or added >= max_float_layers:
+                break
+            if candidates is None:
+                candidates = ranked(inspect(ckpt, calib, compared, config, progress=progress))
+            if not candidates:
                 break
             keep.append(candidates.pop(0))
         Path(out).parent.mkdir(parents=True, exist_ok=True)

@@ -138,17 +138,21 @@ def quantize_static(checkpoint: str | Path | Checkpoint, calib: Iterable[np.ndar
                       calib_s=round(calib_s, 2))
 
 
-def _finish_qat(run: Run, data: str | Path, out: str | Path, quant: dict, progress: bool = False) -> PassResult:
-    """Convert the QaT run's best epoch on val (best.pt, picked as a float RUN's best.pt is: the
-    last epoch is not always the best one) and export it, with the whole run's phase times."""
+def _exported_epoch(run: Run) -> tuple[Checkpoint, float, float]:
+    """The QaT RUN's epoch to export, its best on val (best.pt, picked as a float run's best.pt is:
+    the last epoch is not always the best one), and the whole run's float and QaT phase seconds."""
     last = Checkpoint.load(run.last)
-    ckpt = Checkpoint.load(run.best) if run.best.is_file() else last
+    return (Checkpoint.load(run.best) if run.best.is_file() else last), last.init_train_time_s, last.train_time_s
+
+
+def _finish_qat(run: Run, data: str | Path, out: str | Path, quant: dict, progress: bool = False) -> PassResult:
+    """Convert the QaT run's best epoch on val and export it, with the whole run's phase times."""
+    ckpt, float_s, qat_s = _exported_epoch(run)
     _stage(f"rebuild the fake-quant graph of QaT epoch {ckpt.epoch} (the best on val) and convert it to int8",
            progress)
     prepared = load_qat(ckpt)
     converted = convert(prepared)
     size = ckpt.input_size
-    float_s, qat_s = last.init_train_time_s, last.train_time_s
     meta = contract_metadata(ckpt, "int8", quant, train_time_s=float_s + qat_s)
     check_images = [at_input_size(rgb, size) for rgb in agreement_images(data)]
     expected = expected_int8_convs(prepared, qat_config(ckpt))

@@ -20,10 +20,16 @@
    ("_fold_conv_bn_qat is taking a long time currently ... cache the patterns if possible") left
    it at that. `patterns_traced_once` keeps each traced pattern (by its code, the flags it closes
    over and its example inputs' shapes) and hands out copies, so every prepare, convert and switch
-   after the first in a process traces none. Test that fails without it:
-   tests/quant/test_torchao_compat.py::test_a_pattern_is_traced_once_per_flags_and_shapes_and_handed_out_as_copies;
-   every QaT test in tests/quant runs on the cached patterns.
-   Delete when torchao caches its patterns.
+   after the first in a process traces none. And a pattern built around a conv kind that the graph
+   being rewritten does not contain (convert tries conv1d, conv2d, conv_transpose1d and
+   conv_transpose2d on every graph) cannot match anything in it: it is not traced at all, a
+   one-node stand-in of that conv op takes its place; a conv2d-only model's first convert traces
+   24 patterns instead of 96. Tests that fail without it:
+   tests/quant/test_torchao_compat.py::test_a_pattern_is_traced_once_per_flags_and_shapes_and_handed_out_as_copies
+   and ::test_patterns_of_conv_kinds_the_graph_lacks_are_not_traced (what the stand-in rests on:
+   ::test_torchaos_convert_patterns_call_their_conv_op); every QaT test in tests/quant runs on
+   the cached patterns.
+   Delete when torchao caches its patterns and skips conv kinds a graph lacks.
 """
 
 from __future__ import annotations
@@ -121,7 +127,7 @@ def set_mode(prepared: torch.fx.GraphModule, training: bool) -> torch.fx.GraphMo
     """torchao's train/eval rewrite of PREPARED, then its BatchNorms' own literals back."""
     from torchao.quantization.pt2e import move_exported_model_to_eval, move_exported_model_to_train
 
-    with patterns_traced_once():  # the switch traces its dropout and BatchNorm patterns too
+    with patterns_traced_once(prepared):  # the switch traces its dropout and BatchNorm patterns too
         (move_exported_model_to_train if training else move_exported_model_to_eval)(prepared)
     restore_bn_literals(prepared)
     return prepared
@@ -139,9 +145,47 @@ def _shape_of(value: Any) -> Any:
     return value
 
 
-def _cached(trace: Callable[..., torch.fx.GraphModule]) -> Callable[..., torch.fx.GraphModule]:
-    """TRACE (torchao's _get_aten_graph_module_for_pattern) with its results kept and copied out."""
+_CONV_KINDS = ("conv1d", "conv2d", "conv3d", "conv_transpose1d", "conv_transpose2d", "conv_transpose3d")
+_ANY_CONV = {"convolution", "_convolution", "convolution_overrideable"}  # ops that stand for any conv kind
+
+
+def graph_ops(graph: torch.fx.GraphModule) -> frozenset[str]:
+    """The names of the aten ops GRAPH calls (aten.conv2d.default -> "conv2d")."""
+    return frozenset(n.target._opname for n in graph.graph.nodes
+                     if n.op == "call_function" and isinstance(getattr(n.target, "_opname", None), str))
+
+
+def _absent_conv_kind(pattern: Callable, ops: frozenset[str] | None) -> str | None:
+    """The conv kind (a torch.nn.functional conv) that PATTERN is built around, when the graph's
+    OPS show that it cannot match there; None when it might (or OPS is unknown)."""
+    if ops is None or ops & _ANY_CONV:
+        return None
+    fn = getattr(pattern, "fn", pattern)  # torchao wraps each pattern function in a WrapperModule
+    for cell in getattr(fn, "__closure__", None) or ():
+        value = cell.cell_contents
+        name = getattr(value, "__name__", None)
+        if name in _CONV_KINDS and value is getattr(torch.nn.functional, name) and name not in ops:
+            return name
+    return None
+
+
+def _stand_in(kind: str) -> torch.fx.GraphModule:
+    """A pattern that matches nothing in a graph without the op KIND: that op alone."""
+    graph = torch.fx.Graph()
+    x, w = graph.placeholder("x"), graph.placeholder("w")
+    packet = getattr(torch.ops.aten, kind)
+    graph.output(graph.call_function(getattr(packet, packet.overloads()[0]), (x, w)))
+    return torch.fx.GraphModule(torch.nn.Module(), graph)
+
+
+def _cached(trace: Callable[..., torch.fx.GraphModule],
+            ops: frozenset[str] | None = None) -> Callable[..., torch.fx.GraphModule]:
+    """TRACE (torchao's _get_aten_graph_module_for_pattern) with its results kept and copied out;
+    a pattern around a conv kind missing from OPS (the rewritten graph's ops) gets a stand-in."""
     def traced_once(pattern: Callable, example_inputs: tuple, is_cuda: bool = False, **kwargs: Any) -> torch.fx.GraphModule:
+        kind = _absent_conv_kind(pattern, ops)
+        if kind is not None:
+            return _stand_in(kind)
         fn = getattr(pattern, "fn", pattern)  # torchao wraps each pattern function in a WrapperModule
         try:
             key = (fn.__code__, tuple(_shape_of(c.cell_contents) for c in fn.__closure__ or ()),
@@ -157,12 +201,13 @@ def _cached(trace: Callable[..., torch.fx.GraphModule]) -> Callable[..., torch.f
 
 
 @contextlib.contextmanager
-def patterns_traced_once() -> Iterator[None]:
-    """Within: torchao's pt2e pattern tracing served from a per-process cache (workaround 2)."""
+def patterns_traced_once(graph: torch.fx.GraphModule | None = None) -> Iterator[None]:
+    """Within: torchao's pt2e pattern tracing served from a per-process cache, and no tracing at
+    all for conv kinds that GRAPH (the graph torchao rewrites within) lacks (workaround 2)."""
     from torchao.quantization.pt2e import qat_utils, utils
 
     original = utils._get_aten_graph_module_for_pattern
-    cached = _cached(original)
+    cached = _cached(original, None if graph is None else graph_ops(graph))
     qat_utils._get_aten_graph_module_for_pattern = utils._get_aten_graph_module_for_pattern = cached
     try:
         yield

@@ -14,8 +14,6 @@ from edgepick.runtime.grasp import DEFAULT_CLASSES  # noqa: E402
 from tests.conftest import run_cli  # noqa: E402
 from tests.runtime.test_session import red_channel_model  # noqa: E402
 
-pytestmark = pytest.mark.xdist_group("bench_run")  # one worker builds and uses the module fixtures
-
 
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):

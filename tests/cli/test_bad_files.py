@@ -146,9 +146,6 @@ def _onnx_meta(source: Path, out: Path, **change) -> Path:
     return out
 
 
-pytestmark = pytest.mark.xdist_group("bad_files")  # one worker builds and uses the module fixtures
-
-
 @pytest.fixture(scope="module")
 def bw(tmp_path_factory, small_data, trained_run):
     """The workspace: broken data sets, checkpoints, runs and models, and odd output paths."""

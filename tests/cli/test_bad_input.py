@@ -32,9 +32,6 @@ def _pairs(path, camera, robot):
     return path
 
 
-pytestmark = pytest.mark.xdist_group("bad_input")  # one worker builds and uses the module fixtures
-
-
 @pytest.fixture(scope="module")
 def ws(tmp_path_factory, small_data):
     """The workspace every case runs in: a data set, one with an odd-sized image, a model, pairs,

@@ -50,3 +50,54 @@ def test_the_cache_serves_torchaos_own_tracing_only_within():
         assert qat_utils._get_aten_graph_module_for_pattern is utils._get_aten_graph_module_for_pattern
         assert utils._get_aten_graph_module_for_pattern is not original
     assert qat_utils._get_aten_graph_module_for_pattern is original and utils._get_aten_graph_module_for_pattern is original
+
+
+
+@pytest.mark.parametrize("kind", ["conv1d", "conv2d", "conv_transpose1d", "conv_transpose2d"])
+def test_torchaos_convert_patterns_call_their_conv_op(kind):
+    """What the stand-in rests on: each conv kind's fold pattern calls that conv op, so it cannot
+    match a graph without it."""
+    from torchao.quantization.pt2e import qat_utils, utils
+
+    from edgepick.quant.torchao_compat import _absent_conv_kind, graph_ops
+
+    fn = getattr(torch.nn.functional, kind)
+    pattern = qat_utils._get_quantized_qat_conv_bn_pattern(True, True, True, fn, False)
+    shape = (1, 1, 3) if kind.endswith("1d") else (1, 1, 3, 3)
+    example = (torch.randn(*shape), torch.randn(*shape[:2], *[1] * (len(shape) - 2)), *[torch.randn(1)] * 4)
+    kwargs = qat_utils._get_quantized_conv_bn_example_inputs_kwargs(True, True, True, False)
+    assert kind in graph_ops(utils._get_aten_graph_module_for_pattern(pattern, example, False, **kwargs))
+    assert _absent_conv_kind(pattern, frozenset({"conv3d"})) == kind
+    assert _absent_conv_kind(pattern, frozenset({kind})) is None
+    assert _absent_conv_kind(pattern, frozenset({"convolution"})) is None  # the generic op: might be any kind
+    assert _absent_conv_kind(pattern, None) is None
+
+
+def test_patterns_of_conv_kinds_the_graph_lacks_are_not_traced(monkeypatch):
+    from torchao.quantization.pt2e import utils
+    from torchao.quantization.pt2e.quantize_pt2e import convert_pt2e, prepare_qat_pt2e
+
+    from edgepick.quant import torchao_compat
+    from edgepick.quant.config import QuantConfig
+    from edgepick.quant.quantizer import EdgeQuantizer
+
+    net = torch.nn.Sequential(torch.nn.Conv2d(3, 4, 3), torch.nn.BatchNorm2d(4), torch.nn.ReLU(),
+                              torch.nn.Conv2d(4, 2, 1, bias=False), torch.nn.BatchNorm2d(2))
+    example = (torch.randn(2, 3, 8, 8),)
+    prepared = prepare_qat_pt2e(torch.export.export(net.train(), example).module(), EdgeQuantizer(QuantConfig(), qat=True))
+    prepared.graph.eliminate_dead_code()  # the fake-quants of BN's batch counter, as edgepick's prepare does
+    prepared.recompile()
+    prepared(*example)
+    original, kinds = utils._get_aten_graph_module_for_pattern, set()
+
+    def traced(pattern, *args, **kwargs):
+        fn = getattr(pattern, "fn", pattern)
+        kinds.update(getattr(c.cell_contents, "__name__", None) for c in fn.__closure__ or ())
+        return original(pattern, *args, **kwargs)
+
+    monkeypatch.setattr(torchao_compat, "_TRACED", {})  # nothing cached: every pattern used is traced here
+    monkeypatch.setattr(utils, "_get_aten_graph_module_for_pattern", traced)
+    with patterns_traced_once(prepared):
+        converted = convert_pt2e(prepared)
+    assert kinds & set(torchao_compat._CONV_KINDS) == {"conv2d"}
+    assert "conv2d" in torchao_compat.graph_ops(converted) and "batch_norm" not in torchao_compat.graph_ops(converted)

@@ -15,7 +15,7 @@ import pytest
 from edgepick.geometry import Intrinsics
 from tests.conftest import REPO
 
-pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("base_install")]  # one worker builds the venv
+pytestmark = pytest.mark.slow
 
 
 def _run(*cmd, cwd=None, timeout=600):

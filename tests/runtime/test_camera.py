@@ -15,8 +15,6 @@ from edgepick.geometry import Intrinsics, Size
 from edgepick.runtime.camera import FolderCamera, RealSenseCamera
 from edgepick.sim.camera import SynthCamera
 
-pytestmark = pytest.mark.xdist_group("camera")  # one worker builds and uses the module fixtures
-
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
