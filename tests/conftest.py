@@ -74,6 +74,13 @@ def trained_run(small_data: Path, tmp_path_factory: pytest.TempPathFactory) -> P
     from edgepick.train.loop import TrainConfig, train
 
     def make(out: Path) -> None:
-        train(TrainConfig(data=str(small_data), out=str(out), epochs=EPOCHS, batch_size=4, size=Size(128, 96),
-                          device="cpu", lr=2e-3, keep_epochs=[2, EPOCHS - 1]), progress=False)
+        import torch
+
+        threads = torch.get_num_threads()
+        torch.set_num_threads(2)  # as without xdist; the other worker mostly waits for this run
+        try:
+            train(TrainConfig(data=str(small_data), out=str(out), epochs=EPOCHS, batch_size=4, size=Size(128, 96),
+                              device="cpu", lr=2e-3, keep_epochs=[2, EPOCHS - 1]), progress=False)
+        finally:
+            torch.set_num_threads(threads)
     return shared(tmp_path_factory, "run", make)
