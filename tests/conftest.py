@@ -22,7 +22,7 @@ from filelock import FileLock
 # one thread per xdist worker: two workers with two spinning OpenMP threads each would oversubscribe 2 cores
 os.environ.setdefault("OMP_NUM_THREADS", "1" if "PYTEST_XDIST_WORKER" in os.environ else "2")
 REPO = Path(__file__).resolve().parents[1]
-EPOCHS = 25  # ~60 s on 2 cores
+EPOCHS = 25  # ~100 s on 2 cores
 
 
 def run_cli(*args: str, check: bool = False, timeout: float = 600, env: dict | None = None) -> subprocess.CompletedProcess:
@@ -77,7 +77,7 @@ def trained_run(small_data: Path, tmp_path_factory: pytest.TempPathFactory) -> P
         import torch
 
         threads = torch.get_num_threads()
-        torch.set_num_threads(2)  # as without xdist; the other worker mostly waits for this run
+        torch.set_num_threads(2)  # as without xdist: a worker that needs the run waits for it meanwhile
         try:
             train(TrainConfig(data=str(small_data), out=str(out), epochs=EPOCHS, batch_size=4, size=Size(128, 96),
                               device="cpu", lr=2e-3, keep_epochs=[2, EPOCHS - 1]), progress=False)
