@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 from filelock import FileLock
 
-# one thread per xdist worker: two workers with two spinning OpenMP threads each would oversubscribe 2 cores
+# one thread per xdist worker: two workers with two OpenMP threads each would run four threads on 2 cores
 os.environ.setdefault("OMP_NUM_THREADS", "1" if "PYTEST_XDIST_WORKER" in os.environ else "2")
 REPO = Path(__file__).resolve().parents[1]
 EPOCHS = 25  # ~100 s on 2 cores

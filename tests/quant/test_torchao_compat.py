@@ -52,7 +52,6 @@ def test_the_cache_serves_torchaos_own_tracing_only_within():
     assert qat_utils._get_aten_graph_module_for_pattern is original and utils._get_aten_graph_module_for_pattern is original
 
 
-
 @pytest.mark.parametrize("kind", ["conv1d", "conv2d", "conv_transpose1d", "conv_transpose2d"])
 def test_torchaos_convert_patterns_call_their_conv_op(kind):
     """What the stand-in rests on: each conv kind's fold pattern calls that conv op, so it cannot
