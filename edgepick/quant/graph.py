@@ -5,6 +5,7 @@ happened, where pt2e would hand back a float model without a word."""
 
 from __future__ import annotations
 
+import itertools
 import warnings
 from collections.abc import Iterable, Iterator
 
@@ -55,6 +56,16 @@ def calibrate(prepared: torch.fx.GraphModule, images: Iterable[np.ndarray], size
     if not seen:
         raise ConfigError("calib: no images; calibration needs at least one")
     return seen
+
+
+def checked_first(images: Iterable[np.ndarray], size: Size, what: str = "calib") -> Iterator[np.ndarray]:
+    """IMAGES as they come, the first one checked now: an empty or wrong input is refused before
+    the slow prepare (torch.export) rather than after it."""
+    it = iter(images)
+    for first in it:
+        at_input_size(first, size, what)
+        return itertools.chain([first], it)
+    raise ConfigError(f"{what}: no images; calibration needs at least one")
 
 
 def first_of(images: Iterable[np.ndarray], count: int, kept: list[np.ndarray]) -> Iterator[np.ndarray]:

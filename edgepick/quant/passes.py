@@ -29,6 +29,7 @@ from edgepick.quant.graph import (
     at_input_size,
     calibrate,
     check_keep_float,
+    checked_first,
     convert,
     expected_int8_convs,
     first_of,
@@ -121,6 +122,7 @@ def quantize_static(checkpoint: str | Path | Checkpoint, calib: Iterable[np.ndar
     ckpt = checkpoint if isinstance(checkpoint, Checkpoint) else Checkpoint.load(checkpoint)
     model, size = ckpt.build_model(), ckpt.input_size
     check_keep_float(model, config.keep_float)
+    calib = checked_first(calib, size)
     t0 = time.perf_counter()
     _stage("prepare the graph (torch.export, observers), then calibrate", progress)
     prepared = prepare(model, config, size, qat=False)

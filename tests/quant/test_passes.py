@@ -205,9 +205,10 @@ def test_an_upper_case_onnx_suffix_is_taken_by_every_check_alike(tmp_path):
         export_onnx(torch.nn.Identity(), tmp_path / "q.ONNX", {}, (32, 32), passes=("nope",))
 
 
-def test_static_takes_images_from_anywhere_at_any_size(trained_run, small_data, tmp_path):
+def test_static_takes_images_from_anywhere_at_any_size(trained_run, small_data, tmp_path, monkeypatch):
     """The pass calibrates on what the caller gives: a generator of HxWx3 uint8 RGB images of any
-    size (resized to the model's input); anything else is refused in one line naming `calib`."""
+    size (resized to the model's input); anything else is refused in one line naming `calib`, before
+    the slow prepare."""
     import numpy as np
 
     from edgepick.errors import ConfigError
@@ -219,7 +220,13 @@ def test_static_takes_images_from_anywhere_at_any_size(trained_run, small_data, 
     result = quantize_static(trained_run, images, tmp_path / "own.onnx", progress=False)
     assert result.quant["calib_images"] == 4 and result.int8_convs == 70
     assert json.loads(Segmenter(result.out).info.metadata["edgepick.quant"])["calib_images"] == 4
-    for bad in ([np.zeros((96, 128, 3), np.float32)], [np.zeros((96, 128), np.uint8)], []):
+    import edgepick.quant.passes as passes
+
+    def no_prepare(*args, **kwargs):
+        raise AssertionError("a bad first image must be refused before the graph is prepared")
+
+    monkeypatch.setattr(passes, "prepare", no_prepare)
+    for bad in ([np.zeros((96, 128, 3), np.float32)], [np.zeros((96, 128), np.uint8)], [], iter([])):
         with pytest.raises(ConfigError, match="calib"):
             quantize_static(trained_run, bad, tmp_path / "bad.onnx", progress=False)
     assert not (tmp_path / "bad.onnx").exists()

@@ -22,6 +22,8 @@ def _prepared_qat(trained_run):
 
 def test_calibrated_start_is_where_static_ptq_is(trained_run, small_data):
     """Converted right after a held calibration, the QaT graph is as close to fp32 as static PTQ is."""
+    import copy
+
     from torchao.quantization.pt2e import disable_observer
 
     from edgepick.models.deeplabv3 import LogitsNet
@@ -35,6 +37,7 @@ def test_calibrated_start_is_where_static_ptq_is(trained_run, small_data):
     prepared, size = _prepared_qat(trained_run)
     images = model_images(small_data, "train", 8, size)
     assert calibrate_activations(prepared, images, hold=True) == len(activation_fake_quants(prepared)) > 0
+    fresh = copy.deepcopy(prepared)  # the calibrated start, before any training-mode pass moves BN's statistics
     ranges = {n: (float(fq.activation_post_process.min_val), float(fq.activation_post_process.max_val))
               for n, fq in activation_fake_quants(prepared).items()}
     prepared.train()
@@ -43,8 +46,6 @@ def test_calibrated_start_is_where_static_ptq_is(trained_run, small_data):
     assert ranges == {n: (float(fq.activation_post_process.min_val), float(fq.activation_post_process.max_val))
                       for n, fq in activation_fake_quants(prepared).items()}
 
-    fresh, _ = _prepared_qat(trained_run)
-    calibrate_activations(fresh, images, hold=True)
     to_eval(fresh)
     with torch.no_grad():  # weight ranges from one eval pass; BN statistics untouched
         fresh(as_input(images[0]))
