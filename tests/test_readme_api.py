@@ -61,3 +61,17 @@ def test_the_first_api_block_runs_on_a_tiny_data_set(tmp_path, monkeypatch):
     exec(compile(runtime, "README.md", "exec"), runtime_names)
     result = runtime_names["result"]
     assert result.labels.shape == (96, 128) and set(result.ms) >= {"inference"}
+
+
+def test_the_onnx_block_runs_on_a_model_from_another_exporter(tmp_path, monkeypatch):
+    from tests.quant.onnx_models import calib_tensors, export_torch
+
+    (block,) = [b for b in api_blocks() if "quantize_onnx_static" in b]
+    export_torch(tmp_path / "model.onnx", opset=12)
+    (tmp_path / "calib").mkdir()
+    for k, x in enumerate(calib_tensors(4)):
+        np.save(tmp_path / "calib" / f"{k}.npy", x)
+    monkeypatch.chdir(tmp_path)
+    names: dict = {}
+    exec(compile(block, "README.md", "exec"), names)
+    assert names["result"].int8_convs == names["result"].convs and (tmp_path / "model-int8.onnx").is_file()

@@ -105,3 +105,47 @@ def emit(result: dict | Any) -> None:
     """A command's result (a dict, or a result record's `to_dict()`): JSON on stdout (progress and
     tables go to stderr)."""
     click.echo(json.dumps(result if isinstance(result, dict) else result.to_dict(), indent=1))
+
+
+def parse_numbers(text: str, option: str, count: int | None = None, integer: bool = False) -> tuple:
+    """'0.485,0.456,0.406' -> (0.485, 0.456, 0.406); COUNT of them when given, whole numbers when INTEGER."""
+    try:
+        values = tuple((int if integer else float)(v) for v in text.split(","))
+    except ValueError:
+        kind = "whole numbers" if integer else "numbers"
+        raise ConfigError(f"{option} {text}: must be comma-separated {kind}") from None
+    if count is not None and len(values) != count:
+        raise ConfigError(f"{option} {text}: must be {count} comma-separated numbers")
+    return values
+
+
+def _preprocessing_options() -> list:
+    from edgepick.runtime.preprocessing import ChannelOrder, Layout, Preprocessing
+
+    return [
+        click.option("--size", "image_size", default=None, metavar=SIZE_HELP,
+                     help="For --calib images: the size the model takes [default: its input's fixed size]."),
+        click.option("--channels", default=default_of(Preprocessing, "channels"), show_default=True,
+                     type=choice(ChannelOrder), help="For --calib images: the colour order the model was trained on."),
+        click.option("--scale", default=default_of(Preprocessing, "scale"), show_default="1/255",
+                     help="Pixel values (0..255) are multiplied by this first."),
+        click.option("--mean", default="0,0,0", show_default=True, metavar="A,B,C",
+                     help="Then this is subtracted, per channel (in the model's channel order)."),
+        click.option("--std", default="1,1,1", show_default=True, metavar="A,B,C",
+                     help="Then divided by this, per channel; ImageNet: --mean 0.485,0.456,0.406 "
+                          "--std 0.229,0.224,0.225."),
+        click.option("--layout", default=default_of(Preprocessing, "layout"), show_default=True,
+                     type=choice(Layout), help="Where the channel axis is (nhwc: TensorFlow models)."),
+    ]
+
+
+preprocessing_options = _preprocessing_options()
+
+
+def preprocessing_of(image_size: str | None, channels: str, scale: float, mean: str, std: str, layout: str):
+    """The Preprocessing of the options above."""
+    from edgepick.runtime.preprocessing import Preprocessing
+
+    size = parse_size(image_size) if image_size else None
+    return Preprocessing(size=size, channels=channels, scale=scale, mean=parse_numbers(mean, "--mean", 3),
+                         std=parse_numbers(std, "--std", 3), layout=layout)

@@ -6,9 +6,19 @@ from pathlib import Path
 
 import click
 
-from edgepick.cli.options import choice, default_of, emit, epoch_subset, with_options
+from edgepick.cli.options import (
+    choice,
+    default_of,
+    emit,
+    epoch_subset,
+    parse_numbers,
+    preprocessing_of,
+    preprocessing_options,
+    with_options,
+)
 from edgepick.errors import ConfigError
 from edgepick.files import check_output
+from edgepick.geometry import Size
 from edgepick.models.config import Arch
 from edgepick.quant.config import DEFAULT_CALIB_IMAGES, FREEZE_AT, MAX_FLOAT_LAYERS, CalibMethod, QuantConfig
 from edgepick.train.config import Device, TrainConfig
@@ -30,7 +40,8 @@ common = [
                  help="7-bit weights, for CPUs without VNNI (AVX2 only: onnxruntime's U8S8 kernels saturate "
                       "with 8-bit weights). --full-range for AVX512-VNNI/AVX-VNNI targets."),
     click.option("--keep-float", default="", metavar="NAMES",
-                 help="Comma-separated module names left in float, e.g. classifier.4,backbone.0."),
+                 help="Comma-separated module names left in float, e.g. classifier.4,backbone.0 (for an .onnx "
+                      "MODEL: node names)."),
 ]
 
 
@@ -38,7 +49,7 @@ common = [
 calibration = [
     click.option("--calib-images", default=None, type=int,
                  help=f"Train images for calibration [default: {DEFAULT_CALIB_IMAGES}, or the whole train split if "
-                      "smaller]."),
+                      "smaller]; for an .onnx MODEL, the first this many of --calib [default: all]."),
     click.option("--calib-method", default=default_of(QuantConfig, "calib_method"), show_default=True,
                  type=choice(CalibMethod),
                  help="Activation ranges: a percentile of each histogram, min/max, KL divergence (entropy) or "
@@ -79,8 +90,14 @@ def quantize() -> None:
 
 
 @quantize.command("static")
-@click.argument("checkpoint", metavar="RUN_OR_CKPT", type=click.Path())
-@click.option("--data", "data_dir", required=True, type=click.Path(), help="Data set; calibration uses its train split.")
+@click.argument("checkpoint", metavar="MODEL", type=click.Path())
+@click.option("--data", "data_dir", default=None, type=click.Path(),
+              help="Data set (for a RUN or checkpoint); calibration uses its train split.")
+@click.option("--calib", default=None, type=click.Path(file_okay=False), metavar="DIR",
+              help="For an .onnx MODEL: calibration inputs, .npy tensors (one input each, the model's layout) or "
+                   "images made into tensors by the preprocessing options.")
+@click.option("--input-shape", default=None, metavar="N,C,H,W",
+              help="For an .onnx MODEL with dynamic input dims [default: the first calibration tensor's shape].")
 @with_options(calibration)
 @click.option("--percentile", default=default_of(QuantConfig, "percentile"), show_default=True,
               help="For --calib-method percentile.")
@@ -91,14 +108,32 @@ def quantize() -> None:
 @click.option("--max-float-layers", default=MAX_FLOAT_LAYERS, show_default=True,
               help="With --max-miou-drop: at most this many.")
 @with_options(common)
-def quantize_static_cmd(checkpoint: str, data_dir: str, calib_images: int | None, calib_method: str, percentile: float,
-                        seed: int, max_miou_drop: float | None, max_float_layers: int, out: str, reduce_range: bool,
-                        keep_float: str) -> None:
-    """Static post-training quantization of a float checkpoint (BN folded, ranges calibrated on
-    --calib-images train images of --data)."""
+@with_options(preprocessing_options)
+def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None, input_shape: str | None,
+                        calib_images: int | None, calib_method: str, percentile: float, seed: int,
+                        max_miou_drop: float | None, max_float_layers: int, out: str, reduce_range: bool,
+                        keep_float: str, **preprocessing) -> None:
+    """Static post-training quantization of MODEL: a float RUN or checkpoint of edgepick's (BN
+    folded, ranges calibrated on --calib-images train images of --data), or a float ONNX file
+    from any exporter (calibrated on --calib; --keep-float then names ONNX nodes).
+
+    \b
+    edgepick quantize static RUN --data DATA --out int8.onnx
+    edgepick quantize static model.onnx --calib images/ --mean 0.485,0.456,0.406 --std 0.229,0.224,0.225 --out int8.onnx
+    """
+    if Path(checkpoint).suffix.lower() == ".onnx":
+        _quantize_onnx(checkpoint, calib, input_shape, calib_images, seed, max_miou_drop, data_dir, out,
+                       _quant_config(keep_float, calib_method=calib_method, percentile=percentile,
+                                     reduce_range=reduce_range), preprocessing)
+        return
     from edgepick.quant.passes import agreement_images, check_classes, check_image_count, folder_images, quantize_static
     from edgepick.train.checkpoint import Checkpoint
 
+    if data_dir is None:
+        raise ConfigError("--data is needed to calibrate a RUN or checkpoint (--calib is for .onnx models)")
+    for flag, value in (("--calib", calib), ("--input-shape", input_shape)):
+        if value is not None:
+            raise ConfigError(f"{flag} is for an .onnx MODEL; a RUN or checkpoint calibrates on --data")
     _check_onnx_out(out, checkpoint, data_dir)
     if seed < 0:
         raise ConfigError(f"--seed {seed}: must be 0 or positive")
@@ -113,6 +148,41 @@ def quantize_static_cmd(checkpoint: str, data_dir: str, calib_images: int | None
     check_classes(ckpt, data_dir)
     emit(quantize_static(ckpt, folder_images(data_dir, "train", calib_images, seed), out, cfg,
                          check_images=agreement_images(data_dir, seed)))
+
+
+def _quantize_onnx(model: str, calib: str | None, input_shape: str | None, calib_images: int | None, seed: int,
+                   max_miou_drop: float | None, data_dir: str | None, out: str, config: QuantConfig,
+                   preprocessing: dict) -> None:
+    """`quantize static MODEL.onnx --calib DIR`: edgepick's recipe on a float ONNX file."""
+    from itertools import islice
+
+    from edgepick.quant.onnx_graph import load_float_onnx
+    from edgepick.quant.onnx_static import folder_tensors, image_size, quantize_onnx_static
+
+    for flag, value in (("--data", data_dir), ("--max-miou-drop", max_miou_drop)):
+        if value is not None:
+            raise ConfigError(f"{flag} is for a RUN or checkpoint; an .onnx MODEL calibrates on --calib")
+    if seed != 0:
+        raise ConfigError("--seed is for a RUN or checkpoint; an .onnx MODEL calibrates on all of --calib")
+    if calib is None:
+        raise ConfigError("--calib DIR is needed to calibrate an .onnx MODEL (.npy tensors or images)")
+    _check_onnx_out(out, model, calib)
+    prep = preprocessing_of(**preprocessing)
+    shape = parse_numbers(input_shape, "--input-shape", integer=True) if input_shape else None
+    if shape is not None and any(d < 1 for d in shape):
+        raise ConfigError(f"--input-shape {input_shape}: every dim must be 1 or more")
+    size = prep.size
+    if size is None and shape is not None and len(shape) == 4:
+        hw = shape[2:4] if prep.layout == "nchw" else shape[1:3]
+        size = Size.from_hw(hw)
+    if size is None:
+        size = image_size(load_float_onnx(model), prep.layout)
+    tensors = folder_tensors(calib, prep, size)
+    if calib_images is not None:
+        if calib_images < 1:
+            raise ConfigError(f"--calib-images {calib_images}: must be 1 or more")
+        tensors = islice(tensors, calib_images)
+    emit(quantize_onnx_static(model, tensors, out, config, input_shape=shape))
 
 
 @quantize.command("inspect")

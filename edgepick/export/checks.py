@@ -1,18 +1,29 @@
-"""Checks on exported files: int8 conv weights in the ONNX graph, and label agreement (parity)."""
+"""Checks on exported files: int8 conv weights in the ONNX graph, and label agreement (parity).
+Imports without torch (the ONNX-in pass uses the weight check)."""
 
 from __future__ import annotations
 
 from collections.abc import Iterable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
+from edgepick.errors import ParameterError
 from edgepick.runtime.session import Segmenter
+
+if TYPE_CHECKING:
+    import torch
+
+
+def check_onnx_out(out: str | Path) -> None:
+    """Refuse an output path that does not end in .onnx, before any work."""
+    if Path(out).suffix.lower() != ".onnx":
+        raise ParameterError("{out}: must name an .onnx file", out=Path(out))
 
 
 def conv_weight_report(path: str | Path) -> dict:
-    """Which of the model's convs take int8 weights (initializer [-> Slice] -> DequantizeLinear) and
+    """Which of the model's convs (and transposed convs) take int8 weights (initializer [-> Slice] -> DequantizeLinear) and
     which stay float; a conv split into regions by crop_padded_convs counts once, by its regions."""
     import onnx
     from onnx import numpy_helper
@@ -24,7 +35,7 @@ def conv_weight_report(path: str | Path) -> dict:
     producers = {out: n for n in model.graph.node for out in n.output}
     kinds: dict[str, set[bool]] = {}
     for node in model.graph.node:
-        if node.op_type != "Conv":
+        if node.op_type not in ("Conv", "ConvTranspose"):
             continue
         dq = producers.get(node.input[1])
         src = dq.input[0] if dq is not None and dq.op_type == "DequantizeLinear" else None
@@ -37,13 +48,21 @@ def conv_weight_report(path: str | Path) -> dict:
     return {"convs": len(kinds), "int8": len(int8), "float": float_}
 
 
-@torch.no_grad()
 def label_agreement(onnx_path: str | Path, net: torch.nn.Module, images: Iterable[np.ndarray]) -> float:
     """Share of pixels where onnxruntime's labels equal NET's argmax, NET fed [0, 255] NCHW float.
 
     For an int8 file NET is the converted pt2e graph (torch's simulation of the same
     quantized model); for fp32 it is the float model. Images are already at the model size.
     """
+    import torch
+
+    with torch.no_grad():
+        return _label_agreement(onnx_path, net, images)
+
+
+def _label_agreement(onnx_path: str | Path, net: torch.nn.Module, images: Iterable[np.ndarray]) -> float:
+    import torch
+
     seg = Segmenter(onnx_path, threads=2)
     same = total = 0
     for rgb in images:

@@ -17,7 +17,8 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from edgepick.errors import ConfigError, ParameterError
+from edgepick.errors import ConfigError
+from edgepick.export.checks import check_onnx_out
 from edgepick.export.crop_convs import crop_padded_convs
 from edgepick.export.int8_activations import integer_activations
 from edgepick.files import atomic_path, sha256_of
@@ -141,12 +142,6 @@ def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: Si
         onnx.save(model, tmp)
         onnx.checker.check_model(tmp, full_check=True)
     return path
-
-
-def check_onnx_out(out: str | Path) -> None:
-    """Refuse an output path that does not end in .onnx, before any work."""
-    if Path(out).suffix.lower() != ".onnx":
-        raise ParameterError("{out}: must name an .onnx file", out=Path(out))
 
 
 def export_checkpoint(checkpoint: str | Path, out: str | Path) -> ExportResult:

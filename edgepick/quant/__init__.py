@@ -4,7 +4,8 @@ One function per pass, as onnxruntime's quantize.py has them (`quantize_static`,
 `quantize_hybrid`, each with a `QuantConfig`); and torchao's verbs for a loop of your own
 (`prepare`, `calibrate`, `convert`; `QatHooks` brings a QaT graph's needs to edgepick's `fit`).
 Calibration data is the caller's: any iterable of HxWx3 uint8 RGB images (`folder_images` draws
-them from a data set).
+them from a data set). `quantize_onnx_static` takes a float ONNX model from any exporter instead,
+calibrated on its own input tensors (`folder_tensors`).
 """
 
 from typing import TYPE_CHECKING
@@ -16,16 +17,19 @@ _WHERE = {
     "convert": "graph", "folder_images": "passes", "inspect": "inspect", "PassResult": "results",
     "prepare": "graph", "QatHooks": "qat", "QuantConfig": "config", "QuantizationError": "graph",
     "quantize_accuracy_aware": "inspect", "quantize_hybrid": "passes", "quantize_qat": "passes",
-    "quantize_static": "passes"
+    "quantize_static": "passes", "quantize_onnx_static": "onnx_static", "folder_tensors": "onnx_static",
+    "OnnxPassResult": "onnx_static"
 }
-__all__ = ["AccuracyAwareResult", "CalibMethod", "PassResult", "QatHooks", "QuantConfig", "QuantizationError",
-           "agreement_images", "calibrate", "convert", "folder_images", "inspect", "prepare",
-           "quantize_accuracy_aware", "quantize_hybrid", "quantize_qat", "quantize_static"]
+__all__ = ["AccuracyAwareResult", "CalibMethod", "OnnxPassResult", "PassResult", "QatHooks", "QuantConfig",
+           "QuantizationError", "agreement_images", "calibrate", "convert", "folder_images", "folder_tensors",
+           "inspect", "prepare", "quantize_accuracy_aware", "quantize_hybrid", "quantize_onnx_static", "quantize_qat",
+           "quantize_static"]
 
 if TYPE_CHECKING:
     from edgepick.quant.config import CalibMethod, QuantConfig
     from edgepick.quant.graph import QuantizationError, calibrate, convert, prepare
     from edgepick.quant.inspect import inspect, quantize_accuracy_aware
+    from edgepick.quant.onnx_static import OnnxPassResult, folder_tensors, quantize_onnx_static
     from edgepick.quant.passes import agreement_images, folder_images, quantize_hybrid, quantize_qat, quantize_static
     from edgepick.quant.qat import QatHooks
     from edgepick.quant.results import AccuracyAwareResult, PassResult

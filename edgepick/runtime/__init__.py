@@ -10,10 +10,10 @@ from edgepick.lazy import lazy_attributes
 _WHERE = {
     "Calibration": "calibration", "draw_overlay": "grasp", "Engine": "engine", "FolderCamera": "camera",
     "grasp_records": "grasp", "kabsch": "calibration", "ModelError": "session", "Pipeline": "pipeline",
-    "RealSenseCamera": "camera", "Segmenter": "session"
+    "Preprocessing": "preprocessing", "RealSenseCamera": "camera", "Segmenter": "session"
 }
-__all__ = ["Calibration", "Engine", "FolderCamera", "ModelError", "Pipeline", "RealSenseCamera", "Segmenter",
-           "draw_overlay", "grasp_records", "kabsch"]
+__all__ = ["Calibration", "Engine", "FolderCamera", "ModelError", "Pipeline", "Preprocessing", "RealSenseCamera",
+           "Segmenter", "draw_overlay", "grasp_records", "kabsch"]
 
 if TYPE_CHECKING:
     from edgepick.runtime.calibration import Calibration, kabsch
@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from edgepick.runtime.engine import Engine
     from edgepick.runtime.grasp import draw_overlay, grasp_records
     from edgepick.runtime.pipeline import Pipeline
+    from edgepick.runtime.preprocessing import Preprocessing
     from edgepick.runtime.session import ModelError, Segmenter
 
 

@@ -58,6 +58,12 @@ def _session(path: Path, threads: int, optimize: bool = True) -> ort.InferenceSe
         raise ModelError(f"onnxruntime cannot load {path}: {first}") from None
 
 
+def plain_session(path: str | Path, threads: int = 2) -> ort.InferenceSession:
+    """An onnxruntime CPU session for any ONNX file, without the contract's checks (a model
+    edgepick did not make)."""
+    return _session(Path(path), threads)
+
+
 def check_model(path: str | Path) -> ModelInfo:
     """A model's contract checked without preparing it to run (no graph optimisation): what a
     command that takes several models checks for each before working on the first."""

@@ -1,0 +1,98 @@
+"""Small float ONNX models made in the tests, standing in for models from other exporters."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+
+def torch_net(out_channels: int = 3, two_outputs: bool = False, sigmoid: bool = False):
+    """A small segmentation net with what foreign models bring: BatchNorm, hardswish spelt out as
+    x * clip(x + 3, 0, 6) / 6, a squeeze-excitation block (mean pooling, hardsigmoid), a depthwise
+    conv, a learnable-affine scale and shift, ConvTranspose, Concat and a bilinear Resize."""
+    import torch
+    from torch import nn
+
+    class SE(nn.Module):
+        def __init__(self, c: int):
+            super().__init__()
+            self.fc1, self.fc2 = nn.Conv2d(c, c // 2, 1), nn.Conv2d(c // 2, c, 1)
+
+        def forward(self, x):
+            pooled = x.mean((2, 3), keepdim=True)
+            return x * nn.functional.hardsigmoid(self.fc2(torch.relu(self.fc1(pooled))))
+
+    class Net(nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.c1, self.b1 = nn.Conv2d(3, 8, 3, 2, 1), nn.BatchNorm2d(8)
+            self.dw, self.b2 = nn.Conv2d(8, 8, 3, 1, 1, groups=8), nn.BatchNorm2d(8)
+            self.se = SE(8)
+            self.scale, self.shift = nn.Parameter(torch.tensor([1.3])), nn.Parameter(torch.tensor([0.2]))
+            self.pw = nn.Conv2d(8, 16, 1)
+            self.c2 = nn.Conv2d(16, 16, 3, 2, 1)
+            self.up = nn.ConvTranspose2d(16, 8, 2, 2)
+            self.head = nn.Conv2d(16, out_channels, 1)
+            self.aux = nn.Conv2d(16, 2, 1)
+
+        def forward(self, x):
+            y = self.b1(self.c1(x))
+            y = y * torch.clamp(y + 3, 0, 6) / 6  # hardswish as older exporters write it
+            y = self.se(torch.relu(self.b2(self.dw(y))))
+            y = self.pw(y * self.scale + self.shift)
+            z = torch.cat([self.up(torch.relu(self.c2(y))), y[:, :8]], 1)
+            logits = nn.functional.interpolate(self.head(torch.cat([z, z], 1)[:, :16]), scale_factor=2,
+                                               mode="bilinear", align_corners=False)
+            if sigmoid:
+                logits = torch.sigmoid(logits)
+            return (logits, self.aux(z)) if two_outputs else logits
+
+    torch.manual_seed(0)
+    net = Net().eval()
+    for bn in (net.b1, net.b2):
+        bn.running_mean.uniform_(-0.5, 0.5)
+        bn.running_var.uniform_(0.5, 2.0)
+        bn.weight.data.uniform_(0.5, 1.5)
+    return net
+
+
+def export_torch(path: Path, opset: int = 12, **kwargs) -> Path:
+    """torch_net(**kwargs) through torch's TorchScript exporter at OPSET, batch, height and width
+    dynamic, BatchNorm left unfolded (as exported for training frameworks)."""
+    import torch
+
+    net = torch_net(**kwargs)
+    outputs = ["logits", "aux"] if kwargs.get("two_outputs") else ["logits"]
+    dynamic = {"input": {0: "n", 2: "h", 3: "w"}, **{o: {0: "n", 2: "h", 3: "w"} for o in outputs}}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(net, torch.rand(1, 3, 64, 96), str(path), opset_version=opset, dynamo=False,
+                          input_names=["input"], output_names=outputs, dynamic_axes=dynamic,
+                          do_constant_folding=False, training=torch.onnx.TrainingMode.PRESERVE)
+    return path
+
+
+def calib_tensors(count: int, shape=(1, 3, 64, 96), seed: int = 0) -> list[np.ndarray]:
+    """Smooth random inputs in the net's [0, 1] range (blurred noise: neighbouring pixels alike, as in images)."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(count):
+        x = rng.random(shape, dtype=np.float32)
+        x[0] = np.stack([cv2.GaussianBlur(c, (0, 0), 3) for c in x[0]])
+        out.append(np.ascontiguousarray(x))
+    return out
+
+
+def run(path: Path, x: np.ndarray) -> list[np.ndarray]:
+    """onnxruntime's outputs of the model at PATH for X (graph optimisations off: the file as it is)."""
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
+    opts.log_severity_level = 3
+    session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+    return session.run(None, {session.get_inputs()[0].name: x})

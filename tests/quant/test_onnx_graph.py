@@ -1,0 +1,124 @@
+"""The float rewrites of a foreign ONNX model: each must compute the same function."""
+
+from __future__ import annotations
+
+import numpy as np
+import onnx
+import pytest
+from onnx import TensorProto, helper, numpy_helper
+
+from edgepick.errors import ParameterError
+from edgepick.quant.onnx_graph import (
+    fix_input_shape,
+    fold_affine_into_convs,
+    input_dims,
+    lift_opset,
+    load_float_onnx,
+    opset,
+    rewrite_activations,
+)
+from tests.quant.onnx_models import calib_tensors, export_torch, run
+
+
+def _ops(model) -> list[str]:
+    return [n.op_type for n in model.graph.node]
+
+
+def test_the_rewritten_torch_export_computes_the_same_at_opset_13(tmp_path):
+    src = export_torch(tmp_path / "net.onnx", opset=12)
+    model = load_float_onnx(src)
+    assert opset(model) == 12 and input_dims(model) == ["n", 3, "h", "w"]
+    fix_input_shape(model, (1, 3, 64, 96))
+    model = lift_opset(model, src)
+    assert opset(model) == 13
+    done = rewrite_activations(model)
+    assert done == {"hardswish": 1, "hardsigmoid": 0, "global_average_pool": 1, "batchnorm_affine": 0}
+    folded = fold_affine_into_convs(model)
+    assert folded == 2  # the scale and the shift in front of the pointwise conv (it pads nothing)
+    ops = _ops(model)
+    assert "ReduceMean" not in ops and "Clip" not in ops and "Div" not in ops and ops.count("HardSigmoid") == 2
+    onnx.checker.check_model(model, full_check=True)
+    out = tmp_path / "rewritten.onnx"
+    onnx.save(model, out)
+    for x in calib_tensors(3):
+        np.testing.assert_allclose(run(out, x)[0], run(src, x)[0], rtol=1e-4, atol=1e-4)
+
+
+def _conv_model(path, before: list, after: list, pads: int):
+    """input -> BEFORE (Mul/Add by constants) -> 3x3 conv with PADS -> AFTER -> output."""
+    rng = np.random.default_rng(0)
+    inits = [numpy_helper.from_array(rng.normal(size=(4, 3, 3, 3)).astype(np.float32), "w"),
+             numpy_helper.from_array(rng.normal(size=4).astype(np.float32), "b")]
+    nodes, x = [], "input"
+    for k, (op, value) in enumerate([*before, ("Conv", None), *after]):
+        if op == "Conv":
+            nodes.append(helper.make_node("Conv", [x, "w", "b"], [f"t{k}"], name="conv", kernel_shape=[3, 3],
+                                          pads=[pads] * 4))
+        else:
+            inits.append(numpy_helper.from_array(np.asarray(value, np.float32), f"c{k}"))
+            nodes.append(helper.make_node(op, [x, f"c{k}"], [f"t{k}"], name=f"n{k}"))
+        x = f"t{k}"
+    nodes[-1].output[0] = "output"
+    graph = helper.make_graph(nodes, "g", [helper.make_tensor_value_info("input", TensorProto.FLOAT, [1, 3, 8, 8])],
+                              [helper.make_tensor_value_info("output", TensorProto.FLOAT, None)], inits)
+    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)]), path)
+    return path
+
+
+@pytest.mark.parametrize("before, after, pads, folds", [
+    ([("Mul", [1.5])], [("Mul", [[[2.0]], [[0.5]], [[-1.0]], [[3.0]]]), ("Add", [0.25])], 1, 3),
+    ([("Mul", [[[0.5]], [[2.0]], [[1.5]]]), ("Add", [[[0.1]], [[0.2]], [[0.3]]])], [], 0, 2),
+    ([("Add", [0.3])], [], 1, 0),  # an added constant would change the padded border: left alone
+])
+def test_affine_folds_are_exact_and_only_where_exact(tmp_path, before, after, pads, folds):
+    src = _conv_model(tmp_path / "m.onnx", before, after, pads)
+    model = onnx.load(src)
+    assert fold_affine_into_convs(model) == folds
+    assert len(model.graph.node) == 1 + len(before) + len(after) - folds
+    out = tmp_path / "folded.onnx"
+    onnx.save(model, out)
+    x = np.random.default_rng(1).normal(size=(1, 3, 8, 8)).astype(np.float32)
+    np.testing.assert_allclose(run(out, x)[0], run(src, x)[0], rtol=1e-5, atol=1e-5)
+
+
+def test_a_lone_batchnorm_becomes_an_exact_mul_and_add(tmp_path):
+    rng = np.random.default_rng(0)
+    inits = [numpy_helper.from_array(rng.uniform(0.5, 2, 3).astype(np.float32), n) for n in ("g", "v")]
+    inits += [numpy_helper.from_array(rng.normal(size=3).astype(np.float32), n) for n in ("be", "m")]
+    inits += [numpy_helper.from_array(rng.normal(size=(2, 3, 1, 1)).astype(np.float32), "w")]
+    nodes = [helper.make_node("Relu", ["input"], ["r"]),
+             helper.make_node("BatchNormalization", ["r", "g", "be", "m", "v"], ["bn"], epsilon=1e-3),
+             helper.make_node("Conv", ["bn", "w"], ["output"], kernel_shape=[1, 1])]
+    graph = helper.make_graph(nodes, "g", [helper.make_tensor_value_info("input", TensorProto.FLOAT, [1, 3, 4, 4])],
+                              [helper.make_tensor_value_info("output", TensorProto.FLOAT, None)], inits)
+    src = tmp_path / "bn.onnx"
+    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)]), src)
+    model = onnx.load(src)
+    assert rewrite_activations(model)["batchnorm_affine"] == 1 and "BatchNormalization" not in _ops(model)
+    onnx.save(model, tmp_path / "affine.onnx")
+    x = rng.normal(size=(1, 3, 4, 4)).astype(np.float32)
+    np.testing.assert_allclose(run(tmp_path / "affine.onnx", x)[0], run(src, x)[0], rtol=1e-5, atol=1e-5)
+
+
+def test_a_file_that_is_not_a_float_conv_model_is_refused_naming_model(tmp_path):
+    (tmp_path / "text.onnx").write_text("not a model")
+    with pytest.raises(ParameterError, match="^model=.*not an ONNX file"):
+        load_float_onnx(tmp_path / "text.onnx")
+    graph = helper.make_graph([helper.make_node("Relu", ["input"], ["output"])], "g",
+                              [helper.make_tensor_value_info("input", TensorProto.FLOAT, [1, 3, 4, 4])],
+                              [helper.make_tensor_value_info("output", TensorProto.FLOAT, None)])
+    onnx.save(helper.make_model(graph), tmp_path / "relu.onnx")
+    with pytest.raises(ParameterError, match="no Conv or ConvTranspose"):
+        load_float_onnx(tmp_path / "relu.onnx")
+    with pytest.raises(ParameterError, match="no such file"):
+        load_float_onnx(tmp_path / "none.onnx")
+
+
+def test_a_fixed_input_shape_must_fit_the_fixed_dims(tmp_path):
+    model = load_float_onnx(export_torch(tmp_path / "net.onnx"))
+    with pytest.raises(ParameterError, match="input_shape"):
+        fix_input_shape(model, (1, 4, 64, 96))  # the channel dim is fixed at 3
+    with pytest.raises(ParameterError, match="input_shape"):
+        fix_input_shape(model, (1, 3, 64))
+    fix_input_shape(model, (2, 3, 32, 48))
+    assert input_dims(model) == [2, 3, 32, 48]

@@ -1,0 +1,150 @@
+"""Static PTQ of float ONNX models edgepick did not make (`quantize_onnx_static`, `quantize static MODEL.onnx`)."""
+
+from __future__ import annotations
+
+import json
+import re
+from collections import Counter
+from pathlib import Path
+
+import cv2
+import numpy as np
+import onnx
+import pytest
+
+from edgepick.errors import ParameterError
+from edgepick.export.checks import conv_weight_report
+from edgepick.quant.config import QuantConfig
+from edgepick.quant.onnx_static import quantize_onnx_static
+from tests.conftest import run_cli
+from tests.quant.onnx_models import calib_tensors, export_torch, run
+
+
+def _optimized_ops(path: Path) -> Counter:
+    """The op types onnxruntime runs for the file after its graph optimisations (QDQ fused into QLinear*)."""
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED
+    opts.optimized_model_filepath = str(path.with_suffix(".opt.onnx"))
+    opts.log_severity_level = 3
+    ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+    return Counter(n.op_type for n in onnx.load(opts.optimized_model_filepath).graph.node)
+
+
+def test_an_opset_12_export_with_dynamic_dims_becomes_an_all_int8_model(tmp_path):
+    src = export_torch(tmp_path / "net.onnx", opset=12)
+    result = quantize_onnx_static(src, calib_tensors(8), tmp_path / "int8.onnx", progress=False)
+    assert result.opset_in == 12 and result.opset_out == 13 and result.input_shape == [1, 3, 64, 96]
+    assert result.convs == result.int8_convs == 8 and result.float_convs == []  # ConvTranspose included
+    assert result.rewrites["hardswish"] == 1 and result.rewrites["global_average_pool"] == 1
+    assert result.rewrites["HardSigmoid"] == 2 and result.rewrites["float_outputs"] == 1
+    assert result.agreement_vs_fp32["logits"] >= 0.97, result.agreement_vs_fp32
+    assert result.calib_tensors == 8 and json.loads(
+        dict((p.key, p.value) for p in onnx.load(result.out).metadata_props)["edgepick.quant"])["source"] == "onnx"
+    ops = _optimized_ops(Path(result.out))
+    # every activation on integer kernels: no float HardSigmoid/ReduceMean/BatchNormalization/Div is left to run
+    assert not {"HardSigmoid", "ReduceMean", "BatchNormalization", "Div", "Clip"} & set(ops), ops
+    # the head's output (the logits) stays float, and onnxruntime has no integer ConvTranspose kernel
+    assert ops["QLinearConv"] == 6 and ops["QLinearMul"] == 2 and ops["QLinearGlobalAveragePool"] == 1, ops
+    x = calib_tensors(1, seed=5)[0]
+    assert run(Path(result.out), x)[0].dtype == np.float32  # the logits stay float
+
+
+def test_one_channel_sigmoid_and_two_output_models(tmp_path):
+    sig = quantize_onnx_static(export_torch(tmp_path / "sig.onnx", out_channels=1, sigmoid=True), calib_tensors(6),
+                               tmp_path / "sig8.onnx", progress=False)
+    assert sig.int8_convs == sig.convs and list(sig.agreement_vs_fp32) == ["logits"]
+    assert sig.agreement_vs_fp32["logits"] >= 0.97
+    two = quantize_onnx_static(export_torch(tmp_path / "two.onnx", two_outputs=True), calib_tensors(6),
+                               tmp_path / "two8.onnx", progress=False)
+    assert sorted(two.agreement_vs_fp32) == ["aux", "logits"] and two.rewrites["float_outputs"] == 2
+    assert min(two.agreement_vs_fp32.values()) >= 0.97
+    outs = run(Path(two.out), calib_tensors(1)[0])
+    assert [o.dtype for o in outs] == [np.float32, np.float32] and outs[1].shape == (1, 2, 32, 48)
+
+
+def test_bad_calibration_data_is_refused_before_anything_is_written(tmp_path):
+    src = export_torch(tmp_path / "net.onnx")
+    good = calib_tensors(2)
+    nan = good[0].copy()
+    nan[0, 0, 0, 0] = np.nan
+    for bad, message in (([], "no tensors"), ([good[0].astype(np.float64)[:, :2]], r"shape \[1, 2, 64, 96\]"),
+                         ([good[0].astype(np.uint8)], "float array"), ([nan], "NaN"),
+                         ([good[0], np.zeros((1, 3, 32, 32), np.float32)], "tensor 2 has shape")):
+        with pytest.raises(ParameterError, match=message):
+            quantize_onnx_static(src, bad, tmp_path / "out.onnx", progress=False)
+    with pytest.raises(ParameterError, match="calib_method"):
+        quantize_onnx_static(src, good, tmp_path / "out.onnx", QuantConfig(calib_method="mse"), progress=False)
+    with pytest.raises(ParameterError, match="keep_float"):
+        quantize_onnx_static(src, good, tmp_path / "out.onnx", QuantConfig(keep_float=("nope",)), progress=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["net.onnx"]
+
+
+def test_keep_float_leaves_the_named_conv_float(tmp_path):
+    src = export_torch(tmp_path / "net.onnx")
+    first = next(n.name for n in onnx.load(src).graph.node if n.op_type == "Conv")
+    result = quantize_onnx_static(src, calib_tensors(4), tmp_path / "k.onnx", QuantConfig(keep_float=(first,)),
+                                  progress=False)
+    assert result.float_convs == [first] and result.int8_convs == result.convs - 1
+    assert conv_weight_report(result.out)["float"] == [first]
+
+
+def test_the_command_line_calibrates_on_npy_tensors_or_on_images(tmp_path):
+    src = export_torch(tmp_path / "net.onnx")
+    (tmp_path / "npy").mkdir()
+    (tmp_path / "img").mkdir()
+    for k, x in enumerate(calib_tensors(4)):
+        np.save(tmp_path / "npy" / f"{k}.npy", x[0])  # without the batch axis: one sample each
+        cv2.imwrite(str(tmp_path / "img" / f"{k}.png"), (x[0].transpose(1, 2, 0) * 255).astype(np.uint8))
+    proc = run_cli("quantize", "static", str(src), "--calib", str(tmp_path / "npy"), "--out", str(tmp_path / "a.onnx"))
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads(proc.stdout)
+    assert result["calib_tensors"] == 4 and result["int8_convs"] == result["convs"] == 8
+    proc = run_cli("quantize", "static", str(src), "--calib", str(tmp_path / "img"), "--size", "96x64",
+                   "--calib-images", "3", "--mean", "0.5,0.5,0.5", "--std", "0.5,0.5,0.5", "--channels", "bgr",
+                   "--out", str(tmp_path / "b.onnx"))
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["input_shape"] == [1, 3, 64, 96] and json.loads(proc.stdout)["calib_tensors"] == 3
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory) -> dict[str, Path]:
+    """The files and folders the mistakes below are made with."""
+    from onnx import TensorProto, helper
+
+    tmp = tmp_path_factory.mktemp("inputs")
+    for name in ("npy", "nan", "empty", "img"):
+        (tmp / name).mkdir()
+    x = calib_tensors(1)[0]
+    np.save(tmp / "npy" / "0.npy", x)
+    x[0, 0, 0, 0] = np.nan
+    np.save(tmp / "nan" / "0.npy", x)
+    cv2.imwrite(str(tmp / "img" / "0.png"), np.zeros((64, 96, 3), np.uint8))
+    (tmp / "t.onnx").write_text("text")
+    graph = helper.make_graph([helper.make_node("Relu", ["input"], ["output"])], "g",
+                              [helper.make_tensor_value_info("input", TensorProto.FLOAT, [1, 3, 4, 4])],
+                              [helper.make_tensor_value_info("output", TensorProto.FLOAT, None)])
+    onnx.save(helper.make_model(graph), tmp / "relu.onnx")
+    return {"TXT": tmp / "t.onnx", "RELU": tmp / "relu.onnx", "NET": export_torch(tmp / "net.onnx"),
+            "NPY": tmp / "npy", "NAN": tmp / "nan", "EMPTY": tmp / "empty", "IMG": tmp / "img"}
+
+
+@pytest.mark.parametrize("args, message", [
+    (["{TXT}", "--calib", "{NPY}"], "MODEL .*not an ONNX file"),
+    (["{RELU}", "--calib", "{NPY}"], "no Conv or ConvTranspose"),
+    (["{NET}", "--calib", "{EMPTY}"], "--calib .*holds no .npy tensors and no images"),
+    (["{NET}", "--calib", "{NPY}", "--input-shape", "1,3,32,32"], "--calib: calibration tensor 1 has shape"),
+    (["{NET}", "--calib", "{NAN}"], "--calib: calibration tensor 1 holds NaN"),
+    (["{NET}", "--calib", "{IMG}"], "--size is needed for images"),
+    (["{NET}", "--data", "{EMPTY}", "--calib", "{NPY}"], "--data is for a RUN or checkpoint"),
+    (["{NET}"], "--calib DIR is needed"),
+    (["{NET}", "--calib", "{NPY}", "--mean", "1,2"], "--mean 1,2: must be 3"),
+])
+def test_a_mistake_is_one_line_exit_2_and_nothing_written(inputs, tmp_path, args, message):
+    out = tmp_path / "out" / "q.onnx"
+    proc = run_cli("quantize", "static", *(a.format(**inputs) for a in args), "--out", str(out))
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.startswith("edgepick: error:") and proc.stderr.count("\n") == 1, proc.stderr
+    assert re.search(message, proc.stderr), proc.stderr
+    assert not (tmp_path / "out").exists() or list((tmp_path / "out").iterdir()) == []
