@@ -8,6 +8,7 @@ latency on the same threads and images, size. The model's input size is its run'
 
     pip install '.[peers]'      # nncf, openvino
     python benchmarks/peers.py --run demo-out/run --data demo-out/data [--threads 2] [--out FILE.md | --save]
+    python benchmarks/peers.py --onnx MODEL.onnx --calib DIR ...   # a model from elsewhere: peers_onnx.py
 """
 
 from __future__ import annotations
@@ -110,6 +111,12 @@ def why_slower(table: list[tuple]) -> str:
 
 
 def main() -> None:
+    if "--onnx" in sys.argv[1:]:  # a float ONNX model edgepick did not make: benchmarks/peers_onnx.py
+        import peers_onnx
+
+        sys.argv[0] = peers_onnx.__file__
+        peers_onnx.main()
+        return
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--run", default="demo-out/run", help="float RUN or checkpoint (default: make demo's)")
     ap.add_argument("--data", default="demo-out/data")

@@ -26,3 +26,27 @@ def test_openvino_rows_run_in_the_precision_they_are_labelled(tmp_path, monkeypa
     assert [config["INFERENCE_PRECISION_HINT"] for config, _ in compiled] == ["f32", "bf16"]
     assert fp32.compiled.get_property("INFERENCE_PRECISION_HINT") == ov.Type.f32 and not fp32.runs_in_bf16()
     assert bf16.compiled.get_property("INFERENCE_PRECISION_HINT") in (ov.Type.bf16, ov.Type.f32)  # f32: no bf16 here
+
+
+def test_peers_onnx_compares_every_tool_on_a_model_edgepick_did_not_make(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("nncf")
+    import numpy as np
+    import peers_onnx
+
+    from tests.quant.onnx_models import calib_tensors, export_torch
+
+    export_torch(tmp_path / "net.onnx", opset=12, two_outputs=True)
+    (tmp_path / "calib").mkdir()
+    for k, x in enumerate(calib_tensors(6)):
+        np.save(tmp_path / "calib" / f"{k}.npy", x)
+    monkeypatch.setattr(sys, "argv", ["peers_onnx.py", "--onnx", str(tmp_path / "net.onnx"), "--calib",
+                                      str(tmp_path / "calib"), "--calib-count", "4", "--runs", "2", "--threads", "1"])
+    peers_onnx.main()
+    report = capsys.readouterr().out
+    rows = [line for line in report.splitlines() if line.startswith("| ") and "(ms)" not in line]
+    assert [r.split(" | ")[0] for r in rows[:7]] == [
+        "| fp32 (onnxruntime)", "| onnxruntime quantize_static, defaults",
+        "| onnxruntime quantize_static, QDQ U8S8 per-channel reduce-range", "| fp32 (OpenVINO)", "| NNCF + OpenVINO",
+        "| edgepick static (onnxruntime)", "| edgepick static (OpenVINO)"]
+    assert rows[0].split(" | ")[1] == "100.00 / 100.00"  # fp32 against itself, both outputs
+    assert "lifted to opset 13" in report and "9 of 9 convs int8" in report

@@ -1,0 +1,218 @@
+"""A float ONNX model edgepick did not make, quantized by the tools people use and by edgepick, side
+by side in one run: onnxruntime's `quantize_static` with its defaults and with its best CPU
+settings (QDQ, U8S8, per-channel, reduce-range), NNCF on OpenVINO, and edgepick's
+`quantize static MODEL.onnx` (run by onnxruntime and by OpenVINO). Per output, how often each
+int8 model decides a pixel as fp32 does (ArgMax over channels, or a one-channel map thresholded);
+p50/p95 latency on the same threads and inputs, timed in alternating blocks; size.
+
+The first --calib-count inputs of --calib calibrate every tool; the rest (all, if there are no
+more) are where agreement is measured and latency timed.
+
+    pip install '.[peers]'      # nncf, openvino
+    python benchmarks/peers_onnx.py --onnx MODEL.onnx --calib DIR [preprocessing options] [--save]
+    python benchmarks/peers.py --onnx ...   # the same
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import shutil
+import statistics
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from _common import add_output, emit, interleaved_times, machine_line  # noqa: E402
+
+from edgepick.geometry import Size  # noqa: E402
+from edgepick.quant.onnx_static import _decisions, folder_tensors, quantize_onnx_static  # noqa: E402
+from edgepick.runtime.preprocessing import Preprocessing  # noqa: E402
+from edgepick.runtime.session import openvino_config, plain_session  # noqa: E402
+
+
+class Ort:
+    def __init__(self, path: Path, threads: int):
+        self.session = plain_session(path, threads)
+        self.input = self.session.get_inputs()[0].name
+
+    def __call__(self, x: np.ndarray) -> list[np.ndarray]:
+        return self.session.run(None, {self.input: x})
+
+
+class OpenVino:
+    def __init__(self, model, threads: int):
+        import openvino as ov
+
+        self.compiled = ov.Core().compile_model(model, "CPU", openvino_config(threads))
+        self.request = self.compiled.create_infer_request()
+
+    def __call__(self, x: np.ndarray) -> list[np.ndarray]:
+        result = self.request.infer({0: x})
+        return [result[o] for o in self.compiled.outputs]
+
+
+def openvino_by_layer(model, threads: int, x: np.ndarray, runs: int = 10) -> dict[str, float]:
+    """OpenVINO's own per-layer counters: median ms per run by layer type and the kernel's precision."""
+    import openvino as ov
+
+    compiled = ov.Core().compile_model(model, "CPU", {**openvino_config(threads), "PERF_COUNT": True})
+    request = compiled.create_infer_request()
+    per_run: dict[str, list[float]] = {}
+    for _ in range(runs):
+        request.infer({0: x})
+        totals: dict[str, float] = {}
+        for info in request.profiling_info:
+            if info.status != info.Status.EXECUTED:
+                continue
+            precision = info.exec_type.rsplit("_", 1)[-1]
+            key = f"{info.node_type} ({precision})"
+            totals[key] = totals.get(key, 0.0) + info.real_time.total_seconds() * 1000
+        for key, ms in totals.items():
+            per_run.setdefault(key, []).append(ms)
+    return {key: statistics.median(ms) for key, ms in per_run.items()}
+
+
+def agreement(model, reference: list[list[np.ndarray]], inputs: list[np.ndarray], nhwc: bool,
+              probability: list[bool]) -> list[float]:
+    """Per output, the share of pixels where MODEL decides as the fp32 outputs REFERENCE do."""
+    same, total = np.zeros(len(probability)), np.zeros(len(probability))
+    for x, ref in zip(inputs, reference):
+        for k, (a, b) in enumerate(zip(model(x), ref)):
+            da, db = _decisions(a, nhwc, probability[k]), _decisions(b, nhwc, probability[k])
+            same[k] += (da == db).sum()
+            total[k] += da.size
+    return list(same / np.maximum(total, 1))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--onnx", required=True, help="float ONNX model from any exporter")
+    ap.add_argument("--calib", required=True, help="folder of .npy input tensors or images")
+    ap.add_argument("--calib-count", type=int, default=32, help="the first this many inputs calibrate")
+    ap.add_argument("--input-shape", default=None, help="N,C,H,W for a model with dynamic dims")
+    ap.add_argument("--size", default=None, help="WIDTHxHEIGHT the images are resized to")
+    ap.add_argument("--channels", default="rgb")
+    ap.add_argument("--scale", type=float, default=1 / 255)
+    ap.add_argument("--mean", default="0,0,0")
+    ap.add_argument("--std", default="1,1,1")
+    ap.add_argument("--layout", default="nchw")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--runs", type=int, default=30)
+    ap.add_argument("--model-note", default="", help="where the model comes from, for the report's header")
+    add_output(ap)
+    args = ap.parse_args()
+
+    import nncf
+    import onnx
+    import onnxruntime as ort
+    import openvino as ov
+    from onnx import version_converter
+    from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quant_pre_process, quantize_static
+
+    from edgepick.quant.onnx_graph import fix_input_shape, load_float_onnx, opset
+
+    prep = Preprocessing(size=Size.parse(args.size) if args.size else None, channels=args.channels,
+                         scale=args.scale, mean=tuple(float(v) for v in args.mean.split(",")),
+                         std=tuple(float(v) for v in args.std.split(",")), layout=args.layout)
+    tensors = [t if t.ndim == 4 else t[None] for t in folder_tensors(args.calib, prep)]
+    calib, held = tensors[:args.calib_count], tensors[args.calib_count:] or tensors
+    shape = tuple(int(v) for v in args.input_shape.split(",")) if args.input_shape else calib[0].shape
+    nhwc = args.layout == "nhwc"
+
+    work = Path(tempfile.mkdtemp(prefix="peers-onnx-"))
+    try:
+        model = load_float_onnx(args.onnx)
+        opset_in = opset(model)
+        fix_input_shape(model, shape)
+        fp32 = work / "fp32.onnx"
+        onnx.save(model, fp32)
+        quant_pre_process(str(fp32), str(work / "pre.onnx"))
+        pre = onnx.load(work / "pre.onnx")
+        lifted = opset_in < 13  # onnxruntime's per-channel QDQ needs 13: a user lifts it as its error says
+        if lifted:
+            pre = version_converter.convert_version(pre, 13)
+        onnx.save(pre, work / "pre.onnx")
+        name = model.graph.input[0].name
+
+        class Reader(CalibrationDataReader):
+            def __init__(self):
+                self.it = iter(calib)
+
+            def get_next(self):
+                x = next(self.it, None)
+                return None if x is None else {name: x}
+
+        ort_default, ort_best = work / "ort_default.onnx", work / "ort_best.onnx"
+        quantize_static(str(work / "pre.onnx"), str(ort_default), Reader())
+        quantize_static(str(work / "pre.onnx"), str(ort_best), Reader(), quant_format=QuantFormat.QDQ,
+                        per_channel=True, reduce_range=True, activation_type=QuantType.QUInt8,
+                        weight_type=QuantType.QInt8)
+        nncf_model = nncf.quantize(ov.Core().read_model(str(fp32)), nncf.Dataset(calib), subset_size=len(calib))
+        ov.save_model(nncf_model, work / "nncf.xml")
+        ours = quantize_onnx_static(args.onnx, calib, work / "edgepick.onnx", input_shape=shape, progress=False)
+
+        def mb(*paths: Path) -> float:
+            return round(sum(p.stat().st_size for p in paths) / 1e6, 2)
+
+        t = args.threads
+        rows = [("fp32 (onnxruntime)", Ort(fp32, t), mb(fp32)),
+                ("onnxruntime quantize_static, defaults", Ort(ort_default, t), mb(ort_default)),
+                ("onnxruntime quantize_static, QDQ U8S8 per-channel reduce-range", Ort(ort_best, t), mb(ort_best)),
+                ("fp32 (OpenVINO)", OpenVino(ov.Core().read_model(str(fp32)), t), mb(fp32)),
+                ("NNCF + OpenVINO", OpenVino(nncf_model, t), mb(work / "nncf.xml", work / "nncf.bin")),
+                ("edgepick static (onnxruntime)", Ort(Path(ours.out), t), mb(Path(ours.out))),
+                ("edgepick static (OpenVINO)", OpenVino(ov.Core().read_model(ours.out), t), mb(Path(ours.out)))]
+        producer = {o: n for n in model.graph.node for o in n.output}
+        outputs = [o.name for o in model.graph.output]
+        probability = [getattr(producer.get(o), "op_type", "") in ("Sigmoid", "Softmax") for o in outputs]
+        reference = [rows[0][1](x) for x in held]
+        agree = [agreement(m, reference, held, nhwc, probability) for _, m, _ in rows]
+        times = interleaved_times([lambda i, m=m: m(held[i % len(held)]) for _, m, _ in rows], args.runs)
+        layers = {label: openvino_by_layer(model_ir, args.threads, held[0]) for label, model_ir in
+                  (("NNCF", nncf_model), ("edgepick", ov.Core().read_model(ours.out)))}
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+    p50 = [statistics.median(ms) for ms in times]
+    p95 = [float(np.percentile(ms, 95)) for ms in times]
+    best = p50[2]
+    nncf_p50 = p50[4]
+    lines = [f"# Peers on a model edgepick did not make: {Path(args.onnx).name}, {args.threads} threads", "",
+             f"Command: `python benchmarks/peers_onnx.py {shlex.join(sys.argv[1:])}`  ",
+             f"{machine_line()}; onnxruntime {ort.__version__}, openvino {ov.__version__.split('-')[0]}, nncf "
+             f"{nncf.__version__}, onnx {onnx.__version__}. Model: opset {opset_in}, input {list(shape)}, outputs "
+             f"{', '.join(outputs)}. {len(calib)} inputs calibrate every tool; agreement with fp32 and latency on "
+             f"{len(held)} {'other ' if held is not tensors else ''}inputs, {args.runs} timed runs per model after "
+             "warm-up, the models in alternating blocks of 5 (one process).",
+             *([f"Model: {args.model_note}"] if args.model_note else []),
+             *(["onnxruntime's `quantize_static` writes an invalid file from this opset-"
+                f"{opset_in} model with per-channel weights (DequantizeLinear's axis needs opset 13); its rows are "
+                "for the model lifted to opset 13 by onnx's version converter first, as a user would."]
+               if lifted else []), "",
+             "| Quantized by (engine) | agreement with fp32 (%), per output | p50 (ms) | p95 (ms) | vs fp32 "
+             "(onnxruntime) | Size (MB) |", "|---|---|---|---|---|---|"]
+    for (label, _, size_mb), a, m50, m95 in zip(rows, agree, p50, p95):
+        lines.append(f"| {label} | {' / '.join(f'{100 * v:.2f}' for v in a)} | {m50:.1f} | {m95:.1f} "
+                     f"| {p50[0] / m50:.2f}x | {size_mb:.2f} |")
+    lines += ["", f"edgepick on onnxruntime against onnxruntime's own best settings: {best / p50[5]:.2f}x (p50; "
+                  f"target 1.25x). edgepick on OpenVINO against NNCF + OpenVINO: {nncf_p50 / p50[6]:.2f}x (target: "
+                  "1.00x or more).", "",
+              f"edgepick's pass: {ours.int8_convs} of {ours.convs} convs int8"
+              f"{' (float: ' + ', '.join(ours.float_convs) + ')' if ours.float_convs else ''}; rewrites "
+              f"{', '.join(f'{k} {v}' for k, v in ours.rewrites.items() if v)}."]
+    kinds = sorted(set(layers["NNCF"]) | set(layers["edgepick"]),
+                   key=lambda k: -max(layers["NNCF"].get(k, 0.0), layers["edgepick"].get(k, 0.0)))
+    lines += ["", "OpenVINO's per-layer counters (`PERF_COUNT`), median ms per run by layer type and kernel "
+                  "precision, NNCF's IR against edgepick's file:", "",
+              "| layer type (precision) | NNCF + OpenVINO (ms) | edgepick (OpenVINO) (ms) |", "|---|---|---|",
+              *(f"| {k} | {layers['NNCF'].get(k, 0.0):.2f} | {layers['edgepick'].get(k, 0.0):.2f} |"
+                for k in kinds[:14])]
+    emit("\n".join(lines) + "\n", args)
+
+
+if __name__ == "__main__":
+    main()
