@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import add_output, emit, interleaved_times, machine_line  # noqa: E402
 
 from edgepick.geometry import Size  # noqa: E402
-from edgepick.quant.onnx_static import _decisions, folder_tensors, quantize_onnx_static  # noqa: E402
+from edgepick.quant.onnx_static import decisions, folder_tensors, quantize_onnx_static  # noqa: E402
 from edgepick.runtime.preprocessing import Preprocessing  # noqa: E402
 from edgepick.runtime.session import openvino_config, plain_session  # noqa: E402
 
@@ -82,7 +82,7 @@ def agreement(model, reference: list[list[np.ndarray]], inputs: list[np.ndarray]
     same, total = np.zeros(len(probability)), np.zeros(len(probability))
     for x, ref in zip(inputs, reference):
         for k, (a, b) in enumerate(zip(model(x), ref)):
-            da, db = _decisions(a, nhwc, probability[k]), _decisions(b, nhwc, probability[k])
+            da, db = decisions(a, nhwc, probability[k]), decisions(b, nhwc, probability[k])
             same[k] += (da == db).sum()
             total[k] += da.size
     return list(same / np.maximum(total, 1))
@@ -113,7 +113,7 @@ def main() -> None:
     from onnx import version_converter
     from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quant_pre_process, quantize_static
 
-    from edgepick.quant.onnx_graph import fix_input_shape, load_float_onnx, opset
+    from edgepick.export.onnx_io import fix_input_shape, load_float_onnx, opset
 
     prep = Preprocessing(size=Size.parse(args.size) if args.size else None, channels=args.channels,
                          scale=args.scale, mean=tuple(float(v) for v in args.mean.split(",")),

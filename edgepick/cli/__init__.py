@@ -30,6 +30,7 @@ from edgepick.cli.bench import bench
 from edgepick.cli.calibrate import calibrate
 from edgepick.cli.data import data
 from edgepick.cli.grasp import grasp
+from edgepick.cli.model import model
 from edgepick.cli.pick import pick
 from edgepick.cli.quant import export_cmd, quantize
 from edgepick.cli.train import demo, eval_cmd, train
@@ -46,7 +47,7 @@ TRAIN_EXTRA = {"torch", "torchao", "onnx", "onnxscript", "torchvision"}
 ALIASES = {"calib": "calib_images", "data": "data_dir", "debug_log": "robot_log", "depth_scale_m": "depth_scale",
            "interval_s": "interval", "max_drop_pp": "max_miou_drop", "max_rmse_m": "max_rmse",
            "offset_m": "marker_offset", "settle_s": "settle", "sizes": "subsets", "spec": "marker_spec",
-           "split_fractions": "splits", "model": "checkpoint", "size": "image_size"}
+           "split_fractions": "splits", "size": "image_size", "model": ("checkpoint", "model_file")}
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
@@ -62,7 +63,7 @@ def cli() -> None:
     """
 
 
-for _command in (data, train, eval_cmd, calibrate, grasp, demo, export_cmd, quantize, pick, bench):
+for _command in (data, train, eval_cmd, calibrate, grasp, demo, export_cmd, quantize, model, pick, bench):
     cli.add_command(_command)
 
 
@@ -96,7 +97,8 @@ def _option_for(parameter: str, command: click.Command) -> click.Parameter | Non
     """The click parameter that gives the library's PARAMETER: COMMAND's own (by name, or by its
     alias), else the one option of that name that other commands share (a hint at another command's
     flag, e.g. train's --keep-epochs in hybrid-QaT's error)."""
-    names = (parameter, ALIASES.get(parameter))
+    alias = ALIASES.get(parameter, ())
+    names = (parameter, *((alias,) if isinstance(alias, str) else alias))
     own = [p for p in command.params if p.name in names]
     if own:
         return own[0]

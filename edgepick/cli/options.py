@@ -124,9 +124,9 @@ def _preprocessing_options() -> list:
 
     return [
         click.option("--size", "image_size", default=None, metavar=SIZE_HELP,
-                     help="For --calib images: the size the model takes [default: its input's fixed size]."),
+                     help="The image size the model takes [default: its input's fixed size]."),
         click.option("--channels", default=default_of(Preprocessing, "channels"), show_default=True,
-                     type=choice(ChannelOrder), help="For --calib images: the colour order the model was trained on."),
+                     type=choice(ChannelOrder), help="The colour order the model was trained on."),
         click.option("--scale", default=default_of(Preprocessing, "scale"), show_default="1/255",
                      help="Pixel values (0..255) are multiplied by this first."),
         click.option("--mean", default="0,0,0", show_default=True, metavar="A,B,C",

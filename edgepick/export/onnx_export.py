@@ -114,6 +114,33 @@ def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: Si
     Written to a temporary file first and checked with onnx.checker; PATH appears only
     when the whole file is good.
     """
+    example = (torch.zeros(1, *input_size.hw, 3, dtype=torch.uint8),)
+    return _write(DeployNet(_in_eval(net)), example, path, metadata, passes, ["image"], ["labels"])
+
+
+def export_module_onnx(net: nn.Module, path: str | Path, input_shape: tuple[int, ...], metadata: dict,
+                       passes: tuple[str, ...] = tuple(EXPORT_PASSES)) -> Path:
+    """Export a model edgepick did not build (float or pt2e-converted) with its own float `input`
+    of INPUT_SHAPE and its own outputs (`output`, or `output_0`, `output_1`, ... for several);
+    `model wrap` makes it an edgepick model. The graph PASSES, the checks and the atomic write
+    are export_onnx's."""
+    example = (torch.zeros(*input_shape),)
+    net = _in_eval(net)
+    with torch.no_grad():
+        out = net(*example)
+    count = len(out) if isinstance(out, (tuple, list)) else 1
+    names = ["output"] if count == 1 else [f"output_{k}" for k in range(count)]
+    return _write(net, example, path, metadata, passes, ["input"], names)
+
+
+def _in_eval(net: nn.Module) -> nn.Module:
+    if not isinstance(net, torch.fx.GraphModule):  # exported graphs are already in eval form
+        net.eval()
+    return net
+
+
+def _write(net: nn.Module, example: tuple, path: str | Path, metadata: dict, passes: tuple[str, ...],
+           input_names: list[str], output_names: list[str]) -> Path:
     import onnx
 
     path = Path(path)
@@ -121,15 +148,11 @@ def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: Si
     unknown = [p for p in passes if p not in EXPORT_PASSES]
     if unknown:
         raise ConfigError(f"unknown export pass {unknown[0]!r}; the passes are {', '.join(EXPORT_PASSES)}")
-    example = (torch.zeros(1, *input_size.hw, 3, dtype=torch.uint8),)
-    if not isinstance(net, torch.fx.GraphModule):  # exported graphs are already in eval form
-        net.eval()
-    deploy = DeployNet(net)
     with atomic_path(path) as tmp:
         with warnings.catch_warnings(), torch.no_grad():
             warnings.simplefilter("ignore")
-            program = torch.onnx.export(deploy, example, dynamo=True, opset_version=OPSET, input_names=["image"],
-                                        output_names=["labels"], verbose=False, optimize=True)
+            program = torch.onnx.export(net, example, dynamo=True, opset_version=OPSET, input_names=input_names,
+                                        output_names=output_names, verbose=False, optimize=True)
         model = program.model_proto
         strip_debug_info(model)
         for name in passes:

@@ -146,14 +146,16 @@ class DeepLabV3(nn.Module):
 
 
 class LogitsNet(nn.Module):
-    """DeepLabV3 -> its plain `out` logits tensor: what torch.export, pt2e and the ONNX writer take."""
+    """DeepLabV3 (or any torchvision-style segmentation model) -> its plain `out` logits tensor:
+    what torch.export, pt2e and the ONNX writer take."""
 
     def __init__(self, model: nn.Module):
         super().__init__()
         self.model = model
 
     def forward(self, x: Tensor) -> Tensor:
-        return self.model(x)["out"]
+        out = self.model(x)
+        return out["out"] if isinstance(out, dict) else out  # a model of one's own may give the tensor itself
 
 
 def build_model(config: ModelConfig) -> DeepLabV3:

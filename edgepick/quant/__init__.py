@@ -4,8 +4,9 @@ One function per pass, as onnxruntime's quantize.py has them (`quantize_static`,
 `quantize_hybrid`, each with a `QuantConfig`); and torchao's verbs for a loop of your own
 (`prepare`, `calibrate`, `convert`; `QatHooks` brings a QaT graph's needs to edgepick's `fit`).
 Calibration data is the caller's: any iterable of HxWx3 uint8 RGB images (`folder_images` draws
-them from a data set). `quantize_onnx_static` takes a float ONNX model from any exporter instead,
-calibrated on its own input tensors (`folder_tensors`).
+them from a data set). A model edgepick did not make, a float ONNX file from any exporter or an
+nn.Module of one's own, goes through `quantize_static` too, calibrated on its own input batches
+(`folder_tensors` reads them from a folder).
 """
 
 from typing import TYPE_CHECKING

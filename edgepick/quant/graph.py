@@ -15,7 +15,7 @@ import torch
 
 from edgepick.errors import ConfigError, EdgepickError, ParameterError
 from edgepick.geometry import Size, check_size
-from edgepick.models.deeplabv3 import LogitsNet, trim_dilated_convs
+from edgepick.models.deeplabv3 import DeepLabV3, LogitsNet, trim_dilated_convs
 from edgepick.quant.config import QuantConfig
 from edgepick.quant.quantizer import EdgeQuantizer, count_quant_nodes, module_path, under
 from edgepick.quant.rewrites import drop_fake_quants_after_dropout, gate_hardswish, snap_conv_biases
@@ -85,19 +85,24 @@ def check_keep_float(model: torch.nn.Module, names: tuple[str, ...]) -> None:
                              f"(see 'edgepick quantize inspect' for layer names)", keep_float=tuple(unknown))
 
 
-def prepare(model: torch.nn.Module, config: QuantConfig, size: Size, qat: bool) -> torch.fx.GraphModule:
+def prepare(model: torch.nn.Module, config: QuantConfig, size: Size, qat: bool,
+            input_shape: tuple[int, ...] | None = None) -> torch.fx.GraphModule:
     """torch.export + pt2e prepare of MODEL (changed in place: trimmed taps, gated hardswish);
     QAT gives a fake-quant graph with a batch dimension to train. Raises if no observer or
-    fake-quant was inserted (the silent-float trap)."""
+    fake-quant was inserted (the silent-float trap). MODEL is edgepick's DeepLabV3 or any
+    segmentation module (a `{"out": ...}` dict or a tensor out) taking [N, 3, H, W] at SIZE, or
+    INPUT_SHAPE when given."""
     from torchao.quantization.pt2e.quantize_pt2e import prepare_pt2e, prepare_qat_pt2e
 
     check_size(size, "size")
     check_keep_float(model, config.keep_float)
-    trim_dilated_convs(model, size)  # exact; int8 kernels do not skip taps that only see padding
+    if isinstance(model, DeepLabV3):
+        trim_dilated_convs(model, size)  # exact; int8 kernels do not skip taps that only see padding
     if config.hardswish_gate:
         gate_hardswish(model)
     net = LogitsNet(model).train(qat)
-    example = (torch.rand(2 if qat else 1, 3, *size.hw) * 255,)
+    shape = tuple(input_shape) if input_shape else (1, 3, *size.hw)
+    example = (torch.rand(2 if qat else shape[0], *shape[1:]) * 255,)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         batch = torch.export.Dim("batch", min=1, max=4096)  # QaT trains on batches

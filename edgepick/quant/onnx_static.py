@@ -36,20 +36,11 @@ from edgepick.errors import ParameterError
 from edgepick.export.checks import check_onnx_out, conv_weight_report
 from edgepick.export.crop_convs import crop_padded_convs
 from edgepick.export.int8_activations import integer_activations
+from edgepick.export.onnx_io import CONV_OPS, fix_input_shape, graph_inputs, input_dims, lift_opset, load_float_onnx, opset
 from edgepick.files import atomic_path
 from edgepick.geometry import Size
 from edgepick.quant.config import CalibMethod, QuantConfig
-from edgepick.quant.onnx_graph import (
-    CONV_OPS,
-    fix_input_shape,
-    fold_affine_into_convs,
-    graph_inputs,
-    input_dims,
-    lift_opset,
-    load_float_onnx,
-    opset,
-    rewrite_activations,
-)
+from edgepick.quant.onnx_graph import fold_affine_into_convs, rewrite_activations
 from edgepick.runtime.preprocessing import Layout, Preprocessing
 
 CHECK_TENSORS = 8  # calibration tensors on which int8 outputs are compared with fp32's
@@ -62,12 +53,13 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp", ".tif", ".tiff")
 
 @dataclass(frozen=True)
 class OnnxPassResult:
-    """A foreign model's int8 file, what was done to it and how close it stays to fp32."""
+    """The int8 file of a model edgepick did not make (an ONNX file or an nn.Module), what was done
+    to it and how close it stays to fp32."""
 
     out: str
     size_bytes: int
     input_shape: list[int]
-    opset_in: int
+    opset_in: int | None  # None for an nn.Module
     opset_out: int
     convs: int
     int8_convs: int
@@ -201,7 +193,7 @@ def _float_outputs(model: Any, tail: list[str]) -> int:
     return freed
 
 
-def _decisions(y: np.ndarray, nhwc: bool, probability: bool) -> np.ndarray:
+def decisions(y: np.ndarray, nhwc: bool, probability: bool) -> np.ndarray:
     """What a segmentation output decides per pixel: the argmax over channels, or a threshold of
     a one-channel map (0.5 for a probability, 0 for a logit)."""
     axis = -1 if nhwc else 1
@@ -225,7 +217,7 @@ def output_agreement(fp32: Path, int8: Path, name: str, tensors: list[np.ndarray
     total = dict.fromkeys(names, 0)
     for x in tensors:
         for n, ya, yb in zip(names, a.run(names, {name: x}), b.run(names, {name: x})):
-            da, db = _decisions(ya, nhwc, prob[n]), _decisions(yb, nhwc, prob[n])
+            da, db = decisions(ya, nhwc, prob[n]), decisions(yb, nhwc, prob[n])
             same[n] += int((da == db).sum())
             total[n] += da.size
     return {n: round(same[n] / max(total[n], 1), 5) for n in names}

@@ -14,6 +14,7 @@ import time
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, replace
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -41,6 +42,9 @@ from edgepick.quant.results import Int8File, PassResult
 from edgepick.train.checkpoint import Checkpoint
 from edgepick.train.config import Device, TrainConfig
 from edgepick.train.run import Run
+
+if TYPE_CHECKING:
+    from edgepick.quant.onnx_static import OnnxPassResult
 
 AGREEMENT_IMAGES = 8  # images on which each pass compares onnxruntime's labels with torch's simulation
 
@@ -109,14 +113,26 @@ def _export_int8(converted: torch.fx.GraphModule, out: str | Path, metadata: dic
                     float_convs=report["float"], agreement_vs_torch=round(agreement, 5))
 
 
-def quantize_static(checkpoint: str | Path | Checkpoint, calib: Iterable[np.ndarray], out: str | Path,
+def quantize_static(checkpoint: str | Path | Checkpoint | torch.nn.Module, calib: Iterable[Any], out: str | Path,
                     config: QuantConfig | None = None, check_images: Sequence[np.ndarray] | None = None,
-                    progress: bool = True, export_passes: tuple[str, ...] = tuple(EXPORT_PASSES)) -> PassResult:
+                    progress: bool = True, export_passes: tuple[str, ...] = tuple(EXPORT_PASSES),
+                    input_shape: tuple[int, ...] | None = None) -> PassResult | OnnxPassResult:
     """Static post-training quantization of a float checkpoint (or RUN): BN folded, per-channel
     int8 weights, activation ranges calibrated with config.calib_method on CALIB (HxWx3 uint8 RGB
     images, any iterable, resized to the model's input); writes an int8 ONNX after the ONNX graph
     passes EXPORT_PASSES (all by default). The onnxruntime-vs-torch label agreement is measured on
-    CHECK_IMAGES [default: the first 8 calibration images]. `folder_images` draws CALIB from a data set."""
+    CHECK_IMAGES [default: the first 8 calibration images]. `folder_images` draws CALIB from a data set.
+
+    A model edgepick did not make: an nn.Module (quantize_module_static) or a float .onnx file
+    (quantize_onnx_static), calibrated on its own input batches; INPUT_SHAPE fixes its input."""
+    if isinstance(checkpoint, torch.nn.Module):
+        from edgepick.quant.module_static import quantize_module_static
+
+        return quantize_module_static(checkpoint, calib, out, config, input_shape, progress)
+    if isinstance(checkpoint, (str, Path)) and Path(checkpoint).suffix.lower() == ".onnx":
+        from edgepick.quant.onnx_static import quantize_onnx_static
+
+        return quantize_onnx_static(checkpoint, calib, out, config, input_shape, progress)
     config = config or QuantConfig()
     check_onnx_out(out)
     ckpt = checkpoint if isinstance(checkpoint, Checkpoint) else Checkpoint.load(checkpoint)

@@ -7,16 +7,8 @@ import onnx
 import pytest
 from onnx import TensorProto, helper, numpy_helper
 
-from edgepick.errors import ParameterError
-from edgepick.quant.onnx_graph import (
-    fix_input_shape,
-    fold_affine_into_convs,
-    input_dims,
-    lift_opset,
-    load_float_onnx,
-    opset,
-    rewrite_activations,
-)
+from edgepick.export.onnx_io import fix_input_shape, input_dims, lift_opset, load_float_onnx, opset
+from edgepick.quant.onnx_graph import fold_affine_into_convs, rewrite_activations
 from tests.quant.onnx_models import calib_tensors, export_torch, run
 
 
@@ -98,27 +90,3 @@ def test_a_lone_batchnorm_becomes_an_exact_mul_and_add(tmp_path):
     onnx.save(model, tmp_path / "affine.onnx")
     x = rng.normal(size=(1, 3, 4, 4)).astype(np.float32)
     np.testing.assert_allclose(run(tmp_path / "affine.onnx", x)[0], run(src, x)[0], rtol=1e-5, atol=1e-5)
-
-
-def test_a_file_that_is_not_a_float_conv_model_is_refused_naming_model(tmp_path):
-    (tmp_path / "text.onnx").write_text("not a model")
-    with pytest.raises(ParameterError, match="^model=.*not an ONNX file"):
-        load_float_onnx(tmp_path / "text.onnx")
-    graph = helper.make_graph([helper.make_node("Relu", ["input"], ["output"])], "g",
-                              [helper.make_tensor_value_info("input", TensorProto.FLOAT, [1, 3, 4, 4])],
-                              [helper.make_tensor_value_info("output", TensorProto.FLOAT, None)])
-    onnx.save(helper.make_model(graph), tmp_path / "relu.onnx")
-    with pytest.raises(ParameterError, match="no Conv or ConvTranspose"):
-        load_float_onnx(tmp_path / "relu.onnx")
-    with pytest.raises(ParameterError, match="no such file"):
-        load_float_onnx(tmp_path / "none.onnx")
-
-
-def test_a_fixed_input_shape_must_fit_the_fixed_dims(tmp_path):
-    model = load_float_onnx(export_torch(tmp_path / "net.onnx"))
-    with pytest.raises(ParameterError, match="input_shape"):
-        fix_input_shape(model, (1, 4, 64, 96))  # the channel dim is fixed at 3
-    with pytest.raises(ParameterError, match="input_shape"):
-        fix_input_shape(model, (1, 3, 64))
-    fix_input_shape(model, (2, 3, 32, 48))
-    assert input_dims(model) == [2, 3, 32, 48]

@@ -1,0 +1,108 @@
+"""Static PTQ of a segmentation nn.Module edgepick did not build, on the pt2e path its own models
+take: torch.export, edgepick's quantizer (U8S8, per-channel weights, hardswish gated), the
+caller's calibration batches, convert, an int8 ONNX with the module's own float input and
+outputs, and the ONNX passes of `edgepick.export`. `model wrap` then makes it an edgepick model.
+"""
+
+from __future__ import annotations
+
+import copy
+import itertools
+import json
+import time
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from edgepick.errors import ParameterError
+from edgepick.export.checks import check_onnx_out, conv_weight_report
+from edgepick.export.onnx_export import export_module_onnx
+from edgepick.geometry import Size
+from edgepick.quant.config import QuantConfig
+from edgepick.quant.graph import QuantizationError, convert, expected_int8_convs, prepare
+from edgepick.quant.onnx_static import CHECK_TENSORS, OnnxPassResult, check_tensor, decisions
+from edgepick.quant.rewrites import GatedHardswish
+
+
+def _tensor(x: Any, shape: tuple[int, ...] | None, what: str) -> torch.Tensor:
+    """X (a tensor or an array) as a float32 batch of SHAPE, refused in one line naming `calib`
+    (onnx_static.check_tensor's checks)."""
+    if isinstance(x, torch.Tensor):
+        x = x.detach().cpu().numpy()
+    return torch.from_numpy(check_tensor(x, shape, what))
+
+
+def _outputs(out: Any) -> list[torch.Tensor]:
+    """A module's output as a list of tensors: a {"out": ...} dict's `out`, a tensor, or a tuple."""
+    if isinstance(out, dict):
+        out = out["out"]
+    return list(out) if isinstance(out, (tuple, list)) else [out]
+
+
+def quantize_module_static(module: torch.nn.Module, calib: Iterable[Any], out: str | Path,
+                           config: QuantConfig | None = None, input_shape: tuple[int, ...] | None = None,
+                           progress: bool = True) -> OnnxPassResult:
+    """Static PTQ of MODULE (any segmentation nn.Module taking [N, C, H, W]: a torchvision-style
+    `{"out": ...}` dict or tensors out), calibrated on CALIB (input batches, tensors or arrays,
+    with or without the batch axis), written to OUT as an int8 ONNX with the module's own input and
+    outputs. INPUT_SHAPE [default: the first batch's]. MODULE itself is left as it was."""
+    from edgepick.progress import progress as progress_bar
+    from edgepick.runtime.session import plain_session
+
+    config = config or QuantConfig()
+    check_onnx_out(out)
+    batches = iter(calib)
+    first = next(batches, None)
+    if first is None:
+        raise ParameterError("{calib:name}: no batches; calibration needs at least one", calib=None)
+    first = _tensor(first, None, "calibration batch 1")
+    shape = tuple(input_shape) if input_shape else tuple(first.shape if first.dim() == 4 else (1, *first.shape))
+    if len(shape) != 4:
+        raise ParameterError(f"{{input_shape}}: must be [N, C, H, W], got {list(shape)}", input_shape=shape)
+    first = _tensor(first, shape, "calibration batch 1")
+    model = copy.deepcopy(module).eval()
+    t0 = time.perf_counter()
+    prepared = prepare(model, config, Size(shape[3], shape[2]), qat=False, input_shape=shape)
+    gated = sum(isinstance(m, GatedHardswish) for m in model.modules())
+    kept, seen = [first], 0
+    with torch.no_grad():
+        for k, x in enumerate(progress_bar(itertools.chain([first], batches), desc="calibrate", unit="batch",
+                                           enabled=progress)):
+            x = first if k == 0 else _tensor(x, shape, f"calibration batch {k + 1}")
+            prepared(x)
+            seen += 1
+            if 0 < k < CHECK_TENSORS:
+                kept.append(x)
+    converted = convert(prepared)
+    calib_s = time.perf_counter() - t0
+    quant = {"mode": "static", "source": "module", "calib_method": config.calib_method.value, "calib_images": seen,
+             "percentile": config.percentile, "reduce_range": config.reduce_range, "keep_float": list(config.keep_float)}
+    path = export_module_onnx(converted, out, shape, {"edgepick.quant": json.dumps(quant)})
+    report = conv_weight_report(path)
+    expected = expected_int8_convs(prepared, config)
+    if report["int8"] < expected:
+        path.unlink()
+        raise QuantizationError(f"only {report['int8']} of {expected} convs got int8 weights in the ONNX")
+    session = plain_session(path)
+    names = [o.name for o in session.get_outputs()]
+    same, total = dict.fromkeys(names, 0), dict.fromkeys(names, 0)
+    float_model = copy.deepcopy(module).eval()
+    with torch.no_grad():
+        for x in kept:
+            for name, ours, ref in zip(names, session.run(names, {"input": x.numpy()}), _outputs(float_model(x))):
+                ref = ref.numpy()
+                # a one-channel map inside [0, 1] is taken as a probability (threshold 0.5), else a logit (0)
+                probability = bool(ref.shape[1] == 1 and ref.min() >= 0.0 and ref.max() <= 1.0)
+                a, b = decisions(ours, False, probability), decisions(ref, False, probability)
+                same[name] += int((a == b).sum())
+                total[name] += a.size
+    import onnx
+
+    return OnnxPassResult(out=str(path), size_bytes=path.stat().st_size, input_shape=list(shape), opset_in=None,
+                          opset_out=next(o.version for o in onnx.load(str(path)).opset_import if o.domain == ""),
+                          convs=report["convs"], int8_convs=report["int8"], float_convs=report["float"],
+                          agreement_vs_fp32={n: round(same[n] / max(total[n], 1), 5) for n in names},
+                          rewrites={"gated_hardswish": gated}, quant=quant, calib_tensors=seen,
+                          calib_s=round(calib_s, 2))
