@@ -42,12 +42,15 @@ def add_output(ap: argparse.ArgumentParser) -> None:
                     help=f"also write it to benchmarks/results/{study_name()}/<yyyy-mm-dd>-<machine>.md")
 
 
-def emit(report: str, args: argparse.Namespace) -> None:
-    """Print a Markdown report, and write it where --out / --save say."""
+def emit(report: str, args: argparse.Namespace, suffix: str = "") -> None:
+    """Print a Markdown report, and write it where --out / --save say (--save: SUFFIX after the
+    machine in the file name, for a study with one file per model)."""
     print(report)
     targets = [Path(args.out)] if args.out else []
     if args.save:
-        targets.append(results_file(RESULTS, study_name()))
+        from edgepick.bench.machine import machine_slug
+
+        targets.append(results_file(RESULTS, study_name(), f"{machine_slug()}-{suffix}" if suffix else None))
     for path in targets:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(report)

@@ -10,12 +10,14 @@ more) are where agreement is measured and latency timed.
 
     pip install '.[peers]'      # nncf, openvino
     python benchmarks/peers_onnx.py --onnx MODEL.onnx --calib DIR [preprocessing options] [--save]
+    # --save: benchmarks/results/peers-onnx/<date>-<machine>-<model>.md
     python benchmarks/peers.py --onnx ...   # the same
 """
 
 from __future__ import annotations
 
 import argparse
+import re
 import shlex
 import shutil
 import statistics
@@ -53,6 +55,31 @@ class OpenVino:
     def __call__(self, x: np.ndarray) -> list[np.ndarray]:
         result = self.request.infer({0: x})
         return [result[o] for o in self.compiled.outputs]
+
+
+def onnxruntime_by_op(path: Path, threads: int, x: np.ndarray, runs: int = 10) -> dict[str, float]:
+    """onnxruntime's own profiler: ms per run by op type (the kernels it runs after its fusions)."""
+    import json
+    import os
+
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads, opts.inter_op_num_threads, opts.log_severity_level = threads, 1, 3
+    opts.enable_profiling = True
+    opts.profile_file_prefix = str(Path(tempfile.gettempdir()) / "peers-onnx-profile")
+    session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+    name = session.get_inputs()[0].name
+    for _ in range(runs):
+        session.run(None, {name: x})
+    trace = session.end_profiling()
+    totals: dict[str, float] = {}
+    for event in json.loads(Path(trace).read_text()):
+        if event.get("cat") == "Node" and event["name"].endswith("_kernel_time"):
+            op = event["args"]["op_name"]
+            totals[op] = totals.get(op, 0.0) + event["dur"] / 1000 / runs
+    os.remove(trace)
+    return totals
 
 
 def openvino_by_layer(model, threads: int, x: np.ndarray, runs: int = 10) -> dict[str, float]:
@@ -172,6 +199,8 @@ def main() -> None:
         reference = [rows[0][1](x) for x in held]
         agree = [agreement(m, reference, held, nhwc, probability) for _, m, _ in rows]
         times = interleaved_times([lambda i, m=m: m(held[i % len(held)]) for _, m, _ in rows], args.runs)
+        ops = {label: onnxruntime_by_op(path, args.threads, held[0]) for label, path in
+               (("onnxruntime", ort_best), ("edgepick", Path(ours.out)))}
         layers = {label: openvino_by_layer(model_ir, args.threads, held[0]) for label, model_ir in
                   (("NNCF", nncf_model), ("edgepick", ov.Core().read_model(ours.out)))}
     finally:
@@ -204,6 +233,15 @@ def main() -> None:
               f"edgepick's pass: {ours.int8_convs} of {ours.convs} convs int8"
               f"{' (float: ' + ', '.join(ours.float_convs) + ')' if ours.float_convs else ''}; rewrites "
               f"{', '.join(f'{k} {v}' for k, v in ours.rewrites.items() if v)}."]
+    kinds = sorted(set(ops["onnxruntime"]) | set(ops["edgepick"]),
+                   key=lambda k: -max(ops["onnxruntime"].get(k, 0.0), ops["edgepick"].get(k, 0.0)))
+    lines += ["", "onnxruntime's profiler, ms per run by op type (after its QDQ fusions), its best-settings file "
+                  "against edgepick's (one run of 10 calls after the timing; totals differ from p50 by the "
+                  "profiler's own cost):", "",
+              "| op | onnxruntime quantize_static, best (ms) | edgepick (ms) |", "|---|---|---|",
+              *(f"| {k} | {ops['onnxruntime'].get(k, 0.0):.2f} | {ops['edgepick'].get(k, 0.0):.2f} |"
+                for k in kinds[:14]),
+              f"| total | {sum(ops['onnxruntime'].values()):.2f} | {sum(ops['edgepick'].values()):.2f} |"]
     kinds = sorted(set(layers["NNCF"]) | set(layers["edgepick"]),
                    key=lambda k: -max(layers["NNCF"].get(k, 0.0), layers["edgepick"].get(k, 0.0)))
     lines += ["", "OpenVINO's per-layer counters (`PERF_COUNT`), median ms per run by layer type and kernel "
@@ -211,7 +249,7 @@ def main() -> None:
               "| layer type (precision) | NNCF + OpenVINO (ms) | edgepick (OpenVINO) (ms) |", "|---|---|---|",
               *(f"| {k} | {layers['NNCF'].get(k, 0.0):.2f} | {layers['edgepick'].get(k, 0.0):.2f} |"
                 for k in kinds[:14])]
-    emit("\n".join(lines) + "\n", args)
+    emit("\n".join(lines) + "\n", args, suffix=re.sub(r"[^a-z0-9]+", "-", Path(args.onnx).stem.lower()).strip("-"))
 
 
 if __name__ == "__main__":

@@ -50,3 +50,15 @@ def test_peers_onnx_compares_every_tool_on_a_model_edgepick_did_not_make(tmp_pat
         "| edgepick static (onnxruntime)", "| edgepick static (OpenVINO)"]
     assert rows[0].split(" | ")[1] == "100.00 / 100.00"  # fp32 against itself, both outputs
     assert "lifted to opset 13" in report and "9 of 9 convs int8" in report
+
+
+def test_text_pages_writes_readable_pages_of_the_size_asked(tmp_path, monkeypatch):
+    import cv2
+    import text_pages
+
+    monkeypatch.setattr(sys, "argv", ["text_pages.py", str(tmp_path / "pages"), "--count", "3", "--size", "160x120"])
+    text_pages.main()
+    pages = sorted((tmp_path / "pages").glob("*.png"))
+    assert [p.name for p in pages] == ["000.png", "001.png", "002.png"]
+    images = [cv2.imread(str(p)) for p in pages]
+    assert all(im.shape == (120, 160, 3) and im.std() > 5 for im in images)  # text on a page, not a blank
