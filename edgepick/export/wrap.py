@@ -148,6 +148,9 @@ def wrap_model(model: str | Path, out: str | Path, classes: list[str], preproces
     if len(inputs) != 1 or len(dims) != 4:
         raise ParameterError("{model}: must take one 4-d image input, takes "
                              f"{[(i.name, input_dims(proto)) for i in inputs]}", model=Path(model))
+    if inputs[0].type.tensor_type.elem_type != TensorProto.FLOAT:
+        raise ParameterError("{model}: its input is not float32; wrap takes a model that expects normalised float "
+                             "images (an edgepick model is wrapped already)", model=Path(model))
     fixed = [d for d in (dims[2:4] if prep.layout == Layout.NCHW else dims[1:3]) if isinstance(d, int)]
     size = prep.size or (Size.from_hw(fixed) if len(fixed) == 2 else None)
     if size is None:

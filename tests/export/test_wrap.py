@@ -105,11 +105,14 @@ def test_one_channel_and_two_output_models(tmp_path):
     (["{NET}", "--classes", "a,b,c", "--threshold", "0.5"], "--threshold 0.5: is for a one-channel output"),
     (["{NET}", "--classes", "a,a,b"], "--classes .*different"),
     (["{DYN}", "--classes", "a,b,c"], "--size is needed"),
+    (["{OURS}", "--classes", "a,b,c"], "input is not float32"),
 ])
 def test_a_wrap_mistake_is_one_line_exit_2_and_nothing_written(tmp_path, args, message):
     net = export_torch(tmp_path / "net.onnx")
     (tmp_path / "t.onnx").write_text("text")
-    paths = {"NET": net, "TXT": tmp_path / "t.onnx", "DYN": net}
+    from tests.runtime.test_pipeline import red_model
+
+    paths = {"NET": net, "TXT": tmp_path / "t.onnx", "DYN": net, "OURS": red_model(tmp_path / "ours.onnx")}
     if "{DYN}" not in args:
         args = [*args, "--size", "96x64"]
     out = tmp_path / "out" / "w.onnx"
