@@ -114,6 +114,7 @@ def export_onnx(net: nn.Module, path: str | Path, metadata: dict, input_size: Si
     Written to a temporary file first and checked with onnx.checker; PATH appears only
     when the whole file is good.
     """
+    _check_out_and_passes(path, passes)
     example = (torch.zeros(1, *input_size.hw, 3, dtype=torch.uint8),)
     return _write(DeployNet(_in_eval(net)), example, path, metadata, passes, ["image"], ["labels"])
 
@@ -124,6 +125,7 @@ def export_module_onnx(net: nn.Module, path: str | Path, input_shape: tuple[int,
     of INPUT_SHAPE and its own outputs (`output`, or `output_0`, `output_1`, ... for several);
     `model wrap` makes it an edgepick model. The graph PASSES, the checks and the atomic write
     are export_onnx's."""
+    _check_out_and_passes(path, passes)
     example = (torch.zeros(*input_shape),)
     net = _in_eval(net)
     with torch.no_grad():
@@ -139,15 +141,19 @@ def _in_eval(net: nn.Module) -> nn.Module:
     return net
 
 
+def _check_out_and_passes(path: str | Path, passes: tuple[str, ...]) -> None:
+    """Refuse a bad output name or an unknown pass before any work."""
+    check_onnx_out(path)
+    unknown = [p for p in passes if p not in EXPORT_PASSES]
+    if unknown:
+        raise ConfigError(f"unknown export pass {unknown[0]!r}; the passes are {', '.join(EXPORT_PASSES)}")
+
+
 def _write(net: nn.Module, example: tuple, path: str | Path, metadata: dict, passes: tuple[str, ...],
            input_names: list[str], output_names: list[str]) -> Path:
     import onnx
 
     path = Path(path)
-    check_onnx_out(path)
-    unknown = [p for p in passes if p not in EXPORT_PASSES]
-    if unknown:
-        raise ConfigError(f"unknown export pass {unknown[0]!r}; the passes are {', '.join(EXPORT_PASSES)}")
     with atomic_path(path) as tmp:
         with warnings.catch_warnings(), torch.no_grad():
             warnings.simplefilter("ignore")
