@@ -25,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from edgepick.export.crop_convs import graph_links
+
 
 class _Graph:
     """Producers, consumers and constant values of a graph, for small pattern matches."""
@@ -39,12 +41,7 @@ class _Graph:
                 self.consts[n.output[0]] = numpy_helper.to_array(n.attribute[0].t)
             elif n.op_type in ("Cast", "Identity") and n.input[0] in self.consts:
                 self.consts[n.output[0]] = self.consts[n.input[0]]
-        self.producer = {o: n for n in self.graph.node for o in n.output}
-        self.consumers: dict[str, list] = {}
-        for n in self.graph.node:
-            for i in n.input:
-                self.consumers.setdefault(i, []).append(n)
-        self.outputs = {o.name for o in self.graph.output}
+        self.producer, self.consumers, self.outputs = graph_links(self.graph)
 
     def scalar(self, name: str) -> float | None:
         value = self.consts.get(name)

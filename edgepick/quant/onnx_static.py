@@ -34,7 +34,7 @@ import numpy as np
 
 from edgepick.errors import ParameterError
 from edgepick.export.checks import check_onnx_out, conv_weight_report
-from edgepick.export.crop_convs import crop_padded_convs
+from edgepick.export.crop_convs import crop_padded_convs, graph_links
 from edgepick.export.int8_activations import integer_activations
 from edgepick.export.onnx_io import CONV_OPS, fix_input_shape, graph_inputs, input_dims, lift_opset, load_float_onnx, opset
 from edgepick.files import atomic_path
@@ -169,11 +169,8 @@ def _float_outputs(model: Any, tail: list[str]) -> int:
     """Drop the Q -> DQ pair in front of each graph output and of each TAIL node (the float ops
     before the outputs), so that they get the float tensor the last quantized node makes; returns
     how many pairs it dropped."""
-    producer = {o: n for n in model.graph.node for o in n.output}
-    readers: dict[str, int] = {}
-    for n in model.graph.node:
-        for i in n.input:
-            readers[i] = readers.get(i, 0) + 1
+    producer, consumers, _ = graph_links(model.graph)
+    readers = {name: len(nodes) for name, nodes in consumers.items()}
     into_tail = [n.input[0] for n in model.graph.node if n.name in tail]
     freed = 0
     for name in [*(o.name for o in model.graph.output), *into_tail]:
