@@ -16,10 +16,13 @@ if TYPE_CHECKING:
     import torch
 
 
-def check_onnx_out(out: str | Path) -> None:
-    """Refuse an output path that does not end in .onnx, before any work."""
+def check_onnx_out(out: str | Path, source: str | Path | None = None) -> None:
+    """Refuse an output path that does not end in .onnx, or that is the SOURCE model itself (which
+    it would replace), before any work."""
     if Path(out).suffix.lower() != ".onnx":
         raise ParameterError("{out}: must name an .onnx file", out=Path(out))
+    if source is not None and Path(out).resolve() == Path(source).resolve():
+        raise ParameterError("{out}: is the model it is made from; write it to another file", out=Path(out))
 
 
 def conv_weight_report(path: str | Path) -> dict:

@@ -139,7 +139,7 @@ def wrap_model(model: str | Path, out: str | Path, classes: list[str], preproces
     from edgepick.runtime.session import Segmenter
 
     prep = preprocessing or Preprocessing()
-    check_onnx_out(out)
+    check_onnx_out(out, model)
     proto = read_onnx(model)
     if len(classes) < 2 or len(set(classes)) != len(classes) or not all(c.strip() for c in classes):
         raise ParameterError("{classes}: at least two different, non-empty class names", classes=list(classes))

@@ -238,7 +238,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
     from onnxruntime.quantization.registry import QDQRegistry, QLinearOpsRegistry
 
     config = config or QuantConfig()
-    check_onnx_out(out)
+    check_onnx_out(out, model)
     onnxruntime.set_default_logger_severity(3)  # its quantizer's sessions warn about every unused initializer
     if config.calib_method not in _ORT_METHODS:
         raise ParameterError(f"{{calib_method}}: not available for ONNX models; use one of "

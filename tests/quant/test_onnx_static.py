@@ -78,6 +78,10 @@ def test_bad_calibration_data_is_refused_before_anything_is_written(tmp_path):
         quantize_onnx_static(src, good, tmp_path / "out.onnx", QuantConfig(calib_method="mse"), progress=False)
     with pytest.raises(ParameterError, match="keep_float"):
         quantize_onnx_static(src, good, tmp_path / "out.onnx", QuantConfig(keep_float=("nope",)), progress=False)
+    before = src.read_bytes()
+    with pytest.raises(ParameterError, match="^out=.*is the model it is made from"):
+        quantize_onnx_static(src, good, src, progress=False)  # never over the user's own float model
+    assert src.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["net.onnx"]
 
 
