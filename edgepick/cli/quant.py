@@ -156,8 +156,8 @@ def _quantize_onnx(model: str, calib: str | None, input_shape: str | None, calib
     """`quantize static MODEL.onnx --calib DIR`: edgepick's recipe on a float ONNX file."""
     from itertools import islice
 
-    from edgepick.export.onnx_io import load_float_onnx
-    from edgepick.quant.onnx_static import folder_tensors, image_size, quantize_onnx_static
+    from edgepick.export.onnx_io import image_size, load_float_onnx
+    from edgepick.quant.onnx_static import folder_tensors, quantize_onnx_static
 
     for flag, value in (("--data", data_dir), ("--max-miou-drop", max_miou_drop)):
         if value is not None:

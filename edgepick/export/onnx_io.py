@@ -10,6 +10,8 @@ from pathlib import Path
 from typing import Any
 
 from edgepick.errors import ParameterError
+from edgepick.geometry import Size
+from edgepick.runtime.preprocessing import Layout
 
 MIN_OPSET = 13
 CONV_OPS = ("Conv", "ConvTranspose")
@@ -126,3 +128,10 @@ def describe(path: str | Path) -> dict:
             "float_convs": report["float"], "nodes": len(model.graph.node),
             "metadata": {p.key: p.value for p in model.metadata_props},
             "edgepick_model": runtime, **({"why_not": why} if why else {})}
+
+
+def image_size(model: Any, layout: Layout) -> Size | None:
+    """The image size a model with fixed spatial dims takes, else None."""
+    dims = input_dims(model)
+    hw = [d for d in (dims[2:4] if layout == Layout.NCHW else dims[1:3]) if isinstance(d, int)]
+    return Size(hw[1], hw[0]) if len(dims) == 4 and len(hw) == 2 else None

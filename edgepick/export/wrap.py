@@ -20,7 +20,7 @@ import numpy as np
 
 from edgepick.errors import ParameterError
 from edgepick.export.checks import check_onnx_out, conv_weight_report
-from edgepick.export.onnx_io import fix_input_shape, graph_inputs, input_dims, lift_opset, read_onnx
+from edgepick.export.onnx_io import fix_input_shape, graph_inputs, image_size, input_dims, lift_opset, read_onnx
 from edgepick.files import atomic_path, sha256_of
 from edgepick.geometry import Size
 from edgepick.runtime.preprocessing import ChannelOrder, Layout, Preprocessing
@@ -151,8 +151,7 @@ def wrap_model(model: str | Path, out: str | Path, classes: list[str], preproces
     if inputs[0].type.tensor_type.elem_type != TensorProto.FLOAT:
         raise ParameterError("{model}: its input is not float32; wrap takes a model that expects normalised float "
                              "images (an edgepick model is wrapped already)", model=Path(model))
-    fixed = [d for d in (dims[2:4] if prep.layout == Layout.NCHW else dims[1:3]) if isinstance(d, int)]
-    size = prep.size or (Size.from_hw(fixed) if len(fixed) == 2 else None)
+    size = prep.size or image_size(proto, prep.layout)
     if size is None:
         raise ParameterError("{size:name} is needed: the model's input has no fixed size", size=None)
     fix_input_shape(proto, prep.input_shape(size))

@@ -41,7 +41,7 @@ from edgepick.files import atomic_path
 from edgepick.geometry import Size
 from edgepick.quant.config import CalibMethod, QuantConfig
 from edgepick.quant.onnx_graph import fold_affine_into_convs, rewrite_activations
-from edgepick.runtime.preprocessing import Layout, Preprocessing
+from edgepick.runtime.preprocessing import Preprocessing
 
 CHECK_TENSORS = 8  # calibration tensors on which int8 outputs are compared with fp32's
 # ops that may stand between a model's last conv and its outputs; they stay float with the outputs
@@ -119,13 +119,6 @@ def folder_tensors(folder: str | Path, preprocessing: Preprocessing | None = Non
         if bgr is None:
             raise ParameterError(f"{{calib}}: {p.name} is not a readable image", calib=folder)
         yield prep.tensor(bgr[..., ::-1], at)
-
-
-def image_size(model: Any, layout: Layout) -> Size | None:
-    """The image size a model with fixed spatial dims takes, else None."""
-    dims = input_dims(model)
-    hw = [d for d in (dims[2:4] if layout == Layout.NCHW else dims[1:3]) if isinstance(d, int)]
-    return Size(hw[1], hw[0]) if len(dims) == 4 and len(hw) == 2 else None
 
 
 class _Reader:
