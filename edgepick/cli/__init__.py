@@ -33,6 +33,7 @@ from edgepick.cli.grasp import grasp
 from edgepick.cli.model import model
 from edgepick.cli.pick import pick
 from edgepick.cli.quant import export_cmd, quantize
+from edgepick.cli.replay import replay
 from edgepick.cli.train import demo, eval_cmd, train
 from edgepick.errors import EdgepickError, ParameterError, Terminated, python_name
 
@@ -63,7 +64,7 @@ def cli() -> None:
     """
 
 
-for _command in (data, train, eval_cmd, calibrate, grasp, demo, export_cmd, quantize, model, pick, bench):
+for _command in (data, train, eval_cmd, calibrate, grasp, demo, export_cmd, quantize, model, pick, replay, bench):
     cli.add_command(_command)
 
 

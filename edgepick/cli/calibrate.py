@@ -6,6 +6,8 @@
 from __future__ import annotations
 
 import math
+import time
+from dataclasses import asdict
 
 import click
 
@@ -143,8 +145,13 @@ def fit(pairs: str, out: str, max_rmse: float, drop_outliers: bool, subsets: str
 @click.option("--execute", is_flag=True, help="Move a real arm (ur:HOST); without it the plan is printed only.")
 @click.option("--robot-log", default=None, type=click.Path(dir_okay=False),
               help="File for the ur_rtde client's own messages [default: discarded].")
+@click.option("--record", "record_path", default=None, type=click.Path(dir_okay=False),
+              help="Record each position's frame, commanded and reported TCP and sighting, then the fitted "
+                   "transform, to this MCAP file for Foxglove or Rerun (the [record] extra; "
+                   "docs/contracts.md#recordings).")
 def collect(robot_spec: str, camera: str, marker_spec: str, marker_offset: str, poses: int, region: str | None,
-            settle: float, speed: float, size: str, out: str, execute: bool, robot_log: str | None) -> None:
+            settle: float, speed: float, size: str, out: str, execute: bool, robot_log: str | None,
+            record_path: str | None) -> None:
     """Move a marker on the tool through a grid of positions and write camera/robot point pairs.
 
     Plans POSES positions on a grid over REGION at two or three heights, checks every position
@@ -159,6 +166,7 @@ def collect(robot_spec: str, camera: str, marker_spec: str, marker_offset: str, 
     from edgepick.robot.envelope import Envelope
     from edgepick.robot.handeye import CollectConfig, check_plan, collect_pairs, plan_positions
     from edgepick.robot.motion import HOME_POSE
+    from edgepick.robot.recording import Recorder
     from edgepick.runtime.calibration import kabsch, write_pairs
     from edgepick.runtime.camera import FolderCamera
     from edgepick.runtime.marker import MarkerSpec
@@ -179,6 +187,8 @@ def collect(robot_spec: str, camera: str, marker_spec: str, marker_offset: str, 
     check_output(out, "--out", inputs=(folder,))
     if robot_log is not None:
         check_output(robot_log, "--robot-log", inputs=(folder, out))
+    if record_path is not None:
+        check_output(record_path, "--record", inputs=(folder, out, robot_log))
     frame_size = parse_size(size)
     plan = plan_positions(cfg)
     if kind == "ur" and not execute:
@@ -199,18 +209,26 @@ def collect(robot_spec: str, camera: str, marker_spec: str, marker_offset: str, 
         raise ConfigError(f"--camera {camera}: {len(source.names)} frames for {len(plan)} positions; give one frame "
                           "per position (or fewer --poses)")
     echo = lambda line: click.echo(line, err=True)  # noqa: E731
-    with source, robot:
-        check_plan(plan, robot.tcp_pose(), envelope)
-        if isinstance(source, SynthCamera):
-            source.show_tool_marker(ToolMarker(spec, robot.tcp_pose, cfg.offset_m))
-        got = collect_pairs(robot, source, spec, plan, cfg, echo)
-    if got.skipped:
-        click.echo(f"{len(got.skipped)} of {len(plan)} positions gave no pair: "
-                   + "; ".join(f"{i}: {why}" for i, why in got.skipped), err=True)
-    if len(got.camera) < 4:
-        raise ConfigError(f"only {len(got.camera)} usable pairs of {len(plan)} positions (4 needed); is the marker "
-                          "in view over --region, and is --marker the printed one?")
-    cal = kabsch(got.camera, got.robot)  # refuses pairs on one line before anything is written
+    recorder = Recorder(record_path, {"command": "calibrate collect", "marker": marker_spec, **asdict(cfg)}) \
+        if record_path is not None else None
+    try:
+        with source, robot:
+            check_plan(plan, robot.tcp_pose(), envelope)
+            if isinstance(source, SynthCamera):
+                source.show_tool_marker(ToolMarker(spec, robot.tcp_pose, cfg.offset_m))
+            got = collect_pairs(robot, source, spec, plan, cfg, echo, recorder)
+        if got.skipped:
+            click.echo(f"{len(got.skipped)} of {len(plan)} positions gave no pair: "
+                       + "; ".join(f"{i}: {why}" for i, why in got.skipped), err=True)
+        if len(got.camera) < 4:
+            raise ConfigError(f"only {len(got.camera)} usable pairs of {len(plan)} positions (4 needed); is the "
+                              "marker in view over --region, and is --marker the printed one?")
+        cal = kabsch(got.camera, got.robot)  # refuses pairs on one line before anything is written
+        if recorder is not None:
+            recorder.fitted(cal, got.camera, got.robot, time.time_ns())
+    finally:
+        if recorder is not None:  # also on Ctrl-C or a halt: what was recorded becomes a readable file
+            recorder.close()
     write_pairs(out, got.camera, got.robot)
     click.echo(f"{len(got.camera)} pairs written to {out}; their fit: RMSE {cal.rmse_m * 1000:.2f} mm", err=True)
     emit({"out": out, "pairs": len(got.camera), "planned": len(plan), "skipped": [i for i, _ in got.skipped],

@@ -75,6 +75,11 @@ def make_gripper(spec: tuple[str, int | str], robot):
               help="--robot ur:HOST: write ur_rtde's own messages (reconnects, socket errors) here [default: "
                    "discarded; edgepick reports a failure itself].")
 @click.option("--overlay-dir", default=None, type=click.Path(file_okay=False), help="Write an overlay PNG per cycle.")
+@click.option("--record", "record_path", default=None, type=click.Path(dir_okay=False),
+              help="Record every cycle to this MCAP file for Foxglove or Rerun (the [record] extra): colour, depth, "
+                   "labels, intrinsics, the camera -> base transform, grasp markers, commanded and reported TCP "
+                   "poses, gripper, verdict and timings (docs/contracts.md#recordings); `edgepick replay` reruns "
+                   "the grasp step on it. Written after each cycle's commands, on a worker thread.")
 @click.option("--threads", default=2, show_default=True, help="Inference threads.")
 @click.option("--engine", default=Engine.ONNXRUNTIME.value, show_default=True, type=choice(Engine),
               help="Inference engine (openvino: the [peers] extra; auto: the faster one here, measured once per "
@@ -86,7 +91,8 @@ def make_gripper(spec: tuple[str, int | str], robot):
                    "camera sees neither the arm nor the part it holds once the arm is above the place pose.")
 def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: str, execute: bool, cycles: int,
          classes: tuple[str, ...], choose: str, speed: float, acc: float, log_path: str, robot_log: str | None,
-         overlay_dir: str | None, threads: int, engine: str, size: str, overlap: bool) -> None:
+         overlay_dir: str | None, record_path: str | None, threads: int, engine: str, size: str,
+         overlap: bool) -> None:
     """Pick and place: camera -> segmentation -> grasp records -> target -> robot.
 
     Each cycle chooses the largest (or closest) object whose whole plan passes the safety
@@ -114,6 +120,11 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
         check_output(overlay_dir, "--overlay-dir", kind="dir", inputs=(model, calib), reuse="pick")
     if robot_log is not None:
         check_output(robot_log, "--robot-log", inputs=(model, calib, log_path))
+    if record_path is not None:
+        check_output(record_path, "--record", inputs=(model, calib, log_path, robot_log))
+        from edgepick.robot.messages import schemas
+
+        schemas()  # the [record] extra, before anything starts
     frame_size = parse_size(size)
     model = model or _reference_for(camera)
     segmenter = Segmenter(model, threads=threads, engine=engine)
@@ -144,17 +155,20 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     echo = lambda line: click.echo(line, err=True)  # noqa: E731
     results, halted, unreachable = [], None, False
     overlays = output_dir(overlay_dir, "pick") if overlay_dir is not None else contextlib.nullcontext()
+    recorder = _recorder(record_path, model, segmenter.info.classes, source, cfg, pipeline,
+                         robot.envelope if robot is not None else None)
     try:
         with overlays, source:
             if robot is None:
                 results = run_cycles(source, pipeline, None, None, cfg=cfg, cycles=cycles, log=log,
-                                     overlay_dir=overlay_dir, echo=echo, truth_cal=truth_cal)
+                                     overlay_dir=overlay_dir, echo=echo, truth_cal=truth_cal, recorder=recorder)
             else:
                 try:
                     grip.probe()  # a gripper that cannot be reached is found before the arm is sent anything
                     with robot:
                         results = run_cycles(source, pipeline, robot, grip, cfg=cfg, cycles=cycles, log=log,
-                                             overlay_dir=overlay_dir, echo=echo, truth_cal=truth_cal, overlap=overlap)
+                                             overlay_dir=overlay_dir, echo=echo, truth_cal=truth_cal, overlap=overlap,
+                                             recorder=recorder)
                 except RobotError as exc:
                     if getattr(exc, "exit_code", 2) != 3:
                         raise
@@ -162,13 +176,26 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
                 halted = halted or robot.halted
     finally:
         log.close()
+        if recorder is not None:  # also on Ctrl-C or a halt: what was recorded becomes a readable file
+            recorder.close()
     summary = {"model": model, **cycles_summary(results), "halted": halted,
-               "log": log_path if log.path and log.path.exists() else None, "results": results}
+               "log": log_path if log.path and log.path.exists() else None, "record": record_path,
+               "results": results}
     click.echo(json.dumps(summary, indent=1))  # the summary first, even when the run ends in a halt
     if halted:  # the command line prints the one error line and exits 3
         if unreachable:
             raise RobotUnreachable(halted)
         raise RobotHalted(f"robot halted: {halted} ({summary['done']} of {cycles} cycles done)")
+
+
+def _recorder(path: str | None, model: str, classes, source, cfg: PickConfig, pipeline, envelope: Envelope | None):
+    """The Recorder of `pick --record PATH` (None without it), opened before the first frame."""
+    if path is None:
+        return None
+    from edgepick.robot.recording import Recorder, pick_metadata
+
+    metadata = pick_metadata(model, classes, cfg, pipeline.cfg, envelope or Envelope())
+    return Recorder(path, metadata, pipeline.calib)
 
 
 def _check_motion(cycles: int, speed: float, acc: float, robot_spec: str) -> tuple[str, str]:

@@ -22,6 +22,7 @@ from edgepick.errors import ParameterError
 from edgepick.frames import Camera, CameraError
 from edgepick.robot.base import RobotBase
 from edgepick.robot.envelope import Envelope, SafetyError
+from edgepick.robot.recording import CalibrationSighting, Recorder
 from edgepick.runtime.marker import MarkerSpec, detect_marker
 
 TOOL_DOWN = (math.pi, 0.0, 0.0)  # rotation vector of a tool pointing straight down
@@ -132,10 +133,11 @@ class Collected:
 
 
 def collect_pairs(robot: RobotBase, camera: Camera, spec: MarkerSpec, poses: list[list[float]], cfg: CollectConfig,
-                  echo: Callable[[str], None] = lambda line: None) -> Collected:
+                  echo: Callable[[str], None] = lambda line: None, recorder: Recorder | None = None) -> Collected:
     """Move to each pose, wait cfg.settle_s, read a frame and the TCP, and pair the marker's camera
     point with its robot point; positions without a usable sighting are skipped. Returns to the
-    start pose at the end, also when the camera runs out of frames (then a CameraError)."""
+    start pose at the end, also when the camera runs out of frames (then a CameraError). RECORDER
+    gets each position's frame, poses and sighting."""
     start = robot.tcp_pose()
     cam_pts, rob_pts, used, skipped = [], [], [], []
     for i, pose in enumerate(poses, start=1):
@@ -148,8 +150,13 @@ def collect_pairs(robot: RobotBase, camera: Camera, spec: MarkerSpec, poses: lis
             robot.move_l(start, cfg.speed, cfg.acc)
             raise CameraError(f"the camera has no frame left for position {i} of {len(poses)}; give one frame per "
                               "position") from None
+        frame_ns = time.time_ns()
         tcp = robot.tcp_pose()
         sighting, why = detect_marker(frame, spec)
+        if recorder is not None:
+            recorder.add(CalibrationSighting(i, frame, frame_ns, pose, tcp, None if sighting is None else
+                                             [float(v) for v in sighting.point_camera_m],
+                                             [float(v) for v in marker_point(tcp, cfg.offset_m)], why or ""))
         if sighting is None:
             skipped.append((i, why))
             echo(f"position {i}/{len(poses)}: skipped, {why}")

@@ -21,7 +21,8 @@ from edgepick.frames import Camera, Frame
 from edgepick.robot.base import RobotBase
 from edgepick.robot.envelope import Envelope
 from edgepick.robot.grippers import DigitalGripper, RG2Gripper
-from edgepick.robot.pick import CommandLog, PickConfig, choose_target, execute
+from edgepick.robot.pick import CommandLog, PickConfig, Step, choose_target, execute
+from edgepick.robot.recording import PickCycle, Recorder, StepDone
 from edgepick.robot.verdict import judge, summarize
 from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.grasp import draw_overlay
@@ -98,17 +99,20 @@ class Lookahead:
 def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None,
                gripper: DigitalGripper | RG2Gripper | None, *, cfg: PickConfig, cycles: int, log: CommandLog,
                overlay_dir: str | Path | None = None, echo: Callable[[str], object] = print,
-               truth_cal: Calibration | None = None, overlap: bool = False) -> list[dict]:
+               truth_cal: Calibration | None = None, overlap: bool = False,
+               recorder: Recorder | None = None) -> list[dict]:
     """Run up to `cycles` pick cycles (robot None = plan only). Stops early when the robot halts
     (a failed gripper halts it too). Each plan passes the envelope and, with a robot, the
     controller's own safety limits before its first command. TRUTH_CAL (the synthetic cell's true
     calibration) lets each cycle be judged against the truth. ECHO gets each cycle's line.
     OVERLAP (with a robot): the next frame is read and segmented while the arm places the object
     and returns (Lookahead), so the arm waits only for the plan; the cell's camera must then not
-    see the arm, nor the part it holds, from the place approach pose on."""
+    see the arm, nor the part it holds, from the place approach pose on. RECORDER gets each cycle
+    once its commands are sent (robot/recording.py)."""
     ahead = Lookahead(camera, pipeline) if overlap and robot is not None else None
     try:
-        return _cycles(camera, pipeline, robot, gripper, cfg, cycles, log, overlay_dir, echo, truth_cal, ahead)
+        return _cycles(camera, pipeline, robot, gripper, cfg, cycles, log, overlay_dir, echo, truth_cal, ahead,
+                       recorder)
     finally:
         if ahead is not None:
             ahead.close()
@@ -116,7 +120,7 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None,
 
 def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper: DigitalGripper | RG2Gripper | None,
             cfg: PickConfig, cycles: int, log: CommandLog, overlay_dir: str | Path | None, echo: Callable[[str], object],
-            truth_cal: Calibration | None, ahead: Lookahead | None) -> list[dict]:
+            truth_cal: Calibration | None, ahead: Lookahead | None, recorder: Recorder | None) -> list[dict]:
     """run_cycles' loop. Per cycle, besides the outcome: plan_ms (frame read -> checked plan),
     frame_to_command_ms (-> the first command sent), frame_to_frame_ms (since the previous frame was
     read) and arm_wait_ms (the previous cycle's last command done -> this one's first sent)."""
@@ -140,6 +144,7 @@ def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper
             break
         start = robot.tcp_pose() if robot is not None else None  # plan only: from the home pose
         record, plan, note = choose_target(seen.records, envelope, cfg, start, limits)
+        steps: list[StepDone] = []
         t_plan = time.perf_counter()
         result = {"cycle": cycle, "frame": frame.name, "objects": len(seen.records), "stage_ms": seen.ms,
                   "plan_ms": round(1000 * (t_plan - t0), 2)}
@@ -164,7 +169,8 @@ def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper
 
                 robot.on_send = mark
                 next_frame = ahead.start if ahead is not None and cycle < cycles else None
-                stopped = execute(plan, robot, gripper, log, cycle, cfg, on_clear=next_frame)
+                on_step = _step_recorder(robot, steps) if recorder is not None else None
+                stopped = execute(plan, robot, gripper, log, cycle, cfg, on_clear=next_frame, on_step=on_step)
                 robot.on_send = None
                 if "t" in first:
                     result["frame_to_command_ms"] = round(1000 * (first["t"] - t0), 2)
@@ -179,10 +185,27 @@ def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper
             cv2.imwrite(str(Path(overlay_dir) / f"cycle_{cycle:03d}.png"),
                         draw_overlay(frame.rgb, [record] if record else seen.records))
         results.append(result)
-        echo(cycle_line(result))
+        line = cycle_line(result)
+        if recorder is not None:  # after the robot's commands, written on the recorder's thread
+            frame_ns = time.time_ns() - int(1e9 * (time.perf_counter() - t0))
+            recorder.add(PickCycle(cycle, frame, frame_ns, seen.labels, seen.records, record, plan, start, result,
+                                   steps, line))
+        echo(line)
         if robot is not None and robot.halted:
             break  # the caller reports it once
     return results
+
+
+def _step_recorder(robot: RobotBase, steps: list[StepDone]) -> Callable[[Step, str], None]:
+    """execute's on_step for a recording: each step's time, and the TCP the robot reports after it."""
+    def on_step(step: Step, result: str) -> None:
+        try:
+            reported = robot.tcp_pose()
+        except Exception:  # noqa: BLE001 - a lost link: the step is recorded without a pose
+            reported = None
+        steps.append(StepDone(time.time_ns(), step, reported, result))
+
+    return on_step
 
 
 def cycles_summary(results: list[dict]) -> dict:

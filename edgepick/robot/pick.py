@@ -191,11 +191,13 @@ class CommandLog:
 
 
 def execute(plan: list[Step], robot: RobotBase, gripper, log: CommandLog, cycle: int, cfg: PickConfig,
-            on_clear: Callable[[], object] | None = None) -> str | None:
+            on_clear: Callable[[], object] | None = None,
+            on_step: Callable[[Step, str], object] | None = None) -> str | None:
     """Run the plan; returns None when every step was carried out, else the reason it stopped.
     Any robot error ends the cycle and leaves the arm stopped; a halt sends nothing more. A
     gripper that fails halts the robot too: what it holds, or not, is unknown. ON_CLEAR is
-    called once the step that takes the arm out of the pick area (Step.clears_view) is done."""
+    called once the step that takes the arm out of the pick area (Step.clears_view) is done;
+    ON_STEP after each step carried out or failed, with its result as the log writes it."""
     for step in plan:
         try:
             if step.command == "moveL":
@@ -207,8 +209,12 @@ def execute(plan: list[Step], robot: RobotBase, gripper, log: CommandLog, cycle:
             robot.stop()
             if step.command != "moveL":
                 robot.halt(str(exc))
+            if on_step is not None:
+                on_step(step, f"error: {exc}")
             return str(exc)
         log.write(cycle=cycle, command=step.command, target=step.target, note=step.note, result="ok")
+        if on_step is not None:
+            on_step(step, "ok")
         if step.clears_view and on_clear is not None:
             on_clear()
     return None

@@ -1,0 +1,381 @@
+"""`pick --record` and `calibrate collect --record`: what the cell saw and did, as one MCAP file that
+Foxglove and Rerun open (docs/contracts.md#recordings has the topics and frames).
+
+Recording must not cost the arm time: the loop hands each cycle's arrays and values over once
+its commands are sent, and a worker thread encodes the images (JPEG colour, lossless depth and
+labels) and writes them, Zstandard-compressed, while the loop goes on. The file is written under
+a temporary sibling name and takes its final name once its summary (the index a reader seeks
+with) is written: at the end, and also when the run stops on Ctrl-C, SIGTERM, a robot halt or an
+error, so that what was recorded up to then is a valid, readable file.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from edgepick.errors import ConfigError
+from edgepick.files import public_mode
+from edgepick.frames import Frame
+from edgepick.geometry import Intrinsics
+from edgepick.robot.messages import quaternion, schemas, set_pose
+from edgepick.robot.pick import Step
+from edgepick.runtime.calibration import Calibration
+from edgepick.runtime.grasp import draw_overlay
+
+PROFILE = "edgepick"  # the MCAP header's profile
+JPEG_QUALITY = 90
+BASE, CAMERA, TCP = "base", "camera", "tcp"  # the frames (docs/contracts.md#recordings)
+GREEN, GREY, BLUE = (0.1, 0.85, 0.2, 1.0), (0.7, 0.7, 0.7, 0.8), (0.2, 0.5, 1.0, 1.0)
+
+
+@dataclass
+class StepDone:
+    """One step of a plan as it was carried out: when (wall ns), what, and the TCP the robot
+    reported after it (None when it could not be read)."""
+
+    time_ns: int
+    step: Step
+    reported: list[float] | None
+    result: str  # "ok" or "error: ..."
+
+
+@dataclass
+class PickCycle:
+    """What `pick` hands the recorder per cycle (docs/contracts.md#recordings, "/pick/cycle")."""
+
+    cycle: int
+    frame: Frame
+    frame_ns: int  # wall time the frame was read
+    labels: np.ndarray
+    records: list[dict]
+    chosen: dict | None
+    plan: list[Step]
+    start_pose: list[float] | None  # the arm's pose the plan starts from (None: plan only, from home)
+    result: dict  # the cycle's result, as `pick` prints it
+    steps: list[StepDone]
+    line: str  # the line `pick` printed for it
+
+
+@dataclass
+class CalibrationSighting:
+    """What `calibrate collect` hands the recorder per position."""
+
+    position: int
+    frame: Frame
+    frame_ns: int
+    commanded: list[float]
+    reported: list[float]
+    camera_point: list[float] | None  # the marker centre seen (None: not seen)
+    robot_point: list[float]
+    reason: str  # why no pair came from it ("" when one did)
+
+
+class Recorder:
+    """An MCAP file being written: `with Recorder(path, metadata) as rec: rec.add(cycle)`.
+    Opening it checks that PATH can be written (a ConfigError names OPTION); `add` queues work
+    for the writer thread and returns at once."""
+
+    def __init__(self, path: str | Path, metadata: dict, calibration: Calibration | None = None,
+                 option: str = "--record"):
+        self.path, self.calibration, self._error = Path(path), calibration, None
+        self.msgs = schemas()  # the [record] extra, or one line saying how to install it
+        from mcap_protobuf.writer import Writer
+
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".partial", dir=self.path.parent)
+        except OSError as exc:
+            raise ConfigError(f"{option} {path}: cannot write there ({exc.strerror})") from None
+        self.tmp = Path(tmp)
+        self._file = os.fdopen(fd, "wb")
+        self.writer = Writer(self._file)
+        self.writer.add_metadata("edgepick", {k: v if isinstance(v, str) else json.dumps(v) for k, v in metadata.items()})
+        self.messages = 0  # written so far
+        self.busy_s = 0.0  # the writer thread's time on encoding and writing (benchmarks/record_cost.py)
+        self._camera_known = False
+        self.first_ns: int | None = None  # the first frame's time
+        self._queue: queue.Queue = queue.Queue()
+        self._thread = threading.Thread(target=self._work, name="edgepick-recorder", daemon=True)
+        self._thread.start()
+
+    def __enter__(self) -> Recorder:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def add(self, item: PickCycle | CalibrationSighting | Callable[[], None]) -> None:
+        """Queue a cycle, a sighting, or any writing (a callable) for the writer thread."""
+        if self.first_ns is None and isinstance(item, PickCycle | CalibrationSighting):
+            self.first_ns = item.frame_ns
+        self._queue.put(item)
+
+    def close(self) -> None:
+        """Write what is queued, the summary, and give the file its name. Idempotent."""
+        if self._thread.is_alive():
+            self._queue.put(None)
+            self._thread.join()
+        if self._file.closed:
+            return
+        try:
+            self.writer.finish()
+        finally:
+            self._file.close()
+        public_mode(self.tmp)
+        os.replace(self.tmp, self.path)
+        if self._error is not None:
+            raise self._error
+
+    def _work(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            if self._error is not None:
+                continue  # a failed write: what follows is dropped, close() raises it
+            start = time.perf_counter()
+            try:
+                if isinstance(item, PickCycle):
+                    self._pick_cycle(item)
+                elif isinstance(item, CalibrationSighting):
+                    self._sighting(item)
+                else:
+                    item()
+            except Exception as exc:  # noqa: BLE001 - e.g. a full disk: reported by close(), the run goes on
+                self._error = ConfigError(f"recording {self.path} failed: {exc}")
+            self.busy_s += time.perf_counter() - start
+
+    # -- messages -------------------------------------------------------------------------
+    def write(self, topic: str, message, time_ns: int) -> None:
+        if message.DESCRIPTOR.fields_by_name.get("timestamp") is not None:
+            message.timestamp.FromNanoseconds(time_ns)
+        self.writer.write_message(topic, message, log_time=time_ns, publish_time=time_ns)
+        self.messages += 1
+
+    def camera(self, frame: Frame, time_ns: int) -> None:
+        """The frame's colour (JPEG), depth (16UC1, lossless) and intrinsics; the first frame's
+        intrinsics, with the depth scale, also as the "camera" metadata record."""
+        m = self.msgs
+        if not self._camera_known:
+            self.writer.add_metadata("camera", {k: json.dumps(v) for k, v in frame.intrinsics.to_dict().items()})
+            self._camera_known = True
+        ok, jpeg = cv2.imencode(".jpg", frame.rgb[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+        self.write("/camera/color", m.CompressedImage(frame_id=CAMERA, format="jpeg", data=jpeg.tobytes()), time_ns)
+        depth = np.ascontiguousarray(frame.depth, np.uint16)
+        self.write("/camera/depth", m.RawImage(frame_id=CAMERA, width=depth.shape[1], height=depth.shape[0],
+                                               encoding="16UC1", step=2 * depth.shape[1], data=depth.tobytes()), time_ns)
+        self.write("/camera/calibration", camera_calibration(m, frame.intrinsics), time_ns)
+
+    def transform(self, cal: Calibration, time_ns: int, tcp: list[float] | None = None) -> None:
+        """/tf: base -> camera (robot = R camera + t), and base -> tcp when given."""
+        m = self.msgs.FrameTransforms()
+        camera = m.transforms.add(parent_frame_id=BASE, child_frame_id=CAMERA)
+        camera.timestamp.FromNanoseconds(time_ns)
+        camera.translation.x, camera.translation.y, camera.translation.z = (float(v) for v in cal.t)
+        q = quaternion(cal.R)
+        camera.rotation.x, camera.rotation.y, camera.rotation.z, camera.rotation.w = q
+        if tcp is not None:
+            self._tcp_transform(m, tcp, time_ns)
+        self.write("/tf", m, time_ns)
+
+    def _tcp_transform(self, m, tcp: list[float], time_ns: int) -> None:
+        pose = self.msgs.PoseInFrame()
+        set_pose(pose.pose, tcp)
+        entry = m.transforms.add(parent_frame_id=BASE, child_frame_id=TCP)
+        entry.timestamp.FromNanoseconds(time_ns)
+        entry.translation.x, entry.translation.y, entry.translation.z = (pose.pose.position.x, pose.pose.position.y,
+                                                                         pose.pose.position.z)
+        entry.rotation.CopyFrom(pose.pose.orientation)
+
+    def pose(self, topic: str, pose: list[float], time_ns: int) -> None:
+        message = self.msgs.PoseInFrame(frame_id=BASE)
+        set_pose(message.pose, pose)
+        self.write(topic, message, time_ns)
+
+    def log(self, text: str, time_ns: int, level: int = 2) -> None:
+        self.write("/log", self.msgs.Log(level=level, message=text, name="edgepick"), time_ns)
+
+    # -- pick -----------------------------------------------------------------------------
+    def _pick_cycle(self, c: PickCycle) -> None:
+        m, t = self.msgs, c.frame_ns
+        self.camera(c.frame, t)
+        labels = np.ascontiguousarray(c.labels, np.uint8)
+        self.write("/segmentation/labels", m.RawImage(frame_id=CAMERA, width=labels.shape[1], height=labels.shape[0],
+                                                      encoding="mono8", step=labels.shape[1], data=labels.tobytes()), t)
+        ok, overlay = cv2.imencode(".jpg", draw_overlay(labels, c.records), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+        self.write("/segmentation/overlay", m.CompressedImage(frame_id=CAMERA, format="jpeg", data=overlay.tobytes()), t)
+        self.write("/camera/annotations", image_annotations(m, c.records, c.chosen, t), t)
+        plan_ns = t + int(1e6 * c.result.get("plan_ms", 0.0))
+        if self.calibration is not None:
+            self.transform(self.calibration, t, c.start_pose)
+        self.write("/grasp/markers", grasp_markers(m, c.records, c.chosen, c.plan, plan_ns), plan_ns)
+        posed = [r for r in c.records if r.get("pose_robot") is not None]
+        self.write("/grasp/points", point_cloud(m, [r["pose_robot"] for r in posed],
+                                                [GREEN if r is c.chosen else GREY for r in posed]), plan_ns)
+        targets = [s.target for s in c.plan if s.target is not None]
+        self.write("/plan/targets", point_cloud(m, targets, [BLUE] * len(targets)), plan_ns)
+        for done in c.steps:
+            if done.step.command == "moveL":
+                self.pose("/robot/tcp_command", done.step.target, done.time_ns)
+            else:
+                self.write("/robot/gripper", m.GripperState(cycle=c.cycle, command=done.step.command,
+                                                            closed=done.step.command == "grip", result=done.result),
+                           done.time_ns)
+            if done.reported is not None:
+                self.pose("/robot/tcp", done.reported, done.time_ns)
+                tf = m.FrameTransforms()
+                self._tcp_transform(tf, done.reported, done.time_ns)
+                self.write("/tf", tf, done.time_ns)
+        end_ns = max([plan_ns, *(d.time_ns for d in c.steps)])
+        self.write("/pick/cycle", pick_cycle_message(m, c), end_ns)
+        self.log(c.line, end_ns, level=2 if c.result["outcome"] in ("done", "planned") else 3)
+
+    # -- calibrate collect ----------------------------------------------------------------
+    def _sighting(self, s: CalibrationSighting) -> None:
+        m, t = self.msgs, s.frame_ns
+        self.camera(s.frame, t)
+        self.pose("/robot/tcp_command", s.commanded, t)
+        self.pose("/robot/tcp", s.reported, t)
+        self.write("/calibration/position", m.CalibrationPosition(
+            position=s.position, seen=s.camera_point is not None, reason=s.reason,
+            camera_point=s.camera_point or [], robot_point=s.robot_point), t)
+
+    def fitted(self, cal: Calibration, camera: np.ndarray, robot: np.ndarray, time_ns: int) -> None:
+        """After collecting: the fitted transform on /tf, stamped with the first position's time (a
+        viewer places each frame by the transforms logged up to it), and the pairs as markers at
+        TIME_NS (queued)."""
+        first_ns = self.first_ns if self.first_ns is not None else time_ns
+
+        def write() -> None:
+            self.transform(cal, first_ns)
+            update = self.msgs.SceneUpdate()
+            entity = update.entities.add(id="pairs", frame_id=BASE)
+            entity.timestamp.FromNanoseconds(time_ns)
+            for point, colour in [(p, GREEN) for p in robot] + [(p, BLUE) for p in cal.apply(camera)]:
+                sphere = entity.spheres.add()
+                sphere.pose.position.x, sphere.pose.position.y, sphere.pose.position.z = (float(v) for v in point)
+                sphere.pose.orientation.w = 1.0
+                sphere.size.x = sphere.size.y = sphere.size.z = 0.01
+                sphere.color.r, sphere.color.g, sphere.color.b, sphere.color.a = colour
+            self.write("/calibration/pairs", update, time_ns)
+            self.log(f"fit: RMSE {cal.rmse_m * 1000:.2f} mm over {cal.n_pairs} pairs", time_ns)
+
+        self.add(write)
+
+
+def camera_calibration(m, intr: Intrinsics):
+    """foxglove.CameraCalibration of pinhole intrinsics (no distortion: the frames are rectified)."""
+    return m.CameraCalibration(frame_id=CAMERA, width=intr.width, height=intr.height, distortion_model="plumb_bob",
+                               D=[0.0] * 5, K=[intr.fx, 0, intr.cx, 0, intr.fy, intr.cy, 0, 0, 1],
+                               R=[1, 0, 0, 0, 1, 0, 0, 0, 1], P=[intr.fx, 0, intr.cx, 0, 0, intr.fy, intr.cy, 0, 0, 0, 1, 0])
+
+
+def _colour(target, rgba) -> None:
+    target.r, target.g, target.b, target.a = rgba
+
+
+def image_annotations(m, records: list[dict], chosen: dict | None, time_ns: int):
+    """Each record's grasp point (a circle) and finger axis (a line) on the colour image; the chosen
+    one green. Each carries the frame's time: a viewer matches annotations to an image by it."""
+    out = m.ImageAnnotations()
+    for r in records:
+        colour = GREEN if r is chosen else GREY
+        cx, cy = r["pixel"]
+        circle = out.circles.add(diameter=10, thickness=2)
+        circle.position.x, circle.position.y = cx, cy
+        _colour(circle.outline_color, colour)
+        a = np.radians(r["angle_deg"])
+        dx, dy = -np.sin(a) * 30, np.cos(a) * 30  # fingers close along the minor axis
+        line = out.points.add(type=3, thickness=2)  # LINE_STRIP
+        for s in (-1, 1):
+            p = line.points.add()
+            p.x, p.y = float(cx + s * dx), float(cy + s * dy)
+        _colour(line.outline_color, colour)
+        text = out.texts.add(text=r["class"], font_size=12)
+        text.position.x, text.position.y = cx + 8, cy - 8
+        _colour(text.text_color, colour)
+    for annotation in (*out.circles, *out.points, *out.texts):
+        annotation.timestamp.FromNanoseconds(time_ns)
+    return out
+
+
+def grasp_markers(m, records: list[dict], chosen: dict | None, plan: list[Step], time_ns: int):
+    """/grasp/markers: per record with a robot pose, an arrow along its finger axis (tool x) at the
+    grasp point; the plan's targets as spheres joined by a line, in the base frame. Each entity
+    replaces the one of the same id from the cycle before."""
+    update = m.SceneUpdate()
+    grasps = update.entities.add(id="grasps", frame_id=BASE)
+    grasps.timestamp.FromNanoseconds(time_ns)
+    for r in records:
+        if r.get("pose_robot") is None:
+            continue
+        arrow = grasps.arrows.add(shaft_length=0.04, shaft_diameter=0.004, head_length=0.012, head_diameter=0.01)
+        set_pose(arrow.pose, r["pose_robot"])
+        _colour(arrow.color, GREEN if r is chosen else GREY)
+        text = grasps.texts.add(text=r["class"], font_size=14, billboard=True, scale_invariant=True)
+        set_pose(text.pose, [*r["pose_robot"][:2], r["pose_robot"][2] + 0.02, 0, 0, 0])
+        _colour(text.color, GREEN if r is chosen else GREY)
+    targets = [s.target for s in plan if s.target is not None]
+    if targets:
+        path = update.entities.add(id="plan", frame_id=BASE)
+        path.timestamp.FromNanoseconds(time_ns)
+        line = path.lines.add(type=0, thickness=0.003)  # LINE_STRIP
+        line.pose.orientation.w = 1.0
+        _colour(line.color, BLUE)
+        for target in targets:
+            p = line.points.add()
+            p.x, p.y, p.z = (float(v) for v in target[:3])
+            sphere = path.spheres.add()
+            set_pose(sphere.pose, target)
+            sphere.size.x = sphere.size.y = sphere.size.z = 0.012
+            _colour(sphere.color, BLUE)
+    return update
+
+
+def point_cloud(m, points: list, colours: list):
+    """foxglove.PointCloud in the base frame: x, y, z (float32) and red, green, blue, alpha (uint8)
+    per point. The 3D views of both viewers draw it (Rerun draws no SceneUpdate)."""
+    layout = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
+                       ("alpha", "u1")])
+    rows = np.zeros(len(points), layout)
+    for i, (point, colour) in enumerate(zip(points, colours, strict=True)):
+        rows[i] = (*point[:3], *(round(255 * c) for c in colour))
+    cloud = m.PointCloud(frame_id=BASE, point_stride=layout.itemsize, data=rows.tobytes())
+    cloud.pose.orientation.w = 1.0
+    for name in layout.names:
+        kind = 7 if layout[name] == np.dtype("<f4") else 1  # FLOAT32, UINT8
+        cloud.fields.add(name=name, offset=layout.fields[name][1], type=kind)
+    return cloud
+
+
+def pick_cycle_message(m, c: PickCycle):
+    r, v = c.result, c.result.get("verdict") or {}
+    nan = float("nan")
+    message = m.PickCycle(
+        cycle=c.cycle, frame=str(c.frame.name), objects=len(c.records), outcome=r["outcome"],
+        reason=str(r.get("reason") or ""), target=str(r.get("target") or ""), pixel=r.get("pixel") or [],
+        start_pose=c.start_pose or [], **{f"{k}_ms": float(r.get("stage_ms", {}).get(k, nan))
+                                          for k in ("pre", "inference", "post", "grasp")},
+        plan_ms=float(r.get("plan_ms", nan)), frame_to_command_ms=float(r.get("frame_to_command_ms", nan)),
+        judged=bool(v), success=bool(v.get("success")), failure=str(v.get("failure") or ""),
+        result_json=json.dumps(r), records_json=json.dumps(c.records))
+    message.frame_time.FromNanoseconds(c.frame_ns)
+    return message
+
+
+def pick_metadata(model: str, classes: list[str] | tuple[str, ...], pick_config, grasp_config, envelope) -> dict:
+    """The recording's "edgepick" metadata record: what `replay` needs to redo a cycle's choice."""
+    return {"command": "pick", "model": model, "classes": list(classes),
+            "pick_config": asdict(pick_config), "grasp_config": asdict(grasp_config), "envelope": asdict(envelope),
+            "recorded_at": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
