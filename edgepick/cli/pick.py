@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+from pathlib import Path
 
 import click
 
@@ -179,8 +180,8 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
         if recorder is not None:  # also on Ctrl-C or a halt: what was recorded becomes a readable file
             recorder.close()
     summary = {"model": model, **cycles_summary(results), "halted": halted,
-               "log": log_path if log.path and log.path.exists() else None, "record": record_path,
-               "results": results}
+               "log": log_path if log.path and log.path.exists() else None,
+               "record": record_path if record_path and Path(record_path).exists() else None, "results": results}
     click.echo(json.dumps(summary, indent=1))  # the summary first, even when the run ends in a halt
     if halted:  # the command line prints the one error line and exits 3
         if unreachable:

@@ -21,6 +21,7 @@ import numpy as np
 from edgepick.errors import ConfigError
 
 RECORD_EXTRA = "recording needs the record extra: pip install 'edgepick[record]'"
+RECORD_MODULES = ("google.protobuf", "mcap", "mcap_protobuf", "foxglove_schemas_protobuf")
 
 FOXGLOVE_MESSAGES = ("CompressedImage", "RawImage", "CameraCalibration", "FrameTransforms", "PoseInFrame",
                      "PointCloud", "SceneUpdate", "ImageAnnotations", "Log")
@@ -53,10 +54,12 @@ def schemas() -> SimpleNamespace:
     """The message classes by name: Foxglove's (FOXGLOVE_MESSAGES) and edgepick's (EDGEPICK_MESSAGES).
     ConfigError when the [record] extra is missing."""
     try:
-        import foxglove_schemas_protobuf  # noqa: F401
-        from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, timestamp_pb2
-    except ModuleNotFoundError:
-        raise ConfigError(RECORD_EXTRA) from None
+        for module in RECORD_MODULES:
+            importlib.import_module(module)
+    except ModuleNotFoundError as exc:
+        raise ConfigError(f"{RECORD_EXTRA} ({exc.name} is not installed)") from None
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, timestamp_pb2
+
     foxglove = {name: getattr(importlib.import_module(f"foxglove_schemas_protobuf.{name}_pb2"), name)
                 for name in FOXGLOVE_MESSAGES}
 

@@ -11,6 +11,7 @@ error, so that what was recorded up to then is a valid, readable file.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import queue
@@ -35,6 +36,7 @@ from edgepick.runtime.grasp import draw_overlay
 
 PROFILE = "edgepick"  # the MCAP header's profile
 JPEG_QUALITY = 90
+WORKER_NICE = 10  # the writer thread yields the CPU to the loop's inference when both want it
 BASE, CAMERA, TCP = "base", "camera", "tcp"  # the frames (docs/contracts.md#recordings)
 GREEN, GREY, BLUE = (0.1, 0.85, 0.2, 1.0), (0.7, 0.7, 0.7, 0.8), (0.2, 0.5, 1.0, 1.0)
 
@@ -102,7 +104,7 @@ class Recorder:
         self.writer = Writer(self._file)
         self.writer.add_metadata("edgepick", {k: v if isinstance(v, str) else json.dumps(v) for k, v in metadata.items()})
         self.messages = 0  # written so far
-        self.busy_s = 0.0  # the writer thread's time on encoding and writing (benchmarks/record_cost.py)
+        self.busy_s = 0.0  # the writer thread's time on encoding and writing (benchmarks/recording.py)
         self._camera_known = False
         self.first_ns: int | None = None  # the first frame's time
         self._queue: queue.Queue = queue.Queue()
@@ -122,7 +124,8 @@ class Recorder:
         self._queue.put(item)
 
     def close(self) -> None:
-        """Write what is queued, the summary, and give the file its name. Idempotent."""
+        """Write what is queued, the summary, and give the file its name; a run that recorded no
+        frame (it failed before its first) leaves no file. Idempotent."""
         if self._thread.is_alive():
             self._queue.put(None)
             self._thread.join()
@@ -132,12 +135,17 @@ class Recorder:
             self.writer.finish()
         finally:
             self._file.close()
+        if self.first_ns is None:
+            self.tmp.unlink()
+            return
         public_mode(self.tmp)
         os.replace(self.tmp, self.path)
         if self._error is not None:
             raise self._error
 
     def _work(self) -> None:
+        with contextlib.suppress(AttributeError, OSError):  # Linux: a thread has its own nice value
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), WORKER_NICE)
         while True:
             item = self._queue.get()
             if item is None:

@@ -24,7 +24,7 @@ import numpy as np
 from edgepick.errors import EdgepickError
 from edgepick.geometry import Intrinsics
 from edgepick.robot.envelope import Envelope
-from edgepick.robot.messages import RECORD_EXTRA, rotation
+from edgepick.robot.messages import rotation, schemas
 from edgepick.robot.pick import PickConfig, choose_target
 from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.grasp import GraspConfig, grasp_records
@@ -58,11 +58,10 @@ class Recording:
 
 
 def _reader(file):
-    try:
-        from mcap.reader import make_reader
-        from mcap_protobuf.decoder import DecoderFactory
-    except ModuleNotFoundError:
-        raise EdgepickError(f"replay: {RECORD_EXTRA}") from None
+    schemas()  # the [record] extra, or one line saying how to install it
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
+
     return make_reader(file, decoder_factories=[DecoderFactory()])
 
 

@@ -8,6 +8,7 @@ import math
 import signal
 import time
 
+import cv2
 import numpy as np
 import pytest
 
@@ -132,6 +133,21 @@ def test_transform_is_the_calibration_and_markers_are_the_plan(picked):
         assert any(math.dist((c.position.x, c.position.y), result["pixel"]) < 1e-9 for c in annotations.circles)
 
 
+def test_the_readme_pictures_draw_from_a_recording(picked):
+    """benchmarks/recording_views.py's panels (the README's picture) come from a recording's messages."""
+    import sys
+
+    from tests.conftest import REPO
+
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    from recording_views import panels
+
+    root, summary = picked
+    panels(root / "run.mcap", 2, root / "panels.png")
+    picture = cv2.imread(str(root / "panels.png"))
+    assert picture is not None and picture.shape[1] > 900 and picture.std() > 20
+
+
 def test_replay_chooses_what_the_run_chose(picked):
     root, summary = picked
     proc = run_cli("replay", str(root / "run.mcap"))
@@ -160,6 +176,13 @@ def test_an_unwritable_record_path_fails_before_the_first_frame(tmp_path, target
     assert proc.returncode == 2
     assert proc.stderr.count("\n") == 1 and "--record" in proc.stderr, proc.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]  # no log, no partial recording
+
+
+def test_a_run_that_ends_before_its_first_frame_leaves_no_recording(tmp_path):
+    proc = run_cli("pick", "--gripper", "rg2:127.0.0.1", "--record", str(tmp_path / "run.mcap"),
+                   "--log", str(tmp_path / "log.jsonl"))
+    assert proc.returncode == 3 and "cannot reach the RG2" in proc.stderr, proc.stderr
+    assert json.loads(proc.stdout)["record"] is None and list(tmp_path.iterdir()) == []
 
 
 def test_a_recording_stopped_by_ctrl_c_is_a_readable_file(tmp_path):
@@ -241,3 +264,22 @@ def test_replay_refuses_what_is_not_a_pick_recording(tmp_path):
     for path, words in ((tmp_path / "log.jsonl", "not a readable MCAP recording"), (tmp_path / "none.mcap", "no such")):
         proc = run_cli("replay", str(path))
         assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and words in proc.stderr, proc.stderr
+
+
+@pytest.mark.parametrize("module", ["mcap", "mcap_protobuf", "foxglove_schemas_protobuf"])
+def test_without_the_record_extra_record_and_replay_say_what_to_install(tmp_path, module):
+    """A laptop's base install: `--record` and `replay` refuse in one line, before the first frame."""
+    import subprocess
+    import sys
+
+    from tests.conftest import REPO
+
+    hide = f"import sys; sys.modules[{module!r}] = None; from edgepick.cli import run; sys.exit(run(sys.argv[1:]))"
+    (tmp_path / "r.mcap").write_bytes(b"")  # what replay is given; pick would write over it
+    for args in (["pick", "--record", str(tmp_path / "r.mcap"), "--log", str(tmp_path / "log.jsonl")],
+                 ["replay", str(tmp_path / "r.mcap")]):
+        proc = subprocess.run([sys.executable, "-c", hide, *args], capture_output=True, text=True, cwd=REPO)
+        assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
+        assert "pip install 'edgepick[record]'" in proc.stderr and f"({module} is not installed)" in proc.stderr
+        assert "cycle" not in proc.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.mcap"] and (tmp_path / "r.mcap").stat().st_size == 0
