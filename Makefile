@@ -14,7 +14,7 @@ setup: $(STAMP)
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q torch==2.13.0
-	$(PY) -m pip install -q -e '.[train,test,robot,peers,record]'
+	$(PY) -m pip install -q -e '.[train,test,robot,peers,record,sim]'
 	touch $(STAMP)
 
 demo: $(STAMP)

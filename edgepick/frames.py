@@ -30,6 +30,7 @@ class Frame:
     name: str
     truth: list[dict] | None = None  # per-object grasp truth, when the source knows it (synthetic)
     labels: np.ndarray | None = None  # true class ids per pixel, when the source knows them (synthetic)
+    scene: dict | None = None  # the scene's conditions, when the source knows them (synthetic: lighting, table)
 
 
 class Camera:

@@ -1,8 +1,9 @@
 """`edgepick bench --cell N`: thesis Table 5.6 with its grasp success column, measured in the
 closed loop. Each model runs N executions of the whole pick cycle in the synthetic cell (camera
 0.7 m above the table, SimRobot, the same N seeded scenes for every model), judged per cycle by
-robot/verdict.py; a first row runs the same cycles on the scenes' true labels, the grasp step's
-own ceiling without a model."""
+robot/verdict.py and, with --verdict physics|both, by the physics check (sim/physics.py); a first
+row runs the same cycles on the scenes' true labels, the grasp step's own ceiling without a
+model. Success is also reported per light condition of the scenes (thesis Table 5.3)."""
 
 from __future__ import annotations
 
@@ -20,11 +21,11 @@ import onnxruntime as ort
 from edgepick.bench.machine import machine_line
 from edgepick.bench.measure import mode_label
 from edgepick.bench.report import draw_axes, markdown
-from edgepick.data.render import CLASSES
+from edgepick.data.render import CLASSES, LIGHTINGS
 from edgepick.robot.grippers import DigitalGripper
 from edgepick.robot.loop import run_cycles
 from edgepick.robot.pick import CommandLog, PickConfig
-from edgepick.robot.verdict import summarize
+from edgepick.robot.verdict import VerdictRule, summarize
 from edgepick.runtime.engine import Engine
 from edgepick.runtime.pipeline import Pipeline
 from edgepick.runtime.session import Segmenter, check_model
@@ -51,37 +52,88 @@ class CellRow:
     success_rate: float
     success_rate_reachable: float | None
     failures: dict[str, int] = field(default_factory=dict)
+    physics: dict | None = None  # the physics check: success, executions, success_rate, failures, ms_p50
+    disagreements: dict[str, dict[str, int]] = field(default_factory=dict)  # class -> which rule alone passed it
+    by_lighting: dict[str, dict] = field(default_factory=dict)  # light condition -> executions, success, ...
 
 
-def cell_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: int, size_mb: float | None) -> CellRow:
-    """CYCLES executions of the pick loop with PIPELINE on the cell's scenes of SEED."""
+def cell_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: int, size_mb: float | None,
+             verdict: VerdictRule = VerdictRule.GEOMETRIC, physics_config=None) -> CellRow:
+    """CYCLES executions of the pick loop with PIPELINE on the cell's scenes of SEED (PHYSICS_CONFIG:
+    the simulated grippers, sim/physics.py's PhysicsConfig)."""
     camera = SynthCamera(640, 480, seed=seed, mount_height_m=MOUNT_M)
     truth = camera.calibration()
     robot = SimRobot()
+    physics = None
+    if verdict != VerdictRule.GEOMETRIC:
+        from edgepick.sim.physics import physics_judge
+
+        physics = physics_judge(truth, PickConfig(), physics_config)
     with camera, robot:
         results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=PickConfig(), cycles=cycles,
-                             log=CommandLog(None), echo=lambda line: None, truth_cal=truth)
+                             log=CommandLog(None), echo=lambda line: None, truth_cal=truth, physics=physics)
     times = np.array([r["plan_ms"] for r in results])  # frame -> labels -> records -> the checked plan
     summary = summarize(results)
     return CellRow(mode, model, len(results), round(float(times.mean()), 2), round(float(times.std()), 2),
                    round(float(np.median(times)), 2), round(float(np.percentile(times, 95)), 2), size_mb,
-                   summary["success"], summary["success_rate"], summary["success_rate_reachable"], summary["failures"])
+                   summary["success"], summary["success_rate"], summary["success_rate_reachable"], summary["failures"],
+                   physics_summary(results) if physics else None, disagreements(results) if physics else {},
+                   by_lighting(results))
+
+
+def physics_summary(results: list[dict]) -> dict:
+    """The physics check over the judged cycles, with its time per check (p50 of those it simulated)."""
+    judged = [r["physics"] for r in results if "physics" in r]
+    times = [p["ms"] for p in judged if p.get("ms")]
+    s = summarize(results, "physics")
+    return {"success": s["success"], "executions": len(judged), "success_rate": s["success_rate"],
+            "failures": s["failures"], "ms_p50": round(float(np.median(times)), 1) if times else None}
+
+
+def disagreements(results: list[dict]) -> dict[str, dict[str, int]]:
+    """Per class of the chosen target: cycles only the geometric rule passed, and only physics."""
+    out: dict[str, dict[str, int]] = {}
+    for r in results:
+        if "physics" in r and r["verdict"]["success"] != r["physics"]["success"]:
+            side = "geometric only" if r["verdict"]["success"] else "physics only"
+            counts = out.setdefault(r.get("target") or "-", {"geometric only": 0, "physics only": 0})
+            counts[side] += 1
+    return out
+
+
+def by_lighting(results: list[dict]) -> dict[str, dict]:
+    """Success per light condition of the scenes (thesis Table 5.3): executions, success, rate,
+    failures, and the physics check's where it ran."""
+    out: dict[str, dict] = {}
+    for light in dict.fromkeys(r.get("scene", {}).get("lighting") for r in results if "verdict" in r):
+        if light is None:
+            continue
+        these = [r for r in results if "verdict" in r and r.get("scene", {}).get("lighting") == light]
+        s = summarize(these)
+        out[light] = {"executions": len(these), "success": s["success"], "success_rate": s["success_rate"],
+                      "failures": s["failures"]}
+        if any("physics" in r for r in these):
+            p = summarize(these, "physics")
+            out[light].update(physics_success=p["success"], physics_success_rate=p["success_rate"])
+    return out
 
 
 def run_cell(models: list[str | Path], cycles: int, out_dir: str | Path, threads: int = 2, seed: int = 0,
-             engine: Engine = Engine.ONNXRUNTIME, progress=print) -> dict:
+             engine: Engine = Engine.ONNXRUNTIME, progress=print, verdict: VerdictRule = VerdictRule.GEOMETRIC,
+             physics_config=None) -> dict:
     """The true-label row, then each model's, over the same CYCLES scenes; writes cell.md/.csv/.json
     and success-latency.png in OUT_DIR."""
     for m in models:  # every model's contract before the first cycle
         check_model(m)
     camera = SynthCamera(640, 480, seed=seed, mount_height_m=MOUNT_M)
     progress(f"cell: true labels, {cycles} cycles ...")
-    rows = [cell_row("true labels", "-", TruthPipeline(list(CLASSES), camera.calibration()), cycles, seed, None)]
+    rows = [cell_row("true labels", "-", TruthPipeline(list(CLASSES), camera.calibration()), cycles, seed, None,
+                     verdict, physics_config)]
     for m in models:
         seg = Segmenter(m, threads=threads, engine=engine)
         progress(f"cell: {Path(m).name}, {cycles} cycles ...")
         rows.append(cell_row(mode_label(seg.info.metadata), str(m), Pipeline(seg, camera.calibration()), cycles, seed,
-                             round(Path(m).stat().st_size / 1e6, 3)))
+                             round(Path(m).stat().st_size / 1e6, 3), verdict, physics_config))
     modes = [r.mode for r in rows]
     for r in rows:  # two models of one mode (the demo's hybrid and the reference one): name the files
         if modes.count(r.mode) > 1:
@@ -89,17 +141,68 @@ def run_cell(models: list[str | Path], cycles: int, out_dir: str | Path, threads
     context = {"title": f"Table 5.6 in the synthetic cell: {cycles} executions per model",
                "machine": machine_line().removeprefix("Machine: "), "onnxruntime": ort.__version__, "opencv": cv2.__version__,
                "threads": threads, "engine": engine, "scenes": f"SynthCamera seed {seed}, 640x480, {MOUNT_M} m above the table",
-               "criterion": "docs/contracts.md#grasp-success"}
+               "criterion": "docs/contracts.md#grasp-success", "verdict": str(verdict)}
     return {"rows": [asdict(r) for r in rows], "reports": write_cell_reports(rows, out_dir, context)}
 
 
-def table(rows: list[CellRow]) -> list[list[str]]:
-    def pct(v: float | None) -> str:
-        return "-" if v is None else f"{100 * v:.0f}"
+PHYSICS_HEADER = ["Physics success (%)", "Physics failures", "Check p50 (ms)"]
 
-    return [[r.mode, f"{r.mean_ms:.1f} [{r.std_ms:.1f}]", f"{r.p50_ms:.1f}", f"{r.p95_ms:.1f}",
-             "-" if r.size_mb is None else f"{r.size_mb:.2f}", f"{pct(r.success_rate)} ({r.success}/{r.cycles})",
-             pct(r.success_rate_reachable), ", ".join(f"{k} {v}" for k, v in r.failures.items()) or "-"] for r in rows]
+
+def _pct(v: float | None) -> str:
+    return "-" if v is None else f"{100 * v:.0f}"
+
+
+def _kinds(failures: dict[str, int]) -> str:
+    return ", ".join(f"{k} {v}" for k, v in failures.items()) or "-"
+
+
+def header(rows: list[CellRow]) -> list[str]:
+    """The table's columns: HEADER, and the physics check's where it ran."""
+    return HEADER + (PHYSICS_HEADER if any(r.physics for r in rows) else [])
+
+
+def table(rows: list[CellRow]) -> list[list[str]]:
+    physics = any(r.physics for r in rows)
+    out = []
+    for r in rows:
+        line = [r.mode, f"{r.mean_ms:.1f} [{r.std_ms:.1f}]", f"{r.p50_ms:.1f}", f"{r.p95_ms:.1f}",
+                "-" if r.size_mb is None else f"{r.size_mb:.2f}", f"{_pct(r.success_rate)} ({r.success}/{r.cycles})",
+                _pct(r.success_rate_reachable), _kinds(r.failures)]
+        if physics:
+            p = r.physics or {}
+            line += [f"{_pct(p.get('success_rate'))} ({p.get('success', 0)}/{p.get('executions', 0)})",
+                     _kinds(p.get("failures", {})), "-" if p.get("ms_p50") is None else f"{p['ms_p50']:.0f}"]
+        out.append(line)
+    return out
+
+
+def sections(rows: list[CellRow]) -> list[str]:
+    """Markdown below the table: success per light condition (thesis Table 5.3) and, with the
+    physics check, the cycles where the two verdicts disagree, by class."""
+    seen = {light for r in rows for light in r.by_lighting}
+    lights = [light for light in LIGHTINGS if light in seen] + sorted(seen - set(LIGHTINGS))
+    physics = any(r.physics for r in rows)
+    out = ["", "## By light condition (thesis Table 5.3)", "",
+           "Grasp success (%) and executions per light condition of the scenes" +
+           (" (geometric / physics)" if physics else "") + ":", ""]
+
+    def cell(d: dict | None) -> str:
+        if not d:
+            return "-"
+        text = f"{_pct(d['success_rate'])} ({d['success']}/{d['executions']})"
+        return text + (f" / {_pct(d['physics_success_rate'])}" if "physics_success_rate" in d else "")
+
+    out.append(markdown(["Mode", *lights], [[r.mode, *(cell(r.by_lighting.get(light)) for light in lights)]
+                                            for r in rows]))
+    if physics:
+        classes = list(dict.fromkeys(c for r in rows for c in r.disagreements))
+        out += ["", "## Where the geometric rule and the physics check disagree", "",
+                "Cycles per class of the chosen target that only one of the two passed "
+                "(geometric only: the rule's tolerance is too generous there; physics only: too strict):", ""]
+        out.append(markdown(["Mode", *classes], [[r.mode, *(
+            f"{r.disagreements[c]['geometric only']} / {r.disagreements[c]['physics only']}" if c in r.disagreements
+            else "0 / 0" for c in classes)] for r in rows]) if classes else "None.")
+    return out
 
 
 def write_cell_reports(rows: list[CellRow], out_dir: str | Path, context: dict) -> dict[str, str]:
@@ -107,10 +210,10 @@ def write_cell_reports(rows: list[CellRow], out_dir: str | Path, context: dict) 
     out.mkdir(parents=True, exist_ok=True)
     paths = {"md": out / "cell.md", "csv": out / "cell.csv", "json": out / "cell.json", "png": out / "success-latency.png"}
     md = [f"# {context['title']}", ""] + [f"- {k}: {v}" for k, v in context.items() if k != "title"]
-    paths["md"].write_text("\n".join(md + ["", markdown(HEADER, table(rows))]) + "\n")
+    paths["md"].write_text("\n".join(md + ["", markdown(header(rows), table(rows)), *sections(rows)]) + "\n")
     with open(paths["csv"], "w", newline="") as f:
         writer = csv.writer(f)
-        writer.writerow(HEADER)
+        writer.writerow(header(rows))
         writer.writerows(table(rows))
     paths["json"].write_text(json.dumps({"context": context, "rows": [asdict(r) for r in rows]}, indent=1))
     _plot(rows, paths["png"])

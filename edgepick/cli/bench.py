@@ -11,6 +11,7 @@ from edgepick.cli.options import choice
 from edgepick.data.config import Split
 from edgepick.errors import ConfigError
 from edgepick.files import check_output, output_dir
+from edgepick.robot.verdict import VerdictRule
 from edgepick.runtime.engine import Engine
 
 
@@ -31,11 +32,16 @@ from edgepick.runtime.engine import Engine
                    "seeded scenes for every model; --cell alone: 50, the thesis's count): pipeline time, size and grasp "
                    "success (docs/contracts.md#grasp-success), with a first row on the scenes' true labels.")
 @click.option("--seed", default=0, show_default=True, help="--cell: the scenes' seed.")
+@click.option("--verdict", default=VerdictRule.GEOMETRIC.value, show_default=True, type=choice(VerdictRule),
+              help="--cell: the verdict on each cycle: the geometric rule (docs/contracts.md#grasp-success), or "
+                   "also the physics check (the grasp carried out in MuJoCo: the [sim] extra; physics and both "
+                   "report both, and where they disagree by class).")
 @click.option("--engine", default=Engine.ONNXRUNTIME.value, show_default=True, type=choice(Engine),
               help="Inference engine for every row (openvino: the [peers] extra; auto: the faster one here, measured "
                    "once per model and cached).")
 def bench(models: tuple[str, ...], data: str | None, split: str, threads: int, runs: int, out_dir: str,
-          gpu_checkpoint: str | None, no_pipeline: bool, cell: int | None, seed: int, engine: str) -> None:
+          gpu_checkpoint: str | None, no_pipeline: bool, cell: int | None, seed: int, verdict: str,
+          engine: str) -> None:
     """Thesis Tables 5.5 and 5.6 for MODEL... (ONNX): pixel accuracy, mIoU, inference p50/p95 at
     fixed threads, training time (from the model's metadata), size, and the whole pipeline per
     frame (folder frame -> labels -> grasp records). Same images for every row, one process.
@@ -53,14 +59,19 @@ def bench(models: tuple[str, ...], data: str | None, split: str, threads: int, r
         if Path(m).suffix.lower() != ".onnx":
             raise ConfigError(f"{m} is not an .onnx file (bench runs ONNX models through the runtime)")
     if cell is not None:
-        from edgepick.bench.cell import HEADER, CellRow, run_cell, table
+        from edgepick.bench.cell import CellRow, header, run_cell, sections, table
 
         if cell < 1:
             raise ConfigError(f"--cell {cell}: the number of executions must be at least 1")
+        if verdict != VerdictRule.GEOMETRIC:
+            from edgepick.sim.physics import require_mujoco
+
+            require_mujoco()  # the [sim] extra, before the first cycle
         with output_dir(out_dir, "bench"):
             result = run_cell(list(models), cell, out_dir, threads=cfg.threads, seed=seed, engine=cfg.engine,
-                              progress=lambda line: click.echo(line, err=True))
-        click.echo(markdown(HEADER, table([CellRow(**r) for r in result["rows"]])), err=True)
+                              progress=lambda line: click.echo(line, err=True), verdict=verdict)
+        rows = [CellRow(**r) for r in result["rows"]]
+        click.echo("\n".join([markdown(header(rows), table(rows)), *sections(rows)]), err=True)
         click.echo(json.dumps(result, indent=1))
         return
     if data is None:

@@ -14,6 +14,7 @@ from edgepick.errors import ConfigError
 from edgepick.files import check_output, output_dir
 from edgepick.robot.envelope import Envelope
 from edgepick.robot.pick import Choose, PickConfig
+from edgepick.robot.verdict import VerdictRule
 from edgepick.runtime.engine import Engine
 
 
@@ -81,6 +82,10 @@ def make_gripper(spec: tuple[str, int | str], robot):
                    "labels, intrinsics, the camera -> base transform, grasp markers, commanded and reported TCP "
                    "poses, gripper, verdict and timings (docs/contracts.md#recordings); `edgepick replay` reruns "
                    "the grasp step on it. Written after each cycle's commands, on a worker thread.")
+@click.option("--verdict", default=VerdictRule.GEOMETRIC.value, show_default=True, type=choice(VerdictRule),
+              help="Synthetic cell: the verdict on each cycle: the geometric rule (docs/contracts.md#grasp-success), or "
+                   "also the physics check (the grasp carried out in MuJoCo after the cycle's commands: the [sim] "
+                   "extra; physics and both print both).")
 @click.option("--threads", default=2, show_default=True, help="Inference threads.")
 @click.option("--engine", default=Engine.ONNXRUNTIME.value, show_default=True, type=choice(Engine),
               help="Inference engine (openvino: the [peers] extra; auto: the faster one here, measured once per "
@@ -92,7 +97,7 @@ def make_gripper(spec: tuple[str, int | str], robot):
                    "camera sees neither the arm nor the part it holds once the arm is above the place pose.")
 def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: str, execute: bool, cycles: int,
          classes: tuple[str, ...], choose: str, speed: float, acc: float, log_path: str, robot_log: str | None,
-         overlay_dir: str | None, record_path: str | None, threads: int, engine: str, size: str,
+         overlay_dir: str | None, record_path: str | None, verdict: str, threads: int, engine: str, size: str,
          overlap: bool) -> None:
     """Pick and place: camera -> segmentation -> grasp records -> target -> robot.
 
@@ -126,6 +131,13 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
         from edgepick.robot.messages import schemas
 
         schemas()  # the [record] extra, before anything starts
+    if verdict != VerdictRule.GEOMETRIC:
+        if not camera.startswith("synth-cell"):
+            raise ConfigError(f"--verdict {verdict}: needs the synthetic cell (--camera synth-cell), whose scenes "
+                              "know their objects")
+        from edgepick.sim.physics import require_mujoco
+
+        require_mujoco()  # the [sim] extra, before anything starts
     frame_size = parse_size(size)
     model = model or _reference_for(camera)
     segmenter = Segmenter(model, threads=threads, engine=engine)
@@ -142,6 +154,11 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     pipeline = Pipeline(segmenter, cal)
     truth_cal = source.calibration() if isinstance(source, SynthCamera) and source.mount is not None else None
     cfg = PickConfig(classes=tuple(classes), choose=choose, speed=speed, acc=acc)
+    physics = None
+    if verdict != VerdictRule.GEOMETRIC and truth_cal is not None:
+        from edgepick.sim.physics import physics_judge
+
+        physics = physics_judge(truth_cal, cfg)
     if kind == "sim":
         robot = SimRobot()
     elif execute:
@@ -162,14 +179,15 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
         with overlays, source:
             if robot is None:
                 results = run_cycles(source, pipeline, None, None, cfg=cfg, cycles=cycles, log=log,
-                                     overlay_dir=overlay_dir, echo=echo, truth_cal=truth_cal, recorder=recorder)
+                                     overlay_dir=overlay_dir, echo=echo, truth_cal=truth_cal, recorder=recorder,
+                                     physics=physics)
             else:
                 try:
                     grip.probe()  # a gripper that cannot be reached is found before the arm is sent anything
                     with robot:
                         results = run_cycles(source, pipeline, robot, grip, cfg=cfg, cycles=cycles, log=log,
                                              overlay_dir=overlay_dir, echo=echo, truth_cal=truth_cal, overlap=overlap,
-                                             recorder=recorder)
+                                             recorder=recorder, physics=physics)
                 except RobotError as exc:
                     if getattr(exc, "exit_code", 2) != 3:
                         raise

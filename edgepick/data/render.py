@@ -50,6 +50,16 @@ def _plane_frame(n: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
     return a1, np.cross(n, a1)
 
 
+def solid_truth(p: Placed, n: np.ndarray) -> dict:
+    """The placed object as a solid (docs/contracts.md#data-set-layout, "solid"): its base centre,
+    up and major axes in the camera frame, and its dimensions in metres."""
+    m = p.model
+    dims = {"length": m.length, "width": m.width} if m.major_axis else dict(m.extra)
+    return {"base_camera_m": [round(float(c), 6) for c in p.ground - n * p.base_elev],
+            "up_camera": [round(float(c), 6) for c in -n], "axis_camera": [round(float(c), 6) for c in p.a1],
+            "height": round(m.height, 6), **{k: round(float(v), 6) for k, v in dims.items()}}
+
+
 class SceneRenderer:
     """Renders scenes for one image size; reuses the per-pixel ray table."""
 
@@ -345,5 +355,6 @@ class SceneRenderer:
                 "angle_deg": round(angle, 2), "orientation_defined": bool(p.model.major_axis),
                 "point_camera_m": [round(float(c), 5) for c in top],
                 "visible_fraction": round(visible / max(1, int(full.sum())), 3),
+                "solid": solid_truth(p, n),
             })
         return out

@@ -42,7 +42,7 @@ class ObjectModel:
     major_axis: bool  # False for round objects (no stable major axis)
     length: float = 0.0  # along the local x axis
     width: float = 0.0
-    extra: dict = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)  # round objects: their radii and heights (the solid's truth)
 
 
 # --------------------------------------------------------------------------- sdfs
@@ -223,7 +223,8 @@ def make_bearing(rng: np.random.Generator) -> ObjectModel:
 
     tilt = _radial_tilt([(r_in, r_inner_race, 0.7), (r_seal, r_out, 0.7)])
     part = Part(sdf_annulus(r_out, r_in), 0.0, height, albedo, ks=0.9, shininess=60.0, metal=True, tilt=tilt)
-    return ObjectModel("bearing", "steel", [part], radius=r_out, height=height, major_axis=False)
+    return ObjectModel("bearing", "steel", [part], radius=r_out, height=height, major_axis=False,
+                       extra={"r_out": r_out, "r_in": r_in})
 
 
 def make_disk(rng: np.random.Generator) -> ObjectModel:
@@ -259,7 +260,9 @@ def make_disk(rng: np.random.Generator) -> ObjectModel:
                 tilt=_radial_tilt([(r_out - 0.004, r_out, 0.5)]))
     hat = Part(sdf_with_holes(sdf_annulus(r_hat, r_bore), bolts), 0.0, hat_h, hat_albedo, ks=0.25,
                shininess=15.0, metal=True, tilt=_radial_tilt([(r_hat - 0.006, r_hat, 0.8)]))
-    return ObjectModel("disk", "cast-iron", [ring, hat], radius=r_out, height=hat_h, major_axis=False)
+    return ObjectModel("disk", "cast-iron", [ring, hat], radius=r_out, height=hat_h, major_axis=False,
+                       extra={"r_out": r_out, "r_ring_in": r_hat * 0.85, "ring_h": ring_h, "r_hat": r_hat,
+                              "r_bore": r_bore, "hat_h": hat_h})
 
 
 MAKERS: dict[str, Callable[[np.random.Generator], ObjectModel]] = {

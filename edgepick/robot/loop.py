@@ -100,7 +100,7 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None,
                gripper: DigitalGripper | RG2Gripper | None, *, cfg: PickConfig, cycles: int, log: CommandLog,
                overlay_dir: str | Path | None = None, echo: Callable[[str], object] = print,
                truth_cal: Calibration | None = None, overlap: bool = False,
-               recorder: Recorder | None = None) -> list[dict]:
+               recorder: Recorder | None = None, physics: Callable[[dict, Frame], dict] | None = None) -> list[dict]:
     """Run up to `cycles` pick cycles (robot None = plan only). Stops early when the robot halts
     (a failed gripper halts it too). Each plan passes the envelope and, with a robot, the
     controller's own safety limits before its first command. TRUTH_CAL (the synthetic cell's true
@@ -108,11 +108,12 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None,
     OVERLAP (with a robot): the next frame is read and segmented while the arm places the object
     and returns (Lookahead), so the arm waits only for the plan; the cell's camera must then not
     see the arm, nor the part it holds, from the place approach pose on. RECORDER gets each cycle
-    once its commands are sent (robot/recording.py)."""
+    once its commands are sent (robot/recording.py). PHYSICS (the synthetic cell: sim/physics.py's
+    judge) gives each judged cycle a second verdict, "physics", after its commands."""
     ahead = Lookahead(camera, pipeline) if overlap and robot is not None else None
     try:
         return _cycles(camera, pipeline, robot, gripper, cfg, cycles, log, overlay_dir, echo, truth_cal, ahead,
-                       recorder)
+                       recorder, physics)
     finally:
         if ahead is not None:
             ahead.close()
@@ -120,7 +121,8 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None,
 
 def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper: DigitalGripper | RG2Gripper | None,
             cfg: PickConfig, cycles: int, log: CommandLog, overlay_dir: str | Path | None, echo: Callable[[str], object],
-            truth_cal: Calibration | None, ahead: Lookahead | None, recorder: Recorder | None) -> list[dict]:
+            truth_cal: Calibration | None, ahead: Lookahead | None, recorder: Recorder | None,
+            physics: Callable[[dict, Frame], dict] | None) -> list[dict]:
     """run_cycles' loop. Per cycle, besides the outcome: plan_ms (frame read -> checked plan),
     frame_to_command_ms (-> the first command sent), frame_to_frame_ms (since the previous frame was
     read) and arm_wait_ms (the previous cycle's last command done -> this one's first sent)."""
@@ -148,6 +150,8 @@ def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper
         t_plan = time.perf_counter()
         result = {"cycle": cycle, "frame": frame.name, "objects": len(seen.records), "stage_ms": seen.ms,
                   "plan_ms": round(1000 * (t_plan - t0), 2)}
+        if frame.scene is not None:
+            result["scene"] = frame.scene
         if previous_frame is not None:
             result["frame_to_frame_ms"] = round(1000 * (t0 - previous_frame), 2)
         previous_frame = t0
@@ -181,6 +185,8 @@ def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper
                 result.update(outcome="done" if stopped is None else "stopped", reason=stopped)
                 if stopped is not None and "verdict" in result:
                     result["verdict"] = stopped_verdict(result["verdict"])
+        if physics is not None and "verdict" in result:  # after the commands, as the overlay
+            result["physics"] = physics_verdict(result, record, frame, physics)
         if overlay_dir:  # after the robot's commands: not part of the frame -> command latency
             cv2.imwrite(str(Path(overlay_dir) / f"cycle_{cycle:03d}.png"),
                         draw_overlay(frame.rgb, [record] if record else seen.records))
@@ -194,6 +200,16 @@ def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper
         if robot is not None and robot.halted:
             break  # the caller reports it once
     return results
+
+
+def physics_verdict(result: dict, record: dict | None, frame: Frame, physics: Callable[[dict, Frame], dict]) -> dict:
+    """The physics check's verdict on a judged cycle: its own on a grasp that was carried out, the
+    geometric one where nothing was chosen, a failure where the robot stopped."""
+    if record is None:
+        return {k: result["verdict"][k] for k in ("success", "failure")}
+    if result.get("outcome") == "stopped":
+        return {"success": False, "failure": "robot stopped"}
+    return physics(record, frame)
 
 
 def _step_recorder(robot: RobotBase, steps: list[StepDone]) -> Callable[[Step, str], None]:
@@ -210,7 +226,8 @@ def _step_recorder(robot: RobotBase, steps: list[StepDone]) -> Callable[[Step, s
 
 def cycles_summary(results: list[dict]) -> dict:
     """What `pick` and the demo report over their cycles: count, done, within 1 cm, median grasp
-    error and frame -> command latency, and (synthetic cell) grasp success and failures by kind."""
+    error and frame -> command latency, and (synthetic cell) grasp success and failures by kind,
+    of the geometric verdict and, where it ran, the physics check ("physics")."""
     def median(values: list[float]) -> float | None:
         return sorted(values)[len(values) // 2] if values else None
 
@@ -219,6 +236,7 @@ def cycles_summary(results: list[dict]) -> dict:
             "within_1cm": sum(bool(r.get("within_1cm")) for r in results),
             "grasp_error_mm_median": None if error is None else round(1000 * error, 2),
             **summarize(results),
+            **({"physics": summarize(results, "physics")} if any("physics" in r for r in results) else {}),
             **{f"{key}_median": median([r[key] for r in results if key in r])
                for key in ("frame_to_command_ms", "frame_to_frame_ms", "arm_wait_ms")}}
 
@@ -244,5 +262,10 @@ def _verdict(r: dict) -> str:
     errors = [f"{1000 * v['position_error_m']:.1f} mm"] if v.get("position_error_m") is not None else []
     errors += [f"{v['angle_error_deg']:.0f} deg"] if v.get("angle_error_deg") is not None else []
     detail = f" ({', '.join(errors)})" if errors else ""
-    return f"; verdict: success{detail}" if v["success"] else f"; verdict: FAILED, {v['failure']}{detail}"
+    line = f"; verdict: success{detail}" if v["success"] else f"; verdict: FAILED, {v['failure']}{detail}"
+    p = r.get("physics")
+    if p is not None:
+        why = f" ({p['note']})" if p.get("note") else ""
+        line += "; physics: success" if p["success"] else f"; physics: FAILED, {p['failure']}{why}"
+    return line
 

@@ -11,6 +11,7 @@ two fingers for adapters and boxes.
 
 from __future__ import annotations
 
+import enum
 import math
 
 import numpy as np
@@ -22,6 +23,15 @@ from edgepick.runtime.grasp import top_down_pose
 POSITION_M = 0.010
 ANGLE_DEG = 15.0
 GRIPPER = {"bearing": "electromagnet", "disk": "electromagnet", "adapter": "two-finger", "box": "two-finger"}
+class VerdictRule(enum.StrEnum):
+    """Which verdicts a cycle in the synthetic cell gets: this module's geometric rule, the physics
+    check (sim/physics.py, the [sim] extra) beside it, or both shown."""
+
+    GEOMETRIC = "geometric"
+    PHYSICS = "physics"
+    BOTH = "both"
+
+
 FAILURES = ("false detection", "position", "orientation", "unreachable", "no object seen", "robot stopped")
 
 
@@ -65,13 +75,15 @@ def judge(record: dict, frame: Frame, truth_cal: Calibration) -> dict:
             "angle_error_deg": None if angle_error is None else round(angle_error, 1)}
 
 
-def summarize(results: list[dict]) -> dict:
-    """Grasp success over the judged cycles (the synthetic cell): count, rate and failures by kind."""
-    judged = [r["verdict"] for r in results if "verdict" in r]
+def summarize(results: list[dict], key: str = "verdict") -> dict:
+    """Grasp success over the judged cycles (the synthetic cell): count, rate and failures by kind,
+    of the verdict under KEY ("verdict": the geometric rule; "physics": the physics check)."""
+    judged = [r[key] for r in results if key in r]
     if not judged:
         return {}
-    counts = {f: sum(not v["success"] and v["failure"] == f for v in judged) for f in FAILURES}
-    failures = {f: n for f, n in counts.items() if n}  # in FAILURES' order
+    kinds = list(dict.fromkeys([*FAILURES, *(v["failure"] for v in judged if not v["success"])]))
+    counts = {f: sum(not v["success"] and v["failure"] == f for v in judged) for f in kinds}
+    failures = {f: n for f, n in counts.items() if n}  # in FAILURES' order, then the physics check's own
     ok = sum(v["success"] for v in judged)
     reachable = len(judged) - failures.get("unreachable", 0)
     return {"success": ok, "success_rate": round(ok / len(judged), 4),

@@ -67,3 +67,40 @@ def test_success_latency_is_a_scatter_with_every_label_in_full(tmp_path):
     assert fp32[1] > static[1] == ref[1] > truth[1]  # higher success higher
     b, g, r = (int(v) for v in png[truth[1], truth[0]])
     assert b == g == r < 200  # the true-label row in grey
+
+
+def test_cell_physics_verdict_beside_the_geometric_one(tmp_path, capfd):
+    """--verdict both: each row gains the physics check's success, and where the two rules disagree."""
+    import pytest
+
+    pytest.importorskip("mujoco")
+    model = red_model(tmp_path / "red.onnx")
+    assert run(["bench", str(model), "--cell", "6", "--verdict", "both", "--out", str(tmp_path / "out")]) == 0
+    out, err = capfd.readouterr()
+    rows = json.loads(out)["rows"]
+    for r in rows:
+        p = r["physics"]
+        assert p["executions"] == 6 and p["success"] + sum(p["failures"].values()) == 6
+        for counts in r["disagreements"].values():  # each disagreement is a cycle one rule passed and one did not
+            assert sum(counts.values()) <= 6
+        assert sum(d["executions"] for d in r["by_lighting"].values()) == 6
+        assert set(r["by_lighting"]) <= {"ceiling", "ceiling+white", "single", "hazard"}
+    truth = rows[0]
+    assert truth["physics"]["ms_p50"] > 0  # the true labels always choose something to simulate
+    geometric_only = sum(c["geometric only"] for c in truth["disagreements"].values())
+    physics_only = sum(c["physics only"] for c in truth["disagreements"].values())
+    assert truth["success"] - geometric_only + physics_only == truth["physics"]["success"]
+    md = (tmp_path / "out" / "cell.md").read_text()
+    assert "Physics success (%)" in md and "## By light condition (thesis Table 5.3)" in md
+    assert "## Where the geometric rule and the physics check disagree" in err
+
+
+def test_cell_reports_success_per_light_condition_without_physics(tmp_path, capfd):
+    model = red_model(tmp_path / "red.onnx")
+    assert run(["bench", str(model), "--cell", "4", "--out", str(tmp_path / "out")]) == 0
+    rows = json.loads(capfd.readouterr().out)["rows"]
+    for r in rows:
+        assert r["physics"] is None and r["disagreements"] == {}
+        lights = r["by_lighting"]
+        assert sum(d["executions"] for d in lights.values()) == 4
+        assert sum(d["success"] for d in lights.values()) == r["success"]

@@ -1,0 +1,142 @@
+"""The physics verdict (MuJoCo): a centred grasp carries each class; what a parallel jaw and a magnet
+really tolerate decides the rest; the same inputs give the same verdict."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mujoco")
+
+from edgepick.errors import ParameterError  # noqa: E402
+from edgepick.runtime.calibration import Calibration  # noqa: E402
+from edgepick.sim.physics import PhysicsConfig, physics_verdict, solids, steel_share  # noqa: E402
+
+IDENTITY = Calibration(np.eye(3), np.zeros(3), 0.0, 0)  # the tests' "camera" frame is the robot frame
+PLACE = [-0.05, -0.32, 0.10, math.pi, 0.0, 0.0]
+
+
+def block(cls: str, x: float, y: float, yaw: float, length: float, width: float, height: float) -> dict:
+    return {"class": cls, "point_camera_m": [x, y, height],
+            "solid": {"base_camera_m": [x, y, 0.0], "up_camera": [0, 0, 1], "axis_camera": [math.cos(yaw), math.sin(yaw), 0],
+                      "height": height, "length": length, "width": width}}
+
+
+def bearing(x: float, y: float, r_out: float = 0.038, r_in: float = 0.02, height: float = 0.035) -> dict:
+    return {"class": "bearing", "point_camera_m": [x, y, height],
+            "solid": {"base_camera_m": [x, y, 0.0], "up_camera": [0, 0, 1], "axis_camera": [1, 0, 0], "height": height,
+                      "r_out": r_out, "r_in": r_in}}
+
+
+def disk(x: float, y: float) -> dict:
+    return {"class": "disk", "point_camera_m": [x, y, 0.055],
+            "solid": {"base_camera_m": [x, y, 0.0], "up_camera": [0, 0, 1], "axis_camera": [1, 0, 0], "height": 0.055,
+                      "r_out": 0.13, "r_ring_in": 0.058, "ring_h": 0.025, "r_hat": 0.068, "r_bore": 0.032,
+                      "hat_h": 0.055}}
+
+
+def grasp(cls: str, x: float, y: float, z: float, closing_yaw: float = 0.0) -> dict:
+    """A chosen record: the TCP at (x, y, z), tool down, the fingers closing along CLOSING_YAW."""
+    return {"class": cls, "pose_robot": [x, y, z, math.pi * math.cos(closing_yaw / 2),
+                                         math.pi * math.sin(closing_yaw / 2), 0.0]}
+
+
+def verdict(record: dict, scene: list[dict], **cfg) -> dict:
+    return physics_verdict(record, scene, IDENTITY, PLACE, cfg=PhysicsConfig(**cfg) if cfg else None)
+
+
+@pytest.mark.parametrize("scene, record", [
+    ([block("adapter", 0.25, 0.0, 0.0, 0.062, 0.044, 0.036)], grasp("adapter", 0.25, 0.0, 0.036, math.pi / 2)),
+    ([block("box", 0.25, 0.05, 0.4, 0.16, 0.09, 0.08)], grasp("box", 0.25, 0.05, 0.08, 0.4 + math.pi / 2)),
+    ([bearing(0.25, 0.0)], grasp("bearing", 0.25, 0.0, 0.035)),
+    ([disk(0.25, 0.0)], grasp("disk", 0.25, 0.0, 0.055)),
+], ids=["adapter", "box", "bearing", "disk"])
+def test_a_centred_grasp_carries_each_class_to_the_place_pose(scene, record):
+    v = verdict(record, scene)
+    assert v["success"] and v["failure"] is None, v
+    assert v["lifted_m"] > 0.07 and v["ms"] > 0
+
+
+def test_a_jaw_centres_the_object_across_its_fingers_but_not_along_them():
+    scene = [block("adapter", 0.25, 0.0, 0.0, 0.062, 0.044, 0.036)]  # the jaw closes along y, across its 44 mm
+    assert verdict(grasp("adapter", 0.25, 0.015, 0.036, math.pi / 2), scene)["success"]  # 15 mm across: pushed centre
+    off_along = verdict(grasp("adapter", 0.25 + 0.045, 0.0, 0.036, math.pi / 2), scene)
+    assert not off_along["success"] and off_along["failure"] == "missed"  # 45 mm along: the pads miss its end
+
+
+def test_a_jaw_needs_the_object_to_fit_its_stroke():
+    wide = [block("box", 0.25, 0.0, 0.0, 0.20, 0.13, 0.08)]  # 130 mm across: over the RG2's 110 mm
+    v = verdict(grasp("box", 0.25, 0.0, 0.08, math.pi / 2), wide)
+    assert not v["success"] and v["failure"] in ("blocked", "too wide")
+    assert verdict(grasp("box", 0.25, 0.0, 0.08, math.pi / 2), wide, jaw_stroke_m=0.16)["success"]  # an RG6's stroke
+
+
+def test_a_jaw_grips_only_when_its_fingers_reach_down_the_sides():
+    scene = [block("adapter", 0.25, 0.0, 0.0, 0.062, 0.044, 0.036)]
+    high = verdict(grasp("adapter", 0.25, 0.0, 0.036 + 0.02, math.pi / 2), scene)  # 20 mm above: tips above the top
+    assert not high["success"] and high["failure"] == "missed"
+
+
+def test_a_magnet_holds_wherever_its_face_covers_enough_steel():
+    assert verdict(grasp("bearing", 0.25 + 0.02, 0.0, 0.035), [bearing(0.25, 0.0)])["success"]  # 20 mm off
+    assert not verdict(grasp("bearing", 0.25 + 0.09, 0.0, 0.035), [bearing(0.25, 0.0)])["success"]  # off the part
+    weak = verdict(grasp("bearing", 0.25, 0.0, 0.035), [bearing(0.25, 0.0)], magnet_force_n=2.0)
+    assert not weak["success"]  # 2 N at full cover: less than the bearing's weight
+
+
+def test_a_magnet_comes_down_its_spring_travel_until_it_touches():
+    scene = [bearing(0.25, 0.0)]
+    assert verdict(grasp("bearing", 0.25, 0.0, 0.035 + 0.008), scene)["success"]  # 8 mm high: within the 10 mm
+    high = verdict(grasp("bearing", 0.25, 0.0, 0.035 + 0.025), scene)  # 25 mm high: its face stops 15 mm above
+    assert not high["success"] and high["failure"] == "missed"
+    assert verdict(grasp("bearing", 0.25, 0.0, 0.035 + 0.015), scene, magnet_travel_m=0.002)["failure"] == "missed"
+
+
+def test_steel_share_is_the_pole_face_over_the_annulus():
+    (ring,) = solids([bearing(0.0, 0.0, r_out=0.04, r_in=0.02)], IDENTITY)
+    centre = np.array([0.0, 0.0, 0.035])
+    expected = (0.04 ** 2 - 0.02 ** 2) / 0.05 ** 2  # the whole annulus under a 50 mm pole face
+    assert abs(steel_share(ring, centre, 0.05, ring.base, ring.rotation) - expected) < 0.03
+    assert steel_share(ring, centre, 0.015, ring.base, ring.rotation) == 0.0  # a small face over the bore
+
+
+def test_a_neighbour_under_the_hand_blocks_the_descent():
+    scene = [bearing(0.25, 0.0), block("box", 0.25, 0.075, 0.0, 0.12, 0.08, 0.09)]  # a taller box 75 mm beside
+    v = verdict(grasp("bearing", 0.25, 0.0, 0.035), scene)
+    assert not v["success"] and v["failure"] == "blocked" and "box" in v["note"]
+
+
+def test_a_false_detection_is_judged_without_simulating():
+    v = verdict(grasp("disk", 0.25, 0.0, 0.05), [bearing(0.25, 0.0)])
+    assert v == {"success": False, "failure": "false detection", "lifted_m": 0.0, "ms": 0.0}
+
+
+def test_the_same_inputs_give_the_same_verdict():
+    scene = [block("box", 0.25, 0.05, 0.4, 0.16, 0.09, 0.08), bearing(0.2, -0.1)]
+    record = grasp("box", 0.252, 0.047, 0.081, 0.4 + math.pi / 2 + 0.1)
+    first, second = verdict(record, scene), verdict(record, scene)
+    assert {k: v for k, v in first.items() if k != "ms"} == {k: v for k, v in second.items() if k != "ms"}
+
+
+def test_physics_config_refuses_what_is_not_a_positive_number():
+    with pytest.raises(ParameterError, match="jaw_force_n=-1"):
+        PhysicsConfig(jaw_force_n=-1)
+
+
+def test_pick_gives_each_cycle_a_physics_verdict_after_its_commands(tmp_path):
+    import json
+
+    from tests.conftest import run_cli
+
+    proc = run_cli("pick", "--cycles", "3", "--verdict", "both", "--log", str(tmp_path / "log.jsonl"))
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["physics"]["success"] + sum(summary["physics"]["failures"].values()) == 3
+    for r in summary["results"]:
+        assert set(r["physics"]) >= {"success", "failure"} and "physics: " in proc.stderr
+        assert r["scene"]["lighting"] in ("ceiling", "ceiling+white", "single", "hazard")
+    refused = run_cli("pick", "--verdict", "physics", "--camera", "dir:" + str(tmp_path), "--model", "m.onnx",
+                      "--log", str(tmp_path / "other.jsonl"))
+    assert refused.returncode == 2 and refused.stderr.count("\n") == 1 and "--verdict physics" in refused.stderr
