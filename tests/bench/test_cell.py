@@ -74,6 +74,8 @@ def test_cell_physics_verdict_beside_the_geometric_one(tmp_path, capfd):
     import pytest
 
     pytest.importorskip("mujoco")
+    from edgepick.sim.physics import PHYSICS_FAILURES
+
     model = red_model(tmp_path / "red.onnx")
     assert run(["bench", str(model), "--cell", "6", "--verdict", "both", "--out", str(tmp_path / "out")]) == 0
     out, err = capfd.readouterr()
@@ -81,6 +83,7 @@ def test_cell_physics_verdict_beside_the_geometric_one(tmp_path, capfd):
     for r in rows:
         p = r["physics"]
         assert p["executions"] == 6 and p["success"] + sum(p["failures"].values()) == 6
+        assert set(p["failures"]) <= {*PHYSICS_FAILURES, "unreachable", "no object seen", "robot stopped"}
         for counts in r["disagreements"].values():  # each disagreement is a cycle one rule passed and one did not
             assert sum(counts.values()) <= 6
         assert sum(d["executions"] for d in r["by_lighting"].values()) == 6
