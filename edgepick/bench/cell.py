@@ -103,7 +103,8 @@ def disagreements(results: list[dict]) -> dict[str, dict[str, int]]:
 
 def by_lighting(results: list[dict]) -> dict[str, dict]:
     """Success per light condition of the scenes (thesis Table 5.3): executions, success, rate,
-    failures, and the physics check's where it ran."""
+    failures, the objects no grasp record found (robot/verdict.py undetected), and the physics
+    check's success where it ran."""
     out: dict[str, dict] = {}
     for light in dict.fromkeys(r.get("scene", {}).get("lighting") for r in results if "verdict" in r):
         if light is None:
@@ -111,7 +112,7 @@ def by_lighting(results: list[dict]) -> dict[str, dict]:
         these = [r for r in results if "verdict" in r and r.get("scene", {}).get("lighting") == light]
         s = summarize(these)
         out[light] = {"executions": len(these), "success": s["success"], "success_rate": s["success_rate"],
-                      "failures": s["failures"]}
+                      "failures": s["failures"], "undetected": sum(r.get("undetected", 0) for r in these)}
         if any("physics" in r for r in these):
             p = summarize(these, "physics")
             out[light].update(physics_success=p["success"], physics_success_rate=p["success_rate"])
@@ -184,13 +185,14 @@ def sections(rows: list[CellRow]) -> list[str]:
     physics = any(r.physics for r in rows)
     out = ["", "## By light condition (thesis Table 5.3)", "",
            "Grasp success (%) and executions per light condition of the scenes" +
-           (" (geometric / physics)" if physics else "") + ":", ""]
+           (" (geometric / physics)" if physics else "") + "; objects of the scenes no grasp record found:", ""]
 
     def cell(d: dict | None) -> str:
         if not d:
             return "-"
         text = f"{_pct(d['success_rate'])} ({d['success']}/{d['executions']})"
-        return text + (f" / {_pct(d['physics_success_rate'])}" if "physics_success_rate" in d else "")
+        text += f" / {_pct(d['physics_success_rate'])}" if "physics_success_rate" in d else ""
+        return text + f"; {d['undetected']} not found"
 
     out.append(markdown(["Mode", *lights], [[r.mode, *(cell(r.by_lighting.get(light)) for light in lights)]
                                             for r in rows]))

@@ -23,7 +23,7 @@ from edgepick.robot.envelope import Envelope
 from edgepick.robot.grippers import DigitalGripper, RG2Gripper
 from edgepick.robot.pick import CommandLog, PickConfig, Step, choose_target, execute
 from edgepick.robot.recording import PickCycle, Recorder, StepDone
-from edgepick.robot.verdict import judge, summarize
+from edgepick.robot.verdict import judge, summarize, undetected
 from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.grasp import draw_overlay
 from edgepick.runtime.pipeline import Pipeline
@@ -50,7 +50,8 @@ def judge_cycle(record: dict | None, seen: list[dict], frame: Frame, cfg: PickCo
         if not judged:
             return {}
         wanted = [r for r in seen if not cfg.classes or r["class"] in cfg.classes]
-        return {"verdict": {"success": False, "failure": "unreachable" if wanted else "no object seen"}}
+        return {"verdict": {"success": False, "failure": "unreachable" if wanted else "no object seen"},
+                "undetected": undetected(seen, frame.truth or [])}
     err = grasp_error_m(record, frame.truth)
     fields = {"grasp_error_m": None if err is None or math.isinf(err) else round(err, 4),
               "within_1cm": None if err is None else err <= SUCCESS_M}
@@ -58,6 +59,7 @@ def judge_cycle(record: dict | None, seen: list[dict], frame: Frame, cfg: PickCo
         fields["note"] = f"no {record['class']} in the scene's truth (false detection)"
     if judged:
         fields["verdict"] = judge(record, frame, truth_cal)
+        fields["undetected"] = undetected(seen, frame.truth or [])
     return fields
 
 

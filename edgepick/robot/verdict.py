@@ -75,6 +75,16 @@ def judge(record: dict, frame: Frame, truth_cal: Calibration) -> dict:
             "angle_error_deg": None if angle_error is None else round(angle_error, 1)}
 
 
+DETECTED_PX = 15.0  # a grasp record of an object's class this close to its true grasp pixel found it (17 mm at 0.7 m)
+
+
+def undetected(records: list[dict], truth: list[dict]) -> int:
+    """How many of the scene's objects no grasp record of their class found (within DETECTED_PX
+    of the true grasp pixel): objects the model missed, or that the grasp step could not separate."""
+    return sum(not any(r["class"] == t["class"] and math.dist(r["pixel"], t["pixel"]) <= DETECTED_PX for r in records)
+               for t in truth)
+
+
 def summarize(results: list[dict], key: str = "verdict") -> dict:
     """Grasp success over the judged cycles (the synthetic cell): count, rate and failures by kind,
     of the verdict under KEY ("verdict": the geometric rule; "physics": the physics check)."""

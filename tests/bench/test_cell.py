@@ -107,3 +107,5 @@ def test_cell_reports_success_per_light_condition_without_physics(tmp_path, capf
         lights = r["by_lighting"]
         assert sum(d["executions"] for d in lights.values()) == 4
         assert sum(d["success"] for d in lights.values()) == r["success"]
+        assert all(d["undetected"] >= 0 for d in lights.values())
+    assert sum(d["undetected"] for d in rows[0]["by_lighting"].values()) < 4  # true labels find almost everything

@@ -70,3 +70,15 @@ def test_pick_loop_judges_each_cycle_with_the_true_labels():
     assert len(verdicts) == 12 and all("verdict:" in line for line in lines)
     assert sum(v["success"] for v in verdicts) >= 6
     assert {v["failure"] for v in verdicts if not v["success"]} <= {"position", "orientation", "unreachable"}
+
+
+def test_undetected_counts_the_objects_no_record_of_their_class_found():
+    from edgepick.robot.verdict import undetected
+
+    truth = [{"class": "box", "pixel": [100, 100]}, {"class": "disk", "pixel": [300, 200]},
+             {"class": "box", "pixel": [500, 400]}]
+    records = [{"class": "box", "pixel": [104, 109]},  # 9.8 px: found
+               {"class": "bearing", "pixel": [300, 200]},  # the disk's pixel, another class: not found
+               {"class": "box", "pixel": [520, 400]}]  # 20 px off: not found
+    assert undetected(records, truth) == 2
+    assert undetected([], truth) == 3 and undetected(records, []) == 0
