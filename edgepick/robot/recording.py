@@ -34,7 +34,6 @@ from edgepick.robot.pick import Step
 from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.grasp import draw_overlay
 
-PROFILE = "edgepick"  # the MCAP header's profile
 JPEG_QUALITY = 90
 WORKER_NICE = 10  # the writer thread yields the CPU to the loop's inference when both want it
 BASE, CAMERA, TCP = "base", "camera", "tcp"  # the frames (docs/contracts.md#recordings)
@@ -103,7 +102,6 @@ class Recorder:
         self._file = os.fdopen(fd, "wb")
         self.writer = Writer(self._file)
         self.writer.add_metadata("edgepick", {k: v if isinstance(v, str) else json.dumps(v) for k, v in metadata.items()})
-        self.messages = 0  # written so far
         self.busy_s = 0.0  # the writer thread's time on encoding and writing (benchmarks/recording.py)
         self._camera_known = False
         self.first_ns: int | None = None  # the first frame's time
@@ -169,7 +167,6 @@ class Recorder:
         if message.DESCRIPTOR.fields_by_name.get("timestamp") is not None:
             message.timestamp.FromNanoseconds(time_ns)
         self.writer.write_message(topic, message, log_time=time_ns, publish_time=time_ns)
-        self.messages += 1
 
     def camera(self, frame: Frame, time_ns: int) -> None:
         """The frame's colour (JPEG), depth (16UC1, lossless) and intrinsics; the first frame's
@@ -188,23 +185,10 @@ class Recorder:
     def transform(self, cal: Calibration, time_ns: int, tcp: list[float] | None = None) -> None:
         """/tf: base -> camera (robot = R camera + t), and base -> tcp when given."""
         m = self.msgs.FrameTransforms()
-        camera = m.transforms.add(parent_frame_id=BASE, child_frame_id=CAMERA)
-        camera.timestamp.FromNanoseconds(time_ns)
-        camera.translation.x, camera.translation.y, camera.translation.z = (float(v) for v in cal.t)
-        q = quaternion(cal.R)
-        camera.rotation.x, camera.rotation.y, camera.rotation.z, camera.rotation.w = q
+        _add_transform(m, CAMERA, cal.t, cal.R, time_ns)
         if tcp is not None:
-            self._tcp_transform(m, tcp, time_ns)
+            _add_transform(m, TCP, tcp[:3], cv2.Rodrigues(np.asarray(tcp[3:6], np.float64))[0], time_ns)
         self.write("/tf", m, time_ns)
-
-    def _tcp_transform(self, m, tcp: list[float], time_ns: int) -> None:
-        pose = self.msgs.PoseInFrame()
-        set_pose(pose.pose, tcp)
-        entry = m.transforms.add(parent_frame_id=BASE, child_frame_id=TCP)
-        entry.timestamp.FromNanoseconds(time_ns)
-        entry.translation.x, entry.translation.y, entry.translation.z = (pose.pose.position.x, pose.pose.position.y,
-                                                                         pose.pose.position.z)
-        entry.rotation.CopyFrom(pose.pose.orientation)
 
     def pose(self, topic: str, pose: list[float], time_ns: int) -> None:
         message = self.msgs.PoseInFrame(frame_id=BASE)
@@ -243,7 +227,8 @@ class Recorder:
             if done.reported is not None:
                 self.pose("/robot/tcp", done.reported, done.time_ns)
                 tf = m.FrameTransforms()
-                self._tcp_transform(tf, done.reported, done.time_ns)
+                rotation = cv2.Rodrigues(np.asarray(done.reported[3:6], np.float64))[0]
+                _add_transform(tf, TCP, done.reported[:3], rotation, done.time_ns)
                 self.write("/tf", tf, done.time_ns)
         end_ns = max([plan_ns, *(d.time_ns for d in c.steps)])
         self.write("/pick/cycle", pick_cycle_message(m, c), end_ns)
@@ -280,6 +265,14 @@ class Recorder:
             self.log(f"fit: RMSE {cal.rmse_m * 1000:.2f} mm over {cal.n_pairs} pairs", time_ns)
 
         self.add(write)
+
+
+def _add_transform(m, child: str, translation, rotation: np.ndarray, time_ns: int) -> None:
+    """Append base -> CHILD (a translation and a 3x3 rotation) to a FrameTransforms message."""
+    entry = m.transforms.add(parent_frame_id=BASE, child_frame_id=child)
+    entry.timestamp.FromNanoseconds(time_ns)
+    entry.translation.x, entry.translation.y, entry.translation.z = (float(v) for v in translation)
+    entry.rotation.x, entry.rotation.y, entry.rotation.z, entry.rotation.w = quaternion(rotation)
 
 
 def camera_calibration(m, intr: Intrinsics):
