@@ -13,7 +13,7 @@ from edgepick.demo import run_demo
 from edgepick.errors import ConfigError
 from edgepick.files import atomic_write, check_output
 from edgepick.models.config import Arch, ColorSpace, OutputStride, Variant
-from edgepick.train.config import Device, TrainConfig
+from edgepick.train.config import Augment, Device, TrainConfig
 
 
 @click.command()
@@ -38,6 +38,10 @@ from edgepick.train.config import Device, TrainConfig
               help="FCN auxiliary head (weight 0.4).")
 @click.option("--keep-epochs", default="", help="Comma-separated epochs whose checkpoints are kept (hybrid-QaT switch points).")
 @click.option("--backbone-weights", default=None, type=click.Path(dir_okay=False), help="Backbone state dict to start from.")
+@click.option("--augment", default=default_of(TrainConfig, "augment"), show_default=True, type=choice(Augment),
+              help="basic: brightness, contrast, saturation and colour-cast jitter, flips, scale. lights: also "
+                   "relights about a third of the images by a dim room and one low red-orange lamp (not better "
+                   "under the synthetic hazard light than basic: benchmarks/results/lighting-augment/).")
 @with_options(epoch_subset)
 @click.option("--workers", default=default_of(TrainConfig, "workers"), show_default=True,
               help="Data loader workers; -1 = decode once into memory (4 workers on GPU when that does not fit).")
@@ -45,7 +49,7 @@ from edgepick.train.config import Device, TrainConfig
 @click.option("--resume", is_flag=True, help="Continue RUN from its last.pt (losing at most one epoch).")
 def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, batch_size: int, lr: float, device: str, size: str,
           colorspace: str, output_stride: str, aux_loss: bool, keep_epochs: str, backbone_weights: str | None,
-          epoch_images: int, val_images: int, workers: int, seed: int, resume: bool) -> None:
+          augment: str, epoch_images: int, val_images: int, workers: int, seed: int, resume: bool) -> None:
     """Train a float DeepLabV3 on DATA (CPU, one GPU with bf16 AMP, or DDP under torchrun).
 
     \b
@@ -76,7 +80,7 @@ def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, 
         cfg = TrainConfig(data=data_dir, out=out, arch=arch, variant=variant, batch_size=batch_size, lr=lr,
                           size=input_size, colorspace=colorspace, output_stride=int(output_stride), aux_loss=aux_loss,
                           device=device, keep_epochs=keep, backbone_weights=backbone_weights,
-                          epoch_images=epoch_images, val_images=val_images, workers=workers, seed=seed,
+                          epoch_images=epoch_images, val_images=val_images, workers=workers, seed=seed, augment=augment,
                           **({} if epochs is None else {"epochs": epochs}))
         Run(out).check_new()
         check_output(out, "--out", kind="dir", inputs=(data_dir,))

@@ -24,6 +24,14 @@ class Device(enum.StrEnum):
     CUDA = "cuda"
 
 
+class Augment(enum.StrEnum):
+    """Training-time augmentation: basic is photometric jitter, global colour casts, flips and scale;
+    lights adds images relit by a dim room and one low coloured lamp (the 'hazard' condition)."""
+
+    BASIC = "basic"
+    LIGHTS = "lights"
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """A training run's settings, each checked on creation (a list of keep_epochs is taken as a tuple)."""
@@ -48,11 +56,12 @@ class TrainConfig:
     workers: int = -1  # -1: in-memory cache (decoded up front on GPU); 4 workers on GPU if it does not fit
     seed: int = 0
     class_weighting: bool = True
+    augment: Augment = Augment.BASIC
 
     def __post_init__(self) -> None:
         check_size(self.size, "TrainConfig size")
         for name, kind in (("arch", Arch), ("variant", Variant), ("colorspace", ColorSpace), ("device", Device),
-                           ("output_stride", OutputStride)):
+                           ("output_stride", OutputStride), ("augment", Augment)):
             object.__setattr__(self, name, member(kind, name, getattr(self, name)))
         object.__setattr__(self, "data", str(self.data))
         object.__setattr__(self, "out", str(self.out))
@@ -105,7 +114,7 @@ class TrainConfig:
             where.fail(str(exc))
 
 
-CHOICES: dict[str, Any] = {kind.__name__: kind for kind in (Arch, Variant, ColorSpace, OutputStride, Device)}
+CHOICES: dict[str, Any] = {kind.__name__: kind for kind in (Arch, Variant, ColorSpace, OutputStride, Device, Augment)}
 
 
 def _typed(value: object, kind: str, where: Where) -> object:

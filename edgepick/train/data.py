@@ -65,9 +65,11 @@ def class_weights(ds: NativeDataset, num_classes: int, max_images: int = 200) ->
     return torch.tensor(w / w.mean(), dtype=torch.float32)
 
 
-def augment(img: torch.Tensor, mask: torch.Tensor, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+def augment(img: torch.Tensor, mask: torch.Tensor, gen: torch.Generator,
+            lights: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """Batch augmentation for the thesis's lighting conditions: photometric jitter, colour casts
-    (a hazard light turns metal red/orange), flips and a random scale with crop/pad.
+    (a hazard light turns metal red/orange), flips and a random scale with crop/pad; with LIGHTS,
+    a share of the images is also relit by a dim room and one low coloured lamp (`coloured_lamp`).
 
     img: float [N, 3, H, W] in [0, 255]; mask: long [N, H, W].
     """
@@ -87,6 +89,8 @@ def augment(img: torch.Tensor, mask: torch.Tensor, gen: torch.Generator) -> tupl
     red = (rand(n, 1, 1, 1) < 0.15).float()  # occasional strong warm cast
     cast = cast * (1 - red) + red * torch.tensor([1.3, 0.8, 0.55], device=dev).view(1, 3, 1, 1)
     img = (img * cast).clamp(0, 255)
+    if lights:
+        img = coloured_lamp(img, gen)
     flip_x = rand(n) < 0.5
     flip_y = rand(n) < 0.5
     img = torch.where(flip_x.view(n, 1, 1, 1), img.flip(3), img)
@@ -106,3 +110,34 @@ def augment(img: torch.Tensor, mask: torch.Tensor, gen: torch.Generator) -> tupl
             img = F.pad(img, (0, w - sw, 0, h - sh), value=0.0)
             mask = F.pad(mask, (0, w - sw, 0, h - sh), value=IGNORE)
     return img.contiguous(), mask.contiguous()
+
+
+LAMP_SHARE = 0.35  # share of a batch relit by `coloured_lamp`
+
+
+def coloured_lamp(img: torch.Tensor, gen: torch.Generator, share: float = LAMP_SHARE) -> torch.Tensor:
+    """Relight SHARE of the images as the 'hazard' scenes are lit: the room dimmed to 35-80% and a
+    red-orange lamp close to the table, whose light falls off from a random point of the frame.
+
+    A global colour cast cannot teach this: under such a lamp one side of an object is red and the
+    other lit by the dim room, and the colour changes across the frame. img: float [N, 3, H, W] in
+    [0, 255]."""
+    n, _, h, w = img.shape
+    dev = img.device
+
+    def rand(*shape: int) -> torch.Tensor:
+        return torch.rand(*shape, generator=gen).to(dev)
+
+    chosen = rand(n, 1, 1, 1) < share
+    room = 0.35 + 0.45 * rand(n, 1, 1, 1)
+    # render.py's hazard lamp is (1, 0.25-0.5, 0-0.08); where it saturates red the frame turns
+    # yellow, so green and blue are drawn wider
+    colour = torch.cat([torch.ones(n, 1, 1, 1, device=dev), 0.25 + 0.55 * rand(n, 1, 1, 1),
+                        0.35 * rand(n, 1, 1, 1)], 1)
+    cy, cx = (rand(n) * h).view(n, 1, 1, 1), (rand(n) * w).view(n, 1, 1, 1)
+    sigma = ((0.2 + 0.4 * rand(n)) * max(h, w)).view(n, 1, 1, 1)
+    yy = torch.arange(h, device=dev, dtype=img.dtype).view(1, 1, h, 1)
+    xx = torch.arange(w, device=dev, dtype=img.dtype).view(1, 1, 1, w)
+    spot = (1.0 + 1.5 * rand(n, 1, 1, 1)) * torch.exp(-((yy - cy) ** 2 + (xx - cx) ** 2) / (2 * sigma ** 2))
+    lit = (img * (room + spot * colour)).clamp(0, 255)
+    return torch.where(chosen, lit, img)

@@ -34,7 +34,7 @@ from edgepick.models.config import ModelConfig
 from edgepick.models.deeplabv3 import DeepLabV3, build_model, load_backbone_weights
 from edgepick.progress import progress as progress_bar
 from edgepick.train.checkpoint import Checkpoint
-from edgepick.train.config import TrainConfig, check_world
+from edgepick.train.config import Augment, TrainConfig, check_world
 from edgepick.train.data import IGNORE, augment, class_weights
 from edgepick.train.run import EpochRecord, Run, TrainResult
 from edgepick.train.setup import device_for, dist_env, log, logits, make_loaders, validate
@@ -226,7 +226,7 @@ def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, st
         for img, mask in bar:
             x = img.to(device, non_blocking=True).permute(0, 3, 1, 2).float()
             y = mask.to(device, non_blocking=True).long()
-            x, y = augment(x, y, gen)
+            x, y = augment(x, y, gen, lights=cfg.augment == Augment.LIGHTS)
             if cuda:
                 x = x.contiguous(memory_format=torch.channels_last)
             with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):

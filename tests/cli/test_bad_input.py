@@ -72,6 +72,7 @@ CASES = [
     (["frobnicate"], "No such command"),
     (["train"], "Missing argument 'DATA'"),
     (["train", "{D}", "--out", "{W}/r", "--lr", "abc"], "'abc' is not a valid float"),
+    (["train", "{D}", "--out", "{W}/r", "--augment", "hazard"], "'hazard' is not one of 'basic', 'lights'"),
     (["data", "preview", "{D}", "--out", "{W}/p.png", "--split", "dev"], "'dev' is not one of"),
     # data
     (["data", "synth", "{W}/s", "--seed", "-1"], "--seed -1"),

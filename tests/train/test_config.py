@@ -11,7 +11,7 @@ import pytest
 from edgepick.errors import ParameterError
 from edgepick.models.config import Arch, OutputStride
 from edgepick.schema import FileContentError, Where
-from edgepick.train.config import Device, TrainConfig, check_world
+from edgepick.train.config import Augment, Device, TrainConfig, check_world
 
 
 def test_a_config_is_frozen_and_takes_a_list_of_kept_epochs_as_a_tuple():
@@ -35,6 +35,7 @@ def test_a_config_is_frozen_and_takes_a_list_of_kept_epochs_as_a_tuple():
     ({"arch": "vgg"}, "arch='vgg': must be one of mobilenetv3, resnet50, resnet101"),
     ({"device": "tpu"}, "device='tpu': must be one of auto, cpu, cuda"),
     ({"output_stride": 4}, "output_stride=4: must be one of 8, 16"),
+    ({"augment": "hazard"}, "augment='hazard': must be one of basic, lights"),
 ])
 def test_a_bad_value_is_refused_on_creation_naming_the_parameter(change, message):
     with pytest.raises(ParameterError) as info:
@@ -64,3 +65,10 @@ def test_epoch_images_is_for_single_process_runs():
     check_world(cfg, 1)
     with pytest.raises(ParameterError, match=r"epoch_images=100 is for single-process runs"):
         check_world(cfg, 2)
+
+
+def test_a_run_recorded_before_augment_was_a_setting_reads_as_basic():
+    recorded = TrainConfig(data="d", out="r", augment="lights").to_dict()
+    assert recorded["augment"] == "lights" and TrainConfig.from_dict(recorded).augment is Augment.LIGHTS
+    del recorded["augment"]
+    assert TrainConfig.from_dict(recorded).augment is Augment.BASIC

@@ -131,11 +131,13 @@ def test_bad_input_is_one_line_and_exit_2(args, needle, small_data, tmp_path):
 
 
 def test_epoch_and_val_subsets(small_data, tmp_path):
-    """--epoch-images draws that many train images per epoch; --val-images scores that many."""
+    """--epoch-images draws that many train images per epoch; --val-images scores that many
+    (with the lamp augmentation, which the run records)."""
     from edgepick.train.loop import TrainConfig, train
 
     run = tmp_path / "run"
     train(TrainConfig(data=str(small_data), out=str(run), epochs=2, batch_size=4, size=Size(96, 64), device="cpu",
-                      epoch_images=8, val_images=3), progress=False)
+                      epoch_images=8, val_images=3, augment="lights"), progress=False)
     history = json.loads((run / "metrics.json").read_text())["history"]
     assert [(h["images"], h["val_images"]) for h in history] == [(8, 3), (8, 3)]
+    assert Checkpoint.load(run / "last.pt").train_config.augment == "lights"
