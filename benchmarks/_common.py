@@ -22,7 +22,7 @@ def untrained_checkpoint(path: Path, size, classes: list[str], variant: str = "s
     not depend on the weights, so speed benchmarks need no training run. SIZE: the model input, a Size."""
     import torch
 
-    from edgepick.models.deeplabv3 import ModelConfig, build_model
+    from edgepick.models import ModelConfig, build_model
     from edgepick.train.checkpoint import Checkpoint
 
     torch.manual_seed(0)

@@ -19,10 +19,12 @@ from edgepick.train.config import Augment, Device, TrainConfig
 @click.command()
 @click.argument("data_dir", metavar="DATA", type=click.Path())
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="RUN folder for checkpoints and metrics.")
-@click.option("--arch", default=default_of(TrainConfig, "arch"), show_default=True, type=choice(Arch))
+@click.option("--arch", default=default_of(TrainConfig, "arch"), show_default=True, type=choice(Arch),
+              help="The model family and its backbone (thesis Table 5.4: segnet, fcn-resnet101, unet, deeplabv3-*; "
+                   "and lraspp-mobilenetv3, ddrnet23-slim for laptop CPUs).")
 @click.option("--variant", default=default_of(TrainConfig, "variant"), show_default=True, type=choice(Variant),
-              help="edge: MobileNetV3 without SE and hardswish, 128-channel ASPP (quantization-friendly; not "
-                   "torchvision-compatible).")
+              help="edge (the MobileNetV3 architectures): MobileNetV3 without SE and hardswish, 128-channel ASPP "
+                   "(quantization-friendly; not torchvision-compatible).")
 @click.option("--epochs", default=None, type=int,
               help=f"Epoch budget [default: {default_of(TrainConfig, 'epochs')}; on --resume: the run's own].")
 @click.option("--batch-size", default=default_of(TrainConfig, "batch_size"), show_default=True)
@@ -37,7 +39,8 @@ from edgepick.train.config import Augment, Device, TrainConfig
 @click.option("--aux-loss/--no-aux-loss", default=default_of(TrainConfig, "aux_loss"), show_default=True,
               help="FCN auxiliary head (weight 0.4).")
 @click.option("--keep-epochs", default="", help="Comma-separated epochs whose checkpoints are kept (hybrid-QaT switch points).")
-@click.option("--backbone-weights", default=None, type=click.Path(dir_okay=False), help="Backbone state dict to start from.")
+@click.option("--backbone-weights", default=None, type=click.Path(dir_okay=False),
+              help="Backbone state dict to start from (the architectures with a MobileNetV3 or ResNet backbone).")
 @click.option("--augment", default=default_of(TrainConfig, "augment"), show_default=True, type=choice(Augment),
               help="basic: brightness, contrast, saturation and colour-cast jitter, flips, scale. lights: also "
                    "relights about a third of the images by a dim room and one low red-orange lamp (not better "
@@ -50,7 +53,7 @@ from edgepick.train.config import Augment, Device, TrainConfig
 def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, batch_size: int, lr: float, device: str, size: str,
           colorspace: str, output_stride: str, aux_loss: bool, keep_epochs: str, backbone_weights: str | None,
           augment: str, epoch_images: int, val_images: int, workers: int, seed: int, resume: bool) -> None:
-    """Train a float DeepLabV3 on DATA (CPU, one GPU with bf16 AMP, or DDP under torchrun).
+    """Train a float segmentation model on DATA (CPU, one GPU with bf16 AMP, or DDP under torchrun).
 
     \b
     RUN holds, after each epoch:

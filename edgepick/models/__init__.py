@@ -1,32 +1,45 @@
-"""DeepLabV3 models (torch). Builders follow torchvision's names and state-dict keys.
+"""Segmentation model families (torch): DeepLabV3, LR-ASPP, FCN, U-Net, SegNet, DDRNet. Builders
+follow torchvision's names and state-dict keys where torchvision has the model.
 
 The config and its choices (edgepick.models.config) import without torch; the model classes and
-builders are loaded from edgepick.models.deeplabv3 when first asked for."""
+builders are loaded from edgepick.models.zoo when first asked for."""
 
 from typing import TYPE_CHECKING
 
 from edgepick.models.config import Arch, ColorSpace, ModelConfig, OutputStride, Variant
 
-_TORCH = {"DeepLabV3", "LogitsNet", "build_model", "deeplabv3_mobilenet_v3_large", "deeplabv3_resnet50",
-          "deeplabv3_resnet101"}
+_TORCH = {"LogitsNet", "build_model", "load_backbone_weights", "deeplabv3_mobilenet_v3_large", "deeplabv3_resnet50",
+          "deeplabv3_resnet101", "lraspp_mobilenet_v3_large", "fcn_resnet50", "fcn_resnet101", "unet", "segnet",
+          "ddrnet23_slim"}
 
-__all__ = ["Arch", "ColorSpace", "DeepLabV3", "LogitsNet", "ModelConfig", "OutputStride", "Variant", "build_model",
-           "deeplabv3_mobilenet_v3_large", "deeplabv3_resnet50", "deeplabv3_resnet101"]
+__all__ = ["Arch", "ColorSpace", "LogitsNet", "ModelConfig", "OutputStride", "Variant", "build_model",
+           "ddrnet23_slim", "deeplabv3_mobilenet_v3_large", "deeplabv3_resnet50", "deeplabv3_resnet101",
+           "fcn_resnet50", "fcn_resnet101", "load_backbone_weights", "lraspp_mobilenet_v3_large", "segnet", "unet"]
 
 if TYPE_CHECKING:
-    from edgepick.models.deeplabv3 import (
-        DeepLabV3,
-        LogitsNet,
+    from edgepick.models.blocks import LogitsNet
+    from edgepick.models.zoo import (
         build_model,
+        ddrnet23_slim,
         deeplabv3_mobilenet_v3_large,
         deeplabv3_resnet50,
         deeplabv3_resnet101,
+        fcn_resnet50,
+        fcn_resnet101,
+        load_backbone_weights,
+        lraspp_mobilenet_v3_large,
+        segnet,
+        unet,
     )
 
 
 def __getattr__(name: str) -> object:
-    if name in _TORCH:
-        from edgepick.models import deeplabv3
+    if name == "LogitsNet":
+        from edgepick.models.blocks import LogitsNet
 
-        return getattr(deeplabv3, name)
+        return LogitsNet
+    if name in _TORCH:
+        from edgepick.models import zoo
+
+        return getattr(zoo, name)
     raise AttributeError(f"module 'edgepick.models' has no attribute {name!r}")

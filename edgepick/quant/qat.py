@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from edgepick.errors import CheckpointError
-from edgepick.models.deeplabv3 import build_model
+from edgepick.models.zoo import build_model
 from edgepick.quant.config import FREEZE_AT, QuantConfig
 from edgepick.quant.graph import PREFIX, calibrate, prepare
 from edgepick.quant.quantizer import PercentileObserver

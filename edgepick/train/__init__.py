@@ -1,4 +1,4 @@
-"""Float training of DeepLabV3 (CPU, one GPU, or DDP under torchrun) and the run folder it writes.
+"""Float training of a segmentation model (CPU, one GPU, or DDP under torchrun) and the run folder it writes.
 
     from edgepick import Size
     from edgepick.train import TrainConfig, train

@@ -8,12 +8,14 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from torch import nn
 
 from edgepick.errors import CheckpointError, ConfigError
 from edgepick.files import atomic_path
 from edgepick.geometry import Size, check_size
+from edgepick.models.blocks import NORMALISATION
 from edgepick.models.config import Arch, ColorSpace, ModelConfig, Variant
-from edgepick.models.deeplabv3 import NORMALISATION, DeepLabV3, build_model
+from edgepick.models.zoo import build_model
 from edgepick.schema import Where, as_dict, as_list, as_names, as_number, as_numbers, as_str
 from edgepick.schema import field as required_field
 from edgepick.train.config import TrainConfig
@@ -94,7 +96,7 @@ class Checkpoint:
             raise CheckpointError(f"{path} is not an edgepick checkpoint")
         return replace(_checked(d, Where(str(path))), path=path)
 
-    def build_model(self) -> DeepLabV3:
+    def build_model(self) -> nn.Module:
         """The float model of this checkpoint, in eval mode."""
         if self.is_qat:
             raise CheckpointError(f"{self.path} is a QaT checkpoint; use the int8 ONNX its quantize command wrote")
@@ -106,7 +108,7 @@ class Checkpoint:
         return model.eval()
 
 
-def load_model(path: str | Path) -> tuple[DeepLabV3, Checkpoint]:
+def load_model(path: str | Path) -> tuple[nn.Module, Checkpoint]:
     """The float model of a checkpoint (or RUN folder) in eval mode, and the checkpoint."""
     ckpt = Checkpoint.load(path)
     return ckpt.build_model(), ckpt
@@ -119,7 +121,7 @@ def check_model_config(value: object, where: Where) -> ModelConfig:
     if unknown:
         where.fail(f"has unknown fields {', '.join(map(str, unknown))}")
     checked: dict[str, Any] = {
-        "arch": as_str(required_field(mc, "arch", where), where.at("arch"), tuple(Arch)),
+        "arch": _arch(required_field(mc, "arch", where), where.at("arch")),
         "num_classes": as_number(required_field(mc, "num_classes", where), where.at("num_classes"), integer=True,
                                  minimum=2, maximum=255),
         "output_stride": as_number(mc.get("output_stride", 16), where.at("output_stride"), integer=True),
@@ -132,6 +134,15 @@ def check_model_config(value: object, where: Where) -> ModelConfig:
         return ModelConfig(**checked)
     except ConfigError as exc:
         where.fail(str(exc))
+
+
+def _arch(value: object, where: Where) -> Arch:
+    """A recorded architecture, the names of runs made before there were several families included."""
+    name = as_str(value, where)
+    try:
+        return Arch(name)
+    except ValueError:
+        where.fail(f"must be one of {', '.join(Arch)}, got {name!r}")
 
 
 def _flag(value: object, where: Where) -> bool:

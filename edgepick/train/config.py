@@ -38,7 +38,7 @@ class TrainConfig:
 
     data: str
     out: str
-    arch: Arch = Arch.MOBILENETV3
+    arch: Arch = Arch.DEEPLABV3_MOBILENETV3
     variant: Variant = Variant.STANDARD
     epochs: int = 100
     batch_size: int = 8
@@ -138,7 +138,11 @@ def _typed(value: object, kind: str, where: Where) -> object:
             if number not in tuple(choices):
                 where.fail(f"must be one of {', '.join(str(m.value) for m in choices)}, got {number!r}")
             return choices(number)
-        return choices(as_str(value, where, tuple(choices)))
+        text = as_str(value, where)
+        try:
+            return choices(text)  # Arch also takes the names recorded before there were several families
+        except ValueError:
+            where.fail(f"must be one of {', '.join(choices)}, got {text!r}")
     if kind == "Size":
         return Size.from_hw(as_numbers(value, where, 2, integer=True, minimum=1))
     if kind == "tuple[int, ...]":

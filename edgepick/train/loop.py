@@ -24,6 +24,7 @@ import numpy as np
 import torch
 import torch.distributed as dist
 import torch.nn.functional as F
+from torch import nn
 
 from edgepick.data.native import NativeDataset
 from edgepick.errors import CheckpointError, ConfigError, ParameterError
@@ -31,7 +32,7 @@ from edgepick.files import made_by, mark
 from edgepick.geometry import Size
 from edgepick.metrics import segmentation_metrics
 from edgepick.models.config import ModelConfig
-from edgepick.models.deeplabv3 import DeepLabV3, build_model, load_backbone_weights
+from edgepick.models.zoo import build_model, load_backbone_weights
 from edgepick.progress import progress as progress_bar
 from edgepick.train.checkpoint import Checkpoint
 from edgepick.train.config import Augment, TrainConfig, check_world
@@ -70,7 +71,7 @@ def model_config(cfg: TrainConfig, classes: list[str]) -> ModelConfig:
     return ModelConfig(cfg.arch, len(classes), cfg.output_stride, cfg.colorspace, cfg.aux_loss, variant=cfg.variant)
 
 
-def new_model(cfg: TrainConfig, start: Checkpoint | None = None) -> DeepLabV3:
+def new_model(cfg: TrainConfig, start: Checkpoint | None = None) -> nn.Module:
     """The float model a run begins with: fresh (seeded with cfg.seed, cfg.backbone_weights if
     given), or the weights of START, a checkpoint the run continues (a float run's epoch_NNN.pt)."""
     classes = NativeDataset.open(cfg.data, "train").classes  # validates the layout before anything is written
@@ -89,7 +90,7 @@ def new_model(cfg: TrainConfig, start: Checkpoint | None = None) -> DeepLabV3:
 
 
 def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> TrainResult:
-    """Train a float DeepLabV3 on a native data set (resume: continue cfg.out from its last.pt, see
+    """Train a float segmentation model on a native data set (resume: continue cfg.out from its last.pt, see
     resume_run); returns the final summary."""
     if resume:
         return resume_run(cfg.out, cfg.data, cfg.epochs, progress)

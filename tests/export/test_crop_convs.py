@@ -121,7 +121,7 @@ def test_int8_export_crops_aspp_and_keeps_labels(small_data: Path, tmp_path: Pat
     import torch
 
     from edgepick.export.checks import conv_weight_report
-    from edgepick.models.deeplabv3 import ModelConfig, build_model
+    from edgepick.models import ModelConfig, build_model
     from edgepick.quant.passes import agreement_images, folder_images, quantize_static
     from edgepick.train.checkpoint import Checkpoint
 

@@ -115,7 +115,7 @@ def test_int8_export_of_the_standard_model_has_no_float_activations(small_data, 
 
     import torch
 
-    from edgepick.models.deeplabv3 import ModelConfig, build_model
+    from edgepick.models import ModelConfig, build_model
     from edgepick.quant.passes import agreement_images, folder_images, quantize_static
     from edgepick.train.checkpoint import Checkpoint
 

@@ -8,7 +8,8 @@ import torch
 
 from edgepick.errors import ConfigError
 from edgepick.models import ModelConfig, build_model, deeplabv3_mobilenet_v3_large, deeplabv3_resnet50, deeplabv3_resnet101
-from edgepick.models.deeplabv3 import load_backbone_weights, rgb_to_hsv
+from edgepick.models.blocks import rgb_to_hsv
+from edgepick.models.zoo import load_backbone_weights
 
 FIXTURE = Path(__file__).parent / "fixtures" / "torchvision_deeplabv3_keys.json"
 BUILDERS = {"deeplabv3_mobilenet_v3_large": deeplabv3_mobilenet_v3_large, "deeplabv3_resnet50": deeplabv3_resnet50,

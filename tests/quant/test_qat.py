@@ -88,7 +88,7 @@ def test_qat_graph_keeps_the_models_batchnorm_eps(after):
     import torch
     from torchao.quantization.pt2e import disable_fake_quant, disable_observer
 
-    from edgepick.models.deeplabv3 import LogitsNet, ModelConfig, build_model
+    from edgepick.models import LogitsNet, ModelConfig, build_model
     from edgepick.quant.graph import prepare
     from edgepick.quant.qat import to_eval
     from edgepick.quant.quantizer import QuantConfig
@@ -118,7 +118,7 @@ def test_qat_graph_keeps_the_models_batchnorm_eps(after):
 
 def test_weight_range_averaging_reaches_the_fake_quants():
     """--weight-averaging 1.0: each QaT step quantizes the weights with that step's own range."""
-    from edgepick.models.deeplabv3 import ModelConfig, build_model
+    from edgepick.models import ModelConfig, build_model
     from edgepick.quant.graph import prepare
     from edgepick.quant.quantizer import QuantConfig
 
@@ -199,7 +199,7 @@ def test_no_fake_quant_learns_from_training_dropout():
     2x range and deploy the head conv's input at half the resolution. The conv reads the grid before it."""
     from torchao.quantization.pt2e import FakeQuantizeBase
 
-    from edgepick.models.deeplabv3 import ModelConfig, build_model
+    from edgepick.models import ModelConfig, build_model
     from edgepick.quant.graph import prepare
     from edgepick.quant.quantizer import QuantConfig
 
@@ -214,7 +214,7 @@ def test_no_fake_quant_learns_from_training_dropout():
 def test_qat_state_loads_only_into_the_graph_it_came_from():
     """A QaT checkpoint loads into a freshly prepared graph; an entry the graph does not have (a fake-quant
     more, or a foreign weight) is an error, not silently dropped."""
-    from edgepick.models.deeplabv3 import ModelConfig, build_model
+    from edgepick.models import ModelConfig, build_model
     from edgepick.quant.graph import prepare
     from edgepick.quant.qat import load_qat_state
     from edgepick.quant.quantizer import QuantConfig
@@ -234,7 +234,7 @@ def test_eval_copy_is_an_exact_eval_graph():
 
     from torchao.quantization.pt2e import disable_observer
 
-    from edgepick.models.deeplabv3 import ModelConfig, build_model
+    from edgepick.models import ModelConfig, build_model
     from edgepick.quant.graph import prepare
     from edgepick.quant.qat import eval_copy, to_eval
     from edgepick.quant.quantizer import QuantConfig
@@ -263,7 +263,7 @@ def test_eval_copy_is_an_exact_eval_graph():
 
 def test_hybrid_qat_continues_with_the_float_runs_optimizer_moments(trained_run):
     """Hybrid-QaT's fake-quant graph gets the AdamW moments of the float checkpoint it starts from."""
-    from edgepick.models.deeplabv3 import build_model
+    from edgepick.models import build_model
     from edgepick.quant.graph import prepare
     from edgepick.quant.quantizer import QuantConfig
     from edgepick.train.loop import carry_optimizer_state

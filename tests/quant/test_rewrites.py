@@ -11,7 +11,7 @@ def test_gated_hardswish_is_the_same_function_and_quantizes_both_halves():
     hardsigmoid and a mul (both with their own uint8 grid) where it saw one hardswish."""
     import torch
 
-    from edgepick.models.deeplabv3 import ModelConfig, build_model
+    from edgepick.models import ModelConfig, build_model
     from edgepick.quant.graph import prepare
     from edgepick.quant.quantizer import QuantConfig
     from edgepick.quant.rewrites import GatedHardswish, gate_hardswish

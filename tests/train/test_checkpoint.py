@@ -67,7 +67,7 @@ def test_any_mutated_description_reads_or_is_one_line(tmp_path, ckpt):
     ({"input_size": [36, 44]}, "44x36 (WIDTHxHEIGHT) must have sides that are multiples of 8"),
     ({"input_size": [96.5, 128]}, "input_size[0] must be a whole number"),
     ({"classes": "abc"}, "classes must be a list"),
-    ({"model_config": {**GOOD["model_config"], "arch": "unet"}}, "model_config.arch must be one of"),
+    ({"model_config": {**GOOD["model_config"], "arch": "vgg"}}, "model_config.arch must be one of"),
     ({"model": [1]}, "model must be a state dict"),
     ({"colorspace": "rgb"}, "has unknown fields colorspace"),
     ({"train_config": {**GOOD["train_config"], "quant": {}}}, "train_config has unknown fields quant"),
@@ -101,11 +101,11 @@ def test_a_saved_checkpoint_holds_plain_values_that_read_back_as_the_configs(tmp
     from edgepick.train.config import TrainConfig
 
     tc = TrainConfig(data="d", out="r", epochs=10, size=Size(128, 96), keep_epochs=[9], device="cpu", output_stride=8)
-    ckpt = Checkpoint(model_config=ModelConfig("resnet50", 3, 8, "hsv"), classes=("background", "a", "b"),
+    ckpt = Checkpoint(model_config=ModelConfig("deeplabv3-resnet50", 3, 8, "hsv"), classes=("background", "a", "b"),
                       input_size=Size(128, 96), model=dict(GOOD["model"]), train_config=tc)
     ckpt.save(tmp_path / "c.pt")
     d = torch.load(tmp_path / "c.pt", weights_only=True)
-    assert d["model_config"]["arch"] == "resnet50" and type(d["model_config"]["arch"]) is str
+    assert d["model_config"]["arch"] == "deeplabv3-resnet50" and type(d["model_config"]["arch"]) is str
     assert type(d["train_config"]["device"]) is str and type(d["train_config"]["output_stride"]) is int
     assert d["train_config"]["keep_epochs"] == [9] and d["train_config"]["size"] == [96, 128]
     again = Checkpoint.load(tmp_path / "c.pt")

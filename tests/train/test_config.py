@@ -32,7 +32,8 @@ def test_a_config_is_frozen_and_takes_a_list_of_kept_epochs_as_a_tuple():
     ({"seed": -1}, "seed=-1: must be 0 or positive"),
     ({"workers": -2}, "workers=-2: must be -1"),
     ({"epochs": 2, "keep_epochs": [2, 5]}, "keep_epochs=5: not an epoch of this run's budget (1..2)"),
-    ({"arch": "vgg"}, "arch='vgg': must be one of mobilenetv3, resnet50, resnet101"),
+    ({"arch": "vgg"}, "arch='vgg': must be one of deeplabv3-mobilenetv3, deeplabv3-resnet50, deeplabv3-resnet101, "
+                          "lraspp-mobilenetv3, fcn-resnet50, fcn-resnet101, unet, segnet, ddrnet23-slim"),
     ({"device": "tpu"}, "device='tpu': must be one of auto, cpu, cuda"),
     ({"output_stride": 4}, "output_stride=4: must be one of 8, 16"),
     ({"augment": "hazard"}, "augment='hazard': must be one of basic, lights"),
@@ -45,12 +46,12 @@ def test_a_bad_value_is_refused_on_creation_naming_the_parameter(change, message
 
 
 def test_what_a_checkpoint_records_is_plain_and_reads_back_equal():
-    cfg = TrainConfig(data="d", out="r", arch="resnet50", keep_epochs=[3], device=Device.CUDA)
+    cfg = TrainConfig(data="d", out="r", arch="deeplabv3-resnet50", keep_epochs=[3], device=Device.CUDA)
     recorded = cfg.to_dict()
-    assert recorded["arch"] == "resnet50" and type(recorded["arch"]) is str and type(recorded["output_stride"]) is int
+    assert recorded["arch"] == "deeplabv3-resnet50" and type(recorded["arch"]) is str and type(recorded["output_stride"]) is int
     assert recorded["keep_epochs"] == [3] and json.loads(json.dumps(recorded))["device"] == "cuda"
     again = TrainConfig.from_dict(recorded)
-    assert again == cfg and again.arch is Arch.RESNET50
+    assert again == cfg and again.arch is Arch.DEEPLABV3_RESNET50
 
 
 def test_a_recorded_value_out_of_range_is_one_line_naming_the_file():
@@ -65,6 +66,12 @@ def test_epoch_images_is_for_single_process_runs():
     check_world(cfg, 1)
     with pytest.raises(ParameterError, match=r"epoch_images=100 is for single-process runs"):
         check_world(cfg, 2)
+
+
+def test_a_run_recorded_before_there_were_several_families_reads_as_deeplabv3():
+    recorded = TrainConfig(data="d", out="r").to_dict()
+    for old, arch in (("mobilenetv3", Arch.DEEPLABV3_MOBILENETV3), ("resnet101", Arch.DEEPLABV3_RESNET101)):
+        assert TrainConfig.from_dict({**recorded, "arch": old}).arch is arch
 
 
 def test_a_run_recorded_before_augment_was_a_setting_reads_as_basic():

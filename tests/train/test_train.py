@@ -52,7 +52,7 @@ def test_checkpoints_carry_their_config(trained_run):
     ckpt = Checkpoint.load(trained_run / "best.pt")
     assert ckpt.classes == ("background", "bearing", "disk", "adapter", "box")
     assert ckpt.input_size == Size(128, 96)
-    assert ckpt.colorspace == "rgb" and ckpt.model_config.arch == "mobilenetv3"
+    assert ckpt.colorspace == "rgb" and ckpt.model_config.arch == "deeplabv3-mobilenetv3"
     assert ckpt.normalisation["mean"] == (0.485, 0.456, 0.406)
     assert (trained_run / "last.pt").is_file() and (trained_run / "epoch_002.pt").is_file()
     assert Checkpoint.load(trained_run / "epoch_002.pt").epoch == 2
