@@ -1,0 +1,241 @@
+"""Thesis Table 5.4 for today: every model family trained with one recipe and the same seeds,
+quantized (static PTQ and hybrid-QaT 5%) and judged on what an edge deployment needs.
+
+    python benchmarks/table54.py --quick              # 2-core CPU: 160x120 runs of 6 families (see SETTINGS)
+    python benchmarks/table54.py --setting gpu        # the thesis's scale: 640x480, 100 epochs, all 9 (one GPU)
+    python benchmarks/table54.py --setting smoke      # the script's plumbing in minutes; its figures mean nothing
+
+Per architecture: parameters and GFLOPs at 640x480; fp32 test mIoU and pixel accuracy as mean and
+range over the seeds; the test mIoU drop of static int8 and of hybrid-QaT 5% (mean over the
+seeds); fp32 and int8 p50 at 640x480 on 2 threads on onnxruntime and OpenVINO (seed 0's weights
+exported at 640x480, the four timed in alternating blocks in one process); the int8 file's size;
+grasp success over CELL executions in the synthetic cell (seed 0's int8 file at its training size,
+the same cycles for every architecture). --work DIR keeps the runs, and a rerun resumes after the
+last finished step. Writes benchmarks/results/table54/<date>-<machine>-<setting>.md and .png.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import statistics
+import sys
+import tempfile
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from _common import RESULTS, interleaved_times, machine_line  # noqa: E402
+
+from edgepick.bench.cell import run_cell  # noqa: E402
+from edgepick.bench.machine import machine_slug, results_file  # noqa: E402
+from edgepick.bench.report import draw_axes, markdown  # noqa: E402
+from edgepick.data.synth import SynthConfig, synthesize  # noqa: E402
+from edgepick.evaluation import evaluate  # noqa: E402
+from edgepick.export.onnx_export import export_checkpoint  # noqa: E402
+from edgepick.geometry import Size  # noqa: E402
+from edgepick.models.config import Arch  # noqa: E402
+from edgepick.quant.passes import folder_images, quantize_hybrid, quantize_static  # noqa: E402
+from edgepick.runtime.engine import Engine  # noqa: E402
+from edgepick.runtime.session import Segmenter  # noqa: E402
+from edgepick.train.checkpoint import Checkpoint  # noqa: E402
+from edgepick.train.loop import TrainConfig, train  # noqa: E402
+
+THESIS = ("segnet", "fcn-resnet101", "unet", "deeplabv3-mobilenetv3")  # Table 5.4's four, in its order
+FRAME = Size(640, 480)
+QAT_FRACTION = 0.05
+
+
+@dataclass(frozen=True)
+class Setting:
+    """A scale of the study. Hybrid-QaT 5% needs 11 epochs or more: 5% of fewer rounds to none."""
+
+    name: str
+    archs: tuple[str, ...]
+    splits: tuple[int, int, int]  # train, val, test scenes
+    data_size: Size
+    size: Size  # the models' input while training
+    epochs: int
+    batch: int
+    seeds: tuple[int, ...]
+    cell: int  # cell executions per architecture
+    runs: int  # timed inferences per file at 640x480
+    device: str = "auto"
+
+
+SETTINGS = {s.name: s for s in (
+    Setting("smoke", ("lraspp-mobilenetv3", "ddrnet23-slim"), (12, 4, 4), Size(128, 96), Size(64, 48), 11, 4, (0, 1),
+            4, 3, "cpu"),
+    # the ResNet-101 models take minutes per epoch on 2 cores: the quick setting has FCN on ResNet-50
+    Setting("quick", ("segnet", "fcn-resnet50", "unet", "deeplabv3-mobilenetv3", "lraspp-mobilenetv3", "ddrnet23-slim"),
+            (240, 40, 40), Size(320, 240), Size(160, 120), 12, 8, (0, 1, 2), 50, 20, "cpu"),
+    Setting("gpu", tuple(a.value for a in Arch), (4000, 1000, 100), FRAME, FRAME, 100, 16, (0, 1, 2), 50, 20, "cuda"),
+)}
+
+
+def step(path: Path, make) -> dict:
+    """The JSON record at PATH, made by MAKE() the first time (a rerun of the script resumes)."""
+    if not path.is_file():
+        tmp = path.with_suffix(".partial")
+        tmp.write_text(json.dumps(make()))
+        os.replace(tmp, path)
+    return json.loads(path.read_text())
+
+
+def train_and_quantize(work: Path, s: Setting, arch: str, seed: int, data: Path, echo) -> dict:
+    """One run: float training, static int8, hybrid-QaT 5%; each scored on the test split."""
+    here = work / arch / f"seed{seed}"
+    here.mkdir(parents=True, exist_ok=True)
+    switch = round((1 - QAT_FRACTION) * s.epochs)
+
+    def float_run() -> dict:
+        echo(f"table54: train {arch} seed {seed}")
+        shutil.rmtree(here / "run", ignore_errors=True)
+        result = train(TrainConfig(data=str(data), out=str(here / "run"), arch=arch, epochs=s.epochs,
+                                   batch_size=s.batch, size=s.size, lr=2e-3, device=s.device, seed=seed,
+                                   keep_epochs=(switch,)), progress=False)
+        return {"train_s": result.train_time_s}
+
+    def scored(make_file) -> dict:
+        record = make_file()
+        score = evaluate(record["out"], data, "test", progress=False)
+        return {**record, "miou": score["miou"], "pixel_acc": score["pixel_acc"]}
+
+    out = {"float": step(here / "float.json", float_run)}
+    out["fp32"] = step(here / "fp32.json", lambda: scored(
+        lambda: export_checkpoint(here / "run", here / "fp32.onnx").to_dict()))
+    out["static"] = step(here / "static.json", lambda: scored(
+        lambda: quantize_static(here / "run", folder_images(data), here / "static.onnx", progress=False).to_dict()))
+    out["hybrid"] = step(here / "hybrid.json", lambda: scored(
+        lambda: quantize_hybrid(here / "run", data, here / "hybrid.onnx", QAT_FRACTION, qat_run=here / "qat",
+                                progress=False, device=s.device).to_dict()))
+    return out
+
+
+def size_and_speed(work: Path, s: Setting, arch: str, data: Path, echo) -> dict:
+    """Parameters, GFLOPs, and fp32/int8 p50 at 640x480 on both engines, of seed 0's weights."""
+    import torch
+    from torch.utils.flop_counter import FlopCounterMode
+
+    here = work / arch / "frame"
+    here.mkdir(parents=True, exist_ok=True)
+    echo(f"table54: {arch} at {FRAME}")
+    ckpt = Checkpoint.load(work / arch / f"seed{s.seeds[0]}" / "run" / "best.pt")
+    big = replace(ckpt, input_size=FRAME)
+    big.save(here / "frame.pt")
+    model = big.build_model().eval()
+    params = sum(p.numel() for p in model.parameters())
+    with torch.no_grad(), FlopCounterMode(display=False) as flops:
+        model(torch.zeros(1, 3, *FRAME.hw))
+    files = {"fp32": export_checkpoint(here / "frame.pt", here / "fp32.onnx").out,
+             "int8": quantize_static(here / "frame.pt", folder_images(data), here / "int8.onnx", progress=False).out}
+    rgb = cv2.resize(folder_images(data, "test", count=1)[0], (FRAME.width, FRAME.height))
+    timed, names = [], []
+    for engine in (Engine.ONNXRUNTIME, Engine.OPENVINO):
+        for precision, path in files.items():
+            seg = Segmenter(path, threads=2, engine=engine)
+            image = seg.prepare(rgb)
+            for _ in range(3):
+                seg.infer(image)
+            timed.append(lambda i, seg=seg, image=image: seg.infer(image))
+            names.append(f"{precision} {engine}")
+    times = interleaved_times(timed, s.runs)
+    return {"params_m": params / 1e6, "gflops": flops.get_total_flops() / 1e9,
+            "int8_mb": Path(files["int8"]).stat().st_size / 1e6,
+            "p50_ms": {n: float(np.median(t)) for n, t in zip(names, times)}}
+
+
+def plot(rows: list[dict], path: Path) -> None:
+    """Grasp success against the int8 p50 on onnxruntime at 640x480, one labelled point per architecture."""
+    img = np.full((520, 800, 3), 255, np.uint8)
+    xs = [r["speed"]["p50_ms"]["int8 onnxruntime"] for r in rows]
+    top = max(xs) * 1.15
+    xticks = [float(v) for v in np.linspace(0, top, 6)]
+    px = draw_axes(img, (80, 770, 40, 460), (0.0, top), (0.0, 100.0), xticks, [0.0, 25.0, 50.0, 75.0, 100.0],
+                   ("{:.0f}", "{:.0f}"), ("int8 p50 at 640x480, onnxruntime, 2 threads (ms)", "grasp success (%)"))
+    for r, x in zip(rows, xs):
+        p = px(x, 100 * r["cell"])
+        cv2.circle(img, p, 5, (200, 60, 20), -1)
+        cv2.putText(img, r["arch"], (p[0] + 7, p[1] - 7), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.imwrite(str(path), img)
+
+
+def spread(values: list[float]) -> str:
+    mean = 100 * statistics.fmean(values)
+    return f"{mean:.2f} ({100 * min(values):.2f}-{100 * max(values):.2f})" if len(values) > 1 else f"{mean:.2f}"
+
+
+def report(s: Setting, rows: list[dict], command: str, truth: float, png: str) -> str:
+    head = ["Architecture", "Params (M)", "GFLOPs 640x480", "fp32 mIoU (%)", "fp32 pixel acc (%)",
+            "static drop (pp)", "hybrid 5% drop (pp)", "fp32 / int8 p50 ORT (ms)", "fp32 / int8 p50 OV (ms)",
+            "int8 size (MB)", f"grasp success, {s.cell} (%)"]
+    body = []
+    for r in rows:
+        fp32 = [x["fp32"]["miou"] for x in r["seeds"]]
+        drop = {m: 100 * statistics.fmean(x["fp32"]["miou"] - x[m]["miou"] for x in r["seeds"]) for m in ("static", "hybrid")}
+        p = r["speed"]["p50_ms"]
+        body.append([r["arch"], f"{r['speed']['params_m']:.2f}", f"{r['speed']['gflops']:.1f}", spread(fp32),
+                     spread([x["fp32"]["pixel_acc"] for x in r["seeds"]]), f"{drop['static']:+.2f}",
+                     f"{drop['hybrid']:+.2f}", f"{p['fp32 onnxruntime']:.1f} / {p['int8 onnxruntime']:.1f}",
+                     f"{p['fp32 openvino']:.1f} / {p['int8 openvino']:.1f}", f"{r['speed']['int8_mb']:.2f}",
+                     f"{100 * r['cell']:.0f}"])
+    return (f"# Table 5.4 extended ({s.name} setting)\n\nCommand: `{command}`\n\n{machine_line()}\n\n"
+            f"- data: `edgepick data synth` of {sum(s.splits)} scenes at {s.data_size} (train/val/test "
+            f"{'/'.join(map(str, s.splits))}, seed 11); every run {s.epochs} epochs at {s.size}, batch {s.batch}, "
+            f"AdamW lr 2e-3, seeds {', '.join(map(str, s.seeds))}; the thesis trained each for 100 epochs at 640x480\n"
+            "- GFLOPs: floating-point operations of one 640x480 inference, a multiply-add counting 2 (torch's "
+            "FlopCounterMode)\n"
+            "- mIoU and pixel accuracy: the test split, mean over the seeds and their range; a difference inside "
+            "the range is not a result\n"
+            "- drops: fp32 minus int8 test mIoU, mean over the seeds (static: percentile, 64 images; hybrid: the "
+            f"last {QAT_FRACTION:.0%} of the epochs QaT)\n"
+            "- p50: seed 0's weights exported at 640x480 (static int8 calibrated on the same images), 2 threads, "
+            f"{s.runs} timed runs each in alternating blocks\n"
+            f"- grasp success: seed 0's static int8 file in the synthetic cell (seed 0 scenes), {s.cell} "
+            f"executions; the scenes' true labels: {100 * truth:.0f}%\n\n"
+            + markdown(head, body) + f"\n\n![success against latency]({png})\n")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--setting", default="quick", choices=sorted(SETTINGS))
+    ap.add_argument("--quick", action="store_true", help="same as --setting quick")
+    ap.add_argument("--work", default=None, help="work folder, kept and resumed (default: a fresh one, removed)")
+    ap.add_argument("--out", default=None, help="write the report here instead of benchmarks/results/table54/")
+    args = ap.parse_args()
+    s = SETTINGS["quick" if args.quick else args.setting]
+    work = Path(args.work or tempfile.mkdtemp(prefix="table54-"))
+    echo = lambda line: print(line, file=sys.stderr, flush=True)  # noqa: E731
+    data = work / "data"
+    if not (data / "meta.json").is_file():
+        echo(f"table54: synthetic data, {sum(s.splits)} scenes")
+        shutil.rmtree(data, ignore_errors=True)
+        synthesize(data, SynthConfig(scenes=sum(s.splits), width=s.data_size.width, height=s.data_size.height,
+                                     seed=11, splits=s.splits), progress=False)
+    rows = []
+    for arch in s.archs:
+        seeds = [train_and_quantize(work, s, arch, seed, data, echo) for seed in s.seeds]
+        speed = step(work / arch / "speed.json", lambda arch=arch: size_and_speed(work, s, arch, data, echo))
+        rows.append({"arch": arch, "seeds": seeds, "speed": speed})
+    echo(f"table54: the cell, {s.cell} executions per architecture")
+    files = [str(work / r["arch"] / f"seed{s.seeds[0]}" / "static.onnx") for r in rows]
+    cell = run_cell(files, s.cell, work / "cell", progress=echo)["rows"]
+    for r, c in zip(rows, cell[1:]):
+        r["cell"] = c["success_rate"]
+    command = f"python benchmarks/table54.py --setting {s.name}"
+    md = Path(args.out) if args.out else results_file(RESULTS, "table54", f"{machine_slug()}-{s.name}")
+    md.parent.mkdir(parents=True, exist_ok=True)
+    plot(rows, md.with_suffix(".png"))
+    md.write_text(report(s, rows, command, cell[0]["success_rate"], md.with_suffix(".png").name))
+    print(md.read_text())
+    if not args.work:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
