@@ -125,7 +125,7 @@ def size_and_speed(work: Path, s: Setting, arch: str, data: Path, echo) -> dict:
     here = work / arch / "frame"
     here.mkdir(parents=True, exist_ok=True)
     echo(f"table54: {arch} at {FRAME}")
-    ckpt = Checkpoint.load(work / arch / f"seed{s.seeds[0]}" / "run" / "best.pt")
+    ckpt = Checkpoint.load(work / arch / f"seed{s.seeds[0]}" / "run")  # its best epoch
     big = replace(ckpt, input_size=FRAME)
     big.save(here / "frame.pt")
     model = big.build_model().eval()
