@@ -14,8 +14,7 @@
 # The runs are shorter than the reference recipe (EPOCHS x EPOCH_IMAGES images instead of 45 x 4000).
 # TRAIN_SECONDS stops the training where a job has a time limit: the files are then made from each
 # run's best epoch so far. Run the same command again (same WORK) to resume the runs from their
-# last.pt and make the files again. On one H100 the four runs, sharing it, train for 6-7 minutes
-# (benchmarks/results/lighting-augment/).
+# last.pt and make the files again (training times: benchmarks/results/lighting-augment/).
 set -euo pipefail
 work=${1:?usage: lighting_gpu.sh WORK OUT}
 out=${2:?usage: lighting_gpu.sh WORK OUT}
