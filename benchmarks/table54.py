@@ -1,7 +1,7 @@
 """Thesis Table 5.4 for today: every model family trained with one recipe and the same seeds,
 quantized (static PTQ and hybrid-QaT 5%) and judged on what an edge deployment needs.
 
-    python benchmarks/table54.py --quick              # 2-core CPU: 160x120 runs of 6 families (see SETTINGS)
+    python benchmarks/table54.py --quick              # 2-core CPU, about an hour: 96x72 runs of 6 families
     python benchmarks/table54.py --setting gpu        # the thesis's scale: 640x480, 100 epochs, all 9 (one GPU)
     python benchmarks/table54.py --setting smoke      # the script's plumbing in minutes; its figures mean nothing
 
@@ -23,6 +23,7 @@ import shutil
 import statistics
 import sys
 import tempfile
+import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -66,25 +67,50 @@ class Setting:
     cell: int  # cell executions per architecture
     runs: int  # timed inferences per file at 640x480
     device: str = "auto"
+    epoch_images: int = 0  # 0: an epoch is the whole train split; N: N train images drawn afresh per epoch
+    val_images: int = 0  # 0: validate on the whole val split each epoch; N: on N of its images
+    frame_calib: int = 64  # calibration images of the 640x480 files that are only timed
+    warmup: int = 3  # untimed inferences per file before the timed ones
 
 
 SETTINGS = {s.name: s for s in (
     Setting("smoke", ("lraspp-mobilenetv3", "ddrnet23-slim"), (12, 4, 4), Size(128, 96), Size(64, 48), 11, 4, (0, 1),
             4, 3, "cpu"),
-    # the ResNet-101 models take minutes per epoch on 2 cores: the quick setting has FCN on ResNet-50
-    Setting("quick", ("segnet", "fcn-resnet50", "unet", "deeplabv3-mobilenetv3", "lraspp-mobilenetv3", "ddrnet23-slim"),
-            (240, 40, 40), Size(320, 240), Size(160, 120), 12, 8, (0, 1, 2), 50, 20, "cpu"),
+    # about an hour of 2 cores (the result file gives the sum of the steps' times): at 96x72 a batch
+    # of 8 costs SegNet, U-Net and FCN-ResNet101 about 2 s, the MobileNet and DDRNet models 0.2-0.4 s;
+    # each run's export and int8 passes add 1-3 min (about half of the whole), and timing the big
+    # three at 640x480 2-6 min each, which leaves training 12 epochs of 32 images
+    Setting("quick", ("segnet", "fcn-resnet101", "unet", "deeplabv3-mobilenetv3", "lraspp-mobilenetv3",
+                      "ddrnet23-slim"), (240, 32, 32), Size(192, 144), Size(96, 72), 12, 8, (0, 1, 2), 50, 5, "cpu",
+            epoch_images=32, val_images=16, frame_calib=8, warmup=1),
     Setting("gpu", tuple(a.value for a in Arch), (4000, 1000, 100), FRAME, FRAME, 100, 16, (0, 1, 2), 50, 20, "cuda"),
 )}
 
 
 def step(path: Path, make) -> dict:
-    """The JSON record at PATH, made by MAKE() the first time (a rerun of the script resumes)."""
+    """The JSON record at PATH, made by MAKE() the first time (a rerun of the script resumes), with
+    the seconds it took as "step_s"."""
     if not path.is_file():
+        started = time.monotonic()
+        record = make()
         tmp = path.with_suffix(".partial")
-        tmp.write_text(json.dumps(make()))
+        tmp.write_text(json.dumps({**record, "step_s": round(time.monotonic() - started, 2)}))
         os.replace(tmp, path)
     return json.loads(path.read_text())
+
+
+def claim_work(work: Path, s: Setting) -> None:
+    """Make WORK this script's folder for setting S, or exit with one line: a folder it did not make
+    (nothing of it is removed) or one that holds another setting's steps is refused."""
+    marker = work / "table54.json"
+    if marker.is_file():
+        held = json.loads(marker.read_text())["setting"]
+        if held != s.name:
+            sys.exit(f"table54: error: --work {work} holds the {held} setting's steps, not {s.name}'s")
+    elif work.is_dir() and any(work.iterdir()):
+        sys.exit(f"table54: error: --work {work} is a folder this script did not make; name a new or empty one")
+    work.mkdir(parents=True, exist_ok=True)
+    marker.write_text(json.dumps({"setting": s.name}))
 
 
 def train_and_quantize(work: Path, s: Setting, arch: str, seed: int, data: Path, echo) -> dict:
@@ -98,7 +124,8 @@ def train_and_quantize(work: Path, s: Setting, arch: str, seed: int, data: Path,
         shutil.rmtree(here / "run", ignore_errors=True)
         result = train(TrainConfig(data=str(data), out=str(here / "run"), arch=arch, epochs=s.epochs,
                                    batch_size=s.batch, size=s.size, lr=2e-3, device=s.device, seed=seed,
-                                   keep_epochs=(switch,)), progress=False)
+                                   keep_epochs=(switch,), epoch_images=s.epoch_images,
+                                   val_images=s.val_images), progress=False)
         return {"train_s": result.train_time_s}
 
     def scored(make_file) -> dict:
@@ -133,14 +160,15 @@ def size_and_speed(work: Path, s: Setting, arch: str, data: Path, echo) -> dict:
     with torch.no_grad(), FlopCounterMode(display=False) as flops:
         model(torch.zeros(1, 3, *FRAME.hw))
     files = {"fp32": export_checkpoint(here / "frame.pt", here / "fp32.onnx").out,
-             "int8": quantize_static(here / "frame.pt", folder_images(data), here / "int8.onnx", progress=False).out}
+             "int8": quantize_static(here / "frame.pt", folder_images(data, count=min(s.frame_calib, s.splits[0])),
+                                     here / "int8.onnx", progress=False).out}
     rgb = cv2.resize(folder_images(data, "test", count=1)[0], (FRAME.width, FRAME.height))
     timed, names = [], []
     for engine in (Engine.ONNXRUNTIME, Engine.OPENVINO):
         for precision, path in files.items():
             seg = Segmenter(path, threads=2, engine=engine)
             image = seg.prepare(rgb)
-            for _ in range(3):
+            for _ in range(s.warmup):
                 seg.infer(image)
             timed.append(lambda i, seg=seg, image=image: seg.infer(image))
             names.append(f"{precision} {engine}")
@@ -170,7 +198,7 @@ def spread(values: list[float]) -> str:
     return f"{mean:.2f} ({100 * min(values):.2f}-{100 * max(values):.2f})" if len(values) > 1 else f"{mean:.2f}"
 
 
-def report(s: Setting, rows: list[dict], command: str, truth: float, png: str) -> str:
+def report(s: Setting, rows: list[dict], command: str, truth: float, png: str, minutes: float) -> str:
     head = ["Architecture", "Params (M)", "GFLOPs 640x480", "fp32 mIoU (%)", "fp32 pixel acc (%)",
             "static drop (pp)", "hybrid 5% drop (pp)", "fp32 / int8 p50 ORT (ms)", "fp32 / int8 p50 OV (ms)",
             "int8 size (MB)", f"grasp success, {s.cell} (%)"]
@@ -184,9 +212,13 @@ def report(s: Setting, rows: list[dict], command: str, truth: float, png: str) -
                      f"{drop['hybrid']:+.2f}", f"{p['fp32 onnxruntime']:.1f} / {p['int8 onnxruntime']:.1f}",
                      f"{p['fp32 openvino']:.1f} / {p['int8 openvino']:.1f}", f"{r['speed']['int8_mb']:.2f}",
                      f"{100 * r['cell']:.0f}"])
+    epoch = f" of {s.epoch_images} train images drawn afresh" if s.epoch_images else ""
+    calib = min(s.frame_calib, s.splits[0])
     return (f"# Table 5.4 extended ({s.name} setting)\n\nCommand: `{command}`\n\n{machine_line()}\n\n"
+            f"Time: {minutes:.0f} min, the sum of every step's (data set, training, passes, timing, cell): "
+            "the same whether the steps ran in one go or were resumed from --work.\n\n"
             f"- data: `edgepick data synth` of {sum(s.splits)} scenes at {s.data_size} (train/val/test "
-            f"{'/'.join(map(str, s.splits))}, seed 11); every run {s.epochs} epochs at {s.size}, batch {s.batch}, "
+            f"{'/'.join(map(str, s.splits))}, seed 11); every run {s.epochs} epochs{epoch} at {s.size}, batch {s.batch}, "
             f"AdamW lr 2e-3, seeds {', '.join(map(str, s.seeds))}; the thesis trained each for 100 epochs at 640x480\n"
             "- GFLOPs: floating-point operations of one 640x480 inference, a multiply-add counting 2 (torch's "
             "FlopCounterMode)\n"
@@ -194,7 +226,7 @@ def report(s: Setting, rows: list[dict], command: str, truth: float, png: str) -
             "the range is not a result\n"
             "- drops: fp32 minus int8 test mIoU, mean over the seeds (static: percentile, 64 images; hybrid: the "
             f"last {QAT_FRACTION:.0%} of the epochs QaT)\n"
-            "- p50: seed 0's weights exported at 640x480 (static int8 calibrated on the same images), 2 threads, "
+            f"- p50: seed 0's weights exported at 640x480 (static int8 calibrated on {calib} train images), 2 threads, "
             f"{s.runs} timed runs each in alternating blocks\n"
             f"- grasp success: seed 0's static int8 file in the synthetic cell (seed 0 scenes), {s.cell} "
             f"executions; the scenes' true labels: {100 * truth:.0f}%\n\n"
@@ -210,28 +242,40 @@ def main() -> None:
     args = ap.parse_args()
     s = SETTINGS["quick" if args.quick else args.setting]
     work = Path(args.work or tempfile.mkdtemp(prefix="table54-"))
+    claim_work(work, s)
     echo = lambda line: print(line, file=sys.stderr, flush=True)  # noqa: E731
     data = work / "data"
-    if not (data / "meta.json").is_file():
+
+    def synth() -> dict:
         echo(f"table54: synthetic data, {sum(s.splits)} scenes")
         shutil.rmtree(data, ignore_errors=True)
         synthesize(data, SynthConfig(scenes=sum(s.splits), width=s.data_size.width, height=s.data_size.height,
                                      seed=11, splits=s.splits), progress=False)
+        return {"scenes": sum(s.splits)}
+
+    steps = [step(work / "data.json", synth)]
     rows = []
     for arch in s.archs:
         seeds = [train_and_quantize(work, s, arch, seed, data, echo) for seed in s.seeds]
         speed = step(work / arch / "speed.json", lambda arch=arch: size_and_speed(work, s, arch, data, echo))
         rows.append({"arch": arch, "seeds": seeds, "speed": speed})
-    echo(f"table54: the cell, {s.cell} executions per architecture")
-    files = [str(work / r["arch"] / f"seed{s.seeds[0]}" / "static.onnx") for r in rows]
-    cell = run_cell(files, s.cell, work / "cell", progress=echo)["rows"]
-    for r, c in zip(rows, cell[1:]):
-        r["cell"] = c["success_rate"]
+        steps += [speed, *(record for seed in seeds for record in seed.values())]
+
+    def cell_rates() -> dict:
+        echo(f"table54: the cell, {s.cell} executions per architecture")
+        files = [str(work / r["arch"] / f"seed{s.seeds[0]}" / "static.onnx") for r in rows]
+        return {"rates": [c["success_rate"] for c in run_cell(files, s.cell, work / "cell", progress=echo)["rows"]]}
+
+    cell = step(work / "cell.step.json", cell_rates)
+    steps.append(cell)
+    for r, rate in zip(rows, cell["rates"][1:]):
+        r["cell"] = rate
     command = f"python benchmarks/table54.py --setting {s.name}"
     md = Path(args.out) if args.out else results_file(RESULTS, "table54", f"{machine_slug()}-{s.name}")
     md.parent.mkdir(parents=True, exist_ok=True)
     plot(rows, md.with_suffix(".png"))
-    md.write_text(report(s, rows, command, cell[0]["success_rate"], md.with_suffix(".png").name))
+    minutes = sum(record["step_s"] for record in steps) / 60
+    md.write_text(report(s, rows, command, cell["rates"][0], md.with_suffix(".png").name, minutes))
     print(md.read_text())
     if not args.work:
         shutil.rmtree(work, ignore_errors=True)

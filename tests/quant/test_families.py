@@ -1,8 +1,9 @@
 """Every model family through edgepick's passes (models/zoo.py): trained briefly by edgepick's own
 loop, exported in fp32 and as static int8 with every conv int8, the int8 file's labels agreeing
 with torch's simulation of it, and both files run by the runtime like any edgepick model.
-DeepLabV3 takes the same paths in test_passes.py; the ResNet-101 families differ from the
-ResNet-50 ones in their block count only."""
+DeepLabV3 on MobileNetV3 takes the same paths in test_passes.py. The two ResNet-101 families are
+the documented exceptions: they differ from the ResNet-50 ones in their block count only (the
+same modules, so the same quantizer patterns; models/test_zoo.py builds and trains them)."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from edgepick.quant.passes import folder_images, quantize_static
 from edgepick.runtime.session import Segmenter
 from edgepick.train.loop import TrainConfig, train
 
-FAMILIES = ["lraspp-mobilenetv3", "fcn-resnet50", "unet", "segnet", "ddrnet23-slim"]
+FAMILIES = ["lraspp-mobilenetv3", "fcn-resnet50", "deeplabv3-resnet50", "unet", "segnet", "ddrnet23-slim"]
 
 
 @pytest.mark.parametrize("arch", FAMILIES)
