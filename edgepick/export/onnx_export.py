@@ -157,11 +157,8 @@ def _write(net: nn.Module, example: tuple, path: str | Path, metadata: dict, pas
     with atomic_path(path) as tmp:
         with warnings.catch_warnings(), torch.no_grad():
             warnings.simplefilter("ignore")
-            quantized = _is_quantized(net)
             program = torch.onnx.export(net, example, dynamo=True, opset_version=OPSET, input_names=input_names,
-                                        output_names=output_names, verbose=False, optimize=not quantized)
-            if quantized:
-                _optimize_without_rewrites(program)
+                                        output_names=output_names, verbose=False, optimize=True)
         model = program.model_proto
         strip_debug_info(model)
         for name in passes:
@@ -174,40 +171,6 @@ def _write(net: nn.Module, example: tuple, path: str | Path, metadata: dict, pas
         onnx.save(model, tmp)
         onnx.checker.check_model(tmp, full_check=True)
     return path
-
-
-def _is_quantized(net: nn.Module) -> bool:
-    """Whether NET holds a pt2e-converted graph (quantize/dequantize ops)."""
-    return any(isinstance(m, torch.fx.GraphModule) and any(
-        n.op == "call_function" and "quantized_decomposed" in str(n.target) for n in m.graph.nodes)
-        for m in net.modules())
-
-
-def _optimize_without_rewrites(program: Any) -> None:
-    """What `torch.onnx.export(optimize=True)` runs on the exported graph (onnxscript's constant
-    folding and clean-up passes), without its pattern rewrites. On a converted int8 graph those
-    rewrites find nothing to change (every family's int8 export: the same ops and the same outputs
-    with and without them), yet matching their patterns against each QDQ node costs a quarter to a
-    third of the export; the float export keeps them (they fold BatchNorm into the convs). With an
-    onnxscript too old to have these passes (before onnx_ir), the whole optimizer runs."""
-    try:
-        import onnx_ir as ir
-        from onnx_ir.passes import common
-        from onnxscript.optimizer import fold_constants
-    except ImportError:
-        program.optimize()
-        return
-    model = program.model
-    common.InlinePass()(model)
-    prune = ir.passes.Sequential(common.RemoveUnusedNodesPass(), common.RemoveUnusedFunctionsPass(),
-                                 common.RemoveUnusedOpsetsPass())
-    for _ in range(2):  # optimize_ir's loop: until nothing changes, at most twice
-        if not (fold_constants(model).modified | prune(model).modified):
-            break
-    ir.passes.Sequential(
-        common.RemoveUnusedNodesPass(), common.LiftConstantsToInitializersPass(lift_all_constants=True, size_limit=0),
-        common.LiftSubgraphInitializersToMainGraphPass(), common.DeduplicateInitializersPass(),
-        common.CommonSubexpressionEliminationPass(), common.OutputFixPass(), common.NameFixPass())(model)
 
 
 def export_checkpoint(checkpoint: str | Path, out: str | Path) -> ExportResult:
