@@ -8,7 +8,7 @@ quantized (static PTQ and hybrid-QaT 5%) and judged on what an edge deployment n
 Per architecture: parameters and GFLOPs at 640x480; fp32 test mIoU and pixel accuracy as mean and
 range over the seeds; the test mIoU drop of static int8 and of hybrid-QaT 5% (mean over the
 seeds); fp32 and int8 p50 at 640x480 on 2 threads on onnxruntime and OpenVINO (seed 0's weights
-exported at 640x480, the four timed in alternating blocks in one process); the int8 file's size;
+exported at 640x480, the four timed in turn in one process, in blocks of up to 5); the int8 file's size;
 grasp success over CELL executions in the synthetic cell (seed 0's int8 file at its training size,
 the same cycles for every architecture). --work DIR keeps the runs, and a rerun resumes after the
 last finished step. Writes benchmarks/results/table54/<date>-<machine>-<setting>.md and .png.
@@ -41,6 +41,7 @@ from edgepick.evaluation import evaluate  # noqa: E402
 from edgepick.export.onnx_export import export_checkpoint  # noqa: E402
 from edgepick.geometry import Size  # noqa: E402
 from edgepick.models.config import Arch  # noqa: E402
+from edgepick.quant.config import DEFAULT_CALIB_IMAGES  # noqa: E402
 from edgepick.quant.passes import folder_images, quantize_hybrid, quantize_static  # noqa: E402
 from edgepick.runtime.engine import Engine  # noqa: E402
 from edgepick.runtime.session import Segmenter  # noqa: E402
@@ -223,6 +224,7 @@ def report(s: Setting, rows: list[dict], command: str, truth: float, png: str, m
                      f"{100 * r['cell']:.0f}"])
     epoch = f" of {s.epoch_images} train images drawn afresh" if s.epoch_images else ""
     calib = min(s.frame_calib, s.splits[0])
+    static_calib = min(DEFAULT_CALIB_IMAGES, s.splits[0])  # quantize_static's default over the train split
     return (f"# Table 5.4 extended ({s.name} setting)\n\nCommand: `{command}`\n\n{machine_line()}\n\n"
             f"Time: {minutes:.0f} min, the sum of every step's (data set, training, passes, timing, cell): "
             "the same whether the steps ran in one go or were resumed from --work.\n\n"
@@ -233,10 +235,11 @@ def report(s: Setting, rows: list[dict], command: str, truth: float, png: str, m
             "FlopCounterMode)\n"
             "- mIoU and pixel accuracy: the test split, mean over the seeds and their range; a difference inside "
             "the range is not a result\n"
-            "- drops: fp32 minus int8 test mIoU, mean over the seeds (static: percentile, 64 images; hybrid: the "
+            f"- drops: fp32 minus int8 test mIoU, mean over the seeds (static: percentile, {static_calib} images; "
+            "hybrid: the "
             f"last {QAT_FRACTION:.0%} of the epochs QaT)\n"
             f"- p50: seed 0's weights exported at 640x480 (static int8 calibrated on {calib} train images), 2 threads, "
-            f"{s.runs} timed runs each in alternating blocks\n"
+            f"{s.runs} timed runs each, the four files taken in turn in blocks of up to 5, each after an untimed call\n"
             f"- grasp success: seed 0's static int8 file in the synthetic cell (seed 0 scenes), {s.cell} "
             f"executions; the scenes' true labels: {100 * truth:.0f}%\n\n"
             + markdown(head, body) + f"\n\n![success against latency]({png})\n")
