@@ -55,6 +55,17 @@ def percentiles(runs: list[Perception]) -> dict[str, tuple[float, float]]:
     return {k: (float(np.percentile(v, 50)), float(np.percentile(v, 95))) for k, v in series.items()}
 
 
+def by_objects(runs: list[Perception]) -> dict[int, tuple[int, float, float, float]]:
+    """Per count of records in a frame: (frames, median object pixels, grasp p50, grasp p95 ms)."""
+    table = {}
+    for n in sorted({len(r.records) for r in runs}):
+        some = [r for r in runs if len(r.records) == n]
+        ms = [r.ms["grasp"] for r in some]
+        pixels = float(np.median([sum(rec["area_px"] for rec in r.records) for r in some]))
+        table[n] = (len(some), pixels, float(np.percentile(ms, 50)), float(np.percentile(ms, 95)))
+    return table
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", action="append", default=None, help="ONNX model(s) to time (repeatable) "
@@ -71,13 +82,14 @@ def main() -> None:
     pipelines = {"true labels": TruthPipeline(list(CLASSES), calibration, profile=True)}
     pipelines.update({Path(m).name: Pipeline(Segmenter(m, threads=args.threads, engine=args.engine), calibration,
                                              profile=True) for m in models})
-    rows, objects = {}, {}
+    rows, objects, by_count = {}, {}, {}
     for name, pipeline in pipelines.items():
         for f in frames[:3]:
             pipeline(f)  # warm-up
         runs = [pipeline(f) for f in frames]
         rows[name] = percentiles(runs)
         objects[name] = float(np.median([len(r.records) for r in runs]))
+        by_count[name] = by_objects(runs)
 
     columns = list(next(iter(rows.values())))
     lines = [f"# Runtime per-stage time in the synthetic cell, 640x480, {args.threads} threads", "",
@@ -90,6 +102,13 @@ def main() -> None:
              "|---" * (len(rows) + 1) + "|"]
     for col in columns:
         lines.append(f"| {col} | " + " | ".join(f"{r[col][0]:.2f} / {r[col][1]:.2f}" for r in rows.values()) + " |")
+    counts = sorted({n for table in by_count.values() for n in table})
+    lines += ["", "The grasp step by the objects it finds in the frame (frames; their median object pixels; grasp p50 / p95 "
+              "ms): its cost follows the pixels of the objects it works on.", "",
+              "| Objects | " + " | ".join(rows) + " |", "|---" * (len(rows) + 1) + "|"]
+    for n in counts:
+        cells = [f"{t[n][0]}; {t[n][1]:.0f} px; {t[n][2]:.2f} / {t[n][3]:.2f}" if n in t else "-" for t in by_count.values()]
+        lines.append(f"| {n} | " + " | ".join(cells) + " |")
     worst = max(r["grasp"][1] for r in rows.values())
     lines += ["", f"Grasp step p95, slowest labels: **{worst:.2f} ms** (target <= 5 ms). The true-label column has no "
               "model: its pre, inference and post are 0."]

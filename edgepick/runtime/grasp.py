@@ -22,7 +22,7 @@ from edgepick.errors import EdgepickError, ParameterError
 from edgepick.geometry import Intrinsics, deproject
 from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.readings import histogram, median, percentile_25, readings
-from edgepick.runtime.regions import components, depth_holes, outline_points, split_touching
+from edgepick.runtime.regions import components, depth_holes, near_level, outline_points, split_touching
 
 DEFAULT_CLASSES = ("background", "bearing", "disk", "adapter", "box")
 
@@ -96,12 +96,18 @@ def filter_class_masks(labels: np.ndarray, num_classes: int, cfg: GraspConfig) -
     kernel = np.ones((cfg.dilate_ksize, cfg.dilate_ksize), np.uint8)
     margin = cfg.median_ksize // 2 + cfg.dilate_ksize // 2 + 1
     h, w = labels.shape
-    counts = (cv2.calcHist([labels], [0], None, [256], [0, 256]).ravel() if labels.dtype == np.uint8
-              else np.bincount(labels.ravel(), minlength=num_classes))  # calcHist: ~2x faster on uint8
+    ox, oy, seen = 0, 0, labels  # where to look for the classes: on uint8, the box around all object pixels
+    if labels.dtype == np.uint8:
+        ox, oy, ow, oh = cv2.boundingRect(labels)
+        if ow == 0:
+            return out
+        seen = labels[oy:oy + oh, ox:ox + ow]
+    counts = (cv2.calcHist([seen], [0], None, [256], [0, 256]).ravel() if seen.dtype == np.uint8
+              else np.bincount(seen.ravel(), minlength=num_classes))  # calcHist: ~2x faster on uint8
     for c in np.flatnonzero(counts[1:num_classes]) + 1:
-        x, y, bw, bh = cv2.boundingRect((labels == c).view(np.uint8))
-        x0, y0 = max(x - margin, 0), max(y - margin, 0)
-        x1, y1 = min(x + bw + margin, w), min(y + bh + margin, h)
+        x, y, bw, bh = cv2.boundingRect((seen == c).view(np.uint8))
+        x0, y0 = max(x + ox - margin, 0), max(y + oy - margin, 0)
+        x1, y1 = min(x + ox + bw + margin, w), min(y + oy + bh + margin, h)
         m = (labels[y0:y1, x0:x1] == c).view(np.uint8)
         m = cv2.medianBlur(m, cfg.median_ksize)
         out[int(c)] = (x0, y0, cv2.dilate(m, kernel))
@@ -173,15 +179,14 @@ def readings_depth(units: np.ndarray, depth_scale: float, min_px: int, share: fl
     return percentile_25(vals[close], counts[close])
 
 
-def grasp_depth(depth: np.ndarray, own: np.ndarray, cx: float, cy: float, area: int, depth_scale: float,
-                cfg: GraspConfig) -> float | None:
+def grasp_depth(units: np.ndarray, ys: np.ndarray, xs: np.ndarray, cx: float, cy: float, area: int,
+                depth_scale: float, cfg: GraspConfig) -> float | None:
     """The surface the tool meets at the centroid: the nearer of the object's top (from all its
     own pixels) and the surface near its centroid (within `centre_fraction`, then twice that, of
     its equivalent radius). A disk's centroid lands on its raised hub, nearer than the friction
     ring, whose shiny top may leave few depth pixels; a ring's centroid falls in its hole, where a
-    mask that covers the hole sees the table, farther than the ring."""
-    ys, xs = np.nonzero(own & (depth > 0))  # the pixels with a reading, once for the three estimates
-    units = depth[ys, xs]
+    mask that covers the hole sees the table, farther than the ring. UNITS: the readings of the
+    object's pixels that have one, at rows YS and columns XS."""
     top = readings_depth(units, depth_scale, cfg.min_depth_px)
     r2 = (xs - cx) ** 2 + (ys - cy) ** 2
     for fraction in (cfg.centre_fraction, 2 * cfg.centre_fraction):
@@ -191,20 +196,19 @@ def grasp_depth(depth: np.ndarray, own: np.ndarray, cx: float, cy: float, area: 
     return top
 
 
-def top_pixels(depth: np.ndarray, own: np.ndarray, z_top: float, depth_scale: float,
-               cfg: GraspConfig) -> np.ndarray | None:
+def top_pixels(units: np.ndarray, ys: np.ndarray, xs: np.ndarray, shape: tuple[int, int], z_top: float,
+               depth_scale: float, cfg: GraspConfig) -> np.ndarray | None:
     """The object's top face, as its own pixels whose depth lies within cfg.top_tolerance_m of its
-    top Z_TOP (bool mask), or None when too few have depth. Seen off the optical axis a tall object
-    shows side walls on the side facing the principal point, which pull the silhouette's centroid
-    towards it (a 10 cm box 200 px off-axis at 0.7 m: ~10 px, 16 mm) and skew its axis. Groups of
-    those pixels apart from the rest (cfg.stray_gap_px) and small (cfg.stray_share) are left out:
-    a mask that spills onto a neighbour whose top lies at the same height would stretch the face
-    to it."""
-    ys, xs = np.nonzero(own & (depth > 0))
-    near = np.abs(depth[ys, xs].astype(np.float32) * depth_scale - z_top) <= cfg.top_tolerance_m
-    if int(near.sum()) < cfg.min_depth_px:
+    top Z_TOP (bool mask of SHAPE), or None when too few have depth (UNITS, YS, XS as grasp_depth
+    takes them). Seen off the optical axis a tall object shows side walls on the side facing the
+    principal point, which pull the silhouette's centroid towards it (a 10 cm box 200 px off-axis
+    at 0.7 m: ~10 px, 16 mm) and skew its axis. Groups of those pixels apart from the rest
+    (cfg.stray_gap_px) and small (cfg.stray_share) are left out: a mask that spills onto a
+    neighbour whose top lies at the same height would stretch the face to it."""
+    near = near_level(units, depth_scale, z_top, cfg.top_tolerance_m)
+    if np.count_nonzero(near) < cfg.min_depth_px:
         return None
-    top = np.zeros(own.shape, bool)
+    top = np.zeros(shape, bool)
     top[ys[near], xs[near]] = True
     k = cfg.stray_gap_px
     n, groups = cv2.connectedComponents(cv2.dilate(top.view(np.uint8), np.ones((k, k), np.uint8)), connectivity=8)
@@ -290,16 +294,20 @@ def _record(region: np.ndarray, x: int, y: int, c: int, labels: np.ndarray, dept
     cx, cy, angle, defined, area = moments_pose(region, cfg.round_ratio)
     lap("moments")
     own = (labels[y:y + h, x:x + w] == c) & (region > 0)  # unfiltered pixels: not the dilated rim
-    z = grasp_depth(depth[y:y + h, x:x + w], own, cx, cy, area, intr.depth_scale, cfg)
+    ys, xs = np.nonzero(own & (depth[y:y + h, x:x + w] > 0))  # those with a reading, for depth and top face
+    units = depth[y:y + h, x:x + w][ys, xs]
+    z = grasp_depth(units, ys, xs, cx, cy, area, intr.depth_scale, cfg)
     lap("depth")
-    pixels = None if z is None else top_pixels(depth[y:y + h, x:x + w], own, z, intr.depth_scale, cfg)
+    pixels = None if z is None else top_pixels(units, ys, xs, own.shape, z, intr.depth_scale, cfg)
     if pixels is not None:  # the grasp point and axis of the top face, not of the silhouette with its walls
-        cx, cy, angle, defined, _ = moments_pose(hull_mask(pixels), cfg.round_ratio)
+        hull = hull_mask(pixels)
+        cx, cy, angle, defined, _ = moments_pose(hull, cfg.round_ratio)
         # the axis counts the top's blobs with no depth reading as top: a black adapter may return
         # depth on a third of its top, whose hull is no longer its shape (not for the centroid: a
         # disk's shiny friction ring would pull that of its raised hub)
         if defined:
-            fill, axis = rect_fill_and_axis(hull_mask(pixels | (depth_holes(own, depth[y:y + h, x:x + w]) > 0)))
+            holes = depth_holes(own, depth[y:y + h, x:x + w])
+            fill, axis = rect_fill_and_axis(hull_mask(pixels | (holes > 0)) if holes.any() else hull)
             angle = axis if fill >= cfg.rect_fill else angle
     lap("top face")
     cx, cy = cx + x, cy + y

@@ -31,13 +31,10 @@ def split_touching(region: np.ndarray, cfg: GraspConfig, background: np.ndarray 
     holes = _holes(region, cfg, background)
     hole_area = sum(cv2.countNonZero(h) for h in holes)
     seeds = [h for h in holes if cv2.countNonZero(h) >= cfg.split_min_share * hole_area]
-    depth_m = None
-    if depth is not None:
-        depth_m = depth.astype(np.float32) * depth_scale
-        if len(seeds) < 2:
-            seeds = _top_faces(region, depth, depth_scale, depth_m, cfg)
+    if depth is not None and len(seeds) < 2:
+        seeds = _top_faces(region, depth, depth_scale, cfg)
     if len(seeds) < 2 and not holes:
-        seeds = _notch_cut(region, cfg, depth_m)
+        seeds = _notch_cut(region, cfg, depth, depth_scale)
     if len(seeds) < 2 and not holes:
         dist = _edge_distance(region)
         seeds = _components((dist > cfg.split_core * dist.max()).view(np.uint8), cfg) if dist.max() > 0 else []
@@ -48,8 +45,7 @@ def split_touching(region: np.ndarray, cfg: GraspConfig, background: np.ndarray 
     return [((nearest == i) & (region > 0)).view(np.uint8) for i in range(len(seeds))]
 
 
-def _top_faces(region: np.ndarray, depth: np.ndarray, depth_scale: float, depth_m: np.ndarray,
-               cfg: GraspConfig) -> list[np.ndarray]:
+def _top_faces(region: np.ndarray, depth: np.ndarray, depth_scale: float, cfg: GraspConfig) -> list[np.ndarray]:
     """Flat faces of the region at different heights: for each peak of its depth histogram holding
     cfg.split_min_share of its depth pixels, the connected parts at that depth that are large and
     compact (cfg.face_compactness: a side wall seen at an angle is a long, thin band). Two faces
@@ -57,7 +53,7 @@ def _top_faces(region: np.ndarray, depth: np.ndarray, depth_scale: float, depth_
     friction ring); faces left apart are objects side by side or one on another (two boxes of
     different heights)."""
     inside = (region > 0) & (depth > 0)
-    vals, found = readings(depth[inside], depth_scale, np.float32)  # DEPTH_M's values, once each
+    vals, found = readings(depth[inside], depth_scale, np.float32)  # the readings in metres, once each
     total = int(found.sum())
     if total < cfg.min_depth_px:
         return []
@@ -72,19 +68,19 @@ def _top_faces(region: np.ndarray, depth: np.ndarray, depth_scale: float, depth_
         if (i > 0 and counts[i - 1] > counts[i]) or (i + 1 < counts.size and counts[i + 1] >= counts[i]):
             continue  # not a peak
         level = (edges[i] + edges[i + 1]) / 2
-        at = cv2.morphologyEx((inside & (np.abs(depth_m - level) <= tol)).view(np.uint8), cv2.MORPH_CLOSE,
+        at = cv2.morphologyEx((inside & near_level(depth, depth_scale, level, tol)).view(np.uint8), cv2.MORPH_CLOSE,
                               np.ones((5, 5), np.uint8))  # bridge depth holes
         # blobs with no depth (shiny metal, a black part) join the parts they lie between: one
         # object's top broken by depth holes is one face; two objects at one height, with the table
         # between them, are two.
-        holes = depth_holes(region, depth_m) if holes is None else holes
+        holes = depth_holes(region, depth) if holes is None else holes
         n, comp, sizes = components(at | holes)
         least = cfg.split_min_share * cv2.countNonZero(region)
         for k in np.flatnonzero(sizes[1:] >= least) + 1:  # a smaller part holds fewer face pixels
             part = (comp == k).view(np.uint8)
-            area, thick = cv2.countNonZero(part & at), float(_edge_distance(part).max())
-            if area >= least and sizes[k] <= cfg.face_compactness * thick ** 2:
-                faces.append(part & at)
+            face = part & at
+            if cv2.countNonZero(face) >= least and sizes[k] <= cfg.face_compactness * float(_edge_distance(part).max()) ** 2:
+                faces.append(face)
     groups: list[list[int]] = []
     for i in range(len(faces)):
         joined = [g for g in groups if any(_nested(faces[i], faces[j]) for j in g)]
@@ -97,6 +93,14 @@ def components(mask: np.ndarray, connectivity: int = 8) -> tuple[int, np.ndarray
     labels and areas, at a third of its cost (OpenCV's per-label statistics cost more than the labelling)."""
     n, comp = cv2.connectedComponents(mask, connectivity=connectivity)
     return n, comp, np.bincount(comp.ravel(), minlength=n)
+
+
+def near_level(depth: np.ndarray, depth_scale: float, level: float, tolerance: float) -> np.ndarray:
+    """Whether each integer depth reading (an image or a 1-D array) lies within TOLERANCE metres of LEVEL, as
+    `np.abs(depth.astype(np.float32) * depth_scale - level) <= tolerance` says, worked once per
+    possible reading and looked up per pixel."""
+    within = np.abs(np.arange(int(depth.max()) + 1, dtype=np.float32) * depth_scale - level) <= tolerance
+    return within[depth]
 
 
 def depth_holes(mask: np.ndarray, depth: np.ndarray) -> np.ndarray:
@@ -115,7 +119,8 @@ def outline_points(mask: np.ndarray) -> np.ndarray:
     width = mask.shape[1]
     raster = np.sort(points[:, 1] * width + points[:, 0])
     raster = raster[np.concatenate(([True], raster[1:] != raster[:-1]))]  # np.unique, without its overhead
-    return np.stack([raster % width, raster // width], axis=1).astype(np.int32).reshape(-1, 1, 2)
+    rows, cols = np.divmod(raster, width)
+    return np.stack([cols, rows], axis=1).astype(np.int32, copy=False).reshape(-1, 1, 2)
 
 
 def _nested(a: np.ndarray, b: np.ndarray) -> bool:
@@ -128,13 +133,14 @@ def _nested(a: np.ndarray, b: np.ndarray) -> bool:
     return True
 
 
-def _notch_cut(region: np.ndarray, cfg: GraspConfig, depth_m: np.ndarray | None = None) -> list[np.ndarray]:
+def _notch_cut(region: np.ndarray, cfg: GraspConfig, depth: np.ndarray | None = None,
+               depth_scale: float = 0.001) -> list[np.ndarray]:
     """Two convex objects side by side at one height (boxes, adapters) leave a notch on each side
     of their seam: cut the region along the line between its two deepest notches (convexity defects
     deeper than cfg.notch_depth x the square root of its area) when each side holds cfg.split_min_part
     of it or more and is convex (cfg.split_solidity). A model's mask rounds the corners at a seam, so
-    when both notches are deep (cfg.deep_notch) and open onto the table (DEPTH_M, metres: farther
-    than the region, not an object lying over its rim) the sides need only be nearly convex
+    when both notches are deep (cfg.deep_notch) and open onto the table (DEPTH, readings of
+    DEPTH_SCALE metres: farther than the region, not an object lying over its rim) the sides need only be nearly convex
     (cfg.split_solidity_deep). Returns the two sides, or [] when there is no such cut."""
     contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     if not contours:
@@ -161,24 +167,25 @@ def _notch_cut(region: np.ndarray, cfg: GraspConfig, depth_m: np.ndarray | None 
     n, comp, sizes = components(cut, connectivity=4)
     sides = [(comp == k).view(np.uint8) for k in range(1, n) if sizes[k] >= cfg.split_min_part * area]
     convex = cfg.split_solidity
-    if two[:, 3].min() / 256.0 > cfg.deep_notch * math.sqrt(area) and depth_m is not None and \
-            all(_opens_onto_table(region, contour, d, depth_m, cfg) for d in two):
+    if two[:, 3].min() / 256.0 > cfg.deep_notch * math.sqrt(area) and depth is not None and \
+            all(_opens_onto_table(region, contour, d, depth, depth_scale, cfg) for d in two):
         convex = cfg.split_solidity_deep
     return sides if len(sides) == 2 and all(_solidity(side) >= convex for side in sides) else []
 
 
-def _opens_onto_table(region: np.ndarray, contour: np.ndarray, defect: np.ndarray, depth_m: np.ndarray,
-                      cfg: GraspConfig, below_m: float = 0.01) -> bool:
+def _opens_onto_table(region: np.ndarray, contour: np.ndarray, defect: np.ndarray, depth: np.ndarray,
+                      depth_scale: float, cfg: GraspConfig, below_m: float = 0.01) -> bool:
     """Whether the notch of DEFECT (start, end, deepest point, depth) shows a surface at least
     BELOW_M farther from the camera than the region's own: the table between two objects, not an
     object lying over the region's rim."""
     start, end = int(defect[0]), int(defect[1])
     arc = contour[start:end + 1] if start <= end else np.concatenate([contour[start:], contour[:end + 1]])
-    pocket = cv2.fillPoly(np.zeros(region.shape, np.uint8), [arc], 1).astype(bool) & (region == 0) & (depth_m > 0)
-    own = (region > 0) & (depth_m > 0)
+    pocket = cv2.fillPoly(np.zeros(region.shape, np.uint8), [arc], 1).astype(bool) & (region == 0) & (depth > 0)
+    own = (region > 0) & (depth > 0)
     if pocket.sum() < cfg.min_depth_px or own.sum() < cfg.min_depth_px:
         return False
-    return float(np.median(depth_m[pocket])) > float(np.median(depth_m[own])) + below_m
+    metres = [np.median(depth[pixels].astype(np.float32) * depth_scale) for pixels in (pocket, own)]
+    return float(metres[0]) > float(metres[1]) + below_m
 
 
 def _solidity(mask: np.ndarray) -> float:

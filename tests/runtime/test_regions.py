@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from edgepick.runtime.grasp import grasp_records
-from edgepick.runtime.regions import outline_points
+from edgepick.runtime.regions import near_level, outline_points
 from tests.runtime.test_grasp import BEARING, BOX, INTR, flat_depth, rect
 
 
@@ -160,3 +160,18 @@ def test_outline_points_make_the_hull_and_rectangle_all_pixels_make(seed, size, 
     every = cv2.findNonZero(mask)
     assert np.array_equal(cv2.convexHull(outline_points(mask)), cv2.convexHull(every))
     assert cv2.minAreaRect(outline_points(mask)) == cv2.minAreaRect(every)
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), scale=st.sampled_from([0.001, 0.0001, 0.000125, 0.00025]),
+       tolerance=st.sampled_from([0.004, 0.008, 0.0005]))
+def test_near_level_is_the_float32_test_on_every_pixel(seed, scale, tolerance):
+    """The per-reading lookup says what the pixel-wise float32 arithmetic says, also at the edges
+    of the tolerance band, for images and 1-D readings alike."""
+    rng = np.random.default_rng(seed)
+    depth = rng.integers(0, int(1.2 / scale), (24, 32)).astype(np.uint16)
+    seen = np.float32(depth[rng.integers(0, 24), rng.integers(0, 32)] * np.float32(scale))
+    for level in (seen, float(seen) + tolerance, np.float32(seen - np.float32(tolerance))):
+        expected = np.abs(depth.astype(np.float32) * scale - level) <= tolerance
+        assert np.array_equal(near_level(depth, scale, level, tolerance), expected)
+        assert np.array_equal(near_level(depth.ravel(), scale, level, tolerance), expected.ravel())
