@@ -25,6 +25,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -102,7 +103,8 @@ def main() -> None:
     sources = {"true labels": [f.labels for f in frames], "reference model's labels": [segmenter.labels(f.rgb) for f in frames]}
     lines = ["# The grasp step against earlier commits, frame by frame in one process", "",
              f"Command: `python benchmarks/grasp_speed.py {' '.join(sys.argv[1:])}`  ",
-             f"{machine_line()}; {len(frames)} frames of the synthetic cell (640x480, seeds 0-{(len(frames) - 1) // 50}, "
+             f"{machine_line()}; opencv {cv2.__version__}, numpy {np.__version__}; {len(frames)} frames of the synthetic "
+             f"cell (640x480, seeds 0-{(len(frames) - 1) // 50}, "
              f"camera {MOUNT_M} m over the table); each frame's time the least of {args.repeat} calls per version, "
              "the two versions taken in turn, the first one alternating. ms over the frames.", "",
              "| Against | Labels | its p50 / p95 | this checkout p50 / p95 | per-frame ratio, median (p5-p95) | "

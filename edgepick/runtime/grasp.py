@@ -22,7 +22,7 @@ from edgepick.errors import EdgepickError, ParameterError
 from edgepick.geometry import Intrinsics, deproject
 from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.readings import histogram, median, percentile_25, readings
-from edgepick.runtime.regions import components, depth_holes, near_level, outline_points, split_touching
+from edgepick.runtime.regions import components, depth_holes, near_level, row_ends, split_touching
 
 DEFAULT_CLASSES = ("background", "bearing", "disk", "adapter", "box")
 
@@ -142,7 +142,7 @@ def rect_fill_and_axis(face: np.ndarray) -> tuple[float, float]:
     ellipse), and the direction of that rectangle's long side in (-90, 90] degrees like
     moments_pose: a box's or adapter's axis even when a depth hole cuts a corner off its top face,
     which tilts the moments' axis of a nearly square face by tens of degrees."""
-    (_, _), (w, h), a = cv2.minAreaRect(outline_points(face))
+    (_, _), (w, h), a = cv2.minAreaRect(row_ends(face))
     angle = a if w >= h else a + 90.0
     angle = (angle + 90.0) % 180.0 - 90.0
     return cv2.countNonZero(face) / max(1.0, w * h), round(90.0 if angle == -90.0 else angle, 2)
@@ -221,7 +221,7 @@ def top_pixels(units: np.ndarray, ys: np.ndarray, xs: np.ndarray, shape: tuple[i
 def hull_mask(pixels: np.ndarray) -> np.ndarray:
     """The filled convex hull of PIXELS (uint8 0/1): it bridges the depth holes of a shiny top and
     a ring's bore."""
-    hull = cv2.convexHull(outline_points(pixels))
+    hull = cv2.convexHull(row_ends(pixels))
     return cv2.fillConvexPoly(np.zeros(pixels.shape, np.uint8), hull, 1)
 
 

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from edgepick.runtime.grasp import grasp_records
-from edgepick.runtime.regions import near_level, outline_points
+from edgepick.runtime.regions import near_level, row_ends
 from tests.runtime.test_grasp import BEARING, BOX, INTR, flat_depth, rect
 
 
@@ -146,7 +146,7 @@ def test_a_top_broken_by_depth_holes_is_one_face():
 
 @settings(max_examples=300, deadline=None)
 @given(seed=st.integers(0, 2 ** 32 - 1), size=st.integers(3, 120), blobs=st.integers(1, 3))
-def test_outline_points_make_the_hull_and_rectangle_all_pixels_make(seed, size, blobs):
+def test_row_ends_make_the_hull_and_rectangle_all_pixels_make(seed, size, blobs):
     rng = np.random.default_rng(seed)
     mask = np.zeros((size + 8, size + 8), np.uint8)
     for _ in range(blobs):  # filled convex polygons, as hull_mask makes them, and ragged blobs
@@ -158,8 +158,8 @@ def test_outline_points_make_the_hull_and_rectangle_all_pixels_make(seed, size, 
     if not mask.any():
         return
     every = cv2.findNonZero(mask)
-    assert np.array_equal(cv2.convexHull(outline_points(mask)), cv2.convexHull(every))
-    assert cv2.minAreaRect(outline_points(mask)) == cv2.minAreaRect(every)
+    assert np.array_equal(cv2.convexHull(row_ends(mask)), cv2.convexHull(every))
+    assert cv2.minAreaRect(row_ends(mask)) == cv2.minAreaRect(every)
 
 
 @settings(max_examples=200, deadline=None)
