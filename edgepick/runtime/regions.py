@@ -96,9 +96,9 @@ def components(mask: np.ndarray, connectivity: int = 8) -> tuple[int, np.ndarray
 
 
 def near_level(depth: np.ndarray, depth_scale: float, level: float, tolerance: float) -> np.ndarray:
-    """Whether each integer depth reading (an image or a 1-D array) lies within TOLERANCE metres of LEVEL, as
-    `np.abs(depth.astype(np.float32) * depth_scale - level) <= tolerance` says, worked once per
-    possible reading and looked up per pixel."""
+    """Whether each integer depth reading of DEPTH (an image or a 1-D array) lies within TOLERANCE
+    metres of LEVEL, as `np.abs(depth.astype(np.float32) * depth_scale - level) <= tolerance` says,
+    worked once per possible reading and looked up per pixel."""
     within = np.abs(np.arange(int(depth.max()) + 1, dtype=np.float32) * depth_scale - level) <= tolerance
     return within[depth]
 
@@ -110,11 +110,11 @@ def depth_holes(mask: np.ndarray, depth: np.ndarray) -> np.ndarray:
 
 
 def row_ends(mask: np.ndarray) -> np.ndarray:
-    """The leftmost and rightmost pixel of each row of MASK (bool or 0/1) that has one (Nx1x2 int32, in raster
-    order as cv2.findNonZero lists them): every vertex of the convex hull of MASK's pixels is one of
-    them, so a hull or a minimum-area rectangle made from them is the one all the pixels make (the
-    same vertices from the same start, hence the same rectangle where two tie), at a fraction of the
-    cost, and of tracing the blobs' outlines."""
+    """The leftmost and rightmost pixel of each row of MASK (bool or 0/1) that has one (Nx1x2 int32,
+    in raster order as cv2.findNonZero lists them): every vertex of the convex hull of MASK's pixels
+    is one of them, so a hull or a minimum-area rectangle made from them is the one all the pixels
+    make (the same vertices from the same start, hence the same rectangle where two tie), at a
+    fraction of the cost of listing every pixel or tracing the blobs' outlines."""
     on = mask.view(bool)
     rows = np.flatnonzero(on.any(axis=1))
     on = on[rows]
@@ -145,8 +145,9 @@ def _notch_cut(region: np.ndarray, cfg: GraspConfig, depth: np.ndarray | None = 
     deeper than cfg.notch_depth x the square root of its area) when each side holds cfg.split_min_part
     of it or more and is convex (cfg.split_solidity). A model's mask rounds the corners at a seam, so
     when both notches are deep (cfg.deep_notch) and open onto the table (DEPTH, readings of
-    DEPTH_SCALE metres: farther than the region, not an object lying over its rim) the sides need only be nearly convex
-    (cfg.split_solidity_deep). Returns the two sides, or [] when there is no such cut."""
+    DEPTH_SCALE metres: farther than the region, not an object lying over its rim) the sides need
+    only be nearly convex (cfg.split_solidity_deep). Returns the two sides, or [] when there is no
+    such cut."""
     contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     if not contours:
         return []
