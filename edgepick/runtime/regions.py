@@ -122,10 +122,10 @@ def row_ends(mask: np.ndarray) -> np.ndarray:
     ends[:, 0, 0] = on.argmax(axis=1)
     ends[:, 1, 0] = mask.shape[1] - 1 - on[:, ::-1].argmax(axis=1)
     ends[:, :, 1] = rows[:, None]
-    ends = ends.reshape(-1, 2)
-    single = np.zeros(len(ends), bool)  # a row with one pixel lists it once
-    single[1::2] = ends[1::2, 0] == ends[0::2, 0]
-    return ends[~single].reshape(-1, 1, 2)
+    points = ends.reshape(-1, 2)
+    single = np.zeros(len(points), bool)  # a row with one pixel lists it once
+    single[1::2] = points[1::2, 0] == points[0::2, 0]
+    return points[~single].reshape(-1, 1, 2)
 
 
 def _nested(a: np.ndarray, b: np.ndarray) -> bool:
