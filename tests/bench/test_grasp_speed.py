@@ -36,6 +36,7 @@ def test_a_commits_grasp_step_runs_beside_this_one(tmp_path):
     assert same == 0  # the cell's frames hold objects: HEAD's records are not the empty ones
     assert grasp_speed.compare(grasp.grasp_records, grasp.grasp_records, frames, labels, cal, 1)[2] == 2
 
+
 def test_a_bad_commit_is_one_line_before_any_work():
     proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "grasp_speed.py"), "--against", "no-such-commit"],
                           capture_output=True, text=True, timeout=120)
