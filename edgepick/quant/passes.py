@@ -163,12 +163,13 @@ def _exported_epoch(run: Run) -> tuple[Checkpoint, float, float]:
     return (Checkpoint.load(run.best) if run.best.is_file() else last), last.init_train_time_s, last.train_time_s
 
 
-def _finish_qat(run: Run, data: str | Path, out: str | Path, quant: dict, progress: bool = False) -> PassResult:
-    """Convert the QaT run's best epoch on val and export it, with the whole run's phase times."""
+def _finish_qat(run: Run, data: str | Path, out: str | Path, quant: dict, graph: torch.fx.GraphModule,
+                progress: bool = False) -> PassResult:
+    """Convert the QaT run's best epoch on val (its state loaded into GRAPH, the graph the run trained)
+    and export it, with the whole run's phase times."""
     ckpt, float_s, qat_s = _exported_epoch(run)
-    _stage(f"rebuild the fake-quant graph of QaT epoch {ckpt.epoch} (the best on val) and convert it to int8",
-           progress)
-    prepared = load_qat(ckpt)
+    _stage(f"load QaT epoch {ckpt.epoch} (the best on val) into the fake-quant graph and convert it to int8", progress)
+    prepared = load_qat(ckpt, graph)
     converted = convert(prepared)
     size = ckpt.input_size
     meta = contract_metadata(ckpt, "int8", quant, train_time_s=float_s + qat_s)
@@ -193,8 +194,8 @@ def quantize_qat(train_config: TrainConfig, out: str | Path, config: QuantConfig
     check_onnx_out(out)
     _stage("prepare the fake-quant graph (torch.export: up to a minute on a CPU), then train every epoch with it",
            progress)
-    train_qat(train_config, config, progress=progress)
-    return _finish_qat(Run(train_config.out), train_config.data, out, _qat_quant("qat", 1.0, config),
+    trained = train_qat(train_config, config, progress=progress)
+    return _finish_qat(Run(train_config.out), train_config.data, out, _qat_quant("qat", 1.0, config), trained.graph,
                        progress=progress)
 
 
@@ -241,13 +242,13 @@ def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_frac
                              calib=calib)
     hold_ranges = bool(images) if hold_ranges is None else hold_ranges
     _stage("prepare the fake-quant graph (torch.export: up to a minute on a CPU), then train the QaT epochs", progress)
-    train_qat(cfg, config, start=start, carry_optimizer=carry_optimizer, freeze_at=freeze_at,
-              calib_images=images or None, hold_ranges=hold_ranges, progress=progress)
+    trained = train_qat(cfg, config, start=start, carry_optimizer=carry_optimizer, freeze_at=freeze_at,
+                        calib_images=images or None, hold_ranges=hold_ranges, progress=progress)
     quant = {**_qat_quant("hybrid", qat_fraction, config), "freeze_at": freeze_at, "carry_optimizer": carry_optimizer,
              "calib_images": len(images) or None, "hold_ranges": hold_ranges}
     if images:
         quant["calib_method"] = f"qat from percentile {config.percentile}"
-    return _finish_qat(Run(qat_run), data, out, quant, progress=progress)
+    return _finish_qat(Run(qat_run), data, out, quant, trained.graph, progress=progress)
 
 
 def _switch_point(run: Path, data: str | Path, qat_fraction: float) -> tuple[Checkpoint, TrainConfig]:

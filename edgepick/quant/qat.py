@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -155,15 +155,24 @@ class QatHooks(Hooks):
                         "calib_images": len(self.calib_images or []), "hold_ranges": self.hold_ranges}}
 
 
+@dataclass(frozen=True)
+class QatTraining:
+    """A finished QaT run: its summary, and the fake-quant graph it trained (as its last step left it)."""
+
+    result: TrainResult
+    graph: torch.fx.GraphModule
+
+
 def train_qat(cfg: TrainConfig, config: QuantConfig, start: Checkpoint | None = None, carry_optimizer: bool = True,
               freeze_at: float = FREEZE_AT, calib_images: list[np.ndarray] | None = None, hold_ranges: bool = False,
-              progress: bool = True) -> TrainResult:
+              progress: bool = True) -> QatTraining:
     """A QaT run into cfg.out: the float model (fresh, or START's weights and schedule: hybrid-QaT)
     prepared with fake-quant, then trained by edgepick.train's loop with QatHooks."""
     cfg = replace(cfg, aux_loss=False)  # the deployed graph has no auxiliary head
     graph = prepare(new_model(cfg, start), config, cfg.size, qat=True)
     hooks = QatHooks(config, freeze_at, calib_images, hold_ranges)
-    return fit(cfg, graph, hooks, start=start, carry_optimizer=carry_optimizer, progress=progress)
+    result = fit(cfg, graph, hooks, start=start, carry_optimizer=carry_optimizer, progress=progress)
+    return QatTraining(result, graph)
 
 
 def qat_config(checkpoint: Checkpoint) -> QuantConfig:
@@ -173,8 +182,13 @@ def qat_config(checkpoint: Checkpoint) -> QuantConfig:
     return QuantConfig(**checkpoint.qat["quant"])
 
 
-def load_qat(checkpoint: Checkpoint) -> torch.fx.GraphModule:
-    """Rebuild a QaT run's fake-quant graph from its checkpoint."""
-    prepared = prepare(build_model(checkpoint.model_config), qat_config(checkpoint), checkpoint.input_size, qat=True)
-    load_qat_state(prepared, checkpoint.model)
-    return prepared
+def load_qat(checkpoint: Checkpoint, graph: torch.fx.GraphModule | None = None) -> torch.fx.GraphModule:
+    """A QaT run's fake-quant graph with its checkpoint's state: GRAPH, the graph the run trained
+    (moved to the CPU), or else one rebuilt from the checkpoint's model config (torch.export and
+    pt2e prepare again: seconds to a minute on a CPU)."""
+    if graph is None:
+        graph = prepare(build_model(checkpoint.model_config), qat_config(checkpoint), checkpoint.input_size, qat=True)
+    else:
+        graph.to("cpu", memory_format=torch.contiguous_format)  # trained on a GPU: channels-last there
+    load_qat_state(graph, checkpoint.model)
+    return graph

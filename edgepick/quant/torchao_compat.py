@@ -43,6 +43,7 @@ from typing import Any
 import torch
 
 BN_LITERALS = "edgepick_bn_literals"  # GraphModule.meta key: running_var name -> the module's (eps, momentum)
+MODE = "edgepick_training"  # GraphModule.meta key: the mode set_mode last put the graph in (True: training)
 
 
 def _restore_literals(node: torch.fx.Node, table: dict) -> int:
@@ -124,12 +125,17 @@ def install_train_eval(prepared: torch.fx.GraphModule, model: torch.nn.Module, p
 
 
 def set_mode(prepared: torch.fx.GraphModule, training: bool) -> torch.fx.GraphModule:
-    """torchao's train/eval rewrite of PREPARED, then its BatchNorms' own literals back."""
+    """torchao's train/eval rewrite of PREPARED, then its BatchNorms' own literals back. A graph this
+    function has put in that mode already is left as it is: the rewrite is a pattern search over the
+    whole graph (about a second on a CPU) that would find nothing to change."""
     from torchao.quantization.pt2e import move_exported_model_to_eval, move_exported_model_to_train
 
+    if prepared.meta.get(MODE) == training:
+        return prepared
     with patterns_traced_once(prepared):  # the switch traces its dropout and BatchNorm patterns too
         (move_exported_model_to_train if training else move_exported_model_to_eval)(prepared)
     restore_bn_literals(prepared)
+    prepared.meta[MODE] = training
     return prepared
 
 

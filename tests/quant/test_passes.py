@@ -78,16 +78,6 @@ def test_eval_runs_on_onnx_files(onnx_files, trained_run, small_data):
     assert int8["miou"] > ckpt["miou"] - 0.05
 
 
-def test_keep_float_layers_stay_float(trained_run, small_data, tmp_path):
-    from edgepick.quant.passes import folder_images, quantize_static
-    from edgepick.quant.quantizer import QuantConfig
-
-    result = quantize_static(trained_run, folder_images(small_data, "train", 4), tmp_path / "k.onnx",
-                             QuantConfig(calib_method="percentile", keep_float=["classifier.4", "backbone.0"]),
-                             progress=False)
-    assert result.int8_convs == 68 and len(result.float_convs) == 2
-
-
 def _as_if_trained_on_a_gpu(run: Path, dest: Path) -> Path:
     """A copy of RUN whose checkpoints say `--device cuda`, as a float run made on a GPU box does."""
     from dataclasses import replace
@@ -205,20 +195,23 @@ def test_an_upper_case_onnx_suffix_is_taken_by_every_check_alike(tmp_path):
         export_onnx(torch.nn.Identity(), tmp_path / "q.ONNX", {}, (32, 32), passes=("nope",))
 
 
-def test_static_takes_images_from_anywhere_at_any_size(trained_run, small_data, tmp_path, monkeypatch):
+def test_static_takes_images_from_anywhere_at_any_size_and_keeps_layers_float(trained_run, small_data, tmp_path,
+                                                                             monkeypatch):
     """The pass calibrates on what the caller gives: a generator of HxWx3 uint8 RGB images of any
     size (resized to the model's input); anything else is refused in one line naming `calib`, before
-    the slow prepare."""
+    the slow prepare. The layers named in keep_float stay float, all others are int8."""
     import numpy as np
 
     from edgepick.errors import ConfigError
     from edgepick.quant.passes import folder_images, quantize_static
+    from edgepick.quant.quantizer import QuantConfig
 
     rng = np.random.default_rng(0)
     own = [rng.integers(0, 256, (480, 640, 3), dtype=np.uint8)]  # a camera frame, not a data set image
     images = (rgb for rgb in [*folder_images(small_data, "train", 3), *own])
-    result = quantize_static(trained_run, images, tmp_path / "own.onnx", progress=False)
-    assert result.quant["calib_images"] == 4 and result.int8_convs == 70
+    config = QuantConfig(calib_method="percentile", keep_float=("classifier.4", "backbone.0"))
+    result = quantize_static(trained_run, images, tmp_path / "own.onnx", config, progress=False)
+    assert result.quant["calib_images"] == 4 and result.int8_convs == 68 and len(result.float_convs) == 2
     assert json.loads(Segmenter(result.out).info.metadata["edgepick.quant"])["calib_images"] == 4
     import edgepick.quant.passes as passes
 

@@ -10,6 +10,19 @@ from edgepick.geometry import Size
 from edgepick.train.checkpoint import Checkpoint
 
 
+@pytest.fixture(scope="module")
+def fresh_qat() -> torch.fx.GraphModule:
+    """One untrained DeepLabV3-MobileNetV3 (the default ModelConfig, seed 0) prepared for QaT at 96x64, built once
+    for the tests that only look at or train such a graph: they take a copy.deepcopy of it. A copy's
+    train()/eval() act on the original: switch copies with edgepick.quant.qat.to_eval / set_mode."""
+    from edgepick.models import ModelConfig, build_model
+    from edgepick.quant.graph import prepare
+    from edgepick.quant.quantizer import QuantConfig
+
+    torch.manual_seed(0)
+    return prepare(build_model(ModelConfig()), QuantConfig(), Size(96, 64), qat=True)
+
+
 def _prepared_qat(trained_run):
     from edgepick.quant.graph import prepare
     from edgepick.quant.quantizer import QuantConfig
@@ -194,16 +207,12 @@ def test_converted_qat_graph_computes_what_qat_trained(trained_run, small_data):
     assert float((trained == deployed).float().mean()) >= 0.99
 
 
-def test_no_fake_quant_learns_from_training_dropout():
+def test_no_fake_quant_learns_from_training_dropout(fresh_qat):
     """ASPP's Dropout(0.5) doubles what follows it in training only: a fake-quant there would learn a
     2x range and deploy the head conv's input at half the resolution. The conv reads the grid before it."""
     from torchao.quantization.pt2e import FakeQuantizeBase
 
-    from edgepick.models import ModelConfig, build_model
-    from edgepick.quant.graph import prepare
-    from edgepick.quant.quantizer import QuantConfig
-
-    prepared = prepare(build_model(ModelConfig(num_classes=4)), QuantConfig(), Size(96, 64), qat=True)
+    prepared = fresh_qat
     dropouts = [n for n in prepared.graph.nodes if n.target == torch.ops.aten.dropout.default]
     assert len(dropouts) == 1
     (drop,) = dropouts
@@ -211,15 +220,14 @@ def test_no_fake_quant_learns_from_training_dropout():
     assert [u.target for u in drop.users] == [torch.ops.aten.conv2d.default]  # read straight by the head conv
 
 
-def test_qat_state_loads_only_into_the_graph_it_came_from():
+def test_qat_state_loads_only_into_the_graph_it_came_from(fresh_qat):
     """A QaT checkpoint loads into a freshly prepared graph; an entry the graph does not have (a fake-quant
     more, or a foreign weight) is an error, not silently dropped."""
-    from edgepick.models import ModelConfig, build_model
-    from edgepick.quant.graph import prepare
-    from edgepick.quant.qat import load_qat_state
-    from edgepick.quant.quantizer import QuantConfig
+    import copy
 
-    prepared = prepare(build_model(ModelConfig(num_classes=4)), QuantConfig(), Size(96, 64), qat=True)
+    from edgepick.quant.qat import load_qat_state
+
+    prepared = copy.deepcopy(fresh_qat)
     load_qat_state(prepared, prepared.state_dict())
     extra_fake_quant = {**prepared.state_dict(), "activation_post_process_999.scale": torch.ones(1)}
     for state in (extra_fake_quant, {**prepared.state_dict(), "model.extra.weight": torch.ones(1)}):
@@ -227,20 +235,16 @@ def test_qat_state_loads_only_into_the_graph_it_came_from():
             load_qat_state(prepared, state)
 
 
-def test_eval_copy_is_an_exact_eval_graph():
+def test_eval_copy_is_an_exact_eval_graph(fresh_qat):
     """Validation of a QaT run uses an eval-mode copy (switching the graph costs ~1 s each way):
     after training steps and a weight copy it must give what the trained graph gives in eval mode."""
     import copy
 
     from torchao.quantization.pt2e import disable_observer
 
-    from edgepick.models import ModelConfig, build_model
-    from edgepick.quant.graph import prepare
     from edgepick.quant.qat import eval_copy, to_eval
-    from edgepick.quant.quantizer import QuantConfig
 
-    torch.manual_seed(0)
-    model = prepare(build_model(ModelConfig()), QuantConfig(), Size(96, 64), qat=True)
+    model = copy.deepcopy(fresh_qat)
     evaluator = eval_copy(model)
     x = torch.rand(4, 3, 64, 96) * 255
     opt = torch.optim.SGD(model.parameters(), 0.01)
@@ -255,21 +259,22 @@ def test_eval_copy_is_an_exact_eval_graph():
         m.apply(disable_observer)  # eval-mode observers still update their ranges on each call
     with torch.no_grad():
         assert torch.equal(evaluator(x), reference(x))
-        stale = eval_copy(prepare(build_model(ModelConfig()), QuantConfig(), Size(96, 64), qat=True))
+        stale = eval_copy(copy.deepcopy(fresh_qat))
         stale(x)  # its own (untrained) ranges: a never-observed per-channel fake-quant has no scales yet
         stale.apply(disable_observer)
         assert not torch.equal(stale(x), reference(x))  # the check can fail
 
 
-def test_hybrid_qat_continues_with_the_float_runs_optimizer_moments(trained_run):
+def test_hybrid_qat_continues_with_the_float_runs_optimizer_moments(trained_run, fresh_qat):
     """Hybrid-QaT's fake-quant graph gets the AdamW moments of the float checkpoint it starts from."""
-    from edgepick.models import build_model
-    from edgepick.quant.graph import prepare
-    from edgepick.quant.quantizer import QuantConfig
+    import copy
+
+    from edgepick.models import ModelConfig
     from edgepick.train.loop import carry_optimizer_state
 
     start = Checkpoint.load(trained_run / "epoch_002.pt")
-    model = prepare(build_model(start.model_config), QuantConfig(), Size(96, 64), qat=True)
+    assert start.model_config == ModelConfig()  # the graph of fresh_qat, with its own fresh weights
+    model = copy.deepcopy(fresh_qat)
     opt = torch.optim.AdamW(model.parameters())
     params = dict(model.named_parameters())
     float_shapes = {k: v.shape for k, v in start.model.items()}
