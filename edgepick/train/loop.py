@@ -204,7 +204,10 @@ def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, st
         model = model.to(device, memory_format=torch.channels_last)
     loaders = make_loaders(cfg, train_ds, val_ds, cuda, rank, world)
     weights = class_weights(train_ds, len(classes)).to(device) if cfg.class_weighting else None
-    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    # on a CPU the fused AdamW kernel is several times faster per step than the multi-tensor default,
+    # whose step costs as much as the forward pass at small input sizes; a GPU keeps PyTorch's default
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay,
+                            fused=True if device.type == "cpu" else None)
     steps_per_epoch = max(1, len(loaders.train))
     sched = _schedule(opt, cfg.epochs * steps_per_epoch)
     state = _starting_state(model, opt, sched, steps_per_epoch, start, carry_optimizer, hooks.param_prefix, resume)
