@@ -84,3 +84,21 @@ def trained_run(small_data: Path, tmp_path_factory: pytest.TempPathFactory) -> P
         finally:
             torch.set_num_threads(threads)
     return shared(tmp_path_factory, "run", make)
+
+
+@pytest.fixture(scope="session")
+def onnx_files(trained_run: Path, small_data: Path, tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """trained_run exported by the CLI as a user would: `edgepick export` (fp32.onnx) and `edgepick
+    quantize static` on 16 calibration images (static.onnx); each command's JSON under "fp32" and
+    "static". Built once for all workers, read only."""
+    import json
+
+    def make(out: Path) -> None:
+        out.mkdir(parents=True)
+        fp32 = run_cli("export", str(trained_run), "--out", str(out / "fp32.onnx"), check=True).stdout
+        static = run_cli("quantize", "static", str(trained_run), "--data", str(small_data), "--out",
+                         str(out / "static.onnx"), "--calib-images", "16", check=True).stdout
+        (out / "fp32.json").write_text(fp32)
+        (out / "static.json").write_text(static)
+    out = shared(tmp_path_factory, "onnx", make)
+    return {name: json.loads((out / f"{name}.json").read_text()) for name in ("fp32", "static")} | {"dir": out}

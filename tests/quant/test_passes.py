@@ -23,15 +23,6 @@ AGREEMENT = 0.995 if {"avx512_vnni", "avx_vnni"} & set(cpu_flags()) else 0.99
 # sat at the line (0.99504 before hardswish was gated, 0.99423 after; 16 images: 0.99737 / 0.99784).
 
 
-@pytest.fixture(scope="module")
-def onnx_files(trained_run: Path, small_data: Path, tmp_path_factory) -> dict:
-    out = tmp_path_factory.mktemp("onnx")
-    fp32 = json.loads(run_cli("export", str(trained_run), "--out", str(out / "fp32.onnx"), check=True).stdout)
-    static = json.loads(run_cli("quantize", "static", str(trained_run), "--data", str(small_data), "--out",
-                                str(out / "static.onnx"), "--calib-images", "16", check=True).stdout)
-    return {"fp32": fp32, "static": static, "dir": out}
-
-
 def test_static_int8_meets_the_contract(onnx_files):
     static = onnx_files["static"]
     seg = Segmenter(static["out"])  # docs/contracts.md#onnx-model: uint8 image, uint8 labels, metadata
