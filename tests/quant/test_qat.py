@@ -284,3 +284,24 @@ def test_hybrid_qat_continues_with_the_float_runs_optimizer_moments(trained_run,
     first = next(iter(start.optimizer["state"].values()))  # the float model's first parameter
     assert torch.equal(opt.state[params["model.backbone.0.0.weight"]]["exp_avg"], first["exp_avg"])
     assert float(opt.state[params["model.backbone.0.0.weight"]]["step"]) == float(first["step"]) > 0
+
+
+def test_a_qat_checkpoint_loads_into_the_graph_that_trained(fresh_qat):
+    """A QaT pass exports its best epoch by loading that checkpoint into the graph it trained (no second
+    torch.export): every weight, BN statistic and fake-quant range of the graph is then the checkpoint's."""
+    import copy
+
+    from edgepick.models import ModelConfig
+    from edgepick.quant.qat import load_qat
+
+    trained = copy.deepcopy(fresh_qat)
+    best = fresh_qat.state_dict()  # with its version metadata, as a checkpoint keeps it (torchao's observers read it)
+    for k, v in best.items():
+        if v.is_floating_point():
+            best[k] = v + 1  # another epoch's
+    ckpt = Checkpoint(model_config=ModelConfig(), classes=tuple("abcde"), input_size=Size(96, 64), model=best)
+    graph = load_qat(ckpt, trained)
+    assert graph is trained
+    loaded = graph.state_dict()
+    assert set(loaded) == set(best)
+    assert not [k for k, v in best.items() if not torch.equal(loaded[k], v)]

@@ -1,6 +1,7 @@
 """quant/torchao_compat.py workaround 2: torchao's traced pt2e patterns kept for the process, handed
-out as copies, one trace per pattern function, flags and input shapes. (Workaround 1, the BatchNorm
-literals, is tested through the QaT graph in tests/quant/test_qat.py.)"""
+out as copies, one trace per pattern function, flags and input shapes; and set_mode's rewrite only on
+a change of mode. (Workaround 1, the BatchNorm literals, is tested through the QaT graph in
+tests/quant/test_qat.py.)"""
 
 from __future__ import annotations
 
@@ -100,3 +101,42 @@ def test_patterns_of_conv_kinds_the_graph_lacks_are_not_traced(monkeypatch):
         converted = convert_pt2e(prepared)
     assert kinds & set(torchao_compat._CONV_KINDS) == {"conv2d"}
     assert "conv2d" in torchao_compat.graph_ops(converted) and "batch_norm" not in torchao_compat.graph_ops(converted)
+
+
+def test_a_graph_is_not_switched_into_the_mode_it_is_in(monkeypatch):
+    """set_mode runs torchao's train/eval rewrite (a pattern search over the whole graph) only when
+    the mode changes; a deep copy keeps the mode its graph is in."""
+    import copy
+
+    import torchao.quantization.pt2e as pt2e
+    from torchao.quantization.pt2e.quantize_pt2e import prepare_qat_pt2e
+
+    from edgepick.quant.config import QuantConfig
+    from edgepick.quant.quantizer import EdgeQuantizer
+    from edgepick.quant.torchao_compat import set_mode
+
+    net = torch.nn.Sequential(torch.nn.Conv2d(3, 4, 3), torch.nn.BatchNorm2d(4), torch.nn.ReLU())
+    example = (torch.randn(2, 3, 8, 8),)
+    prepared = prepare_qat_pt2e(torch.export.export(net.train(), example).module(), EdgeQuantizer(QuantConfig(), qat=True))
+    calls = []
+
+    def counted(name: str):
+        rewrite = getattr(pt2e, name)
+        return lambda graph: calls.append(name) or rewrite(graph)
+
+    for name in ("move_exported_model_to_train", "move_exported_model_to_eval"):
+        monkeypatch.setattr(pt2e, name, counted(name))
+
+    def training_flags(graph) -> set:
+        return {n.args[5] for n in graph.graph.nodes if n.target == torch.ops.aten.batch_norm.default}
+
+    assert training_flags(prepared) == {True}
+    for mode, flags, rewrites in ((False, {False}, 1), (False, {False}, 1), (True, {True}, 2), (True, {True}, 2),
+                                  (False, {False}, 3)):
+        set_mode(prepared, training=mode)
+        assert training_flags(prepared) == flags and len(calls) == rewrites, (mode, calls)
+    twin = copy.deepcopy(prepared)
+    set_mode(twin, training=False)
+    assert len(calls) == 3 and training_flags(twin) == {False}
+    set_mode(twin, training=True)
+    assert calls[-1] == "move_exported_model_to_train" and training_flags(twin) == {True}
