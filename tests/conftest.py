@@ -101,4 +101,4 @@ def onnx_files(trained_run: Path, small_data: Path, tmp_path_factory: pytest.Tem
         (out / "fp32.json").write_text(fp32)
         (out / "static.json").write_text(static)
     out = shared(tmp_path_factory, "onnx", make)
-    return {name: json.loads((out / f"{name}.json").read_text()) for name in ("fp32", "static")} | {"dir": out}
+    return {name: json.loads((out / f"{name}.json").read_text()) for name in ("fp32", "static")}
