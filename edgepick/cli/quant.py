@@ -20,7 +20,15 @@ from edgepick.errors import ConfigError
 from edgepick.files import check_output
 from edgepick.geometry import Size
 from edgepick.models.config import Arch
-from edgepick.quant.config import DEFAULT_CALIB_IMAGES, FREEZE_AT, MAX_FLOAT_LAYERS, CalibMethod, QuantConfig
+from edgepick.quant.config import (
+    BIAS_CORRECTION_IMAGES,
+    DEFAULT_CALIB_IMAGES,
+    FREEZE_AT,
+    MAX_FLOAT_LAYERS,
+    BiasCorrection,
+    CalibMethod,
+    QuantConfig,
+)
 from edgepick.train.config import Device, TrainConfig
 
 
@@ -54,6 +62,15 @@ calibration = [
                  type=choice(CalibMethod),
                  help="Activation ranges: a percentile of each histogram, min/max, KL divergence (entropy) or "
                       "L2 error (mse, slower). Compare them on your model with benchmarks/calib_methods.py."),
+]
+
+
+bias_correction_option = [
+    click.option("--bias-correction", default=default_of(QuantConfig, "bias_correction"), show_default=True,
+                 type=choice(BiasCorrection),
+                 help=f"Shift each int8 conv's bias so that its output's per-channel mean is fp32's, on the first "
+                      f"{BIAS_CORRECTION_IMAGES} calibration images: fast (each conv on fp32's input, NNCF's form) or "
+                      "empirical (each conv on the int8 model's own input, layer by layer, AIMET's form)."),
 ]
 
 
@@ -101,6 +118,7 @@ def quantize() -> None:
 @with_options(calibration)
 @click.option("--percentile", default=default_of(QuantConfig, "percentile"), show_default=True,
               help="For --calib-method percentile.")
+@with_options(bias_correction_option)
 @click.option("--seed", default=0, show_default=True, help="Which calibration images are drawn.")
 @click.option("--max-miou-drop", default=None, type=float, metavar="PP",
               help="Accuracy-aware: keep the layers adding the most drift in float, one at a time, until the val "
@@ -110,8 +128,8 @@ def quantize() -> None:
 @with_options(common)
 @with_options(preprocessing_options)
 def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None, input_shape: str | None,
-                        calib_images: int | None, calib_method: str, percentile: float, seed: int,
-                        max_miou_drop: float | None, max_float_layers: int, out: str, reduce_range: bool,
+                        calib_images: int | None, calib_method: str, percentile: float, bias_correction: str,
+                        seed: int, max_miou_drop: float | None, max_float_layers: int, out: str, reduce_range: bool,
                         keep_float: str, **preprocessing) -> None:
     """Static post-training quantization of MODEL: a float RUN or checkpoint of edgepick's (BN
     folded, ranges calibrated on --calib-images train images of --data), or a float ONNX file
@@ -122,6 +140,8 @@ def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None
     edgepick quantize static model.onnx --calib images/ --mean 0.485,0.456,0.406 --std 0.229,0.224,0.225 --out int8.onnx
     """
     if Path(checkpoint).suffix.lower() == ".onnx":
+        if bias_correction != BiasCorrection.NONE:
+            raise ConfigError("--bias-correction is for a RUN or checkpoint; an .onnx MODEL does not take it yet")
         _quantize_onnx(checkpoint, calib, input_shape, calib_images, seed, max_miou_drop, data_dir, out,
                        _quant_config(keep_float, calib_method=calib_method, percentile=percentile,
                                      reduce_range=reduce_range), preprocessing)
@@ -137,7 +157,8 @@ def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None
     _check_onnx_out(out, checkpoint, data_dir)
     if seed < 0:
         raise ConfigError(f"--seed {seed}: must be 0 or positive")
-    cfg = _quant_config(keep_float, calib_method=calib_method, percentile=percentile, reduce_range=reduce_range)
+    cfg = _quant_config(keep_float, calib_method=calib_method, percentile=percentile, reduce_range=reduce_range,
+                        bias_correction=bias_correction)
     if max_miou_drop is not None:
         from edgepick.quant.inspect import quantize_accuracy_aware
 
@@ -192,10 +213,12 @@ def _quantize_onnx(model: str, calib: str | None, input_shape: str | None, calib
 @click.option("--images", default=8, show_default=True, help="Val images compared.")
 @click.option("--top", default=10, show_default=True, help="Rows of the worst-layers table on stderr.")
 @click.option("--reduce-range/--full-range", default=default_of(QuantConfig, "reduce_range"), show_default=True)
+@with_options(bias_correction_option)
 def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int | None, calib_method: str, images: int, top: int,
-                         reduce_range: bool) -> None:
+                         reduce_range: bool, bias_correction: str) -> None:
     """Where int8 drifts from fp32: per conv layer, the SQNR of the int8 simulation against fp32 and
-    the drift it adds; the worst layers are the --keep-float candidates. JSON on stdout."""
+    the drift it adds; the worst layers are the --keep-float candidates. With --bias-correction,
+    also what the correction gains each layer. JSON on stdout."""
     from edgepick.quant.inspect import inspect
     from edgepick.quant.passes import check_classes, check_image_count, folder_images
     from edgepick.train.checkpoint import Checkpoint
@@ -208,12 +231,21 @@ def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int | Non
     check_classes(ckpt, data_dir)
     report = inspect(ckpt, folder_images(data_dir, "train", calib_images),
                      folder_images(data_dir, "val", images, what="val images"),
-                     _quant_config(calib_method=calib_method, reduce_range=reduce_range))
+                     _quant_config(calib_method=calib_method, reduce_range=reduce_range,
+                                   bias_correction=bias_correction))
     by_name = {r["layer"]: r for r in report["layers"]}
     click.echo(f"logits SQNR {report['logits_sqnr_db']} dB, labels equal to fp32: {report['label_agreement']}", err=True)
-    click.echo(f"{'layer':40s} {'SQNR dB':>8s} {'added drift dB':>15s}", err=True)
+    corrected = report.get("bias_correction")
+    if corrected:
+        click.echo(f"with {corrected['method']} bias correction: logits SQNR {corrected['logits_sqnr_db']} dB, labels "
+                   f"equal to fp32: {corrected['label_agreement']}", err=True)
+    gain = f" {'bias corr. gain dB':>19s}" if corrected else ""
+    click.echo(f"{'layer':40s} {'SQNR dB':>8s} {'added drift dB':>15s}{gain}", err=True)
     for name in report["ranked"][:top]:
-        click.echo(f"{name:40s} {by_name[name]['sqnr_db']:8.2f} {by_name[name]['added_drift_db']:15.2f}", err=True)
+        row = by_name[name]
+        gain = f" {row['bias_correction_gain_db'] if row['bias_correction_gain_db'] is not None else '-':>19}" \
+            if corrected else ""
+        click.echo(f"{name:40s} {row['sqnr_db']:8.2f} {row['added_drift_db']:15.2f}{gain}", err=True)
     emit(report)
 
 

@@ -11,6 +11,7 @@ from edgepick.schema import member, plain
 
 DEFAULT_CALIB_IMAGES = 64  # or the whole train split when it is smaller
 FREEZE_AT = 0.7  # share of the QaT steps after which observers and BN statistics are frozen
+BIAS_CORRECTION_IMAGES = 32  # the first this many calibration images (the empirical form holds them all in memory)
 MAX_FLOAT_LAYERS = 6  # accuracy-aware static PTQ: the most layers it keeps in float
 
 
@@ -21,6 +22,14 @@ class CalibMethod(enum.StrEnum):
     PERCENTILE = "percentile"  # a percentile of each histogram: clips rare outliers
     ENTROPY = "entropy"  # KL-divergence minimisation (TensorRT's entropy calibration)
     MSE = "mse"  # L2 error of the histogram's quantization (slower)
+
+
+class BiasCorrection(enum.StrEnum):
+    """How static PTQ corrects the mean shift quantization gives each conv's output (quant/bias_correction.py)."""
+
+    NONE = "none"
+    FAST = "fast"  # each conv on the float model's input (NNCF's fast bias correction)
+    EMPIRICAL = "empirical"  # each conv on the int8 model's own input, errors before it included (AIMET's)
 
 
 @dataclass(frozen=True)
@@ -39,11 +48,13 @@ class QuantConfig:
     # hardswish as x * hardsigmoid(x), both quantized (rewrites.GatedHardswish): onnxruntime then runs it on integer
     # kernels; as one quantized op it dequantizes the map and runs in float (benchmarks/quant_speed.py times both).
     hardswish_gate: bool = True
+    bias_correction: BiasCorrection = BiasCorrection.NONE  # static PTQ: shift conv biases back to fp32's means
     keep_float: tuple[str, ...] = ()  # module names (prefixes) left in float
     skip: tuple[str, ...] = ("preprocess",)  # never quantized
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "calib_method", member(CalibMethod, "calib_method", self.calib_method))
+        object.__setattr__(self, "bias_correction", member(BiasCorrection, "bias_correction", self.bias_correction))
         object.__setattr__(self, "keep_float", tuple(self.keep_float))
         object.__setattr__(self, "skip", tuple(self.skip))
         if not 50.0 < self.percentile <= 100.0:

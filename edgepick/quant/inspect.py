@@ -11,6 +11,7 @@ the conv before them ("added drift"), not by their absolute SQNR.
 
 from __future__ import annotations
 
+import copy
 import math
 import operator
 import shutil
@@ -29,10 +30,12 @@ from edgepick.errors import ParameterError
 from edgepick.export.onnx_export import check_onnx_out
 from edgepick.geometry import Size
 from edgepick.models.deeplabv3 import LogitsNet, trim_dilated_convs
-from edgepick.quant.config import MAX_FLOAT_LAYERS, QuantConfig
-from edgepick.quant.graph import PREFIX, as_input, at_input_size, calibrate, convert, prepare
+from edgepick.quant.bias_correction import correct_biases
+from edgepick.quant.config import BIAS_CORRECTION_IMAGES, MAX_FLOAT_LAYERS, BiasCorrection, QuantConfig
+from edgepick.quant.graph import PREFIX, as_input, at_input_size, calibrate, convert, first_of, prepare
 from edgepick.quant.quantizer import module_path
 from edgepick.quant.results import AccuracyAwareResult
+from edgepick.quant.rewrites import snap_conv_biases
 from edgepick.train.checkpoint import Checkpoint
 
 CONV = torch.ops.aten.conv2d.default
@@ -129,7 +132,9 @@ def ranked(report: dict) -> list[str]:
 def inspect(checkpoint: str | Path | Checkpoint, calib: Iterable[np.ndarray], images: Sequence[np.ndarray],
             config: QuantConfig | None = None, progress: bool = True) -> dict:
     """Calibrate a static int8 model (in memory) on CALIB and compare it layer by layer with fp32 on
-    IMAGES (HxWx3 uint8 RGB, resized to the model's input; `folder_images` draws both from a data set)."""
+    IMAGES (HxWx3 uint8 RGB, resized to the model's input; `folder_images` draws both from a data set).
+    With config.bias_correction, the corrected model is compared too, and each layer says how many
+    dB of SQNR the correction gained it (`bias_correction_gain_db`)."""
     config = config or QuantConfig()
     if not images:
         raise ParameterError("{images}: give at least one image to compare on", images=images)
@@ -137,9 +142,27 @@ def inspect(checkpoint: str | Path | Checkpoint, calib: Iterable[np.ndarray], im
     size = ckpt.input_size
     float_gm = float_graph(ckpt.build_model(), size)
     prepared = prepare(ckpt.build_model(), config, size, qat=False)
-    calibrate(prepared, calib, size, progress)
-    report = compare(float_gm, convert(prepared), [at_input_size(rgb, size, "images") for rgb in images])
+    kept: list[np.ndarray] = []
+    calibrate(prepared, first_of(calib, BIAS_CORRECTION_IMAGES, kept), size, progress)
+    correcting = config.bias_correction != BiasCorrection.NONE
+    reference = copy.deepcopy(prepared) if correcting else None  # convert rewrites the graph it is given
+    converted = convert(prepared)
+    compared = [at_input_size(rgb, size, "images") for rgb in images]
+    report = compare(float_gm, converted, compared)
     report["ranked"] = ranked(report)
+    if reference is not None:
+        correct_biases(reference, converted, [as_input(at_input_size(rgb, size)) for rgb in kept],
+                       config.bias_correction)
+        snap_conv_biases(converted)
+        corrected = compare(float_gm, converted, compared)
+        gains = {r["layer"]: r["sqnr_db"] for r in corrected["layers"]}
+        for row in report["layers"]:
+            after = gains.get(row["layer"])
+            finite = after is not None and math.isfinite(after) and math.isfinite(row["sqnr_db"])
+            row["bias_correction_gain_db"] = round(after - row["sqnr_db"], 2) if finite else None
+        report["bias_correction"] = {"method": config.bias_correction.value, "images": len(kept),
+                                     "logits_sqnr_db": corrected["logits_sqnr_db"],
+                                     "label_agreement": corrected["label_agreement"]}
     return report
 
 

@@ -20,8 +20,9 @@ from edgepick.errors import ParameterError
 from edgepick.export.checks import check_onnx_out, conv_weight_report
 from edgepick.export.onnx_export import export_module_onnx
 from edgepick.geometry import Size
-from edgepick.quant.config import QuantConfig
-from edgepick.quant.graph import QuantizationError, convert, expected_int8_convs, prepare
+from edgepick.quant.bias_correction import convert_corrected
+from edgepick.quant.config import BIAS_CORRECTION_IMAGES, BiasCorrection, QuantConfig
+from edgepick.quant.graph import QuantizationError, expected_int8_convs, prepare
 from edgepick.quant.onnx_static import CHECK_TENSORS, OnnxPassResult, check_tensor, decisions
 from edgepick.quant.rewrites import GatedHardswish
 
@@ -66,6 +67,8 @@ def quantize_module_static(module: torch.nn.Module, calib: Iterable[Any], out: s
     t0 = time.perf_counter()
     prepared = prepare(model, config, Size(shape[3], shape[2]), qat=False, input_shape=shape)
     gated = sum(isinstance(m, GatedHardswish) for m in model.modules())
+    correcting = config.bias_correction != BiasCorrection.NONE
+    keep = max(CHECK_TENSORS, BIAS_CORRECTION_IMAGES if correcting else 0)
     kept, seen = [first], 0
     with torch.no_grad():
         for k, x in enumerate(progress_bar(itertools.chain([first], batches), desc="calibrate", unit="batch",
@@ -73,12 +76,14 @@ def quantize_module_static(module: torch.nn.Module, calib: Iterable[Any], out: s
             x = first if k == 0 else _tensor(x, shape, f"calibration batch {k + 1}")
             prepared(x)
             seen += 1
-            if 0 < k < CHECK_TENSORS:
+            if 0 < k < keep:
                 kept.append(x)
-    converted = convert(prepared)
+    converted = convert_corrected(prepared, lambda: kept[:BIAS_CORRECTION_IMAGES], config.bias_correction)
+    kept = kept[:CHECK_TENSORS]
     calib_s = time.perf_counter() - t0
     quant = {"mode": "static", "source": "module", "calib_method": config.calib_method.value, "calib_images": seen,
-             "percentile": config.percentile, "reduce_range": config.reduce_range, "keep_float": list(config.keep_float)}
+             "percentile": config.percentile, "reduce_range": config.reduce_range,
+             "bias_correction": config.bias_correction.value, "keep_float": list(config.keep_float)}
     path = export_module_onnx(converted, out, shape, {"edgepick.quant": json.dumps(quant)})
     report = conv_weight_report(path)
     expected = expected_int8_convs(prepared, config)

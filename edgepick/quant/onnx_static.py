@@ -39,7 +39,7 @@ from edgepick.export.int8_activations import integer_activations
 from edgepick.export.onnx_io import CONV_OPS, fix_input_shape, graph_inputs, input_dims, lift_opset, load_float_onnx, opset
 from edgepick.files import atomic_path
 from edgepick.geometry import Size
-from edgepick.quant.config import CalibMethod, QuantConfig
+from edgepick.quant.config import BiasCorrection, CalibMethod, QuantConfig
 from edgepick.quant.onnx_graph import fold_affine_into_convs, rewrite_activations
 from edgepick.runtime.preprocessing import Preprocessing
 
@@ -233,6 +233,9 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
     config = config or QuantConfig()
     check_onnx_out(out, model)
     onnxruntime.set_default_logger_severity(3)  # its quantizer's sessions warn about every unused initializer
+    if config.bias_correction != BiasCorrection.NONE:
+        raise ParameterError("{bias_correction}: not available for ONNX models yet; quantize the nn.Module instead",
+                             bias_correction=config.bias_correction)
     if config.calib_method not in _ORT_METHODS:
         raise ParameterError(f"{{calib_method}}: not available for ONNX models; use one of "
                              f"{', '.join(m.value for m in _ORT_METHODS)}", calib_method=config.calib_method)

@@ -24,9 +24,11 @@ from edgepick.errors import CheckpointError, ConfigError, ParameterError
 from edgepick.export.checks import conv_weight_report, label_agreement
 from edgepick.export.onnx_export import EXPORT_PASSES, check_onnx_out, contract_metadata, export_onnx
 from edgepick.geometry import Size
-from edgepick.quant.config import DEFAULT_CALIB_IMAGES, FREEZE_AT, QuantConfig
+from edgepick.quant.bias_correction import convert_corrected
+from edgepick.quant.config import BIAS_CORRECTION_IMAGES, DEFAULT_CALIB_IMAGES, FREEZE_AT, BiasCorrection, QuantConfig
 from edgepick.quant.graph import (
     QuantizationError,
+    as_input,
     at_input_size,
     calibrate,
     check_keep_float,
@@ -143,8 +145,15 @@ def quantize_static(checkpoint: str | Path | Checkpoint | torch.nn.Module, calib
     _stage("prepare the graph (torch.export, observers), then calibrate", progress)
     prepared = prepare(model, config, size, qat=False)
     kept: list[np.ndarray] = []
-    seen = calibrate(prepared, first_of(calib, AGREEMENT_IMAGES, kept), size, progress)
-    converted = convert(prepared)
+    correcting = config.bias_correction != BiasCorrection.NONE
+    keep = max(AGREEMENT_IMAGES, BIAS_CORRECTION_IMAGES if correcting else 0)
+    seen = calibrate(prepared, first_of(calib, keep, kept), size, progress)
+    if correcting:
+        _stage(f"convert, with {config.bias_correction} bias correction on up to {BIAS_CORRECTION_IMAGES} "
+               "calibration images", progress)
+    converted = convert_corrected(prepared, lambda: [as_input(at_input_size(rgb, size))
+                                                     for rgb in kept[:BIAS_CORRECTION_IMAGES]], config.bias_correction)
+    kept = kept[:AGREEMENT_IMAGES]
     calib_s = time.perf_counter() - t0
     quant = {"mode": "static", "qat_fraction": None, "calib_method": config.calib_method, "calib_images": seen,
              **{k: v for k, v in config.to_dict().items() if k not in ("calib_method", "weight_averaging")}}
@@ -183,7 +192,7 @@ def _finish_qat(run: Run, data: str | Path, out: str | Path, quant: dict, graph:
 
 def _qat_quant(mode: str, fraction: float, config: QuantConfig) -> dict:
     return {"mode": mode, "qat_fraction": fraction, "calib_method": "qat", "calib_images": None,
-            **{k: v for k, v in config.to_dict().items() if k not in ("calib_method", "percentile")}}
+            **{k: v for k, v in config.to_dict().items() if k not in ("calib_method", "percentile", "bias_correction")}}
 
 
 def quantize_qat(train_config: TrainConfig, out: str | Path, config: QuantConfig | None = None,

@@ -54,8 +54,12 @@ def test_accuracy_aware_static_keeps_the_worst_layers_float(trained_run, small_d
     assert easy.met and len(easy.steps) == 1 and len(ranked_on) == (len(steps) > 1)  # met at once: no ranking
 
 
-def test_inspect_cli(trained_run, small_data):
+def test_inspect_cli_with_bias_correction(trained_run, small_data):
     proc = run_cli("quantize", "inspect", str(trained_run), "--data", str(small_data), "--calib-images", "8",
-                   "--images", "2", "--top", "3")
+                   "--images", "2", "--top", "3", "--bias-correction", "empirical")
     assert proc.returncode == 0, proc.stderr
-    assert "logits SQNR" in proc.stderr and len(json.loads(proc.stdout)["layers"]) == 70
+    report = json.loads(proc.stdout)
+    assert "logits SQNR" in proc.stderr and "bias corr. gain dB" in proc.stderr and len(report["layers"]) == 70
+    assert report["bias_correction"]["method"] == "empirical" and report["bias_correction"]["images"] == 8
+    gains = [r["bias_correction_gain_db"] for r in report["layers"] if r["bias_correction_gain_db"] is not None]
+    assert len(gains) >= 60 and any(g != 0 for g in gains)

@@ -1,0 +1,123 @@
+"""Bias correction: a planted per-channel mean shift removed (fast and empirical), the empirical
+form matching fp32's means at every conv, and the pass writing what it did."""
+
+from __future__ import annotations
+
+import copy
+import json
+
+import numpy as np
+import onnx
+import pytest
+import torch
+from torch import nn
+
+from edgepick.errors import ParameterError
+from edgepick.geometry import Size
+from edgepick.quant import BiasCorrection, QuantConfig, calibrate, convert, prepare, quantize_static
+from edgepick.quant.bias_correction import correct_biases, int8_convs
+from edgepick.quant.rewrites import snap_conv_biases
+
+SIZE = Size(32, 24)
+
+
+class Planted(nn.Module):
+    """Two convs whose weights all sit 0.45 of a 7-bit step above the int8 grid: rounding moves
+    every weight down, and on inputs with a positive mean every output channel's mean moves with it."""
+
+    def __init__(self):
+        super().__init__()
+        self.a = nn.Conv2d(3, 6, 3, padding=1)
+        self.b = nn.Conv2d(6, 4, 1)
+        torch.manual_seed(0)
+        with torch.no_grad():
+            for conv, top in ((self.a, 0.02), (self.b, 1.0)):
+                w = conv.weight
+                steps = torch.randint(1, 40, w.shape).float() + 0.45  # below the channel's top value
+                steps.view(w.shape[0], -1)[:, 0] = 63.0  # each channel's largest |w|: exactly 63 steps
+                w.copy_(steps / 63.0 * top)
+                conv.bias.zero_()
+
+    def forward(self, x):
+        return self.b(torch.relu(self.a(x / 255.0)))
+
+
+def _graphs(images):
+    prepared = prepare(Planted().eval(), QuantConfig(hardswish_gate=False), SIZE, qat=False)
+    calibrate(prepared, images)
+    reference = copy.deepcopy(prepared)
+    return reference, convert(prepared, snap_biases=False)
+
+
+def _conv_means(graph, inputs):
+    """Per conv node name, the per-channel mean of its output over INPUTS."""
+    from edgepick.quant.bias_correction import _Means
+
+    means = _Means(graph, {n.name: n.name for n in graph.graph.nodes if n.target == torch.ops.aten.conv2d.default})
+    with torch.no_grad():
+        for x in inputs:
+            means.run(x)
+    return means.means()
+
+
+@pytest.fixture(scope="module")
+def images():
+    rng = np.random.default_rng(0)
+    return [rng.integers(60, 256, (*SIZE.hw, 3), dtype=np.uint8) for _ in range(6)]
+
+
+@pytest.mark.parametrize("method", [BiasCorrection.FAST, BiasCorrection.EMPIRICAL])
+def test_a_planted_mean_shift_is_removed(images, method):
+    from edgepick.quant.graph import as_input
+
+    inputs = [as_input(rgb) for rgb in images]
+    reference, converted = _graphs(images)
+    target = _conv_means(reference, inputs)
+    before = _conv_means(converted, inputs)
+    shift = {k: (before[k] - target[k]).abs().max().item() for k in target}
+    assert min(shift.values()) > 1e-3, shift  # the plant moved every conv's mean
+    moved = correct_biases(reference, converted, inputs, method)
+    assert set(moved) == set(int8_convs(converted)) == set(target)
+    snap_conv_biases(converted)
+    after = _conv_means(converted, inputs)
+    for k in target:
+        left = (after[k] - target[k]).abs().max().item()
+        assert left < shift[k] / 10, (method, k, shift[k], left)
+
+
+def test_the_empirical_form_gives_every_conv_fp32s_mean_where_the_fast_one_does_not(images):
+    """Ranges calibrated on darker images clip the input of the first conv: its per-pixel errors
+    move the mean of the second conv's output through the ReLU between them. Only the empirical
+    form, which runs the int8 model itself, sees that."""
+    from edgepick.quant.graph import as_input
+
+    inputs = [as_input(rgb) for rgb in images]
+    left = {}
+    for method in (BiasCorrection.FAST, BiasCorrection.EMPIRICAL):
+        reference, converted = _graphs([rgb // 2 for rgb in images])
+        target = _conv_means(reference, inputs)
+        correct_biases(reference, converted, inputs, method)
+        after = _conv_means(converted, inputs)
+        left[method] = max((after[k] - target[k]).abs().max().item() for k in target)
+    assert left[BiasCorrection.EMPIRICAL] < 1e-5 and left[BiasCorrection.FAST] > 1e-3, left
+
+
+def test_none_changes_nothing_and_onnx_models_say_it_is_not_there(images, tmp_path):
+    reference, converted = _graphs(images)
+    assert correct_biases(reference, converted, [], BiasCorrection.NONE) == {}
+    with pytest.raises(ValueError, match="at least one"):
+        correct_biases(reference, converted, [], BiasCorrection.FAST)
+    with pytest.raises(ParameterError, match="bias_correction"):
+        quantize_static(tmp_path / "m.onnx", [], tmp_path / "o.onnx", QuantConfig(bias_correction="fast"))
+    with pytest.raises(ParameterError, match="bias_correction"):
+        QuantConfig(bias_correction="median")
+
+
+def test_a_module_pass_records_its_bias_correction(images, tmp_path):
+    from edgepick.quant.graph import as_input
+
+    result = quantize_static(Planted().eval(), [as_input(rgb) for rgb in images], tmp_path / "p.onnx",
+                             QuantConfig(bias_correction=BiasCorrection.EMPIRICAL), progress=False)
+    assert result.quant["bias_correction"] == "empirical" and result.int8_convs == 2
+    meta = {p.key: p.value for p in onnx.load(str(tmp_path / "p.onnx")).metadata_props}
+    assert json.loads(meta["edgepick.quant"])["bias_correction"] == "empirical"
