@@ -1,6 +1,6 @@
 """Static PTQ calibration methods compared on one float run: val mIoU of the int8 file on
 onnxruntime and on OpenVINO, and onnxruntime-vs-torch label agreement, for each activation-range
-method with 7-bit (reduce-range, the default) and 8-bit weights.
+method with 7-bit (the default), 8-bit and first-7 weights (--weight-bits).
 
     python benchmarks/calib_methods.py --run demo-out/run --data demo-out/data [--out FILE.md | --save]
 """
@@ -21,8 +21,8 @@ from edgepick.export.onnx_export import export_checkpoint  # noqa: E402
 from edgepick.quant.passes import agreement_images, folder_images, quantize_static  # noqa: E402
 from edgepick.quant.quantizer import QuantConfig  # noqa: E402
 
-CASES = [("minmax", True), ("minmax", False), ("percentile", True), ("percentile", False), ("mse", True),
-         ("entropy", True)]
+CASES = [("minmax", "7"), ("minmax", "8"), ("percentile", "7"), ("percentile", "8"), ("percentile", "first-7"),
+         ("mse", "7"), ("entropy", "7")]
 
 
 def main() -> None:
@@ -46,13 +46,13 @@ def main() -> None:
         calib, check = folder_images(args.data, "train", args.calib_images), agreement_images(args.data)
         base = {e: evaluate(fp32, args.data, args.split, progress=False, engine=e)["miou"] for e in engines}
         rows.append(("fp32", "-", base, None))
-        for method, reduce_range in CASES:
-            out = work / f"{method}-{reduce_range}.onnx"
-            print(f"-- {method} reduce_range={reduce_range}", file=sys.stderr, flush=True)
-            r = quantize_static(args.run, calib, out, QuantConfig(calib_method=method, reduce_range=reduce_range),
+        for method, bits in CASES:
+            out = work / f"{method}-{bits}.onnx"
+            print(f"-- {method} weight bits {bits}", file=sys.stderr, flush=True)
+            r = quantize_static(args.run, calib, out, QuantConfig(calib_method=method, weight_bits=bits),
                                 check_images=check, progress=False)
             miou = {e: evaluate(out, args.data, args.split, progress=False, engine=e)["miou"] for e in engines}
-            rows.append((method, "7-bit" if reduce_range else "8-bit", miou, r.agreement_vs_torch))
+            rows.append((method, bits, miou, r.agreement_vs_torch))
     finally:
         shutil.rmtree(work, ignore_errors=True)
 

@@ -1,12 +1,14 @@
-"""Static PTQ methods compared on one float run, over several calibration seeds: how closely the
-int8 file follows fp32 on onnxruntime (labels equal on object pixels, the pixels either model
-calls an object; and the test mIoU against fp32's), and what each method costs in calibration time.
+"""Static PTQ methods (weight bits, bias correction) compared on one float run, over several
+calibration seeds: how closely the int8 file follows fp32 on onnxruntime (labels equal on object
+pixels, the pixels either model calls an object; and the test mIoU against fp32's), how closely
+onnxruntime follows torch's simulation of the same int8 model (where 8-bit weights saturate an
+AVX2 CPU's int16 pairs, it does not), calibration time, and the int8 latency.
 
 Object-pixel agreement is the measure that cannot be lucky: on a weak model, quantization noise
 can raise mIoU by chance, while agreeing with fp32 can only be earned.
 
-    python benchmarks/ptq_methods.py --run RUN --data DATA [--seeds 0,1,2] [--methods none,fast,empirical]
-        [--out FILE.md | --save]
+    python benchmarks/ptq_methods.py --run RUN --data DATA [--seeds 0,1,2]
+        [--cases 7/none,8/none,first-7/none,7/fast,7/empirical,first-7/empirical] [--out FILE.md | --save]
 """
 
 from __future__ import annotations
@@ -22,12 +24,12 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import add_output, emit, machine_line  # noqa: E402
+from _common import add_output, emit, interleaved_times, machine_line  # noqa: E402
 
 from edgepick.data.native import NativeDataset  # noqa: E402
 from edgepick.export.onnx_export import export_checkpoint  # noqa: E402
 from edgepick.metrics import confusion_matrix, segmentation_metrics  # noqa: E402
-from edgepick.quant.config import BiasCorrection, QuantConfig  # noqa: E402
+from edgepick.quant.config import BiasCorrection, QuantConfig, WeightBits  # noqa: E402
 from edgepick.quant.passes import agreement_images, folder_images, quantize_static  # noqa: E402
 from edgepick.runtime.session import Segmenter  # noqa: E402
 
@@ -68,19 +70,22 @@ def main() -> None:
     ap.add_argument("--data", required=True)
     ap.add_argument("--split", default="test")
     ap.add_argument("--seeds", default="0,1,2", help="calibration seeds (which train images are drawn)")
-    ap.add_argument("--methods", default=",".join(m.value for m in BiasCorrection),
-                    help="bias-correction forms to compare")
+    ap.add_argument("--cases", default="7/none,8/none,first-7/none,7/fast,7/empirical,first-7/empirical",
+                    help="WEIGHT_BITS/BIAS_CORRECTION pairs to compare")
+    ap.add_argument("--runs", type=int, default=20, help="timed int8 calls per case (seed 0's file)")
     ap.add_argument("--calib-images", type=int, default=None, help="[default: quantize static's]")
     add_output(ap)
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
-    methods = [BiasCorrection(m) for m in args.methods.split(",")]
+    cases = [(WeightBits(b), BiasCorrection(m)) for b, m in (c.split("/") for c in args.cases.split(","))]
 
     ds = NativeDataset.open(args.data, args.split)
     frames, truth = [ds.rgb(i) for i in ds.ids], [ds.mask(i) for i in ds.ids]
     classes = len(ds.classes)
     work = Path(tempfile.mkdtemp(prefix="ptq-methods-"))
-    results: dict[BiasCorrection, list[tuple[float, float, float]]] = {m: [] for m in methods}
+    results: dict[tuple[WeightBits, BiasCorrection], list[tuple[float, float, float, float, int]]] = {
+        c: [] for c in cases}
+    timed: dict[tuple[WeightBits, BiasCorrection], Path] = {}
     try:
         fp32_path = Path(export_checkpoint(args.run, work / "fp32.onnx").out)
         fp32 = labels(fp32_path, frames)
@@ -88,17 +93,27 @@ def main() -> None:
         check = agreement_images(args.data)
         for seed in seeds:
             calib = folder_images(args.data, "train", args.calib_images, seed)
-            for method in methods:
-                print(f"-- seed {seed}, bias correction {method}", file=sys.stderr, flush=True)
-                out = work / f"{method}-{seed}.onnx"
+            for bits, method in cases:
+                print(f"-- seed {seed}, weight bits {bits}, bias correction {method}", file=sys.stderr, flush=True)
+                out = work / f"{bits}-{method}-{seed}.onnx"
                 t0 = time.perf_counter()
-                r = quantize_static(args.run, calib, out, QuantConfig(bias_correction=method), check_images=check,
-                                    progress=False)
+                r = quantize_static(args.run, calib, out, QuantConfig(weight_bits=bits, bias_correction=method),
+                                    check_images=check, progress=False)
                 pass_s = time.perf_counter() - t0
                 agree, int8_miou = scores(labels(out, frames), fp32, truth, classes)
-                results[method].append((agree, int8_miou - fp32_miou, r.calib_s))
+                sevens = len(r.quant.get("seven_bit_convs", [])) if bits == WeightBits.FIRST_SEVEN else (
+                    r.int8_convs if bits == WeightBits.SEVEN else 0)
+                results[(bits, method)].append((agree, int8_miou - fp32_miou, r.agreement_vs_torch, r.calib_s, sevens))
+                timed.setdefault((bits, method), out)
                 print(f"   object agreement {100 * agree:.2f}%, mIoU {100 * (int8_miou - fp32_miou):+.2f} pp, "
-                      f"calibration {r.calib_s:.1f} s, pass {pass_s:.1f} s", file=sys.stderr, flush=True)
+                      f"onnxruntime-vs-torch {100 * r.agreement_vs_torch:.2f}%, "
+                      f"{sevens} 7-bit convs, calibration {r.calib_s:.1f} s, "
+                      f"pass {pass_s:.1f} s", file=sys.stderr, flush=True)
+        print(f"-- timing seed {seeds[0]}'s files", file=sys.stderr, flush=True)
+        sessions = [Segmenter(path, threads=2) for path in timed.values()]
+        frame = frames[0]
+        times = interleaved_times([lambda i, s=seg: s.labels(frame) for seg in sessions], args.runs)
+        p50 = {case: statistics.median(t) for case, t in zip(timed, times)}
     finally:
         shutil.rmtree(work, ignore_errors=True)
 
@@ -107,15 +122,20 @@ def main() -> None:
              f"{machine_line()}; model {args.run}; fp32 test mIoU {100 * fp32_miou:.2f}% on the {args.split} split "
              f"({len(frames)} images) of {args.data}; calibration seeds {args.seeds}; onnxruntime, 2 threads.", "",
              "Mean over the seeds, (min-max) in brackets. Object-pixel agreement: the share of pixels that either "
-             "model labels as an object on which the int8 labels equal fp32's. Calibration time: prepare, "
-             "calibration, conversion and bias correction, without the export.", "",
-             "| Bias correction | Object-pixel agreement with fp32 (%) | mIoU - fp32's (pp) | Calibration (s) |",
-             "|---|---|---|---|"]
-    for method, rows in results.items():
-        agree, drop, calib_s = zip(*rows)
+             "model labels as an object on which the int8 labels equal fp32's (onnxruntime, test split). "
+             "onnxruntime-vs-torch: labels equal to torch's simulation of the same int8 model on 8 val images. "
+             "Calibration time: prepare, calibration, conversion and what the method measures, without the "
+             "export. p50: int8 labels for one test frame, the first seed's files timed in alternating blocks "
+             f"of 5 ({args.runs} calls each, one process).", "",
+             "| Weight bits | 7-bit convs | Bias correction | Object-pixel agreement with fp32 (%) | mIoU - fp32's "
+             "(pp) | onnxruntime-vs-torch (%) | Calibration (s) | p50 (ms) |",
+             "|---|---|---|---|---|---|---|---|"]
+    for (bits, method), rows in results.items():
+        agree, drop, vs_torch, calib_s, sevens = zip(*rows)
         drops = [100 * d for d in drop]
-        lines.append(f"| {method} | {spread(list(agree))} | {statistics.mean(drops):+.2f} "
-                     f"({min(drops):+.2f} to {max(drops):+.2f}) | {statistics.median(calib_s):.1f} |")
+        lines.append(f"| {bits} | {min(sevens)}-{max(sevens)} | {method} | {spread(list(agree))} | {statistics.mean(drops):+.2f} "
+                     f"({min(drops):+.2f} to {max(drops):+.2f}) | {spread(list(vs_torch))} | "
+                     f"{statistics.median(calib_s):.1f} | {p50[(bits, method)]:.1f} |")
     emit("\n".join(lines) + "\n", args)
 
 

@@ -28,6 +28,7 @@ from edgepick.quant.config import (
     BiasCorrection,
     CalibMethod,
     QuantConfig,
+    WeightBits,
 )
 from edgepick.train.config import Device, TrainConfig
 
@@ -44,9 +45,12 @@ def _check_onnx_out(out: str, *inputs: str | None) -> None:
 common = [
     click.option("--out", required=True, type=click.Path(dir_okay=False),
                  help="int8 ONNX to write (docs/contracts.md#onnx-model)."),
-    click.option("--reduce-range/--full-range", default=default_of(QuantConfig, "reduce_range"), show_default=True,
-                 help="7-bit weights, for CPUs without VNNI (AVX2 only: onnxruntime's U8S8 kernels saturate "
-                      "with 8-bit weights). --full-range for AVX512-VNNI/AVX-VNNI targets."),
+    click.option("--weight-bits", default=default_of(QuantConfig, "weight_bits"), show_default=True,
+                 type=choice(WeightBits),
+                 help="7: every conv, safe on every x86 CPU (onnxruntime's U8S8 kernels on AVX2-only CPUs add "
+                      "pairs of products in int16, which 8-bit weights can saturate). 8: for AVX512-VNNI/AVX-VNNI "
+                      "targets. first-7 (static PTQ): 7-bit only on the convs whose int16 pairs saturate on the "
+                      "calibration images, 8-bit elsewhere."),
     click.option("--keep-float", default="", metavar="NAMES",
                  help="Comma-separated module names left in float, e.g. classifier.4,backbone.0 (for an .onnx "
                       "MODEL: node names)."),
@@ -129,7 +133,7 @@ def quantize() -> None:
 @with_options(preprocessing_options)
 def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None, input_shape: str | None,
                         calib_images: int | None, calib_method: str, percentile: float, bias_correction: str,
-                        seed: int, max_miou_drop: float | None, max_float_layers: int, out: str, reduce_range: bool,
+                        seed: int, max_miou_drop: float | None, max_float_layers: int, out: str, weight_bits: str,
                         keep_float: str, **preprocessing) -> None:
     """Static post-training quantization of MODEL: a float RUN or checkpoint of edgepick's (BN
     folded, ranges calibrated on --calib-images train images of --data), or a float ONNX file
@@ -144,7 +148,7 @@ def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None
             raise ConfigError("--bias-correction is for a RUN or checkpoint; an .onnx MODEL does not take it yet")
         _quantize_onnx(checkpoint, calib, input_shape, calib_images, seed, max_miou_drop, data_dir, out,
                        _quant_config(keep_float, calib_method=calib_method, percentile=percentile,
-                                     reduce_range=reduce_range), preprocessing)
+                                     weight_bits=weight_bits), preprocessing)
         return
     from edgepick.quant.passes import agreement_images, check_classes, check_image_count, folder_images, quantize_static
     from edgepick.train.checkpoint import Checkpoint
@@ -157,7 +161,7 @@ def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None
     _check_onnx_out(out, checkpoint, data_dir)
     if seed < 0:
         raise ConfigError(f"--seed {seed}: must be 0 or positive")
-    cfg = _quant_config(keep_float, calib_method=calib_method, percentile=percentile, reduce_range=reduce_range,
+    cfg = _quant_config(keep_float, calib_method=calib_method, percentile=percentile, weight_bits=weight_bits,
                         bias_correction=bias_correction)
     if max_miou_drop is not None:
         from edgepick.quant.inspect import quantize_accuracy_aware
@@ -212,10 +216,11 @@ def _quantize_onnx(model: str, calib: str | None, input_shape: str | None, calib
 @with_options(calibration)
 @click.option("--images", default=8, show_default=True, help="Val images compared.")
 @click.option("--top", default=10, show_default=True, help="Rows of the worst-layers table on stderr.")
-@click.option("--reduce-range/--full-range", default=default_of(QuantConfig, "reduce_range"), show_default=True)
+@click.option("--weight-bits", default=default_of(QuantConfig, "weight_bits"), show_default=True,
+              type=choice(WeightBits), help="As for quantize static.")
 @with_options(bias_correction_option)
 def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int | None, calib_method: str, images: int, top: int,
-                         reduce_range: bool, bias_correction: str) -> None:
+                         weight_bits: str, bias_correction: str) -> None:
     """Where int8 drifts from fp32: per conv layer, the SQNR of the int8 simulation against fp32 and
     the drift it adds; the worst layers are the --keep-float candidates. With --bias-correction,
     also what the correction gains each layer. JSON on stdout."""
@@ -231,7 +236,7 @@ def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int | Non
     check_classes(ckpt, data_dir)
     report = inspect(ckpt, folder_images(data_dir, "train", calib_images),
                      folder_images(data_dir, "val", images, what="val images"),
-                     _quant_config(calib_method=calib_method, reduce_range=reduce_range,
+                     _quant_config(calib_method=calib_method, weight_bits=weight_bits,
                                    bias_correction=bias_correction))
     by_name = {r["layer"]: r for r in report["layers"]}
     click.echo(f"logits SQNR {report['logits_sqnr_db']} dB, labels equal to fp32: {report['label_agreement']}", err=True)
@@ -266,7 +271,7 @@ def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int | Non
 @with_options(common)
 def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int, batch_size: int, lr: float,
                      size: str, device: str, seed: int, epoch_images: int, val_images: int, out: str,
-                     reduce_range: bool, keep_float: str, weight_averaging: float) -> None:
+                     weight_bits: str, keep_float: str, weight_averaging: float) -> None:
     """QaT from scratch: train with fake-quant for all epochs (GPU if there is one; fp32, no AMP),
     observers and BN statistics frozen for the last 30% of the steps, then export the int8 model
     of the epoch with the best val mIoU."""
@@ -281,7 +286,7 @@ def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int,
                       size=input_size, device=device, seed=seed, epoch_images=epoch_images,
                       val_images=val_images)
     check_output(run, "--run", kind="dir", inputs=(data_dir, out))
-    emit(quantize_qat(cfg, out, _quant_config(reduce_range=reduce_range, keep_float=keep_float,
+    emit(quantize_qat(cfg, out, _quant_config(weight_bits=weight_bits, keep_float=keep_float,
                                                weight_averaging=weight_averaging)))
 
 
@@ -307,7 +312,7 @@ def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int,
 @with_options(qat_options)
 @with_options(common)
 def quantize_hybrid_cmd(run: str, data_dir: str, qat_fraction: float, qat_run: str | None, out: str,
-                        reduce_range: bool, keep_float: str, freeze_at: float, fresh_optimizer: bool,
+                        weight_bits: str, keep_float: str, freeze_at: float, fresh_optimizer: bool,
                         calib_images: int | None, hold_ranges: bool | None, device: str,
                         weight_averaging: float) -> None:
     """Hybrid-QaT: continue float RUN from its epoch_NNN.pt at (1 - p) of its budget E and train
@@ -320,7 +325,7 @@ def quantize_hybrid_cmd(run: str, data_dir: str, qat_fraction: float, qat_run: s
     check_output(qat_run or str(Path(out).with_suffix(".run")), "--run", kind="dir", inputs=(run, data_dir, out))
     if calib_images is not None and (calib_images < 0 or (hold_ranges and not calib_images)):
         raise ConfigError("--calib-images must be 0 (off) or positive, and --hold-ranges needs it")
-    cfg = _quant_config(reduce_range=reduce_range, keep_float=keep_float, weight_averaging=weight_averaging)
+    cfg = _quant_config(weight_bits=weight_bits, keep_float=keep_float, weight_averaging=weight_averaging)
     emit(quantize_hybrid(run, data_dir, out, qat_fraction, cfg, qat_run=qat_run, freeze_at=freeze_at,
                           carry_optimizer=not fresh_optimizer, calib=calib_images, hold_ranges=hold_ranges,
                           device=device))

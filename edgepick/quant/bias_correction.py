@@ -21,7 +21,6 @@ number of the model as it was.
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Callable, Iterable
 from operator import attrgetter
 from typing import Any
@@ -31,8 +30,6 @@ from torch.fx import GraphModule, Interpreter, Node
 from torchao.quantization.pt2e import ObserverBase
 
 from edgepick.quant.config import BiasCorrection
-from edgepick.quant.graph import convert
-from edgepick.quant.rewrites import snap_conv_biases
 
 _qd = torch.ops.quantized_decomposed
 _CONV = torch.ops.aten.conv2d.default
@@ -182,16 +179,3 @@ def correct_biases(prepared: GraphModule, converted: GraphModule, inputs: list[t
             moved[name] = float(delta.abs().max())
     return moved
 
-
-def convert_corrected(prepared: GraphModule, inputs: Callable[[], list[torch.Tensor]],
-                      method: BiasCorrection) -> GraphModule:
-    """`convert` PREPARED (calibrated), then correct its biases by METHOD on INPUTS() (called only
-    when there is something to correct) against a copy of PREPARED taken before, and snap them
-    onto onnxruntime's int32 grid."""
-    if BiasCorrection(method) == BiasCorrection.NONE:
-        return convert(prepared)
-    reference = copy.deepcopy(prepared)  # convert rewrites the graph it is given
-    converted = convert(prepared, snap_biases=False)
-    correct_biases(reference, converted, inputs(), method)
-    snap_conv_biases(converted)
-    return converted

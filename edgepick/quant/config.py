@@ -32,15 +32,22 @@ class BiasCorrection(enum.StrEnum):
     EMPIRICAL = "empirical"  # each conv on the int8 model's own input, errors before it included (AIMET's)
 
 
+class WeightBits(enum.StrEnum):
+    """Weight precision. onnxruntime's U8S8 kernels on AVX2 CPUs without VNNI (the thesis's laptop) add pairs
+    of u8*s8 products in int16, which can saturate with 8-bit weights and never with 7-bit ones (quant/overflow.py)."""
+
+    SEVEN = "7"  # every conv: safe on every x86 CPU
+    EIGHT = "8"  # every conv: for AVX512-VNNI / AVX-VNNI CPUs, which add in int32
+    FIRST_SEVEN = "first-7"  # static PTQ: 7-bit only on the convs measured to saturate on the calibration images
+
+
 @dataclass(frozen=True)
 class QuantConfig:
     """How a model is quantized, checked on creation; written into the ONNX metadata (`edgepick.quant`)."""
 
     calib_method: CalibMethod = CalibMethod.PERCENTILE  # activation ranges for static PTQ
     percentile: float = 99.99
-    # 7-bit weights: onnxruntime's U8S8 kernels on AVX2 CPUs without VNNI (the thesis laptop) add pairs of
-    # u8*s8 products in int16, which saturates with 8-bit weights. Turn off for VNNI/AVX512 targets.
-    reduce_range: bool = True
+    weight_bits: WeightBits = WeightBits.SEVEN
     # QaT: moving-average constant of the per-channel weight ranges (torch.ao's default 0.01; 1.0: each step's
     # own range). With the conv-BN fusion the quantized weight is w * gamma / sqrt(running_var + eps), which moves
     # with the BN statistics every step: a lagging range clips it (benchmarks/results/hybrid-start/).
@@ -55,12 +62,26 @@ class QuantConfig:
     def __post_init__(self) -> None:
         object.__setattr__(self, "calib_method", member(CalibMethod, "calib_method", self.calib_method))
         object.__setattr__(self, "bias_correction", member(BiasCorrection, "bias_correction", self.bias_correction))
+        object.__setattr__(self, "weight_bits", member(WeightBits, "weight_bits", str(self.weight_bits)))
         object.__setattr__(self, "keep_float", tuple(self.keep_float))
         object.__setattr__(self, "skip", tuple(self.skip))
         if not 50.0 < self.percentile <= 100.0:
             raise ParameterError("{percentile}: must be in (50, 100]", percentile=self.percentile)
         if not 0.0 < self.weight_averaging <= 1.0:
             raise ParameterError("{weight_averaging}: must be in (0, 1]", weight_averaging=self.weight_averaging)
+
+    @property
+    def reduce_range(self) -> bool:
+        """7-bit weights on every conv the quantizer annotates (first-7 starts from 8 and measures)."""
+        return self.weight_bits == WeightBits.SEVEN
+
+    @classmethod
+    def from_dict(cls, record: dict) -> QuantConfig:
+        """A config as to_dict wrote it, also from files written before weight_bits (reduce_range: bool)."""
+        record = dict(record)
+        if "reduce_range" in record:
+            record.setdefault("weight_bits", WeightBits.SEVEN if record.pop("reduce_range") else WeightBits.EIGHT)
+        return cls(**record)
 
     def to_dict(self) -> dict:
         """The config as ONNX metadata and QaT checkpoints record it (plain values, lists)."""

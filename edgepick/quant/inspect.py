@@ -32,7 +32,8 @@ from edgepick.geometry import Size
 from edgepick.models.deeplabv3 import LogitsNet, trim_dilated_convs
 from edgepick.quant.bias_correction import correct_biases
 from edgepick.quant.config import BIAS_CORRECTION_IMAGES, MAX_FLOAT_LAYERS, BiasCorrection, QuantConfig
-from edgepick.quant.graph import PREFIX, as_input, at_input_size, calibrate, convert, first_of, prepare
+from edgepick.quant.graph import PREFIX, as_input, at_input_size, calibrate, first_of, prepare
+from edgepick.quant.ptq import convert_static
 from edgepick.quant.quantizer import module_path
 from edgepick.quant.results import AccuracyAwareResult
 from edgepick.quant.rewrites import snap_conv_biases
@@ -146,13 +147,15 @@ def inspect(checkpoint: str | Path | Checkpoint, calib: Iterable[np.ndarray], im
     calibrate(prepared, first_of(calib, BIAS_CORRECTION_IMAGES, kept), size, progress)
     correcting = config.bias_correction != BiasCorrection.NONE
     reference = copy.deepcopy(prepared) if correcting else None  # convert rewrites the graph it is given
-    converted = convert(prepared)
+    plain = replace(config, bias_correction=BiasCorrection.NONE)
+    samples = [as_input(at_input_size(rgb, size)) for rgb in kept]
+    converted, measured = convert_static(prepared, lambda: samples, plain)
     compared = [at_input_size(rgb, size, "images") for rgb in images]
     report = compare(float_gm, converted, compared)
     report["ranked"] = ranked(report)
+    report.update(measured)
     if reference is not None:
-        correct_biases(reference, converted, [as_input(at_input_size(rgb, size)) for rgb in kept],
-                       config.bias_correction)
+        correct_biases(reference, converted, samples, config.bias_correction)
         snap_conv_biases(converted)
         corrected = compare(float_gm, converted, compared)
         gains = {r["layer"]: r["sqnr_db"] for r in corrected["layers"]}

@@ -20,10 +20,10 @@ from edgepick.errors import ParameterError
 from edgepick.export.checks import check_onnx_out, conv_weight_report
 from edgepick.export.onnx_export import export_module_onnx
 from edgepick.geometry import Size
-from edgepick.quant.bias_correction import convert_corrected
-from edgepick.quant.config import BIAS_CORRECTION_IMAGES, BiasCorrection, QuantConfig
+from edgepick.quant.config import BIAS_CORRECTION_IMAGES, BiasCorrection, QuantConfig, WeightBits
 from edgepick.quant.graph import QuantizationError, expected_int8_convs, prepare
 from edgepick.quant.onnx_static import CHECK_TENSORS, OnnxPassResult, check_tensor, decisions
+from edgepick.quant.ptq import convert_static
 from edgepick.quant.rewrites import GatedHardswish
 
 
@@ -67,8 +67,8 @@ def quantize_module_static(module: torch.nn.Module, calib: Iterable[Any], out: s
     t0 = time.perf_counter()
     prepared = prepare(model, config, Size(shape[3], shape[2]), qat=False, input_shape=shape)
     gated = sum(isinstance(m, GatedHardswish) for m in model.modules())
-    correcting = config.bias_correction != BiasCorrection.NONE
-    keep = max(CHECK_TENSORS, BIAS_CORRECTION_IMAGES if correcting else 0)
+    measuring = config.bias_correction != BiasCorrection.NONE or config.weight_bits == WeightBits.FIRST_SEVEN
+    keep = max(CHECK_TENSORS, BIAS_CORRECTION_IMAGES if measuring else 0)
     kept, seen = [first], 0
     with torch.no_grad():
         for k, x in enumerate(progress_bar(itertools.chain([first], batches), desc="calibrate", unit="batch",
@@ -78,12 +78,12 @@ def quantize_module_static(module: torch.nn.Module, calib: Iterable[Any], out: s
             seen += 1
             if 0 < k < keep:
                 kept.append(x)
-    converted = convert_corrected(prepared, lambda: kept[:BIAS_CORRECTION_IMAGES], config.bias_correction)
+    converted, measured = convert_static(prepared, lambda: kept[:BIAS_CORRECTION_IMAGES], config)
     kept = kept[:CHECK_TENSORS]
     calib_s = time.perf_counter() - t0
     quant = {"mode": "static", "source": "module", "calib_method": config.calib_method.value, "calib_images": seen,
-             "percentile": config.percentile, "reduce_range": config.reduce_range,
-             "bias_correction": config.bias_correction.value, "keep_float": list(config.keep_float)}
+             "percentile": config.percentile, "weight_bits": config.weight_bits.value,
+             "bias_correction": config.bias_correction.value, "keep_float": list(config.keep_float), **measured}
     path = export_module_onnx(converted, out, shape, {"edgepick.quant": json.dumps(quant)})
     report = conv_weight_report(path)
     expected = expected_int8_convs(prepared, config)

@@ -8,7 +8,7 @@ around it (docs/quantization.md, "Your own model"):
   forms with integer kernels (`onnx_graph.rewrite_activations`), BatchNorm folded and shapes
   inferred (onnxruntime's `quant_pre_process`);
 - the recipe: U8S8, weights int8 per output channel and symmetric, 7-bit unless
-  reduce_range=False, uint8 activations per tensor, HardSigmoid quantized as well;
+  weight_bits 8, uint8 activations per tensor, HardSigmoid quantized as well;
 - after: the model's outputs and the ops between its last conv and them (Resize, Sigmoid,
   Softmax, ...) in float, as edgepick's own logits are (uint8 logits tie in an ArgMax or a
   threshold); the integer activations and the padding-tap crop of `edgepick.export`.
@@ -39,7 +39,7 @@ from edgepick.export.int8_activations import integer_activations
 from edgepick.export.onnx_io import CONV_OPS, fix_input_shape, graph_inputs, input_dims, lift_opset, load_float_onnx, opset
 from edgepick.files import atomic_path
 from edgepick.geometry import Size
-from edgepick.quant.config import BiasCorrection, CalibMethod, QuantConfig
+from edgepick.quant.config import BiasCorrection, CalibMethod, QuantConfig, WeightBits
 from edgepick.quant.onnx_graph import fold_affine_into_convs, rewrite_activations
 from edgepick.runtime.preprocessing import Preprocessing
 
@@ -236,6 +236,9 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
     if config.bias_correction != BiasCorrection.NONE:
         raise ParameterError("{bias_correction}: not available for ONNX models yet; quantize the nn.Module instead",
                              bias_correction=config.bias_correction)
+    if config.weight_bits == WeightBits.FIRST_SEVEN:
+        raise ParameterError("{weight_bits}: first-7 is not available for ONNX models yet; use 7 or 8",
+                             weight_bits=config.weight_bits)
     if config.calib_method not in _ORT_METHODS:
         raise ParameterError(f"{{calib_method}}: not available for ONNX models; use one of "
                              f"{', '.join(m.value for m in _ORT_METHODS)}", calib_method=config.calib_method)
@@ -285,7 +288,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
         steps = {**rewrites, "float_outputs": _float_outputs(int8, _float_tail(prepared)), **integer_activations(int8),
                  "cropped_convs": crop_padded_convs(int8)}
         quant = {"mode": "static", "source": "onnx", "calib_method": config.calib_method.value,
-                 "calib_images": reader.seen, "percentile": config.percentile, "reduce_range": config.reduce_range,
+                 "calib_images": reader.seen, "percentile": config.percentile, "weight_bits": config.weight_bits.value,
                  "keep_float": list(config.keep_float)}
         entry = int8.metadata_props.add()
         entry.key, entry.value = "edgepick.quant", json.dumps(quant)

@@ -24,8 +24,14 @@ from edgepick.errors import CheckpointError, ConfigError, ParameterError
 from edgepick.export.checks import conv_weight_report, label_agreement
 from edgepick.export.onnx_export import EXPORT_PASSES, check_onnx_out, contract_metadata, export_onnx
 from edgepick.geometry import Size
-from edgepick.quant.bias_correction import convert_corrected
-from edgepick.quant.config import BIAS_CORRECTION_IMAGES, DEFAULT_CALIB_IMAGES, FREEZE_AT, BiasCorrection, QuantConfig
+from edgepick.quant.config import (
+    BIAS_CORRECTION_IMAGES,
+    DEFAULT_CALIB_IMAGES,
+    FREEZE_AT,
+    BiasCorrection,
+    QuantConfig,
+    WeightBits,
+)
 from edgepick.quant.graph import (
     QuantizationError,
     as_input,
@@ -38,6 +44,7 @@ from edgepick.quant.graph import (
     first_of,
     prepare,
 )
+from edgepick.quant.ptq import convert_static
 from edgepick.quant.qat import load_qat, qat_config, train_qat
 from edgepick.quant.quantizer import count_quant_nodes
 from edgepick.quant.results import Int8File, PassResult
@@ -145,18 +152,18 @@ def quantize_static(checkpoint: str | Path | Checkpoint | torch.nn.Module, calib
     _stage("prepare the graph (torch.export, observers), then calibrate", progress)
     prepared = prepare(model, config, size, qat=False)
     kept: list[np.ndarray] = []
-    correcting = config.bias_correction != BiasCorrection.NONE
-    keep = max(AGREEMENT_IMAGES, BIAS_CORRECTION_IMAGES if correcting else 0)
+    measuring = config.bias_correction != BiasCorrection.NONE or config.weight_bits == WeightBits.FIRST_SEVEN
+    keep = max(AGREEMENT_IMAGES, BIAS_CORRECTION_IMAGES if measuring else 0)
     seen = calibrate(prepared, first_of(calib, keep, kept), size, progress)
-    if correcting:
-        _stage(f"convert, with {config.bias_correction} bias correction on up to {BIAS_CORRECTION_IMAGES} "
-               "calibration images", progress)
-    converted = convert_corrected(prepared, lambda: [as_input(at_input_size(rgb, size))
-                                                     for rgb in kept[:BIAS_CORRECTION_IMAGES]], config.bias_correction)
+    if measuring:
+        _stage(f"convert, then measure on up to {BIAS_CORRECTION_IMAGES} calibration images (weight bits "
+               f"{config.weight_bits}, bias correction {config.bias_correction})", progress)
+    converted, measured = convert_static(prepared, lambda: [as_input(at_input_size(rgb, size))
+                                                            for rgb in kept[:BIAS_CORRECTION_IMAGES]], config)
     kept = kept[:AGREEMENT_IMAGES]
     calib_s = time.perf_counter() - t0
     quant = {"mode": "static", "qat_fraction": None, "calib_method": config.calib_method, "calib_images": seen,
-             **{k: v for k, v in config.to_dict().items() if k not in ("calib_method", "weight_averaging")}}
+             **{k: v for k, v in config.to_dict().items() if k not in ("calib_method", "weight_averaging")}, **measured}
     meta = contract_metadata(ckpt, "int8", quant)
     check = [at_input_size(rgb, size, "check_images") for rgb in (kept if check_images is None else check_images)]
     file = _export_int8(converted, out, meta, size, expected_int8_convs(prepared, config), check, progress,

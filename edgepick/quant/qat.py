@@ -179,7 +179,7 @@ def qat_config(checkpoint: Checkpoint) -> QuantConfig:
     """The QuantConfig a QaT run's checkpoint was trained with."""
     if checkpoint.qat is None:
         raise CheckpointError(f"{checkpoint.path} is not a QaT run's checkpoint")
-    return QuantConfig(**checkpoint.qat["quant"])
+    return QuantConfig.from_dict(checkpoint.qat["quant"])
 
 
 def load_qat(checkpoint: Checkpoint, graph: torch.fx.GraphModule | None = None) -> torch.fx.GraphModule:

@@ -46,7 +46,8 @@ def test_a_library_parameter_is_named_by_the_commands_flag():
                           resume=True)
     assert str(held) == "out='r' already holds a run; pass resume=True or choose another out"
     assert command_line_message(held, train) == "--out r already holds a run; pass --resume or choose another --out"
-    assert command_line_message(ParameterError("{reduce_range}", reduce_range=False), static) == "--full-range"
+    bits = ParameterError("{weight_bits}: not here", weight_bits="first-7")
+    assert command_line_message(bits, static) == "--weight-bits first-7: not here"
     hint = ParameterError("train the float run with {keep_epochs}", keep_epochs=(12,))
     assert command_line_message(hint, hybrid) == "train the float run with --keep-epochs 12"
     synth = ParameterError("{out}: not empty", out="x")

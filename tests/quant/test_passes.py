@@ -111,7 +111,7 @@ def test_hybrid_qat_from_a_kept_epoch(trained_run, small_data, tmp_path):
     from edgepick.train.run import Run
 
     ckpt = Checkpoint.load(tmp_path / "h.run" / "last.pt")
-    assert ckpt.is_qat and ckpt.qat["quant"]["reduce_range"] is not None
+    assert ckpt.is_qat and ckpt.qat["quant"]["weight_bits"] == "7"
     with pytest.raises(CheckpointError, match="QaT run"):  # train --resume is for float runs
         train(TrainConfig(data=str(small_data), out=str(tmp_path / "h.run")), resume=True)
 

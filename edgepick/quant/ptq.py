@@ -1,0 +1,48 @@
+"""Static PTQ's conversion: pt2e `convert`, then what static PTQ measures on the calibration
+images: 7-bit weights where 8-bit ones would saturate (`WeightBits.FIRST_SEVEN`, quant/overflow.py),
+bias correction (quant/bias_correction.py), and the conv biases on onnxruntime's int32 grid."""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable
+
+import torch
+from torch.fx import GraphModule
+
+from edgepick.quant.bias_correction import correct_biases
+from edgepick.quant.config import BiasCorrection, QuantConfig, WeightBits
+from edgepick.quant.graph import PREFIX, convert
+from edgepick.quant.overflow import INT16, saturating_convs, to_seven_bit
+from edgepick.quant.quantizer import module_path
+from edgepick.quant.rewrites import snap_conv_biases
+
+SATURATION_CHECK_INPUTS = 8  # calibration inputs on which first-7 measures where 8-bit weights saturate
+# first-7 also gives 7 bits to a conv whose pair sums come within this share of the int16 limit on those
+# inputs, since other images go further (benchmarks/results/ptq-methods/ measures the agreement it keeps).
+HEADROOM = 0.8
+
+
+def convert_static(prepared: GraphModule, inputs: Callable[[], list[torch.Tensor]],
+                   config: QuantConfig) -> tuple[GraphModule, dict]:
+    """`convert` PREPARED (calibrated); with config.weight_bits first-7 or a bias correction, measure
+    on INPUTS() (model input batches, called only then) against a copy of PREPARED taken before
+    convert, which rewrites the graph it is given. Returns the graph and what was done:
+    {"seven_bit_convs": [module paths]} for first-7."""
+    first_seven = config.weight_bits == WeightBits.FIRST_SEVEN
+    if not first_seven and config.bias_correction == BiasCorrection.NONE:
+        return convert(prepared), {}
+    reference = copy.deepcopy(prepared)
+    converted = convert(prepared, snap_biases=False)
+    samples = inputs()
+    done: dict = {}
+    if first_seven:
+        share = saturating_convs(converted, samples[:SATURATION_CHECK_INPUTS], HEADROOM * INT16)
+        names = [name for name, s in share.items() if s > 0]
+        to_seven_bit(reference, converted, names)
+        paths = {n.name: module_path(n).removeprefix(PREFIX) for n in converted.graph.nodes}
+        done["seven_bit_convs"] = [paths[name] for name in names]
+    if config.bias_correction != BiasCorrection.NONE:
+        correct_biases(reference, converted, samples, config.bias_correction)
+    snap_conv_biases(converted)
+    return converted, done
