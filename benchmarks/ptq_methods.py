@@ -58,6 +58,14 @@ def agreement(ours: list[np.ndarray], fp32: list[np.ndarray]) -> float:
     return same / max(total, 1)
 
 
+def versions() -> str:
+    import onnxruntime
+    import torch
+    import torchao
+
+    return f"torch {torch.__version__}, torchao {torchao.__version__}, onnxruntime {onnxruntime.__version__}"
+
+
 def spread(values: list[float]) -> str:
     """Mean and (min-max) of percentages."""
     pct = [100 * v for v in values]
@@ -120,7 +128,8 @@ def main() -> None:
     lines = ["# Static PTQ methods on one float run", "",
              f"Command: `python benchmarks/ptq_methods.py {' '.join(sys.argv[1:])}`  ",
              f"{machine_line()}; model {args.run}; fp32 test mIoU {100 * fp32_miou:.2f}% on the {args.split} split "
-             f"({len(frames)} images) of {args.data}; calibration seeds {args.seeds}; onnxruntime, 2 threads.", "",
+             f"({len(frames)} images) of {args.data}; calibration seeds {args.seeds}; onnxruntime, 2 threads.  ",
+             f"Libraries: {versions()}.", "",
              "Mean over the seeds, (min-max) in brackets. Object-pixel agreement: the share of pixels that either "
              "model labels as an object on which the int8 labels equal fp32's (onnxruntime, test split). "
              "onnxruntime-vs-torch: labels equal to torch's simulation of the same int8 model on 8 val images. "
