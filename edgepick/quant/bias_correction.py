@@ -167,9 +167,9 @@ def correct_biases(prepared: GraphModule, converted: GraphModule, inputs: list[t
     if not inputs:
         raise ValueError("bias correction needs at least one calibration input")
     watch = {name: name for name in convs}
-    for name in convs:
-        if name not in {n.name for n in prepared.graph.nodes}:
-            raise ValueError(f"conv {name} of the int8 graph is not in the float graph")
+    missing = sorted(set(convs) - {n.name for n in prepared.graph.nodes})
+    if missing:
+        raise ValueError(f"convs {', '.join(missing)} of the int8 graph are not in the float graph")
     if method == BiasCorrection.EMPIRICAL:
         reference = _Means(prepared, watch)
         _run(reference, inputs)
