@@ -33,7 +33,7 @@ from edgepick.models.deeplabv3 import LogitsNet, trim_dilated_convs
 from edgepick.quant.bias_correction import correct_biases
 from edgepick.quant.config import BIAS_CORRECTION_IMAGES, MAX_FLOAT_LAYERS, BiasCorrection, QuantConfig
 from edgepick.quant.graph import PREFIX, as_input, at_input_size, calibrate, first_of, prepare
-from edgepick.quant.ptq import convert_static
+from edgepick.quant.ptq import convert_static, measures
 from edgepick.quant.quantizer import module_path
 from edgepick.quant.results import AccuracyAwareResult
 from edgepick.quant.rewrites import snap_conv_biases
@@ -148,7 +148,7 @@ def inspect(checkpoint: str | Path | Checkpoint, calib: Iterable[np.ndarray], im
     correcting = config.bias_correction != BiasCorrection.NONE
     reference = copy.deepcopy(prepared) if correcting else None  # convert rewrites the graph it is given
     plain = replace(config, bias_correction=BiasCorrection.NONE)
-    samples = [as_input(at_input_size(rgb, size)) for rgb in kept]
+    samples = [as_input(at_input_size(rgb, size)) for rgb in kept] if measures(config) else []
     converted, measured = convert_static(prepared, lambda: samples, plain)
     compared = [at_input_size(rgb, size, "images") for rgb in images]
     report = compare(float_gm, converted, compared)

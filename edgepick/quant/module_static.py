@@ -20,10 +20,10 @@ from edgepick.errors import ParameterError
 from edgepick.export.checks import check_onnx_out, conv_weight_report
 from edgepick.export.onnx_export import export_module_onnx
 from edgepick.geometry import Size
-from edgepick.quant.config import BIAS_CORRECTION_IMAGES, BiasCorrection, QuantConfig, WeightBits
+from edgepick.quant.config import BIAS_CORRECTION_IMAGES, QuantConfig
 from edgepick.quant.graph import QuantizationError, expected_int8_convs, prepare
 from edgepick.quant.onnx_static import CHECK_TENSORS, OnnxPassResult, check_tensor, decisions
-from edgepick.quant.ptq import convert_static
+from edgepick.quant.ptq import convert_static, measures
 from edgepick.quant.rewrites import GatedHardswish
 
 
@@ -67,7 +67,7 @@ def quantize_module_static(module: torch.nn.Module, calib: Iterable[Any], out: s
     t0 = time.perf_counter()
     prepared = prepare(model, config, Size(shape[3], shape[2]), qat=False, input_shape=shape)
     gated = sum(isinstance(m, GatedHardswish) for m in model.modules())
-    measuring = config.bias_correction != BiasCorrection.NONE or config.weight_bits == WeightBits.FIRST_SEVEN
+    measuring = measures(config)
     keep = max(CHECK_TENSORS, BIAS_CORRECTION_IMAGES if measuring else 0)
     kept, seen = [first], 0
     with torch.no_grad():

@@ -28,9 +28,7 @@ from edgepick.quant.config import (
     BIAS_CORRECTION_IMAGES,
     DEFAULT_CALIB_IMAGES,
     FREEZE_AT,
-    BiasCorrection,
     QuantConfig,
-    WeightBits,
 )
 from edgepick.quant.graph import (
     QuantizationError,
@@ -44,7 +42,7 @@ from edgepick.quant.graph import (
     first_of,
     prepare,
 )
-from edgepick.quant.ptq import convert_static
+from edgepick.quant.ptq import convert_static, measures
 from edgepick.quant.qat import load_qat, qat_config, train_qat
 from edgepick.quant.quantizer import count_quant_nodes
 from edgepick.quant.results import Int8File, PassResult
@@ -152,7 +150,7 @@ def quantize_static(checkpoint: str | Path | Checkpoint | torch.nn.Module, calib
     _stage("prepare the graph (torch.export, observers), then calibrate", progress)
     prepared = prepare(model, config, size, qat=False)
     kept: list[np.ndarray] = []
-    measuring = config.bias_correction != BiasCorrection.NONE or config.weight_bits == WeightBits.FIRST_SEVEN
+    measuring = measures(config)
     keep = max(AGREEMENT_IMAGES, BIAS_CORRECTION_IMAGES if measuring else 0)
     seen = calibrate(prepared, first_of(calib, keep, kept), size, progress)
     if measuring:

@@ -23,20 +23,25 @@ SATURATION_CHECK_INPUTS = 8  # calibration inputs on which first-7 measures wher
 HEADROOM = 0.8
 
 
+def measures(config: QuantConfig) -> bool:
+    """Whether CONFIG's conversion runs the model on calibration inputs (first-7, bias correction),
+    so that the caller keeps BIAS_CORRECTION_IMAGES of them."""
+    return config.weight_bits == WeightBits.FIRST_SEVEN or config.bias_correction != BiasCorrection.NONE
+
+
 def convert_static(prepared: GraphModule, inputs: Callable[[], list[torch.Tensor]],
                    config: QuantConfig) -> tuple[GraphModule, dict]:
     """`convert` PREPARED (calibrated); with config.weight_bits first-7 or a bias correction, measure
     on INPUTS() (model input batches, called only then) against a copy of PREPARED taken before
     convert, which rewrites the graph it is given. Returns the graph and what was done:
     {"seven_bit_convs": [module paths]} for first-7."""
-    first_seven = config.weight_bits == WeightBits.FIRST_SEVEN
-    if not first_seven and config.bias_correction == BiasCorrection.NONE:
+    if not measures(config):
         return convert(prepared), {}
     reference = copy.deepcopy(prepared)
     converted = convert(prepared, snap_biases=False)
     samples = inputs()
     done: dict = {}
-    if first_seven:
+    if config.weight_bits == WeightBits.FIRST_SEVEN:
         share = saturating_convs(converted, samples[:SATURATION_CHECK_INPUTS], HEADROOM * INT16)
         names = [name for name, s in share.items() if s > 0]
         to_seven_bit(reference, converted, names)
