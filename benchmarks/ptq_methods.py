@@ -1,4 +1,4 @@
-"""Static PTQ methods (weight bits, bias correction) compared on one float run, over several
+"""Static PTQ methods (weight bits, bias correction, CLE, AdaRound) compared on one float run, over several
 calibration seeds: how closely the int8 file follows fp32 on onnxruntime (labels equal on object
 pixels, the pixels either model calls an object; and the test mIoU against fp32's), how closely
 onnxruntime follows torch's simulation of the same int8 model (where 8-bit weights saturate an
@@ -8,7 +8,10 @@ Object-pixel agreement is the measure that cannot be lucky: on a weak model, qua
 can raise mIoU by chance, while agreeing with fp32 can only be earned.
 
     python benchmarks/ptq_methods.py --run RUN --data DATA [--seeds 0,1,2]
-        [--cases 7/none,8/none,first-7/none,7/fast,7/empirical,first-7/empirical] [--out FILE.md | --save]
+        [--cases 7/none,7/empirical,7/none/cle,7/none/ada,...] [--adaround-budget S] [--out FILE.md | --save]
+
+A case is WEIGHT_BITS/BIAS_CORRECTION, optionally /cle (cross-layer equalization), /ada (AdaRound)
+or /cle+ada.
 """
 
 from __future__ import annotations
@@ -72,28 +75,40 @@ def spread(values: list[float]) -> str:
     return f"{statistics.mean(pct):.2f} ({min(pct):.2f}-{max(pct):.2f})"
 
 
+def case(text: str) -> tuple[WeightBits, BiasCorrection, str]:
+    """A --cases entry: (weight bits, bias correction, "" | "cle" | "ada" | "cle+ada")."""
+    bits, method, *extra = text.split("/")
+    methods = extra[0] if extra else ""
+    if methods not in ("", "cle", "ada", "cle+ada") or len(extra) > 1:
+        raise SystemExit(f"--cases {text}: expected WEIGHT_BITS/BIAS_CORRECTION[/cle|/ada|/cle+ada]")
+    return WeightBits(bits), BiasCorrection(method), methods
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--run", required=True, help="float RUN or checkpoint")
     ap.add_argument("--data", required=True)
     ap.add_argument("--split", default="test")
     ap.add_argument("--seeds", default="0,1,2", help="calibration seeds (which train images are drawn)")
-    ap.add_argument("--cases", default="7/none,8/none,first-7/none,7/fast,7/empirical,first-7/empirical",
-                    help="WEIGHT_BITS/BIAS_CORRECTION pairs to compare")
+    ap.add_argument("--cases", default="7/none,8/none,first-7/none,7/fast,7/empirical,first-7/empirical,7/none/cle,"
+                    "7/none/ada,7/empirical/cle,7/empirical/ada,7/empirical/cle+ada",
+                    help="WEIGHT_BITS/BIAS_CORRECTION[/cle|/ada|/cle+ada] cases to compare")
+    ap.add_argument("--adaround-budget", type=float, default=QuantConfig.adaround_budget_s,
+                    help="AdaRound's time budget per pass, seconds")
     ap.add_argument("--runs", type=int, default=20, help="timed int8 calls per case (seed 0's file)")
     ap.add_argument("--calib-images", type=int, default=None, help="[default: quantize static's]")
     add_output(ap)
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
-    cases = [(WeightBits(b), BiasCorrection(m)) for b, m in (c.split("/") for c in args.cases.split(","))]
+    cases = [case(c) for c in args.cases.split(",")]
 
     ds = NativeDataset.open(args.data, args.split)
     frames, truth = [ds.rgb(i) for i in ds.ids], [ds.mask(i) for i in ds.ids]
     classes = len(ds.classes)
     work = Path(tempfile.mkdtemp(prefix="ptq-methods-"))
-    results: dict[tuple[WeightBits, BiasCorrection], list[tuple[float, float, float, float, int]]] = {
+    results: dict[tuple[WeightBits, BiasCorrection, str], list[tuple[float, float, float, float, int]]] = {
         c: [] for c in cases}
-    timed: dict[tuple[WeightBits, BiasCorrection], Path] = {}
+    timed: dict[tuple[WeightBits, BiasCorrection, str], Path] = {}
     try:
         fp32_path = Path(export_checkpoint(args.run, work / "fp32.onnx").out)
         fp32 = labels(fp32_path, frames)
@@ -101,18 +116,21 @@ def main() -> None:
         check = agreement_images(args.data)
         for seed in seeds:
             calib = folder_images(args.data, "train", args.calib_images, seed)
-            for bits, method in cases:
-                print(f"-- seed {seed}, weight bits {bits}, bias correction {method}", file=sys.stderr, flush=True)
-                out = work / f"{bits}-{method}-{seed}.onnx"
+            for bits, method, extra in cases:
+                print(f"-- seed {seed}, weight bits {bits}, bias correction {method} {extra}", file=sys.stderr,
+                      flush=True)
+                out = work / f"{bits}-{method}-{extra}-{seed}.onnx"
+                config = QuantConfig(weight_bits=bits, bias_correction=method, equalize="cle" in extra,
+                                     adaround="ada" in extra, adaround_budget_s=args.adaround_budget)
                 t0 = time.perf_counter()
-                r = quantize_static(args.run, calib, out, QuantConfig(weight_bits=bits, bias_correction=method),
-                                    check_images=check, progress=False)
+                r = quantize_static(args.run, calib, out, config, check_images=check, progress=False)
                 pass_s = time.perf_counter() - t0
                 agree, int8_miou = scores(labels(out, frames), fp32, truth, classes)
                 sevens = len(r.quant.get("seven_bit_convs", [])) if bits == WeightBits.FIRST_SEVEN else (
                     r.int8_convs if bits == WeightBits.SEVEN else 0)
-                results[(bits, method)].append((agree, int8_miou - fp32_miou, r.agreement_vs_torch, r.calib_s, sevens))
-                timed.setdefault((bits, method), out)
+                results[(bits, method, extra)].append(
+                    (agree, int8_miou - fp32_miou, r.agreement_vs_torch, r.calib_s, sevens))
+                timed.setdefault((bits, method, extra), out)
                 print(f"   object agreement {100 * agree:.2f}%, mIoU {100 * (int8_miou - fp32_miou):+.2f} pp, "
                       f"onnxruntime-vs-torch {100 * r.agreement_vs_torch:.2f}%, "
                       f"{sevens} 7-bit convs, calibration {r.calib_s:.1f} s, "
@@ -136,15 +154,17 @@ def main() -> None:
              "Calibration time: prepare, calibration, conversion and what the method measures, without the "
              "export. p50: int8 labels for one test frame, the first seed's files timed in alternating blocks "
              f"of 5 ({args.runs} calls each, one process).", "",
-             "| Weight bits | 7-bit convs | Bias correction | Object-pixel agreement with fp32 (%) | mIoU - fp32's "
-             "(pp) | onnxruntime-vs-torch (%) | Calibration (s) | p50 (ms) |",
-             "|---|---|---|---|---|---|---|---|"]
-    for (bits, method), rows in results.items():
+             f"AdaRound's budget: {args.adaround_budget:g} s per pass.", "",
+             "| Weight bits | 7-bit convs | Bias correction | CLE / AdaRound | Object-pixel agreement with fp32 (%) | "
+             "mIoU - fp32's (pp) | onnxruntime-vs-torch (%) | Calibration (s) | p50 (ms) |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for (bits, method, extra), rows in results.items():
         agree, drop, vs_torch, calib_s, sevens = zip(*rows)
         drops = [100 * d for d in drop]
-        lines.append(f"| {bits} | {min(sevens)}-{max(sevens)} | {method} | {spread(list(agree))} | {statistics.mean(drops):+.2f} "
+        lines.append(f"| {bits} | {min(sevens)}-{max(sevens)} | {method} | {extra.replace('+', ' + ') or '-'} | "
+                     f"{spread(list(agree))} | {statistics.mean(drops):+.2f} "
                      f"({min(drops):+.2f} to {max(drops):+.2f}) | {spread(list(vs_torch))} | "
-                     f"{statistics.median(calib_s):.1f} | {p50[(bits, method)]:.1f} |")
+                     f"{statistics.median(calib_s):.1f} | {p50[(bits, method, extra)]:.1f} |")
     emit("\n".join(lines) + "\n", args)
 
 

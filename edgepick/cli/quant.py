@@ -69,7 +69,16 @@ calibration = [
 ]
 
 
-bias_correction_option = [
+# static PTQ's methods (quant/ptq.py): static and inspect
+ptq_methods = [
+    click.option("--equalize/--no-equalize", default=default_of(QuantConfig, "equalize"), show_default=True,
+                 help="Cross-layer equalization: rescale conv pairs joined by ReLU-like ops so that each channel has "
+                      "the same weight range in both (BN folded first); exact in float, done before calibration."),
+    click.option("--adaround/--no-adaround", default=default_of(QuantConfig, "adaround"), show_default=True,
+                 help=f"Learn each int8 conv's weight rounding (up or down) on the first {BIAS_CORRECTION_IMAGES} "
+                      "calibration images, so that its output stays closest to fp32's (AdaRound)."),
+    click.option("--adaround-budget", "adaround_budget_s", default=default_of(QuantConfig, "adaround_budget_s"),
+                 show_default=True, metavar="SECONDS", help="AdaRound's time, shared by the convs."),
     click.option("--bias-correction", default=default_of(QuantConfig, "bias_correction"), show_default=True,
                  type=choice(BiasCorrection),
                  help=f"Shift each int8 conv's bias so that its output's per-channel mean is fp32's, on the first "
@@ -122,7 +131,7 @@ def quantize() -> None:
 @with_options(calibration)
 @click.option("--percentile", default=default_of(QuantConfig, "percentile"), show_default=True,
               help="For --calib-method percentile.")
-@with_options(bias_correction_option)
+@with_options(ptq_methods)
 @click.option("--seed", default=0, show_default=True, help="Which calibration images are drawn.")
 @click.option("--max-miou-drop", default=None, type=float, metavar="PP",
               help="Accuracy-aware: keep the layers adding the most drift in float, one at a time, until the val "
@@ -132,8 +141,9 @@ def quantize() -> None:
 @with_options(common)
 @with_options(preprocessing_options)
 def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None, input_shape: str | None,
-                        calib_images: int | None, calib_method: str, percentile: float, bias_correction: str,
-                        seed: int, max_miou_drop: float | None, max_float_layers: int, out: str, weight_bits: str,
+                        calib_images: int | None, calib_method: str, percentile: float, equalize: bool,
+                        adaround: bool, adaround_budget_s: float, bias_correction: str, seed: int,
+                        max_miou_drop: float | None, max_float_layers: int, out: str, weight_bits: str,
                         keep_float: str, **preprocessing) -> None:
     """Static post-training quantization of MODEL: a float RUN or checkpoint of edgepick's (BN
     folded, ranges calibrated on --calib-images train images of --data), or a float ONNX file
@@ -144,11 +154,12 @@ def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None
     edgepick quantize static model.onnx --calib images/ --mean 0.485,0.456,0.406 --std 0.229,0.224,0.225 --out int8.onnx
     """
     if Path(checkpoint).suffix.lower() == ".onnx":
-        if bias_correction != BiasCorrection.NONE:
-            raise ConfigError("--bias-correction is for a RUN or checkpoint; an .onnx MODEL does not take it yet")
+        for flag, used in (("--bias-correction", bias_correction != BiasCorrection.NONE), ("--adaround", adaround)):
+            if used:
+                raise ConfigError(f"{flag} is for a RUN or checkpoint; an .onnx MODEL does not take it yet")
         _quantize_onnx(checkpoint, calib, input_shape, calib_images, seed, max_miou_drop, data_dir, out,
                        _quant_config(keep_float, calib_method=calib_method, percentile=percentile,
-                                     weight_bits=weight_bits), preprocessing)
+                                     weight_bits=weight_bits, equalize=equalize), preprocessing)
         return
     from edgepick.quant.passes import agreement_images, check_classes, check_image_count, folder_images, quantize_static
     from edgepick.train.checkpoint import Checkpoint
@@ -162,7 +173,8 @@ def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None
     if seed < 0:
         raise ConfigError(f"--seed {seed}: must be 0 or positive")
     cfg = _quant_config(keep_float, calib_method=calib_method, percentile=percentile, weight_bits=weight_bits,
-                        bias_correction=bias_correction)
+                        bias_correction=bias_correction, equalize=equalize, adaround=adaround,
+                        adaround_budget_s=adaround_budget_s)
     if max_miou_drop is not None:
         from edgepick.quant.inspect import quantize_accuracy_aware
 
@@ -210,6 +222,9 @@ def _quantize_onnx(model: str, calib: str | None, input_shape: str | None, calib
     emit(quantize_onnx_static(model, tensors, out, config, input_shape=shape))
 
 
+_GAIN_HEADERS = {"equalize": "CLE gain dB", "adaround": "AdaRound gain dB", "bias_correction": "bias corr. gain dB"}
+
+
 @quantize.command("inspect")
 @click.argument("checkpoint", metavar="RUN_OR_CKPT", type=click.Path())
 @click.option("--data", "data_dir", required=True, type=click.Path(), help="Calibration (train) and comparison (val) images.")
@@ -218,12 +233,14 @@ def _quantize_onnx(model: str, calib: str | None, input_shape: str | None, calib
 @click.option("--top", default=10, show_default=True, help="Rows of the worst-layers table on stderr.")
 @click.option("--weight-bits", default=default_of(QuantConfig, "weight_bits"), show_default=True,
               type=choice(WeightBits), help="As for quantize static.")
-@with_options(bias_correction_option)
+@with_options(ptq_methods)
 def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int | None, calib_method: str, images: int, top: int,
-                         weight_bits: str, bias_correction: str) -> None:
+                         weight_bits: str, equalize: bool, adaround: bool, adaround_budget_s: float,
+                         bias_correction: str) -> None:
     """Where int8 drifts from fp32: per conv layer, the SQNR of the int8 simulation against fp32 and
-    the drift it adds; the worst layers are the --keep-float candidates. With --bias-correction,
-    also what the correction gains each layer. JSON on stdout."""
+    the drift it adds; the worst layers are the --keep-float candidates. With --equalize,
+    --adaround or --bias-correction, the model is made again with each added in turn (in that
+    order), and each layer says how many dB each one gained it. JSON on stdout."""
     from edgepick.quant.inspect import inspect
     from edgepick.quant.passes import check_classes, check_image_count, folder_images
     from edgepick.train.checkpoint import Checkpoint
@@ -236,21 +253,21 @@ def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int | Non
     check_classes(ckpt, data_dir)
     report = inspect(ckpt, folder_images(data_dir, "train", calib_images),
                      folder_images(data_dir, "val", images, what="val images"),
-                     _quant_config(calib_method=calib_method, weight_bits=weight_bits,
+                     _quant_config(calib_method=calib_method, weight_bits=weight_bits, equalize=equalize,
+                                   adaround=adaround, adaround_budget_s=adaround_budget_s,
                                    bias_correction=bias_correction))
     by_name = {r["layer"]: r for r in report["layers"]}
     click.echo(f"logits SQNR {report['logits_sqnr_db']} dB, labels equal to fp32: {report['label_agreement']}", err=True)
-    corrected = report.get("bias_correction")
-    if corrected:
-        click.echo(f"with {corrected['method']} bias correction: logits SQNR {corrected['logits_sqnr_db']} dB, labels "
-                   f"equal to fp32: {corrected['label_agreement']}", err=True)
-    gain = f" {'bias corr. gain dB':>19s}" if corrected else ""
-    click.echo(f"{'layer':40s} {'SQNR dB':>8s} {'added drift dB':>15s}{gain}", err=True)
+    methods = [m for m in ("equalize", "adaround", "bias_correction") if m in report]
+    for method in methods:
+        click.echo(f"+ {method.replace('_', ' ')}: logits SQNR {report[method]['logits_sqnr_db']} dB, labels equal to "
+                   f"fp32: {report[method]['label_agreement']}", err=True)
+    gains = "".join(f" {_GAIN_HEADERS[m]:>19s}" for m in methods)
+    click.echo(f"{'layer':40s} {'SQNR dB':>8s} {'added drift dB':>15s}{gains}", err=True)
     for name in report["ranked"][:top]:
         row = by_name[name]
-        gain = f" {row['bias_correction_gain_db'] if row['bias_correction_gain_db'] is not None else '-':>19}" \
-            if corrected else ""
-        click.echo(f"{name:40s} {row['sqnr_db']:8.2f} {row['added_drift_db']:15.2f}{gain}", err=True)
+        gains = "".join(f" {row[m + '_gain_db'] if row[m + '_gain_db'] is not None else '-':>19}" for m in methods)
+        click.echo(f"{name:40s} {row['sqnr_db']:8.2f} {row['added_drift_db']:15.2f}{gains}", err=True)
     emit(report)
 
 

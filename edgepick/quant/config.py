@@ -12,6 +12,7 @@ from edgepick.schema import member, plain
 DEFAULT_CALIB_IMAGES = 64  # or the whole train split when it is smaller
 FREEZE_AT = 0.7  # share of the QaT steps after which observers and BN statistics are frozen
 BIAS_CORRECTION_IMAGES = 32  # the first this many calibration images (the empirical form holds them all in memory)
+# the images bias correction, first-7 and AdaRound measure on: the first BIAS_CORRECTION_IMAGES calibration images
 MAX_FLOAT_LAYERS = 6  # accuracy-aware static PTQ: the most layers it keeps in float
 
 
@@ -56,6 +57,9 @@ class QuantConfig:
     # kernels; as one quantized op it dequantizes the map and runs in float (benchmarks/quant_speed.py times both).
     hardswish_gate: bool = True
     bias_correction: BiasCorrection = BiasCorrection.NONE  # static PTQ: shift conv biases back to fp32's means
+    equalize: bool = False  # static PTQ: cross-layer equalization of conv pairs before calibration (quant/equalize.py)
+    adaround: bool = False  # static PTQ: learn each conv's weight rounding on the calibration images (quant/adaround.py)
+    adaround_budget_s: float = 120.0  # AdaRound's time budget, shared by the convs
     keep_float: tuple[str, ...] = ()  # module names (prefixes) left in float
     skip: tuple[str, ...] = ("preprocess",)  # never quantized
 
@@ -67,6 +71,8 @@ class QuantConfig:
         object.__setattr__(self, "skip", tuple(self.skip))
         if not 50.0 < self.percentile <= 100.0:
             raise ParameterError("{percentile}: must be in (50, 100]", percentile=self.percentile)
+        if not self.adaround_budget_s > 0.0:
+            raise ParameterError("{adaround_budget_s}: must be positive", adaround_budget_s=self.adaround_budget_s)
         if not 0.0 < self.weight_averaging <= 1.0:
             raise ParameterError("{weight_averaging}: must be in (0, 1]", weight_averaging=self.weight_averaging)
 

@@ -17,6 +17,7 @@ from edgepick.errors import ConfigError, EdgepickError, ParameterError
 from edgepick.geometry import Size, check_size
 from edgepick.models.deeplabv3 import DeepLabV3, LogitsNet, trim_dilated_convs
 from edgepick.quant.config import QuantConfig, WeightBits
+from edgepick.quant.equalize import equalize
 from edgepick.quant.quantizer import EdgeQuantizer, count_quant_nodes, module_path, under
 from edgepick.quant.rewrites import drop_fake_quants_after_dropout, gate_hardswish, snap_conv_biases
 from edgepick.quant.torchao_compat import bn_folds_with_own_eps, install_train_eval, patterns_traced_once, set_mode
@@ -91,11 +92,16 @@ def prepare(model: torch.nn.Module, config: QuantConfig, size: Size, qat: bool,
     QAT gives a fake-quant graph with a batch dimension to train. Raises if no observer or
     fake-quant was inserted (the silent-float trap). MODEL is edgepick's DeepLabV3 or any
     segmentation module (a `{"out": ...}` dict or a tensor out) taking [N, 3, H, W] at SIZE, or
-    INPUT_SHAPE when given."""
+    INPUT_SHAPE when given. With config.equalize (static PTQ only), conv pairs are equalized
+    (quant/equalize.py) before any observer runs."""
     from torchao.quantization.pt2e.quantize_pt2e import prepare_pt2e, prepare_qat_pt2e
 
     check_size(size, "size")
     check_keep_float(model, config.keep_float)
+    for method in ("equalize", "adaround"):
+        if qat and getattr(config, method):
+            raise ParameterError(f"{{{method}}}: a static PTQ method; QaT learns its weights and their rounding "
+                                 f"in training", **{method: True})
     if qat and config.weight_bits == WeightBits.FIRST_SEVEN:
         raise ParameterError("{weight_bits}: first-7 is measured after static calibration; QaT trains on one weight "
                              "grid from the start: use 7 or 8", weight_bits=config.weight_bits)
@@ -122,6 +128,8 @@ def prepare(model: torch.nn.Module, config: QuantConfig, size: Size, qat: bool,
     prepared.recompile()
     if count_quant_nodes(prepared) == 0:
         raise QuantizationError("pt2e inserted no observers: the model would stay float")
+    if config.equalize and not qat:
+        equalize(prepared)  # BN is folded and no observer has run yet
     install_train_eval(prepared, model, PREFIX)
     return prepared
 

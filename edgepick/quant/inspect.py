@@ -11,7 +11,7 @@ the conv before them ("added drift"), not by their absolute SQNR.
 
 from __future__ import annotations
 
-import copy
+import functools
 import math
 import operator
 import shutil
@@ -30,13 +30,11 @@ from edgepick.errors import ParameterError
 from edgepick.export.onnx_export import check_onnx_out
 from edgepick.geometry import Size
 from edgepick.models.deeplabv3 import LogitsNet, trim_dilated_convs
-from edgepick.quant.bias_correction import correct_biases
 from edgepick.quant.config import BIAS_CORRECTION_IMAGES, MAX_FLOAT_LAYERS, BiasCorrection, QuantConfig
 from edgepick.quant.graph import PREFIX, as_input, at_input_size, calibrate, first_of, prepare
 from edgepick.quant.ptq import convert_static, measures
 from edgepick.quant.quantizer import module_path
 from edgepick.quant.results import AccuracyAwareResult
-from edgepick.quant.rewrites import snap_conv_biases
 from edgepick.train.checkpoint import Checkpoint
 
 CONV = torch.ops.aten.conv2d.default
@@ -130,42 +128,62 @@ def ranked(report: dict) -> list[str]:
     return [r["layer"] for r in sorted(rows, key=lambda r: -r["added_drift_db"])]
 
 
+def _gain(after: float | None, before: float | None) -> float | None:
+    """AFTER - BEFORE in dB, or None where either is missing or infinite (an exact layer)."""
+    if after is None or before is None or not (math.isfinite(after) and math.isfinite(before)):
+        return None
+    return round(after - before, 2)
+
+
+def method_stages(config: QuantConfig) -> list[tuple[str, QuantConfig]]:
+    """CONFIG's static PTQ methods as cumulative stages in the order the pass applies them: first
+    none of them (name ""), then with equalization, AdaRound and bias correction added one by one."""
+    stage = replace(config, equalize=False, adaround=False, bias_correction=BiasCorrection.NONE)
+    stages = [("", stage)]
+    for name, changes in (("equalize", {"equalize": True}), ("adaround", {"adaround": True}),
+                          ("bias_correction", {"bias_correction": config.bias_correction})):
+        if getattr(config, name) not in (False, BiasCorrection.NONE):
+            stage = replace(stage, **changes)
+            stages.append((name, stage))
+    return stages
+
+
 def inspect(checkpoint: str | Path | Checkpoint, calib: Iterable[np.ndarray], images: Sequence[np.ndarray],
             config: QuantConfig | None = None, progress: bool = True) -> dict:
     """Calibrate a static int8 model (in memory) on CALIB and compare it layer by layer with fp32 on
     IMAGES (HxWx3 uint8 RGB, resized to the model's input; `folder_images` draws both from a data set).
-    With config.bias_correction, the corrected model is compared too, and each layer says how many
-    dB of SQNR the correction gained it (`bias_correction_gain_db`)."""
+    With methods in CONFIG (equalize, adaround, bias_correction), the model is made again with each
+    added in turn, and each layer says how many dB of SQNR each one gained it (`<method>_gain_db`);
+    report[<method>] has the logits SQNR and label agreement after it."""
     config = config or QuantConfig()
     if not images:
         raise ParameterError("{images}: give at least one image to compare on", images=images)
     ckpt = checkpoint if isinstance(checkpoint, Checkpoint) else Checkpoint.load(checkpoint)
     size = ckpt.input_size
     float_gm = float_graph(ckpt.build_model(), size)
-    prepared = prepare(ckpt.build_model(), config, size, qat=False)
-    kept: list[np.ndarray] = []
-    calibrate(prepared, first_of(calib, BIAS_CORRECTION_IMAGES, kept), size, progress)
-    correcting = config.bias_correction != BiasCorrection.NONE
-    reference = copy.deepcopy(prepared) if correcting else None  # convert rewrites the graph it is given
-    plain = replace(config, bias_correction=BiasCorrection.NONE)
-    samples = [as_input(at_input_size(rgb, size)) for rgb in kept] if measures(config) else []
-    converted, measured = convert_static(prepared, lambda: samples, plain)
     compared = [at_input_size(rgb, size, "images") for rgb in images]
-    report = compare(float_gm, converted, compared)
-    report["ranked"] = ranked(report)
-    report.update(measured)
-    if reference is not None:
-        correct_biases(reference, converted, samples, config.bias_correction)
-        snap_conv_biases(converted)
-        corrected = compare(float_gm, converted, compared)
-        gains = {r["layer"]: r["sqnr_db"] for r in corrected["layers"]}
+    stages = method_stages(config)
+    calib = list(calib) if len(stages) > 1 else calib  # each stage calibrates anew
+    report: dict = {}
+    for name, stage in stages:
+        prepared = prepare(ckpt.build_model(), stage, size, qat=False)
+        kept: list[np.ndarray] = []
+        calibrate(prepared, first_of(calib, BIAS_CORRECTION_IMAGES, kept), size, progress)
+        samples = [as_input(at_input_size(rgb, size)) for rgb in kept] if measures(stage) else []
+        converted, measured = convert_static(prepared, functools.partial(list, samples), stage)
+        result = compare(float_gm, converted, compared)
+        if not name:
+            report = {**result, "ranked": ranked(result), **measured}
+            sqnr = {r["layer"]: r["sqnr_db"] for r in report["layers"]}
+            continue
+        report.update(measured)
         for row in report["layers"]:
-            after = gains.get(row["layer"])
-            finite = after is not None and math.isfinite(after) and math.isfinite(row["sqnr_db"])
-            row["bias_correction_gain_db"] = round(after - row["sqnr_db"], 2) if finite else None
-        report["bias_correction"] = {"method": config.bias_correction.value, "images": len(kept),
-                                     "logits_sqnr_db": corrected["logits_sqnr_db"],
-                                     "label_agreement": corrected["label_agreement"]}
+            after = next((r["sqnr_db"] for r in result["layers"] if r["layer"] == row["layer"]), None)
+            row[f"{name}_gain_db"] = _gain(after, sqnr.get(row["layer"]))
+        sqnr = {r["layer"]: r["sqnr_db"] for r in result["layers"]}
+        report[name] = {"logits_sqnr_db": result["logits_sqnr_db"], "label_agreement": result["label_agreement"]}
+        if name == "bias_correction":
+            report[name].update(method=config.bias_correction.value, images=len(kept))
     return report
 
 

@@ -83,7 +83,8 @@ def quantize_module_static(module: torch.nn.Module, calib: Iterable[Any], out: s
     calib_s = time.perf_counter() - t0
     quant = {"mode": "static", "source": "module", "calib_method": config.calib_method.value, "calib_images": seen,
              "percentile": config.percentile, "weight_bits": config.weight_bits.value,
-             "bias_correction": config.bias_correction.value, "keep_float": list(config.keep_float), **measured}
+             "bias_correction": config.bias_correction.value, "equalize": config.equalize,
+             "adaround": config.adaround, "keep_float": list(config.keep_float), **measured}
     path = export_module_onnx(converted, out, shape, {"edgepick.quant": json.dumps(quant)})
     report = conv_weight_report(path)
     expected = expected_int8_convs(prepared, config)

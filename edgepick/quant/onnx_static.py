@@ -8,7 +8,8 @@ around it (docs/quantization.md, "Your own model"):
   forms with integer kernels (`onnx_graph.rewrite_activations`), BatchNorm folded and shapes
   inferred (onnxruntime's `quant_pre_process`);
 - the recipe: U8S8, weights int8 per output channel and symmetric, 7-bit unless
-  weight_bits 8, uint8 activations per tensor, HardSigmoid quantized as well;
+  weight_bits 8, uint8 activations per tensor, HardSigmoid quantized as well; with
+  config.equalize, conv pairs equalized before calibration (`onnx_equalize`);
 - after: the model's outputs and the ops between its last conv and them (Resize, Sigmoid,
   Softmax, ...) in float, as edgepick's own logits are (uint8 logits tie in an ArgMax or a
   threshold); the integer activations and the padding-tap crop of `edgepick.export`.
@@ -40,6 +41,7 @@ from edgepick.export.onnx_io import CONV_OPS, fix_input_shape, graph_inputs, inp
 from edgepick.files import atomic_path
 from edgepick.geometry import Size
 from edgepick.quant.config import BiasCorrection, CalibMethod, QuantConfig, WeightBits
+from edgepick.quant.onnx_equalize import equalize_onnx
 from edgepick.quant.onnx_graph import fold_affine_into_convs, rewrite_activations
 from edgepick.runtime.preprocessing import Preprocessing
 
@@ -239,6 +241,9 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
     if config.weight_bits == WeightBits.FIRST_SEVEN:
         raise ParameterError("{weight_bits}: first-7 is not available for ONNX models yet; use 7 or 8",
                              weight_bits=config.weight_bits)
+    if config.adaround:
+        raise ParameterError("{adaround}: not available for ONNX models yet; quantize the nn.Module instead",
+                             adaround=config.adaround)
     if config.calib_method not in _ORT_METHODS:
         raise ParameterError(f"{{calib_method}}: not available for ONNX models; use one of "
                              f"{', '.join(m.value for m in _ORT_METHODS)}", calib_method=config.calib_method)
@@ -274,6 +279,9 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
         import onnx
 
         prepared = onnx.load(str(pre))
+        if config.equalize:
+            rewrites["equalized_pairs"] = equalize_onnx(prepared)
+            onnx.save(prepared, str(pre))
         reader = _Reader(name, itertools.chain([first], tensors), tuple(input_shape), progress)
         ops = sorted({*QDQRegistry, *QLinearOpsRegistry, "HardSigmoid"} - {"ArgMax"})
         with _quiet():
@@ -289,7 +297,9 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
                  "cropped_convs": crop_padded_convs(int8)}
         quant = {"mode": "static", "source": "onnx", "calib_method": config.calib_method.value,
                  "calib_images": reader.seen, "percentile": config.percentile, "weight_bits": config.weight_bits.value,
-                 "keep_float": list(config.keep_float)}
+                 "equalize": config.equalize, "keep_float": list(config.keep_float)}
+        if config.equalize:
+            quant["equalized_pairs"] = rewrites["equalized_pairs"]
         entry = int8.metadata_props.add()
         entry.key, entry.value = "edgepick.quant", json.dumps(quant)
         calib_s = time.perf_counter() - t0

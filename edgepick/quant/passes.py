@@ -54,6 +54,8 @@ if TYPE_CHECKING:
     from edgepick.quant.onnx_static import OnnxPassResult
 
 AGREEMENT_IMAGES = 8  # images on which each pass compares onnxruntime's labels with torch's simulation
+# QuantConfig fields that only static PTQ uses: a QaT file's metadata leaves them out
+STATIC_ONLY = ("calib_method", "percentile", "bias_correction", "equalize", "adaround", "adaround_budget_s")
 
 
 def check_image_count(data: str | Path, split: str, count: int | None, what: str = "calibration images") -> int:
@@ -197,7 +199,7 @@ def _finish_qat(run: Run, data: str | Path, out: str | Path, quant: dict, graph:
 
 def _qat_quant(mode: str, fraction: float, config: QuantConfig) -> dict:
     return {"mode": mode, "qat_fraction": fraction, "calib_method": "qat", "calib_images": None,
-            **{k: v for k, v in config.to_dict().items() if k not in ("calib_method", "percentile", "bias_correction")}}
+            **{k: v for k, v in config.to_dict().items() if k not in STATIC_ONLY}}
 
 
 def quantize_qat(train_config: TrainConfig, out: str | Path, config: QuantConfig | None = None,

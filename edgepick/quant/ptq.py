@@ -1,6 +1,8 @@
 """Static PTQ's conversion: pt2e `convert`, then what static PTQ measures on the calibration
-images: 7-bit weights where 8-bit ones would saturate (`WeightBits.FIRST_SEVEN`, quant/overflow.py),
-bias correction (quant/bias_correction.py), and the conv biases on onnxruntime's int32 grid."""
+images, in this order: 7-bit weights where 8-bit ones would saturate (`WeightBits.FIRST_SEVEN`,
+quant/overflow.py), learnt weight rounding (AdaRound, quant/adaround.py) on that weight grid, bias
+correction (quant/bias_correction.py) of what rounding leaves, and the conv biases on onnxruntime's
+int32 grid. Cross-layer equalization acts before calibration, in `graph.prepare`."""
 
 from __future__ import annotations
 
@@ -10,8 +12,10 @@ from collections.abc import Callable
 import torch
 from torch.fx import GraphModule
 
+from edgepick.quant.adaround import adaround
 from edgepick.quant.bias_correction import correct_biases
 from edgepick.quant.config import BiasCorrection, QuantConfig, WeightBits
+from edgepick.quant.equalize import EQUALIZED
 from edgepick.quant.graph import PREFIX, convert
 from edgepick.quant.overflow import INT16, saturating_convs, to_seven_bit
 from edgepick.quant.quantizer import module_path
@@ -24,9 +28,10 @@ HEADROOM = 0.8
 
 
 def measures(config: QuantConfig) -> bool:
-    """Whether CONFIG's conversion runs the model on calibration inputs (first-7, bias correction),
-    so that the caller keeps BIAS_CORRECTION_IMAGES of them."""
-    return config.weight_bits == WeightBits.FIRST_SEVEN or config.bias_correction != BiasCorrection.NONE
+    """Whether CONFIG's conversion runs the model on calibration inputs (first-7, AdaRound, bias
+    correction), so that the caller keeps BIAS_CORRECTION_IMAGES of them."""
+    return (config.weight_bits == WeightBits.FIRST_SEVEN or config.adaround
+            or config.bias_correction != BiasCorrection.NONE)
 
 
 def convert_static(prepared: GraphModule, inputs: Callable[[], list[torch.Tensor]],
@@ -34,19 +39,25 @@ def convert_static(prepared: GraphModule, inputs: Callable[[], list[torch.Tensor
     """`convert` PREPARED (calibrated); with config.weight_bits first-7 or a bias correction, measure
     on INPUTS() (model input batches, called only then) against a copy of PREPARED taken before
     convert, which rewrites the graph it is given. Returns the graph and what was done:
-    {"seven_bit_convs": [module paths]} for first-7."""
+    {"seven_bit_convs": [module paths]} for first-7, {"equalized_pairs": n} after CLE,
+    {"adaround_convs": n} for the convs whose learnt rounding replaced round-to-nearest."""
+    done: dict = {}
+    if config.equalize:
+        done["equalized_pairs"] = len(prepared.meta.get(EQUALIZED, []))
     if not measures(config):
-        return convert(prepared), {}
+        return convert(prepared), done
     reference = copy.deepcopy(prepared)
     converted = convert(prepared, snap_biases=False)
     samples = inputs()
-    done: dict = {}
+    paths = {n.name: module_path(n).removeprefix(PREFIX) for n in converted.graph.nodes}
     if config.weight_bits == WeightBits.FIRST_SEVEN:
         share = saturating_convs(converted, samples[:SATURATION_CHECK_INPUTS], HEADROOM * INT16)
         names = [name for name, s in share.items() if s > 0]
         to_seven_bit(reference, converted, names)
-        paths = {n.name: module_path(n).removeprefix(PREFIX) for n in converted.graph.nodes}
         done["seven_bit_convs"] = [paths[name] for name in names]
+    if config.adaround:
+        rounded = adaround(reference, converted, samples, config.adaround_budget_s)
+        done["adaround_convs"] = sum(r["error_adaround"] < r["error_nearest"] for r in rounded.values())
     if config.bias_correction != BiasCorrection.NONE:
         correct_biases(reference, converted, samples, config.bias_correction)
     snap_conv_biases(converted)

@@ -54,12 +54,15 @@ def test_accuracy_aware_static_keeps_the_worst_layers_float(trained_run, small_d
     assert easy.met and len(easy.steps) == 1 and len(ranked_on) == (len(steps) > 1)  # met at once: no ranking
 
 
-def test_inspect_cli_with_bias_correction(trained_run, small_data):
+def test_inspect_cli_with_equalization_and_bias_correction(trained_run, small_data):
     proc = run_cli("quantize", "inspect", str(trained_run), "--data", str(small_data), "--calib-images", "8",
-                   "--images", "2", "--top", "3", "--bias-correction", "empirical")
+                   "--images", "2", "--top", "3", "--equalize", "--bias-correction", "empirical")
     assert proc.returncode == 0, proc.stderr
     report = json.loads(proc.stdout)
     assert "logits SQNR" in proc.stderr and "bias corr. gain dB" in proc.stderr and len(report["layers"]) == 70
+    assert "CLE gain dB" in proc.stderr and report["equalized_pairs"] >= 10 and "label_agreement" in report["equalize"]
+    cle = [r["equalize_gain_db"] for r in report["layers"] if r["equalize_gain_db"] is not None]
+    assert len(cle) >= 60 and any(g != 0 for g in cle)
     assert report["bias_correction"]["method"] == "empirical" and report["bias_correction"]["images"] == 8
     gains = [r["bias_correction_gain_db"] for r in report["layers"] if r["bias_correction_gain_db"] is not None]
     assert len(gains) >= 60 and any(g != 0 for g in gains)

@@ -1,0 +1,63 @@
+"""Cross-layer equalization of a float ONNX model: the planted 100x imbalance of test_equalize
+exported by torch, equalized on the ONNX graph without changing its float outputs, and the int8
+file onnxruntime runs closer to fp32 for it."""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import numpy as np
+import onnx
+import torch
+
+from edgepick.quant import QuantConfig, quantize_static
+from edgepick.quant.onnx_equalize import equalize_onnx
+from edgepick.quant.onnx_graph import _conv_params, _Graph
+from tests.quant.onnx_models import run
+from tests.quant.test_equalize import Imbalanced
+
+SHAPE = (1, 3, 24, 32)
+
+
+def _export(path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(Imbalanced().eval(), torch.rand(*SHAPE) * 255, str(path), opset_version=13, dynamo=False,
+                          input_names=["input"], output_names=["logits"])
+    return path
+
+
+def _tensors(count=6):
+    rng = np.random.default_rng(0)
+    return [rng.integers(0, 256, SHAPE).astype(np.float32) for _ in range(count)]
+
+
+def test_the_onnx_graph_is_equalized_with_the_same_outputs(tmp_path):
+    path = _export(tmp_path / "f.onnx")
+    model = onnx.load(str(path))
+    g = _Graph(model)
+    first = next(n for n in g.graph.node if n.op_type == "Conv")
+    before = np.abs(_conv_params(g, first)[0]).max(axis=(1, 2, 3))
+    assert before.max() / before.min() > 30  # the exporter folded the planted BatchNorm gains into the conv
+    assert equalize_onnx(model) == 2
+    g = _Graph(model)
+    after = np.abs(_conv_params(g, first)[0]).max(axis=(1, 2, 3))
+    assert after.max() / after.min() < 4, after
+    onnx.save(model, str(tmp_path / "e.onnx"))
+    x = _tensors(1)[0]
+    np.testing.assert_allclose(run(tmp_path / "e.onnx", x)[0], run(path, x)[0], atol=1e-4)
+
+
+def test_an_equalized_onnx_model_quantizes_closer_to_fp32(tmp_path):
+    path = _export(tmp_path / "f.onnx")
+    tensors = _tensors()
+    error = {}
+    for equalize in (False, True):
+        out = tmp_path / f"int8-{equalize}.onnx"
+        result = quantize_static(path, tensors, out, QuantConfig(equalize=equalize), progress=False)
+        error[equalize] = sum(float(((run(out, x)[0] - run(path, x)[0]) ** 2).mean()) for x in tensors)
+        if equalize:
+            quant = json.loads({p.key: p.value for p in onnx.load(str(out)).metadata_props}["edgepick.quant"])
+            assert quant["equalize"] and quant["equalized_pairs"] == 2 and result.int8_convs == 3
+    assert error[True] < error[False] / 2, error
