@@ -8,7 +8,8 @@ Object-pixel agreement is the measure that cannot be lucky: on a weak model, qua
 can raise mIoU by chance, while agreeing with fp32 can only be earned.
 
     python benchmarks/ptq_methods.py --run RUN --data DATA [--seeds 0,1,2]
-        [--cases 7/none,7/empirical,7/none/cle,7/none/ada,...] [--adaround-budget S] [--out FILE.md | --save]
+        [--cases 7/none,7/empirical,7/none/cle,7/none/ada,...] [--adaround-budget S] [--openvino]
+        [--out FILE.md | --save]
 
 A case is WEIGHT_BITS/BIAS_CORRECTION, optionally /cle (cross-layer equalization), /ada (AdaRound)
 or /cle+ada.
@@ -17,6 +18,7 @@ or /cle+ada.
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import statistics
 import sys
@@ -34,11 +36,12 @@ from edgepick.export.onnx_export import export_checkpoint  # noqa: E402
 from edgepick.metrics import confusion_matrix, segmentation_metrics  # noqa: E402
 from edgepick.quant.config import BiasCorrection, QuantConfig, WeightBits  # noqa: E402
 from edgepick.quant.passes import agreement_images, folder_images, quantize_static  # noqa: E402
+from edgepick.runtime.engine import Engine  # noqa: E402
 from edgepick.runtime.session import Segmenter  # noqa: E402
 
 
-def labels(model: Path, frames: list[np.ndarray]) -> list[np.ndarray]:
-    seg = Segmenter(model, threads=2)
+def labels(model: Path, frames: list[np.ndarray], engine: Engine = Engine.ONNXRUNTIME) -> list[np.ndarray]:
+    seg = Segmenter(model, threads=2, engine=engine)
     return [seg.labels(rgb) for rgb in frames]
 
 
@@ -59,6 +62,12 @@ def agreement(ours: list[np.ndarray], fp32: list[np.ndarray]) -> float:
         same += int(((a == b) & objects).sum())
         total += int(objects.sum())
     return same / max(total, 1)
+
+
+def openvino_version() -> str:
+    import openvino
+
+    return openvino.__version__.split("-")[0]
 
 
 def versions() -> str:
@@ -96,6 +105,9 @@ def main() -> None:
     ap.add_argument("--adaround-budget", type=float, default=QuantConfig.adaround_budget_s,
                     help="AdaRound's time budget per pass, seconds")
     ap.add_argument("--runs", type=int, default=20, help="timed int8 calls per case (seed 0's file)")
+    ap.add_argument("--openvino", action="store_true",
+                    help="also time each file on OpenVINO (the peers extra), in the same alternating blocks; "
+                         "ONEDNN_MAX_CPU_ISA in the environment caps its instruction set (e.g. AVX2)")
     ap.add_argument("--calib-images", type=int, default=None, help="[default: quantize static's]")
     add_output(ap)
     args = ap.parse_args()
@@ -109,10 +121,12 @@ def main() -> None:
     results: dict[tuple[WeightBits, BiasCorrection, str], list[tuple[float, float, float, float, int]]] = {
         c: [] for c in cases}
     timed: dict[tuple[WeightBits, BiasCorrection, str], Path] = {}
+    ov_agree: dict[tuple[WeightBits, BiasCorrection, str], list[float]] = {c: [] for c in cases}
     try:
         fp32_path = Path(export_checkpoint(args.run, work / "fp32.onnx").out)
         fp32 = labels(fp32_path, frames)
         fp32_miou = miou(fp32, truth, classes)
+        fp32_ov = labels(fp32_path, frames, Engine.OPENVINO) if args.openvino else []
         check = agreement_images(args.data)
         for seed in seeds:
             calib = folder_images(args.data, "train", args.calib_images, seed)
@@ -126,6 +140,8 @@ def main() -> None:
                 r = quantize_static(args.run, calib, out, config, check_images=check, progress=False)
                 pass_s = time.perf_counter() - t0
                 agree, int8_miou = scores(labels(out, frames), fp32, truth, classes)
+                if args.openvino:  # the same file on OpenVINO, against fp32 on OpenVINO
+                    ov_agree[(bits, method, extra)].append(agreement(labels(out, frames, Engine.OPENVINO), fp32_ov))
                 sevens = len(r.quant.get("seven_bit_convs", [])) if bits == WeightBits.FIRST_SEVEN else (
                     r.int8_convs if bits == WeightBits.SEVEN else 0)
                 results[(bits, method, extra)].append(
@@ -136,10 +152,12 @@ def main() -> None:
                       f"{sevens} 7-bit convs, calibration {r.calib_s:.1f} s, "
                       f"pass {pass_s:.1f} s", file=sys.stderr, flush=True)
         print(f"-- timing seed {seeds[0]}'s files", file=sys.stderr, flush=True)
-        sessions = [Segmenter(path, threads=2) for path in timed.values()]
+        engines = [Engine.ONNXRUNTIME, Engine.OPENVINO] if args.openvino else [Engine.ONNXRUNTIME]
+        sessions = [Segmenter(path, threads=2, engine=engine) for engine in engines for path in timed.values()]
         frame = frames[0]
         times = interleaved_times([lambda i, s=seg: s.labels(frame) for seg in sessions], args.runs)
-        p50 = {case: statistics.median(t) for case, t in zip(timed, times)}
+        medians = [statistics.median(t) for t in times]
+        p50 = {case: medians[k::len(timed)] for k, case in enumerate(timed)}  # per engine
     finally:
         shutil.rmtree(work, ignore_errors=True)
 
@@ -153,18 +171,23 @@ def main() -> None:
              "onnxruntime-vs-torch: labels equal to torch's simulation of the same int8 model on 8 val images. "
              "Calibration time: prepare, calibration, conversion and what the method measures, without the "
              "export. p50: int8 labels for one test frame, the first seed's files timed in alternating blocks "
-             f"of 5 ({args.runs} calls each, one process).", "",
+             f"of 5 ({args.runs} calls each, one process)"
+             + (f"; OpenVINO {openvino_version()}, ONEDNN_MAX_CPU_ISA={os.environ.get('ONEDNN_MAX_CPU_ISA', 'unset')}"
+                if args.openvino else "") + ".", "",
              f"AdaRound's budget: {args.adaround_budget:g} s per pass.", "",
              "| Weight bits | 7-bit convs | Bias correction | CLE / AdaRound | Object-pixel agreement with fp32 (%) | "
-             "mIoU - fp32's (pp) | onnxruntime-vs-torch (%) | Calibration (s) | p50 (ms) |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "mIoU - fp32's (pp) | onnxruntime-vs-torch (%) | Calibration (s) | p50 (ms) |"
+             + (" OpenVINO: object-pixel agreement with its fp32 (%) | OpenVINO p50 (ms) |" if args.openvino else ""),
+             "|---|---|---|---|---|---|---|---|---|" + ("---|---|" if args.openvino else "")]
     for (bits, method, extra), rows in results.items():
         agree, drop, vs_torch, calib_s, sevens = zip(*rows)
         drops = [100 * d for d in drop]
         lines.append(f"| {bits} | {min(sevens)}-{max(sevens)} | {method} | {extra.replace('+', ' + ') or '-'} | "
                      f"{spread(list(agree))} | {statistics.mean(drops):+.2f} "
                      f"({min(drops):+.2f} to {max(drops):+.2f}) | {spread(list(vs_torch))} | "
-                     f"{statistics.median(calib_s):.1f} | {p50[(bits, method, extra)]:.1f} |")
+                     f"{statistics.median(calib_s):.1f} | {p50[(bits, method, extra)][0]:.1f} |"
+                     + (f" {spread(ov_agree[(bits, method, extra)])} | {p50[(bits, method, extra)][1]:.1f} |"
+                        if args.openvino else ""))
     emit("\n".join(lines) + "\n", args)
 
 
