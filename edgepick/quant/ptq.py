@@ -36,8 +36,8 @@ def measures(config: QuantConfig) -> bool:
 
 def convert_static(prepared: GraphModule, inputs: Callable[[], list[torch.Tensor]],
                    config: QuantConfig) -> tuple[GraphModule, dict]:
-    """`convert` PREPARED (calibrated); with config.weight_bits first-7 or a bias correction, measure
-    on INPUTS() (model input batches, called only then) against a copy of PREPARED taken before
+    """`convert` PREPARED (calibrated); with config.weight_bits first-7, AdaRound or a bias correction,
+    measure on INPUTS() (model input batches, called only then) against a copy of PREPARED taken before
     convert, which rewrites the graph it is given. Returns the graph and what was done:
     {"seven_bit_convs": [module paths]} for first-7, {"equalized_pairs": n} after CLE,
     {"adaround_convs": n} for the convs whose learnt rounding replaced round-to-nearest."""
@@ -49,11 +49,11 @@ def convert_static(prepared: GraphModule, inputs: Callable[[], list[torch.Tensor
     reference = copy.deepcopy(prepared)
     converted = convert(prepared, snap_biases=False)
     samples = inputs()
-    paths = {n.name: module_path(n).removeprefix(PREFIX) for n in converted.graph.nodes}
     if config.weight_bits == WeightBits.FIRST_SEVEN:
         share = saturating_convs(converted, samples[:SATURATION_CHECK_INPUTS], HEADROOM * INT16)
         names = [name for name, s in share.items() if s > 0]
         to_seven_bit(reference, converted, names)
+        paths = {n.name: module_path(n).removeprefix(PREFIX) for n in converted.graph.nodes}
         done["seven_bit_convs"] = [paths[name] for name in names]
     if config.adaround:
         rounded = adaround(reference, converted, samples, config.adaround_budget_s)
