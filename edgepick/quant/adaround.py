@@ -28,7 +28,7 @@ import torch
 import torch.nn.functional as F
 from torch.fx import GraphModule, Interpreter, Node
 
-from edgepick.quant.bias_correction import _constant, _Means, int8_convs
+from edgepick.quant.bias_correction import _constant, _Means, conv_geometry, int8_convs
 from edgepick.quant.overflow import _float_weight
 
 COLUMNS = 4096  # input columns (positions) kept per conv, spread over the calibration images
@@ -45,12 +45,6 @@ _ZETA, _GAMMA = 1.1, -0.1  # the rectified sigmoid's stretch
 
 def _h(v: torch.Tensor) -> torch.Tensor:
     return torch.clamp(torch.sigmoid(v) * (_ZETA - _GAMMA) + _GAMMA, 0.0, 1.0)
-
-
-def _conv_geometry(conv: Node) -> tuple[tuple, tuple, tuple]:
-    """(stride, padding, dilation) of an aten.conv2d node, defaults filled in."""
-    given = (list(conv.args[3:6]) + [None] * 3)[:3]
-    return tuple(tuple(a or d) for a, d in zip(given, ((1, 1), (0, 0), (1, 1))))  # type: ignore[return-value]
 
 
 class _Targets:
@@ -71,7 +65,7 @@ class _Targets:
 
     def columns(self, conv: Node, w_shape: torch.Size, inputs: list[torch.Tensor]) -> torch.Tensor:
         """The input columns [C*kh*kw, P] of CONV at its sampled positions, from each batch's INPUTS."""
-        stride, padding, dilation = _conv_geometry(conv)
+        stride, padding, dilation, _ = conv_geometry(conv)
         picked = []
         for x, take in zip(inputs, self.positions[conv.name]):
             cols = F.unfold(x, w_shape[2:], dilation=dilation, padding=padding, stride=stride)  # [N, K, L]
@@ -175,7 +169,7 @@ def adaround(reference: GraphModule, converted: GraphModule, inputs: Iterable[to
         codes_now = attrgetter(dq.args[0].target)(converted)
         scale = attrgetter(dq.args[1].target)(converted).float()
         bias = attrgetter(q.args[2].target)(converted).detach().float()
-        groups = int(q.args[6]) if len(q.args) > 6 else 1
+        groups = conv_geometry(q)[3]
         x = targets.columns(q, codes_now.shape, conv_inputs)
         target = torch.cat(targets.outputs.pop(name), dim=1)
         with torch.enable_grad():

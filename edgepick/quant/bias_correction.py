@@ -49,6 +49,13 @@ def _feeds_float_output(conv: Node) -> bool:
     return False
 
 
+def conv_geometry(conv: Node) -> tuple[tuple[int, int], tuple[int, int], tuple[int, int], int]:
+    """(stride, padding, dilation, groups) of an aten.conv2d node, the defaults filled in."""
+    stride, padding, dilation, groups = (list(conv.args[3:7]) + [None] * 4)[:4]
+    return (tuple(stride or (1, 1)), tuple(padding or (0, 0)), tuple(dilation or (1, 1)),  # type: ignore[return-value]
+            int(groups or 1))
+
+
 def int8_convs(converted: GraphModule) -> dict[str, Node]:
     """The convs of CONVERTED with an int8 input, int8 per-channel weights and a float bias, by node name."""
     found = {}

@@ -19,9 +19,12 @@ from __future__ import annotations
 
 from operator import attrgetter
 
+import numpy as np
 import torch
 from torch.fx import GraphModule, Node
 from torchao.quantization.pt2e import ObserverBase
+
+from edgepick.quant.bias_correction import conv_geometry
 
 EQUALIZED = "edgepick_equalized"  # GraphModule.meta key: the equalized pairs, (first conv, [next convs])
 ROUNDS = 20  # passes over the pairs: a conv between two others is pulled both ways and settles in a few
@@ -37,6 +40,13 @@ _HOMOGENEOUS = {
 }
 
 
+def equalizing_scales(r1: np.ndarray, r2: np.ndarray) -> np.ndarray:
+    """Per channel s = sqrt(r1 / r2), which gives both layers the range sqrt(r1 * r2); 1 where
+    either range is 0 (a dead channel stays as it is)."""
+    live = (r1 > 0) & (r2 > 0)
+    return np.where(live, np.sqrt(r1 / np.where(live, r2, 1.0)), 1.0)
+
+
 def _is_observer(gm: GraphModule, n: Node) -> bool:
     return n.op == "call_module" and isinstance(gm.get_submodule(n.target), ObserverBase)
 
@@ -50,17 +60,13 @@ def _param(gm: GraphModule, node: object) -> torch.Tensor | None:
     return None
 
 
-def _groups(conv: Node) -> int:
-    return int(conv.args[6]) if len(conv.args) > 6 else int(conv.kwargs.get("groups", 1))
-
-
 def _layout(gm: GraphModule, conv: Node) -> str | None:
     """'dense' (groups 1), 'depthwise' (one input channel per filter), or None (other grouped convs,
     or a weight that is not a parameter)."""
     w = _param(gm, conv.args[1])
     if w is None or w.dim() != 4:
         return None
-    groups = _groups(conv)
+    groups = conv_geometry(conv)[3]
     if groups == 1:
         return "dense"
     return "depthwise" if w.shape[1] == 1 and groups == w.shape[0] else None
@@ -141,8 +147,7 @@ def equalize(prepared: GraphModule, rounds: int = ROUNDS) -> list[tuple[str, lis
                 r2 = torch.stack([_input_channel_range(prepared, c) for c in after]).amax(dim=0)
                 if r1.shape != r2.shape:
                     continue
-                live = (r1 > 0) & (r2 > 0)
-                s = torch.where(live, torch.sqrt(r1 / torch.where(live, r2, 1.0)), torch.ones_like(r1))
+                s = torch.from_numpy(equalizing_scales(r1.double().numpy(), r2.double().numpy())).to(w1.dtype)
                 w1.div_(s.view(-1, 1, 1, 1))
                 b1 = _param(prepared, first.args[2]) if len(first.args) > 2 else None
                 if b1 is not None:

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from edgepick.quant.equalize import ROUNDS, TOLERANCE
+from edgepick.quant.equalize import ROUNDS, TOLERANCE, equalizing_scales
 from edgepick.quant.onnx_graph import _conv_params, _Graph, _set_conv_params
 
 # one data input, commutes with a positive per-channel scale of it
@@ -91,8 +91,7 @@ def equalize_onnx(model: Any, rounds: int = ROUNDS) -> int:
             r2 = np.max([input_range(c) for c in after], axis=0)
             if r1.shape != r2.shape:
                 continue
-            live = (r1 > 0) & (r2 > 0)
-            s = np.where(live, np.sqrt(r1 / np.where(live, r2, 1.0)), 1.0)
+            s = equalizing_scales(r1, r2)
             params[id(first)] = [w1 / s.reshape(-1, 1, 1, 1), b1 / s]
             for c in after:
                 w, b = params[id(c)]

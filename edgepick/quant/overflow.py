@@ -20,7 +20,7 @@ import torch
 import torch.nn.functional as F
 from torch.fx import GraphModule, Interpreter, Node
 
-from edgepick.quant.bias_correction import int8_convs
+from edgepick.quant.bias_correction import conv_geometry, int8_convs
 
 INT16 = 32767
 _PAIRS_AT_ONCE = 32  # K pairs multiplied per step: memory is pairs x positions x output channels
@@ -75,10 +75,7 @@ class _Codes(Interpreter):
             codes = self.codes.get(q.name) if isinstance(q, Node) else None
             if codes is not None and codes.dtype == torch.uint8:
                 w = attrgetter(n.args[1].args[0].target)(self.module)
-                stride, padding, dilation, groups = (list(n.args[3:7]) + [None] * 4)[:4]
-                share = saturated_share(codes, w, int(n.args[0].args[2]), tuple(stride or (1, 1)),
-                                        tuple(padding or (0, 0)), tuple(dilation or (1, 1)), int(groups or 1),
-                                        self.limit)
+                share = saturated_share(codes, w, int(n.args[0].args[2]), *conv_geometry(n), self.limit)
                 self.share[n.name] = max(self.share[n.name], share)
         return out
 
