@@ -76,13 +76,15 @@ ptq_methods = [
                       "the same weight range in both (BN folded first); exact in float, done before calibration."),
     click.option("--adaround/--no-adaround", default=default_of(QuantConfig, "adaround"), show_default=True,
                  help=f"Learn each int8 conv's weight rounding (up or down) on the first {BIAS_CORRECTION_IMAGES} "
-                      "calibration images, so that its output stays closest to fp32's (AdaRound)."),
+                      "calibration images (fewer above 320x240), so that its output stays closest to fp32's "
+                      "(AdaRound)."),
     click.option("--adaround-budget", "adaround_budget_s", default=default_of(QuantConfig, "adaround_budget_s"),
                  show_default=True, metavar="SECONDS", help="AdaRound's time, shared by the convs."),
     click.option("--bias-correction", default=default_of(QuantConfig, "bias_correction"), show_default=True,
                  type=choice(BiasCorrection),
                  help=f"Shift each int8 conv's bias so that its output's per-channel mean is fp32's, on the first "
-                      f"{BIAS_CORRECTION_IMAGES} calibration images: fast (each conv on fp32's input, NNCF's form) or "
+                      f"{BIAS_CORRECTION_IMAGES} calibration images (fewer above 320x240): fast (each conv on fp32's "
+                      "input, NNCF's form) or "
                       "empirical (each conv on the int8 model's own input, layer by layer, AIMET's form)."),
 ]
 

@@ -11,8 +11,13 @@ from edgepick.schema import member, plain
 
 DEFAULT_CALIB_IMAGES = 64  # or the whole train split when it is smaller
 FREEZE_AT = 0.7  # share of the QaT steps after which observers and BN statistics are frozen
-BIAS_CORRECTION_IMAGES = 32  # the first this many calibration images (the empirical form holds them all in memory)
-# the images bias correction, first-7 and AdaRound measure on: the first BIAS_CORRECTION_IMAGES calibration images
+# the images bias correction, first-7 and AdaRound measure on: the first BIAS_CORRECTION_IMAGES calibration
+# images, fewer where the model's input is larger than 320x240. The empirical form and AdaRound run them in
+# lockstep, holding every image's live activations at once, so the pixels are bounded rather than the images:
+# 32 images at 320x240 peak at about 2.6 GB with DeepLabV3-MobileNetV3 (benchmarks/results/ptq-methods/).
+BIAS_CORRECTION_IMAGES = 32
+LOCKSTEP_PIXELS = BIAS_CORRECTION_IMAGES * 320 * 240
+MIN_LOCKSTEP_IMAGES = 4  # below this the per-channel means and AdaRound's sampled positions get too few images
 MAX_FLOAT_LAYERS = 6  # accuracy-aware static PTQ: the most layers it keeps in float
 
 

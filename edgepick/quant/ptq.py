@@ -14,7 +14,7 @@ from torch.fx import GraphModule
 
 from edgepick.quant.adaround import adaround
 from edgepick.quant.bias_correction import correct_biases
-from edgepick.quant.config import BiasCorrection, QuantConfig, WeightBits
+from edgepick.quant.config import LOCKSTEP_PIXELS, MIN_LOCKSTEP_IMAGES, BiasCorrection, QuantConfig, WeightBits
 from edgepick.quant.equalize import EQUALIZED
 from edgepick.quant.graph import PREFIX, convert
 from edgepick.quant.overflow import INT16, saturating_convs, to_seven_bit
@@ -34,13 +34,27 @@ def measures(config: QuantConfig) -> bool:
             or config.bias_correction != BiasCorrection.NONE)
 
 
+def within_lockstep(samples: list[torch.Tensor]) -> list[torch.Tensor]:
+    """The first SAMPLES (input batches) whose images hold at most LOCKSTEP_PIXELS pixels in all, and at
+    least MIN_LOCKSTEP_IMAGES images: the empirical bias correction and AdaRound hold all their activations."""
+    kept, images, pixels = [], 0, 0
+    for x in samples:
+        pixels += x.shape[0] * x.shape[-2] * x.shape[-1]
+        if pixels > LOCKSTEP_PIXELS and images >= MIN_LOCKSTEP_IMAGES:
+            break
+        kept.append(x)
+        images += x.shape[0]
+    return kept
+
+
 def convert_static(prepared: GraphModule, inputs: Callable[[], list[torch.Tensor]],
                    config: QuantConfig) -> tuple[GraphModule, dict]:
     """`convert` PREPARED (calibrated); with config.weight_bits first-7, AdaRound or a bias correction,
     measure on INPUTS() (model input batches, called only then) against a copy of PREPARED taken before
     convert, which rewrites the graph it is given. Returns the graph and what was done:
     {"seven_bit_convs": [module paths]} for first-7, {"equalized_pairs": n} after CLE,
-    {"adaround_convs": n} for the convs whose learnt rounding replaced round-to-nearest."""
+    {"adaround_convs": n} for the convs whose learnt rounding replaced round-to-nearest, {"measured_images": n}
+    for the images AdaRound and bias correction used (`within_lockstep`)."""
     done: dict = {}
     if config.equalize:
         done["equalized_pairs"] = len(prepared.meta.get(EQUALIZED, []))
@@ -55,6 +69,9 @@ def convert_static(prepared: GraphModule, inputs: Callable[[], list[torch.Tensor
         to_seven_bit(reference, converted, names)
         paths = {n.name: module_path(n).removeprefix(PREFIX) for n in converted.graph.nodes}
         done["seven_bit_convs"] = [paths[name] for name in names]
+    if config.adaround or config.bias_correction != BiasCorrection.NONE:
+        samples = within_lockstep(samples)
+        done["measured_images"] = sum(x.shape[0] for x in samples)
     if config.adaround:
         rounded = adaround(reference, converted, samples, config.adaround_budget_s)
         done["adaround_convs"] = sum(r["error_adaround"] < r["error_nearest"] for r in rounded.values())

@@ -91,6 +91,7 @@ def test_a_pass_records_it_and_qat_and_onnx_models_refuse_it(inputs, tmp_path):
                              QuantConfig(adaround=True, adaround_budget_s=2.0, equalize=True), progress=False)
     quant = json.loads({p.key: p.value for p in onnx.load(str(tmp_path / "a.onnx")).metadata_props}["edgepick.quant"])
     assert quant["adaround"] and quant["equalize"] and quant["adaround_convs"] >= 1 and quant["equalized_pairs"] == 2
+    assert quant["measured_images"] == len(inputs)
     assert result.int8_convs == 3
     with pytest.raises(ParameterError, match="adaround"):
         prepare(Small().train(), QuantConfig(adaround=True), SIZE, qat=True)
