@@ -18,6 +18,15 @@ FREEZE_AT = 0.7  # share of the QaT steps after which observers and BN statistic
 BIAS_CORRECTION_IMAGES = 32
 LOCKSTEP_PIXELS = BIAS_CORRECTION_IMAGES * 320 * 240
 MIN_LOCKSTEP_IMAGES = 4  # below this the per-channel means and AdaRound's sampled positions get too few images
+SATURATION_CHECK_INPUTS = 8  # calibration inputs on which first-7 measures where 8-bit weights saturate
+# first-7 also gives 7 bits to a conv whose pair sums come within this share of the int16 limit on those
+# inputs, since other images go further (benchmarks/results/ptq-methods/ measures the agreement it keeps).
+HEADROOM = 0.8
+
+
+def lockstep_images(height: int, width: int) -> int:
+    """How many HEIGHT x WIDTH calibration images bias correction and AdaRound measure on."""
+    return min(BIAS_CORRECTION_IMAGES, max(MIN_LOCKSTEP_IMAGES, LOCKSTEP_PIXELS // max(height * width, 1)))
 MAX_FLOAT_LAYERS = 6  # accuracy-aware static PTQ: the most layers it keeps in float
 
 

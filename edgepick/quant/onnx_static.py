@@ -8,8 +8,10 @@ around it (docs/quantization.md, "Your own model"):
   forms with integer kernels (`onnx_graph.rewrite_activations`), BatchNorm folded and shapes
   inferred (onnxruntime's `quant_pre_process`);
 - the recipe: U8S8, weights int8 per output channel and symmetric, 7-bit unless
-  weight_bits 8, uint8 activations per tensor, HardSigmoid quantized as well; with
-  config.equalize, conv pairs equalized before calibration (`onnx_equalize`);
+  weight_bits 8 (or first-7: 7-bit only where 8-bit weights saturate, `onnx_measure`), uint8
+  activations per tensor, HardSigmoid quantized as well; with config.equalize, conv pairs equalized
+  before calibration (`onnx_equalize`); with empirical bias correction, the conv biases shifted
+  back to fp32's means (`onnx_measure`);
 - after: the model's outputs and the ops between its last conv and them (Resize, Sigmoid,
   Softmax, ...) in float, as edgepick's own logits are (uint8 logits tie in an ArgMax or a
   threshold); the integer activations and the padding-tap crop of `edgepick.export`.
@@ -40,9 +42,18 @@ from edgepick.export.int8_activations import integer_activations
 from edgepick.export.onnx_io import CONV_OPS, fix_input_shape, graph_inputs, input_dims, lift_opset, load_float_onnx, opset
 from edgepick.files import atomic_path
 from edgepick.geometry import Size
-from edgepick.quant.config import BiasCorrection, CalibMethod, QuantConfig, WeightBits
+from edgepick.quant.config import (
+    HEADROOM,
+    SATURATION_CHECK_INPUTS,
+    BiasCorrection,
+    CalibMethod,
+    QuantConfig,
+    WeightBits,
+    lockstep_images,
+)
 from edgepick.quant.onnx_equalize import equalize_onnx
 from edgepick.quant.onnx_graph import fold_affine_into_convs, rewrite_activations
+from edgepick.quant.onnx_measure import correct_onnx_biases, saturating_onnx_convs, to_seven_bit_onnx
 from edgepick.runtime.preprocessing import Preprocessing
 
 CHECK_TENSORS = 8  # calibration tensors on which int8 outputs are compared with fp32's
@@ -124,12 +135,13 @@ def folder_tensors(folder: str | Path, preprocessing: Preprocessing | None = Non
 
 
 class _Reader:
-    """onnxruntime's CalibrationDataReader over checked tensors, keeping the first few for the check."""
+    """onnxruntime's CalibrationDataReader over checked tensors, keeping the first KEEP (for the
+    check and for what the pass measures)."""
 
-    def __init__(self, name: str, tensors: Iterator[np.ndarray], shape: tuple[int, ...], progress: bool):
+    def __init__(self, name: str, tensors: Iterator[np.ndarray], shape: tuple[int, ...], keep: int, progress: bool):
         from edgepick.progress import progress as progress_bar
 
-        self.name, self.shape, self.seen = name, shape, 0
+        self.name, self.shape, self.seen, self.keep = name, shape, 0, keep
         self.kept: list[np.ndarray] = []
         self.it = iter(progress_bar(tensors, desc="calibrate", unit="tensor", enabled=progress))
 
@@ -139,7 +151,7 @@ class _Reader:
             return None
         x = check_tensor(x, self.shape, f"calibration tensor {self.seen + 1}")
         self.seen += 1
-        if len(self.kept) < CHECK_TENSORS:
+        if len(self.kept) < self.keep:
             self.kept.append(x)
         return {self.name: x}
 
@@ -158,6 +170,13 @@ def _float_tail(model: Any) -> list[str]:
         names.append(node.name)
         todo.append(node.input[0])
     return names
+
+
+def _writes_float_output(model: Any, tail: list[str]) -> set[str]:
+    """The convs whose output is a graph output or goes into a TAIL node: they write the float
+    logits, which bias correction leaves alone (as quant/bias_correction.py does)."""
+    ends = {o.name for o in model.graph.output} | {n.input[0] for n in model.graph.node if n.name in tail}
+    return {n.name for n in model.graph.node if n.op_type in CONV_OPS and n.output[0] in ends}
 
 
 def _float_outputs(model: Any, tail: list[str]) -> int:
@@ -235,12 +254,9 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
     config = config or QuantConfig()
     check_onnx_out(out, model)
     onnxruntime.set_default_logger_severity(3)  # its quantizer's sessions warn about every unused initializer
-    if config.bias_correction != BiasCorrection.NONE:
-        raise ParameterError("{bias_correction}: not available for ONNX models yet; quantize the nn.Module instead",
+    if config.bias_correction == BiasCorrection.FAST:
+        raise ParameterError("{bias_correction}: fast is not available for ONNX models; use empirical",
                              bias_correction=config.bias_correction)
-    if config.weight_bits == WeightBits.FIRST_SEVEN:
-        raise ParameterError("{weight_bits}: first-7 is not available for ONNX models yet; use 7 or 8",
-                             weight_bits=config.weight_bits)
     if config.adaround:
         raise ParameterError("{adaround}: not available for ONNX models yet; quantize the nn.Module instead",
                              adaround=config.adaround)
@@ -282,7 +298,11 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
         if config.equalize:
             rewrites["equalized_pairs"] = equalize_onnx(prepared)
             onnx.save(prepared, str(pre))
-        reader = _Reader(name, itertools.chain([first], tensors), tuple(input_shape), progress)
+        hw = input_shape[1:3] if nhwc else input_shape[-2:]
+        measured = lockstep_images(*hw) if config.bias_correction != BiasCorrection.NONE else 0
+        keep = max(CHECK_TENSORS, measured, SATURATION_CHECK_INPUTS if config.weight_bits == WeightBits.FIRST_SEVEN
+                   else 0)
+        reader = _Reader(name, itertools.chain([first], tensors), tuple(input_shape), keep, progress)
         ops = sorted({*QDQRegistry, *QLinearOpsRegistry, "HardSigmoid"} - {"ArgMax"})
         with _quiet():
             quantize_static(str(pre), str(qdq), reader, quant_format=QuantFormat.QDQ, per_channel=True,
@@ -293,11 +313,13 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
                             extra_options={"ActivationSymmetric": False, "WeightSymmetric": True,
                                            "CalibPercentile": config.percentile, "CalibMaxIntermediateOutputs": 4})
         int8 = onnx.load(str(qdq))
+        done = _measure(prepared, int8, reader.kept, measured, config)
         steps = {**rewrites, "float_outputs": _float_outputs(int8, _float_tail(prepared)), **integer_activations(int8),
                  "cropped_convs": crop_padded_convs(int8)}
         quant = {"mode": "static", "source": "onnx", "calib_method": config.calib_method.value,
                  "calib_images": reader.seen, "percentile": config.percentile, "weight_bits": config.weight_bits.value,
-                 "equalize": config.equalize, "keep_float": list(config.keep_float)}
+                 "equalize": config.equalize, "bias_correction": config.bias_correction.value,
+                 "keep_float": list(config.keep_float), **done}
         if config.equalize:
             quant["equalized_pairs"] = rewrites["equalized_pairs"]
         entry = int8.metadata_props.add()
@@ -313,12 +335,28 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
 
                 raise QuantizationError(f"only {report['int8']} of {expected} convs got int8 weights in the ONNX: "
                                         f"{', '.join(report['float'])} stayed float")
-            agreement = output_agreement(pre, path, name, reader.kept, nhwc)
+            agreement = output_agreement(pre, path, name, reader.kept[:CHECK_TENSORS], nhwc)
     out = Path(out)
     return OnnxPassResult(out=str(out), size_bytes=out.stat().st_size, input_shape=list(input_shape),
                           opset_in=opset_in, opset_out=opset(int8), convs=report["convs"], int8_convs=report["int8"],
                           float_convs=report["float"], agreement_vs_fp32=agreement, rewrites=steps, quant=quant,
                           calib_tensors=reader.seen, calib_s=round(calib_s, 2))
+
+
+def _measure(prepared: Any, int8: Any, kept: list[np.ndarray], images: int, config: QuantConfig) -> dict:
+    """first-7 and empirical bias correction on the QDQ graph INT8 (in place), measured on KEPT
+    (the first calibration tensors; IMAGES of them for the correction); returns what was done."""
+    done: dict = {}
+    if config.weight_bits == WeightBits.FIRST_SEVEN:
+        from edgepick.quant.overflow import INT16
+
+        share = saturating_onnx_convs(int8, kept[:SATURATION_CHECK_INPUTS], HEADROOM * INT16)
+        done["seven_bit_convs"] = [name for name, s in share.items() if s > 0]
+        to_seven_bit_onnx(prepared, int8, done["seven_bit_convs"])
+    if config.bias_correction == BiasCorrection.EMPIRICAL:
+        correct_onnx_biases(prepared, int8, kept[:images], _writes_float_output(prepared, _float_tail(prepared)))
+        done["measured_images"] = min(images, len(kept))
+    return done
 
 
 @contextlib.contextmanager

@@ -14,17 +14,19 @@ from torch.fx import GraphModule
 
 from edgepick.quant.adaround import adaround
 from edgepick.quant.bias_correction import correct_biases
-from edgepick.quant.config import LOCKSTEP_PIXELS, MIN_LOCKSTEP_IMAGES, BiasCorrection, QuantConfig, WeightBits
+from edgepick.quant.config import (
+    HEADROOM,
+    SATURATION_CHECK_INPUTS,
+    BiasCorrection,
+    QuantConfig,
+    WeightBits,
+    lockstep_images,
+)
 from edgepick.quant.equalize import EQUALIZED
 from edgepick.quant.graph import PREFIX, convert
 from edgepick.quant.overflow import INT16, saturating_convs, to_seven_bit
 from edgepick.quant.quantizer import module_path
 from edgepick.quant.rewrites import snap_conv_biases
-
-SATURATION_CHECK_INPUTS = 8  # calibration inputs on which first-7 measures where 8-bit weights saturate
-# first-7 also gives 7 bits to a conv whose pair sums come within this share of the int16 limit on those
-# inputs, since other images go further (benchmarks/results/ptq-methods/ measures the agreement it keeps).
-HEADROOM = 0.8
 
 
 def measures(config: QuantConfig) -> bool:
@@ -35,12 +37,13 @@ def measures(config: QuantConfig) -> bool:
 
 
 def within_lockstep(samples: list[torch.Tensor]) -> list[torch.Tensor]:
-    """The first SAMPLES (input batches) whose images hold at most LOCKSTEP_PIXELS pixels in all, and at
-    least MIN_LOCKSTEP_IMAGES images: the empirical bias correction and AdaRound hold all their activations."""
-    kept, images, pixels = [], 0, 0
+    """The first SAMPLES (input batches) holding `lockstep_images` images of their size: the
+    empirical bias correction and AdaRound hold all their activations at once."""
+    if not samples:
+        return samples
+    wanted, kept, images = lockstep_images(*samples[0].shape[-2:]), [], 0
     for x in samples:
-        pixels += x.shape[0] * x.shape[-2] * x.shape[-1]
-        if pixels > LOCKSTEP_PIXELS and images >= MIN_LOCKSTEP_IMAGES:
+        if images >= wanted:
             break
         kept.append(x)
         images += x.shape[0]

@@ -100,14 +100,12 @@ def test_first_7_gives_7_bit_weights_only_where_8_bit_ones_saturate(bright):
     assert torch.equal(getattr(first, codes[names[0]].target), a_seven)  # as if quantized with 7 bits at once
 
 
-def test_first_7_is_recorded_and_refused_where_it_cannot_be_measured(bright, tmp_path):
+def test_first_7_is_recorded_and_refused_by_qat(bright, tmp_path):
     result = quantize_static(Bright().eval(), [as_input(rgb) for rgb in bright], tmp_path / "b.onnx",
                              QuantConfig(weight_bits="first-7"), progress=False)
     meta = json.loads({p.key: p.value for p in onnx.load(str(tmp_path / "b.onnx")).metadata_props}["edgepick.quant"])
     assert meta["weight_bits"] == "first-7" and meta["seven_bit_convs"] == ["a"] == result.quant["seven_bit_convs"]
     with pytest.raises(ParameterError, match="weight_bits"):
         prepare(copy.deepcopy(Bright()), QuantConfig(weight_bits="first-7"), SIZE, qat=True)
-    with pytest.raises(ParameterError, match="weight_bits"):
-        quantize_static(tmp_path / "m.onnx", [], tmp_path / "o.onnx", QuantConfig(weight_bits="first-7"))
     assert QuantConfig.from_dict({"reduce_range": False}).weight_bits == WeightBits.EIGHT
     assert QuantConfig.from_dict({"reduce_range": True}) == QuantConfig()

@@ -1,0 +1,111 @@
+"""first-7 and empirical bias correction on a float ONNX model: the planted models of
+test_overflow and test_bias_correction exported by torch, quantized through the ONNX path."""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import numpy as np
+import onnx
+import pytest
+import torch
+
+from edgepick.errors import ParameterError
+from edgepick.quant import QuantConfig, quantize_static
+from edgepick.quant.onnx_measure import _runner, _segments, _Values, qdq_convs, saturating_onnx_convs
+from tests.quant.test_bias_correction import Planted
+from tests.quant.test_overflow import Bright
+
+SHAPE = (1, 3, 24, 32)
+
+
+def _export(net, path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(net.eval(), torch.rand(*SHAPE) * 255, str(path), opset_version=13, dynamo=False,
+                          input_names=["input"], output_names=["logits"])
+    return path
+
+
+def _tensors(low, count=6):
+    rng = np.random.default_rng(0)
+    return [rng.integers(low, 256, SHAPE).astype(np.float32) for _ in range(count)]
+
+
+def _quant(path):
+    return json.loads({p.key: p.value for p in onnx.load(str(path)).metadata_props}["edgepick.quant"])
+
+
+def _conv_mean(path, conv, tensors):
+    """Per-channel mean of the output of the node named CONV in the model at PATH over TENSORS."""
+    model = onnx.load(str(path))
+    out = next(n for n in model.graph.node if n.name == conv).output[0]
+    run = _runner(model, [out])
+    return np.mean([run(x, [out])[0].mean(axis=(0, 2, 3)) for x in tensors], axis=0)
+
+
+def test_empirical_correction_removes_a_planted_mean_shift(tmp_path):
+    path = _export(Planted(), tmp_path / "f.onnx")
+    tensors = _tensors(60)
+    target = _conv_mean(path, "/b/Conv", tensors)
+    shift = {}
+    for method in ("none", "empirical"):
+        out = tmp_path / f"{method}.onnx"
+        result = quantize_static(path, tensors, out, QuantConfig(bias_correction=method), progress=False)
+        assert result.int8_convs == 3
+        shift[method] = float(np.abs(_conv_mean(out, "/b/Conv", tensors) - target).max())
+    assert shift["empirical"] < shift["none"] / 10, shift
+    quant = _quant(tmp_path / "empirical.onnx")
+    assert quant["bias_correction"] == "empirical" and quant["measured_images"] == len(tensors)
+    logits = {m: qdq_convs(onnx.load(str(tmp_path / f"{m}.onnx")))["/logits/Conv"] for m in ("none", "empirical")}
+    codes = {m: _Values(onnx.load(str(tmp_path / f"{m}.onnx")))[c.bias_codes] for m, c in logits.items()}
+    np.testing.assert_array_equal(codes["none"], codes["empirical"])  # the conv writing the float logits is left alone
+
+
+def test_convs_are_corrected_in_waves_after_everything_they_read(tmp_path):
+    from tests.quant.onnx_models import export_torch
+
+    model = onnx.load(str(export_torch(tmp_path / "f.onnx", opset=13)))
+    convs = {n.name: n for n in model.graph.node if n.op_type == "Conv"}
+    segments = _segments(model, convs)
+    waves = [s.wave for s in segments if s.wave]
+    assert sorted(sum(waves, [])) == sorted(convs)
+    made = {model.graph.input[0].name}
+    for s in segments:  # each segment reads only what the segments before it made
+        assert set(s.inputs) <= made, set(s.inputs) - made
+        made.update(s.outputs)
+        made.difference_update(s.last)
+    assert not any(n.op_type == "DequantizeLinear" for s in segments for n in s.nodes)  # a float model: none
+    wave_of = {name: i for i, wave in enumerate(waves) for name in wave}
+    assert wave_of["/c1/Conv"] == 0 and wave_of["/dw/Conv"] == 1
+    assert wave_of["/se/fc1/Conv"] < wave_of["/se/fc2/Conv"] < wave_of["/pw/Conv"] < wave_of["/c2/Conv"]
+
+
+def test_first_7_gives_7_bit_weights_only_where_8_bit_ones_saturate(tmp_path):
+    path = _export(Bright(), tmp_path / "f.onnx")
+    bright = _tensors(240, 3)
+    files = {}
+    for bits in ("8", "first-7", "7"):
+        files[bits] = tmp_path / f"{bits}.onnx"
+        quantize_static(path, bright, files[bits], QuantConfig(weight_bits=bits), progress=False)
+    eight = saturating_onnx_convs(onnx.load(str(files["8"])), bright, 32767)
+    assert eight["/a/Conv"] > 0.5 and eight["/b/Conv"] == 0.0
+    first = onnx.load(str(files["first-7"]))
+    assert _quant(files["first-7"])["seven_bit_convs"] == ["/a/Conv"]
+    assert all(v == 0.0 for v in saturating_onnx_convs(first, bright, 32767).values())
+    codes = {name: _Values(first)[c.weight_codes] for name, c in qdq_convs(first).items()}
+    assert {name: int(np.abs(c).max()) for name, c in codes.items()} == {"/a/Conv": 64, "/b/Conv": 127}
+    seven = onnx.load(str(files["7"]))
+    a = qdq_convs(seven)["/a/Conv"]
+    np.testing.assert_array_equal(codes["/a/Conv"], _Values(seven)[a.weight_codes])  # onnxruntime's own 7-bit grid
+    np.testing.assert_allclose(_Values(first)[qdq_convs(first)["/a/Conv"].weight_scale], _Values(seven)[a.weight_scale])
+
+
+def test_what_the_onnx_path_cannot_do_is_refused_in_one_line(tmp_path):
+    path = _export(Planted(), tmp_path / "f.onnx")
+    with pytest.raises(ParameterError, match="bias_correction.*empirical"):
+        quantize_static(path, _tensors(0, 1), tmp_path / "o.onnx", QuantConfig(bias_correction="fast"))
+    with pytest.raises(ParameterError, match="adaround"):
+        quantize_static(path, _tensors(0, 1), tmp_path / "o.onnx", QuantConfig(adaround=True))
+    assert not (tmp_path / "o.onnx").exists()
