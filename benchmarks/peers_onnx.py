@@ -12,6 +12,8 @@ more) are where agreement is measured and latency timed.
     python benchmarks/peers_onnx.py --onnx MODEL.onnx --calib DIR [preprocessing options] [--save]
     # --save: benchmarks/results/peers-onnx/<date>-<machine>-<model>.md
     python benchmarks/peers.py --onnx ...   # the same
+    # --edgepick-methods first-7/empirical,7/empirical/cle: more edgepick rows, each with static PTQ's
+    # methods that work on an ONNX graph (weight bits, bias correction, /cle), on onnxruntime
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import add_output, emit, interleaved_times, machine_line  # noqa: E402
 
 from edgepick.geometry import Size  # noqa: E402
+from edgepick.quant.config import BiasCorrection, QuantConfig, WeightBits  # noqa: E402
 from edgepick.quant.onnx_static import decisions, folder_tensors, quantize_onnx_static  # noqa: E402
 from edgepick.runtime.preprocessing import Preprocessing  # noqa: E402
 from edgepick.runtime.session import openvino_config, plain_session  # noqa: E402
@@ -115,6 +118,14 @@ def agreement(model, reference: list[list[np.ndarray]], inputs: list[np.ndarray]
     return list(same / np.maximum(total, 1))
 
 
+def method_config(text: str) -> QuantConfig:
+    """An --edgepick-methods entry WEIGHT_BITS/BIAS_CORRECTION[/cle] as the config of a pass."""
+    bits, method, *extra = text.split("/")
+    if extra not in ([], ["cle"]) or bits not in set(WeightBits) or method not in set(BiasCorrection):
+        raise SystemExit(f"--edgepick-methods {text}: expected WEIGHT_BITS/BIAS_CORRECTION[/cle]")
+    return QuantConfig(weight_bits=bits, bias_correction=method, equalize=bool(extra))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--onnx", required=True, help="float ONNX model from any exporter")
@@ -130,8 +141,11 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--runs", type=int, default=30)
     ap.add_argument("--model-note", default="", help="where the model comes from, for the report's header")
+    ap.add_argument("--edgepick-methods", default="", help="comma-separated WEIGHT_BITS/BIAS_CORRECTION[/cle] "
+                    "cases, one more edgepick row each (onnxruntime), e.g. first-7/empirical,7/empirical/cle")
     add_output(ap)
     args = ap.parse_args()
+    methods = {text: method_config(text) for text in filter(None, args.edgepick_methods.split(","))}
 
     import nncf
     import onnx
@@ -193,6 +207,10 @@ def main() -> None:
                 ("NNCF + OpenVINO", OpenVino(nncf_model, t), mb(work / "nncf.xml", work / "nncf.bin")),
                 ("edgepick static (onnxruntime)", Ort(Path(ours.out), t), mb(Path(ours.out))),
                 ("edgepick static (OpenVINO)", OpenVino(ov.Core().read_model(ours.out), t), mb(Path(ours.out)))]
+        for k, (text, config) in enumerate(methods.items()):
+            path = work / f"edgepick-{k}.onnx"
+            quantize_onnx_static(args.onnx, calib, path, config, input_shape=shape, progress=False)
+            rows.append((f"edgepick static, {text} (onnxruntime)", Ort(path, t), mb(path)))
         producer = {o: n for n in model.graph.node for o in n.output}
         outputs = [o.name for o in model.graph.output]
         probability = [getattr(producer.get(o), "op_type", "") in ("Sigmoid", "Softmax") for o in outputs]
