@@ -156,14 +156,12 @@ def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None
     edgepick quantize static model.onnx --calib images/ --mean 0.485,0.456,0.406 --std 0.229,0.224,0.225 --out int8.onnx
     """
     if Path(checkpoint).suffix.lower() == ".onnx":
-        if adaround:
-            raise ConfigError("--adaround is for a RUN or checkpoint; an .onnx MODEL does not take it yet")
         if bias_correction == BiasCorrection.FAST:
             raise ConfigError("--bias-correction fast is for a RUN or checkpoint; an .onnx MODEL takes empirical")
         _quantize_onnx(checkpoint, calib, input_shape, calib_images, seed, max_miou_drop, data_dir, out,
                        _quant_config(keep_float, calib_method=calib_method, percentile=percentile,
-                                     weight_bits=weight_bits, bias_correction=bias_correction, equalize=equalize),
-                       preprocessing)
+                                     weight_bits=weight_bits, bias_correction=bias_correction, equalize=equalize,
+                                     adaround=adaround, adaround_budget_s=adaround_budget_s), preprocessing)
         return
     from edgepick.quant.passes import agreement_images, check_classes, check_image_count, folder_images, quantize_static
     from edgepick.train.checkpoint import Checkpoint

@@ -53,7 +53,7 @@ from edgepick.quant.config import (
 )
 from edgepick.quant.onnx_equalize import equalize_onnx
 from edgepick.quant.onnx_graph import fold_affine_into_convs, rewrite_activations
-from edgepick.quant.onnx_measure import correct_onnx_biases, saturating_onnx_convs, to_seven_bit_onnx
+from edgepick.quant.onnx_measure import correct_onnx_biases, qdq_convs, saturating_onnx_convs, to_seven_bit_onnx
 from edgepick.runtime.preprocessing import Preprocessing
 
 CHECK_TENSORS = 8  # calibration tensors on which int8 outputs are compared with fp32's
@@ -257,9 +257,6 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
     if config.bias_correction == BiasCorrection.FAST:
         raise ParameterError("{bias_correction}: fast is not available for ONNX models; use empirical",
                              bias_correction=config.bias_correction)
-    if config.adaround:
-        raise ParameterError("{adaround}: not available for ONNX models yet; quantize the nn.Module instead",
-                             adaround=config.adaround)
     if config.calib_method not in _ORT_METHODS:
         raise ParameterError(f"{{calib_method}}: not available for ONNX models; use one of "
                              f"{', '.join(m.value for m in _ORT_METHODS)}", calib_method=config.calib_method)
@@ -299,7 +296,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
             rewrites["equalized_pairs"] = equalize_onnx(prepared)
             onnx.save(prepared, str(pre))
         hw = input_shape[1:3] if nhwc else input_shape[-2:]
-        measured = lockstep_images(*hw) if config.bias_correction != BiasCorrection.NONE else 0
+        measured = lockstep_images(*hw) if config.bias_correction != BiasCorrection.NONE or config.adaround else 0
         keep = max(CHECK_TENSORS, measured, SATURATION_CHECK_INPUTS if config.weight_bits == WeightBits.FIRST_SEVEN
                    else 0)
         reader = _Reader(name, itertools.chain([first], tensors), tuple(input_shape), keep, progress)
@@ -319,6 +316,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
         quant = {"mode": "static", "source": "onnx", "calib_method": config.calib_method.value,
                  "calib_images": reader.seen, "percentile": config.percentile, "weight_bits": config.weight_bits.value,
                  "equalize": config.equalize, "bias_correction": config.bias_correction.value,
+                 "adaround": config.adaround, **({"adaround_budget_s": config.adaround_budget_s} if config.adaround else {}),
                  "keep_float": list(config.keep_float), **done}
         if config.equalize:
             quant["equalized_pairs"] = rewrites["equalized_pairs"]
@@ -344,8 +342,9 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
 
 
 def _measure(prepared: Any, int8: Any, kept: list[np.ndarray], images: int, config: QuantConfig) -> dict:
-    """first-7 and empirical bias correction on the QDQ graph INT8 (in place), measured on KEPT
-    (the first calibration tensors; IMAGES of them for the correction); returns what was done."""
+    """first-7, AdaRound and empirical bias correction on the QDQ graph INT8 (in place), in that
+    order, measured on KEPT (the first calibration tensors; IMAGES of them for AdaRound and the
+    correction); returns what was done."""
     done: dict = {}
     if config.weight_bits == WeightBits.FIRST_SEVEN:
         from edgepick.quant.overflow import INT16
@@ -353,9 +352,16 @@ def _measure(prepared: Any, int8: Any, kept: list[np.ndarray], images: int, conf
         share = saturating_onnx_convs(int8, kept[:SATURATION_CHECK_INPUTS], HEADROOM * INT16)
         done["seven_bit_convs"] = [name for name, s in share.items() if s > 0]
         to_seven_bit_onnx(prepared, int8, done["seven_bit_convs"])
+    if config.adaround:
+        from edgepick.quant.onnx_adaround import adaround_onnx
+
+        seven = set(qdq_convs(int8)) if config.weight_bits == WeightBits.SEVEN else set(done.get("seven_bit_convs", []))
+        rounded = adaround_onnx(prepared, int8, kept[:images], config.adaround_budget_s, seven)
+        done["adaround_convs"] = sum(r["error_adaround"] < r["error_nearest"] for r in rounded.values())
+    if config.adaround or config.bias_correction == BiasCorrection.EMPIRICAL:
+        done["measured_images"] = min(images, len(kept))
     if config.bias_correction == BiasCorrection.EMPIRICAL:
         correct_onnx_biases(prepared, int8, kept[:images], _writes_float_output(prepared, _float_tail(prepared)))
-        done["measured_images"] = min(images, len(kept))
     return done
 
 

@@ -129,7 +129,6 @@ CASES = [
     (["export", "{W}/none", "--out", "{W}/m.txt"], "must end in .onnx"),
     (["export", "{W}/none", "--out", "{W}/m.onnx"], "no checkpoint"),
     (["quantize", "static", "{W}/none", "--data", "{D}", "--out", "{F}/q.onnx"], "is a file, not a folder"),
-    (["quantize", "static", "{MODEL}", "--calib", "{W}", "--adaround", "--out", "{W}/q.onnx"], "--adaround is for a RUN"),
     (["quantize", "static", "{MODEL}", "--calib", "{W}", "--bias-correction", "fast", "--out", "{W}/q.onnx"],
      "--bias-correction fast is for a RUN"),
     (["quantize", "static", "{W}/none", "--data", "{D}", "--adaround-budget", "0", "--out", "{W}/q.onnx"],

@@ -74,6 +74,23 @@ def export_torch(path: Path, opset: int = 12, **kwargs) -> Path:
     return path
 
 
+def export_module(net, path: Path, shape=(1, 3, 24, 32)) -> Path:
+    """A torch module made in a test, exported at opset 13 with fixed dims (input `input`, output `logits`)."""
+    import torch
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(net.eval(), torch.rand(*shape) * 255, str(path), opset_version=13, dynamo=False,
+                          input_names=["input"], output_names=["logits"])
+    return path
+
+
+def image_tensors(count: int, shape=(1, 3, 24, 32), low: int = 0) -> list[np.ndarray]:
+    """Random float images in LOW..255, NCHW."""
+    rng = np.random.default_rng(0)
+    return [rng.integers(low, 256, shape).astype(np.float32) for _ in range(count)]
+
+
 def calib_tensors(count: int, shape=(1, 3, 64, 96), seed: int = 0) -> list[np.ndarray]:
     """Smooth random inputs in the net's [0, 1] range (blurred noise: neighbouring pixels alike, as in images)."""
     import cv2

@@ -5,32 +5,23 @@ file onnxruntime runs closer to fp32 for it."""
 from __future__ import annotations
 
 import json
-import warnings
 
 import numpy as np
 import onnx
-import torch
 
 from edgepick.quant import QuantConfig, quantize_static
 from edgepick.quant.onnx_equalize import equalize_onnx
 from edgepick.quant.onnx_graph import _conv_params, _Graph
-from tests.quant.onnx_models import run
+from tests.quant.onnx_models import export_module, image_tensors, run
 from tests.quant.test_equalize import Imbalanced
-
-SHAPE = (1, 3, 24, 32)
 
 
 def _export(path):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        torch.onnx.export(Imbalanced().eval(), torch.rand(*SHAPE) * 255, str(path), opset_version=13, dynamo=False,
-                          input_names=["input"], output_names=["logits"])
-    return path
+    return export_module(Imbalanced(), path)
 
 
 def _tensors(count=6):
-    rng = np.random.default_rng(0)
-    return [rng.integers(0, 256, SHAPE).astype(np.float32) for _ in range(count)]
+    return image_tensors(count)
 
 
 def test_the_onnx_graph_is_equalized_with_the_same_outputs(tmp_path):

@@ -4,16 +4,15 @@ test_overflow and test_bias_correction exported by torch, quantized through the 
 from __future__ import annotations
 
 import json
-import warnings
 
 import numpy as np
 import onnx
 import pytest
-import torch
 
 from edgepick.errors import ParameterError
 from edgepick.quant import QuantConfig, quantize_static
 from edgepick.quant.onnx_measure import _runner, _segments, _Values, qdq_convs, saturating_onnx_convs
+from tests.quant.onnx_models import export_module, image_tensors
 from tests.quant.test_bias_correction import Planted
 from tests.quant.test_overflow import Bright
 
@@ -21,16 +20,11 @@ SHAPE = (1, 3, 24, 32)
 
 
 def _export(net, path):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        torch.onnx.export(net.eval(), torch.rand(*SHAPE) * 255, str(path), opset_version=13, dynamo=False,
-                          input_names=["input"], output_names=["logits"])
-    return path
+    return export_module(net, path, SHAPE)
 
 
 def _tensors(low, count=6):
-    rng = np.random.default_rng(0)
-    return [rng.integers(low, 256, SHAPE).astype(np.float32) for _ in range(count)]
+    return image_tensors(count, SHAPE, low)
 
 
 def _quant(path):
@@ -106,6 +100,6 @@ def test_what_the_onnx_path_cannot_do_is_refused_in_one_line(tmp_path):
     path = _export(Planted(), tmp_path / "f.onnx")
     with pytest.raises(ParameterError, match="bias_correction.*empirical"):
         quantize_static(path, _tensors(0, 1), tmp_path / "o.onnx", QuantConfig(bias_correction="fast"))
-    with pytest.raises(ParameterError, match="adaround"):
-        quantize_static(path, _tensors(0, 1), tmp_path / "o.onnx", QuantConfig(adaround=True))
+    with pytest.raises(ParameterError, match="adaround_budget_s"):
+        quantize_static(path, _tensors(0, 1), tmp_path / "o.onnx", QuantConfig(adaround=True, adaround_budget_s=-1))
     assert not (tmp_path / "o.onnx").exists()
