@@ -19,7 +19,7 @@ optimisations off, each Q/DQ pair computed as written.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Collection, Sequence
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -87,10 +87,9 @@ class _Values:
         self.inits[name].CopyFrom(numpy_helper.from_array(value, name))
 
 
-def _runner(model: Any, outputs: list[str], inputs: Sequence[str] = ()) -> Callable[..., list[np.ndarray]]:
-    """A function running a copy of MODEL on one input tensor, with INPUTS (initializers) fed as
-    graph inputs, returning the tensors it names (any of OUTPUTS, made graph outputs);
-    onnxruntime's graph optimisations off."""
+def _runner(model: Any, outputs: list[str]) -> Callable[[np.ndarray, list[str]], list[np.ndarray]]:
+    """A function running a copy of MODEL on one input tensor, returning the tensors it names (any
+    of OUTPUTS, made graph outputs); onnxruntime's graph optimisations off."""
     import onnx
     import onnxruntime as ort
 
@@ -98,18 +97,14 @@ def _runner(model: Any, outputs: list[str], inputs: Sequence[str] = ()) -> Calla
     copy.CopyFrom(model)
     known = {o.name for o in copy.graph.output}
     copy.graph.output.extend(onnx.ValueInfoProto(name=name) for name in dict.fromkeys(outputs) if name not in known)
-    fed = set(inputs)
-    for init in [i for i in copy.graph.initializer if i.name in fed]:
-        copy.graph.input.append(onnx.helper.make_tensor_value_info(init.name, init.data_type, list(init.dims)))
-        copy.graph.initializer.remove(init)
     opts = ort.SessionOptions()
     opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
     opts.log_severity_level = 3
     session = ort.InferenceSession(copy.SerializeToString(), opts, providers=["CPUExecutionProvider"])
     image = session.get_inputs()[0].name
 
-    def run(x: np.ndarray, names: list[str], **feeds: np.ndarray) -> list[np.ndarray]:
-        return session.run(names, {image: x, **feeds})
+    def run(x: np.ndarray, names: list[str]) -> list[np.ndarray]:
+        return session.run(names, {image: x})
 
     return run
 
@@ -208,6 +203,7 @@ def _segments(model: Any, convs: Collection[str]) -> list[_Segment]:
                 if i and i not in constant:
                     last_use[i] = max(last_use.get(i, 0), d)
     segments = [by_depth[d] for d in sorted(by_depth)]
+    order = {id(n): k for k, n in enumerate(graph.node)}
     for d, segment in zip(sorted(by_depth), segments, strict=True):
         made = {o for n in segment.nodes for o in n.output}
         segment.inputs = list(dict.fromkeys(i for n in segment.nodes for i in n.input
@@ -222,7 +218,6 @@ def _segments(model: Any, convs: Collection[str]) -> list[_Segment]:
             if all(node is not m for m in needed):
                 needed.append(node)
                 todo.extend(i for i in node.input if i in const_nodes)
-        order = {id(n): k for k, n in enumerate(graph.node)}
         segment.nodes = sorted([*needed, *segment.nodes], key=lambda n: order[id(n)])
     return segments
 
