@@ -10,8 +10,9 @@ around it (docs/quantization.md, "Your own model"):
 - the recipe: U8S8, weights int8 per output channel and symmetric, 7-bit unless
   weight_bits 8 (or first-7: 7-bit only where 8-bit weights saturate, `onnx_measure`), uint8
   activations per tensor, HardSigmoid quantized as well; with config.equalize, conv pairs equalized
-  before calibration (`onnx_equalize`); with empirical bias correction, the conv biases shifted
-  back to fp32's means (`onnx_measure`);
+  before calibration (`onnx_equalize`); with config.adaround, each conv's weight rounding learnt
+  on the calibration tensors (`onnx_adaround`); with empirical bias correction, the conv biases
+  shifted back to fp32's means (`onnx_measure`);
 - after: the model's outputs and the ops between its last conv and them (Resize, Sigmoid,
   Softmax, ...) in float, as edgepick's own logits are (uint8 logits tie in an ArgMax or a
   threshold); the integer activations and the padding-tap crop of `edgepick.export`.
