@@ -126,11 +126,8 @@ def method_config(text: str) -> QuantConfig:
     return QuantConfig(weight_bits=bits, bias_correction=method, equalize=bool(extra))
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--onnx", required=True, help="float ONNX model from any exporter")
-    ap.add_argument("--calib", required=True, help="folder of .npy input tensors or images")
-    ap.add_argument("--calib-count", type=int, default=32, help="the first this many inputs calibrate")
+def add_input_options(ap: argparse.ArgumentParser) -> None:
+    """The options that make --calib's images into the model's input tensors, and fix its shape."""
     ap.add_argument("--input-shape", default=None, help="N,C,H,W for a model with dynamic dims")
     ap.add_argument("--size", default=None, help="WIDTHxHEIGHT the images are resized to")
     ap.add_argument("--channels", default="rgb")
@@ -138,6 +135,22 @@ def main() -> None:
     ap.add_argument("--mean", default="0,0,0")
     ap.add_argument("--std", default="1,1,1")
     ap.add_argument("--layout", default="nchw")
+
+
+def input_tensors(args: argparse.Namespace) -> list[np.ndarray]:
+    """--calib's inputs as NCHW (or NHWC) float tensors with the batch axis."""
+    prep = Preprocessing(size=Size.parse(args.size) if args.size else None, channels=args.channels,
+                         scale=args.scale, mean=tuple(float(v) for v in args.mean.split(",")),
+                         std=tuple(float(v) for v in args.std.split(",")), layout=args.layout)
+    return [t if t.ndim == 4 else t[None] for t in folder_tensors(args.calib, prep)]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--onnx", required=True, help="float ONNX model from any exporter")
+    ap.add_argument("--calib", required=True, help="folder of .npy input tensors or images")
+    ap.add_argument("--calib-count", type=int, default=32, help="the first this many inputs calibrate")
+    add_input_options(ap)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--runs", type=int, default=30)
     ap.add_argument("--model-note", default="", help="where the model comes from, for the report's header")
@@ -156,10 +169,7 @@ def main() -> None:
 
     from edgepick.export.onnx_io import fix_input_shape, load_float_onnx, opset
 
-    prep = Preprocessing(size=Size.parse(args.size) if args.size else None, channels=args.channels,
-                         scale=args.scale, mean=tuple(float(v) for v in args.mean.split(",")),
-                         std=tuple(float(v) for v in args.std.split(",")), layout=args.layout)
-    tensors = [t if t.ndim == 4 else t[None] for t in folder_tensors(args.calib, prep)]
+    tensors = input_tensors(args)
     calib, held = tensors[:args.calib_count], tensors[args.calib_count:] or tensors
     shape = tuple(int(v) for v in args.input_shape.split(",")) if args.input_shape else calib[0].shape
     nhwc = args.layout == "nhwc"

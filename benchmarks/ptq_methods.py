@@ -93,6 +93,23 @@ def case(text: str) -> tuple[WeightBits, BiasCorrection, str]:
     return WeightBits(bits), BiasCorrection(method), methods
 
 
+def start_case(seed: int, key: tuple[WeightBits, BiasCorrection, str], work: Path,
+               adaround_budget_s: float) -> tuple[Path, QuantConfig]:
+    """Announce case KEY for SEED on stderr; its int8 file's path in WORK and its config."""
+    bits, method, extra = key
+    print(f"-- seed {seed}, weight bits {bits}, bias correction {method} {extra}", file=sys.stderr, flush=True)
+    config = QuantConfig(weight_bits=bits, bias_correction=method, equalize="cle" in extra, adaround="ada" in extra,
+                         adaround_budget_s=adaround_budget_s)
+    return work / f"{bits}-{method}-{extra}-{seed}.onnx", config
+
+
+def seven_bit_convs(bits: WeightBits, quant: dict, int8_convs: int) -> int:
+    """How many convs a pass gave 7-bit weights."""
+    if bits == WeightBits.FIRST_SEVEN:
+        return len(quant.get("seven_bit_convs", []))
+    return int8_convs if bits == WeightBits.SEVEN else 0
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--run", required=True, help="float RUN or checkpoint")
@@ -131,19 +148,14 @@ def main() -> None:
         for seed in seeds:
             calib = folder_images(args.data, "train", args.calib_images, seed)
             for bits, method, extra in cases:
-                print(f"-- seed {seed}, weight bits {bits}, bias correction {method} {extra}", file=sys.stderr,
-                      flush=True)
-                out = work / f"{bits}-{method}-{extra}-{seed}.onnx"
-                config = QuantConfig(weight_bits=bits, bias_correction=method, equalize="cle" in extra,
-                                     adaround="ada" in extra, adaround_budget_s=args.adaround_budget)
+                out, config = start_case(seed, (bits, method, extra), work, args.adaround_budget)
                 t0 = time.perf_counter()
                 r = quantize_static(args.run, calib, out, config, check_images=check, progress=False)
                 pass_s = time.perf_counter() - t0
                 agree, int8_miou = scores(labels(out, frames), fp32, truth, classes)
                 if args.openvino:  # the same file on OpenVINO, against fp32 on OpenVINO
                     ov_agree[(bits, method, extra)].append(agreement(labels(out, frames, Engine.OPENVINO), fp32_ov))
-                sevens = len(r.quant.get("seven_bit_convs", [])) if bits == WeightBits.FIRST_SEVEN else (
-                    r.int8_convs if bits == WeightBits.SEVEN else 0)
+                sevens = seven_bit_convs(bits, r.quant, r.int8_convs)
                 results[(bits, method, extra)].append(
                     (agree, int8_miou - fp32_miou, r.agreement_vs_torch, r.calib_s, sevens))
                 timed.setdefault((bits, method, extra), out)

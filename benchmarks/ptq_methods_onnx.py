@@ -30,13 +30,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import add_output, emit, interleaved_times, machine_line  # noqa: E402
-from peers_onnx import OpenVino, Ort  # noqa: E402
-from ptq_methods import case, spread  # noqa: E402
+from peers_onnx import OpenVino, Ort, add_input_options, input_tensors  # noqa: E402
+from ptq_methods import case, seven_bit_convs, spread, start_case  # noqa: E402
 
-from edgepick.geometry import Size  # noqa: E402
-from edgepick.quant.config import QuantConfig, WeightBits  # noqa: E402
-from edgepick.quant.onnx_static import decisions, folder_tensors, quantize_onnx_static  # noqa: E402
-from edgepick.runtime.preprocessing import Preprocessing  # noqa: E402
+from edgepick.quant.config import QuantConfig  # noqa: E402
+from edgepick.quant.onnx_static import decisions, quantize_onnx_static  # noqa: E402
 
 
 def agreement(model, reference: list[list[np.ndarray]], inputs: list[np.ndarray], nhwc: bool,
@@ -74,13 +72,7 @@ def main() -> None:
                     help="WEIGHT_BITS/BIAS_CORRECTION[/cle|/ada|/cle+ada] cases to compare")
     ap.add_argument("--adaround-budget", type=float, default=QuantConfig.adaround_budget_s,
                     help="AdaRound's time budget per pass, seconds")
-    ap.add_argument("--input-shape", default=None, help="N,C,H,W for a model with dynamic dims")
-    ap.add_argument("--size", default=None, help="WIDTHxHEIGHT the images are resized to")
-    ap.add_argument("--channels", default="rgb")
-    ap.add_argument("--scale", type=float, default=1 / 255)
-    ap.add_argument("--mean", default="0,0,0")
-    ap.add_argument("--std", default="1,1,1")
-    ap.add_argument("--layout", default="nchw")
+    add_input_options(ap)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--runs", type=int, default=20, help="timed calls per file (the first seed's files)")
     ap.add_argument("--openvino", action="store_true",
@@ -94,10 +86,7 @@ def main() -> None:
 
     import onnx
 
-    prep = Preprocessing(size=Size.parse(args.size) if args.size else None, channels=args.channels,
-                         scale=args.scale, mean=tuple(float(v) for v in args.mean.split(",")),
-                         std=tuple(float(v) for v in args.std.split(",")), layout=args.layout)
-    tensors = [t if t.ndim == 4 else t[None] for t in folder_tensors(args.calib, prep)]
+    tensors = input_tensors(args)
     if len(tensors) < args.held + args.calib_count:
         raise SystemExit(f"--calib: {len(tensors)} inputs, need --held {args.held} + --calib-count {args.calib_count}")
     pool, held = tensors[:-args.held], tensors[-args.held:]
@@ -129,15 +118,10 @@ def main() -> None:
             drawn = np.random.default_rng(seed).choice(len(pool), args.calib_count, replace=False)
             calib = [pool[i] for i in sorted(drawn)]
             for bits, method, extra in cases:
-                print(f"-- seed {seed}, weight bits {bits}, bias correction {method} {extra}", file=sys.stderr,
-                      flush=True)
-                out = work / f"{bits}-{method}-{extra}-{seed}.onnx"
-                config = QuantConfig(weight_bits=bits, bias_correction=method, equalize="cle" in extra,
-                                     adaround="ada" in extra, adaround_budget_s=args.adaround_budget)
+                out, config = start_case(seed, (bits, method, extra), work, args.adaround_budget)
                 r = quantize_onnx_static(args.onnx, calib, out, config, input_shape=shape, progress=False)
                 foreground, every = agreement(Ort(out, args.threads), reference, held, nhwc, probability)
-                sevens = len(r.quant.get("seven_bit_convs", [])) if bits == WeightBits.FIRST_SEVEN else (
-                    r.int8_convs if bits == WeightBits.SEVEN else 0)
+                sevens = seven_bit_convs(bits, r.quant, r.int8_convs)
                 results[(bits, method, extra)].append((foreground, every, r.calib_s, sevens))
                 if args.openvino:
                     ov_model = OpenVino(ov.Core().read_model(str(out)), args.threads)
