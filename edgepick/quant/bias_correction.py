@@ -35,17 +35,26 @@ _qd = torch.ops.quantized_decomposed
 _CONV = torch.ops.aten.conv2d.default
 
 
+# what may stand between a logits conv's quantized output and the model's output: LR-ASPP's two
+# logits convs are summed by a quantized add, then upsampled
+_LOGIT_SUMS = {_qd.quantize_per_tensor.default, _qd.dequantize_per_tensor.default, torch.ops.aten.add.Tensor,
+               torch.ops.aten.add_.Tensor, torch.ops.aten.sub.Tensor, torch.ops.aten.upsample_bilinear2d.vec,
+               torch.ops.aten.upsample_nearest2d.vec}
+
+
 def _feeds_float_output(conv: Node) -> bool:
-    """True for a conv whose output reaches a graph output without being quantized again (the logits)."""
-    todo, seen = list(conv.users), set()
+    """True for a conv that writes the logits: its output reaches a graph output without being
+    quantized again, or through nothing but _LOGIT_SUMS once it is."""
+    todo, seen = [(user, False) for user in conv.users], set()
     while todo:
-        node = todo.pop()
+        node, requantized = todo.pop()
         if node.op == "output":
             return True
-        if node in seen or node.target == _qd.quantize_per_tensor.default:
+        if (node, requantized) in seen or (requantized and node.target not in _LOGIT_SUMS):
             continue
-        seen.add(node)
-        todo.extend(node.users)
+        seen.add((node, requantized))
+        requantized = requantized or node.target == _qd.quantize_per_tensor.default
+        todo.extend((user, requantized) for user in node.users)
     return False
 
 

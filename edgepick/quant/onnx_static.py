@@ -62,6 +62,7 @@ CHECK_TENSORS = 8  # calibration tensors on which int8 outputs are compared with
 FLOAT_TAIL_OPS = ("Resize", "Upsample", "Sigmoid", "Softmax", "LogSoftmax", "Transpose", "Reshape", "Identity",
                   "Squeeze", "Unsqueeze", "Flatten", "Slice", "Cast")
 _ORT_METHODS = {CalibMethod.MINMAX: "MinMax", CalibMethod.PERCENTILE: "Percentile", CalibMethod.ENTROPY: "Entropy"}
+LOGIT_SUMS = ("Add", "Sub")  # between the logits convs and the float tail, they keep a conv's output the logits
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp", ".tif", ".tiff")
 
 
@@ -173,11 +174,24 @@ def _float_tail(model: Any) -> list[str]:
     return names
 
 
-def _writes_float_output(model: Any, tail: list[str]) -> set[str]:
-    """The convs whose output is a graph output or goes into a TAIL node: they write the float
-    logits, which bias correction leaves alone (as quant/bias_correction.py does)."""
-    ends = {o.name for o in model.graph.output} | {n.input[0] for n in model.graph.node if n.name in tail}
-    return {n.name for n in model.graph.node if n.op_type in CONV_OPS and n.output[0] in ends}
+def _writes_float_output(model: Any) -> set[str]:
+    """The convs that write the logits: their output reaches a graph output through nothing but
+    FLOAT_TAIL_OPS and additions (LR-ASPP sums two convs' logits). Bias correction leaves them
+    alone, as quant/bias_correction.py does."""
+    producer = {o: n for n in model.graph.node for o in n.output}
+    todo, seen, convs = [o.name for o in model.graph.output], set(), set()
+    while todo:
+        node = producer.get(todo.pop())
+        if node is None or node.name in seen:
+            continue
+        seen.add(node.name)
+        if node.op_type in CONV_OPS:
+            convs.add(node.name)
+        elif node.op_type in LOGIT_SUMS:
+            todo.extend(node.input)
+        elif node.op_type in FLOAT_TAIL_OPS:
+            todo.append(node.input[0])
+    return convs
 
 
 def _float_outputs(model: Any, tail: list[str]) -> int:
@@ -362,7 +376,7 @@ def _measure(prepared: Any, int8: Any, kept: list[np.ndarray], images: int, conf
     if config.adaround or config.bias_correction == BiasCorrection.EMPIRICAL:
         done["measured_images"] = min(images, len(kept))
     if config.bias_correction == BiasCorrection.EMPIRICAL:
-        correct_onnx_biases(prepared, int8, kept[:images], _writes_float_output(prepared, _float_tail(prepared)))
+        correct_onnx_biases(prepared, int8, kept[:images], _writes_float_output(prepared))
     return done
 
 

@@ -44,8 +44,22 @@ class Planted(nn.Module):
         return self.logits(torch.relu(self.b(torch.relu(self.a(x / 255.0)))))
 
 
-def _graphs(images):
-    prepared = prepare(Planted().eval(), QuantConfig(hardswish_gate=False), SIZE, qat=False)
+class SummedLogits(Planted):
+    """Planted with LR-ASPP's head: the logits are the sum of two convs, one on a's output and one
+    (`logits`) on b's, upsampled."""
+
+    def __init__(self):
+        super().__init__()
+        self.low = nn.Conv2d(6, 2, 1)
+
+    def forward(self, x):
+        a = torch.relu(self.a(x / 255.0))
+        out = self.low(a) + self.logits(torch.relu(self.b(a)))
+        return nn.functional.interpolate(out, scale_factor=2.0, mode="bilinear", align_corners=False)
+
+
+def _graphs(images, net=None):
+    prepared = prepare((net or Planted()).eval(), QuantConfig(hardswish_gate=False), SIZE, qat=False)
     calibrate(prepared, images)
     reference = copy.deepcopy(prepared)
     return reference, convert(prepared, snap_biases=False)
@@ -87,6 +101,19 @@ def test_a_planted_mean_shift_is_removed(images, method):
     for k in target:
         left = (after[k] - target[k]).abs().max().item()
         assert left < shift[k] / 10, (method, k, shift[k], left)
+
+
+def test_the_convs_summed_into_the_logits_are_left_alone(images):
+    """Correcting the means of convs whose outputs are added into the logits would match the
+    logits' means, which moved labels away from fp32's (benchmarks/results/ptq-methods-onnx/)."""
+    from edgepick.quant.graph import as_input
+
+    reference, converted = _graphs(images, SummedLogits())
+    convs = int8_convs(converted)
+    adds = [n for n in converted.graph.nodes if n.target == torch.ops.aten.add.Tensor]
+    assert len(convs) == 4 and len(adds) == 1  # the add is quantized: its inputs are quantized conv outputs
+    moved = correct_biases(reference, converted, [as_input(rgb) for rgb in images], BiasCorrection.EMPIRICAL)
+    assert sorted(moved) == sorted(list(convs)[i] for i in (0, 2)), (list(convs), moved)  # a and b, not low, logits
 
 
 def test_the_empirical_form_gives_every_conv_fp32s_mean_where_the_fast_one_does_not(images):

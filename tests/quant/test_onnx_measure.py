@@ -13,7 +13,7 @@ from edgepick.errors import ParameterError
 from edgepick.quant import QuantConfig, quantize_static
 from edgepick.quant.onnx_measure import _runner, _segments, _Values, qdq_convs, saturating_onnx_convs
 from tests.quant.onnx_models import export_module, image_tensors
-from tests.quant.test_bias_correction import Planted
+from tests.quant.test_bias_correction import Planted, SummedLogits
 from tests.quant.test_overflow import Bright
 
 SHAPE = (1, 3, 24, 32)
@@ -55,6 +55,19 @@ def test_empirical_correction_removes_a_planted_mean_shift(tmp_path):
     logits = {m: qdq_convs(onnx.load(str(tmp_path / f"{m}.onnx")))["/logits/Conv"] for m in ("none", "empirical")}
     codes = {m: _Values(onnx.load(str(tmp_path / f"{m}.onnx")))[c.bias_codes] for m, c in logits.items()}
     np.testing.assert_array_equal(codes["none"], codes["empirical"])  # the conv writing the float logits is left alone
+
+
+def test_the_convs_summed_into_the_logits_are_left_alone(tmp_path):
+    path = _export(SummedLogits(), tmp_path / "f.onnx")
+    codes = {}
+    for method in ("none", "empirical"):
+        quantize_static(path, _tensors(60), tmp_path / f"{method}.onnx", QuantConfig(bias_correction=method),
+                        progress=False)
+        model = onnx.load(str(tmp_path / f"{method}.onnx"))
+        codes[method] = {name: _Values(model)[c.bias_codes] for name, c in qdq_convs(model).items()}
+    assert sorted(codes["none"]) == ["/a/Conv", "/b/Conv", "/logits/Conv", "/low/Conv"]
+    changed = {name for name in codes["none"] if not np.array_equal(codes["none"][name], codes["empirical"][name])}
+    assert changed == {"/a/Conv", "/b/Conv"}, changed
 
 
 def test_convs_are_corrected_in_waves_after_everything_they_read(tmp_path):
