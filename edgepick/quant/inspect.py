@@ -233,7 +233,8 @@ def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str |
             if drop <= max_drop_pp or added >= max_float_layers:
                 break
             if candidates is None:
-                candidates = ranked(inspect(ckpt, calib, compared, config, progress=progress))
+                # the ranking is the first stage's (no method): the stages after it would be made for nothing
+                candidates = ranked(inspect(ckpt, calib, compared, method_stages(config)[0][1], progress=progress))
             if not candidates:
                 break
             keep.append(candidates.pop(0))
