@@ -240,9 +240,9 @@ def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int | Non
                          weight_bits: str, equalize: bool, adaround: bool, adaround_budget_s: float,
                          bias_correction: str) -> None:
     """Where int8 drifts from fp32: per conv layer, the SQNR of the int8 simulation against fp32 and
-    the drift it adds; the worst layers are the --keep-float candidates. The model is made again
-    with each method that is on added in turn (--equalize, --adaround, then bias correction unless
-    --bias-correction none), and each layer says how many dB each one gained it. JSON on stdout."""
+    the drift it adds; the worst layers are the --keep-float candidates. With --equalize,
+    --adaround or --bias-correction, the model is made again with each added in turn (in that
+    order), and each layer says how many dB each one gained it. JSON on stdout."""
     from edgepick.quant.inspect import inspect
     from edgepick.quant.passes import check_classes, check_image_count, folder_images
     from edgepick.train.checkpoint import Checkpoint

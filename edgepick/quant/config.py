@@ -70,9 +70,7 @@ class QuantConfig:
     # hardswish as x * hardsigmoid(x), both quantized (rewrites.GatedHardswish): onnxruntime then runs it on integer
     # kernels; as one quantized op it dequantizes the map and runs in float (benchmarks/quant_speed.py times both).
     hardswish_gate: bool = True
-    # static PTQ: shift conv biases back to fp32's means. empirical by default: closer to fp32 on every model measured
-    # (benchmarks/results/ptq-methods/, ptq-methods-onnx/) for a few seconds of calibration
-    bias_correction: BiasCorrection = BiasCorrection.EMPIRICAL
+    bias_correction: BiasCorrection = BiasCorrection.NONE  # static PTQ: shift conv biases back to fp32's means
     equalize: bool = False  # static PTQ: cross-layer equalization of conv pairs before calibration (quant/equalize.py)
     adaround: bool = False  # static PTQ: learn each conv's weight rounding on the calibration images (quant/adaround.py)
     adaround_budget_s: float = 120.0  # AdaRound's time budget, shared by the convs

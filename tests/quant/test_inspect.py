@@ -9,7 +9,6 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from edgepick.quant import QuantConfig  # noqa: E402
 from edgepick.quant.inspect import compare, float_graph, inspect, quantize_accuracy_aware  # noqa: E402
 from edgepick.quant.passes import folder_images, model_images  # noqa: E402
 from edgepick.train.checkpoint import load_model  # noqa: E402
@@ -29,8 +28,7 @@ def test_a_graph_compared_with_itself_has_no_drift(trained_run, small_data):
 
 def test_inspect_reports_every_conv_and_ranks_candidates(trained_run, small_data):
     report = inspect(trained_run, folder_images(small_data, "train", 8), folder_images(small_data, "val", 2),
-                     QuantConfig(bias_correction="none"), progress=False)  # the first stage alone
-    assert "bias_correction" not in report
+                     progress=False)
     layers = report["layers"]
     assert len(layers) == 70 and layers[0]["layer"] == "backbone.0.0"
     assert layers[0]["sqnr_db"] > 20  # the first conv sees only its own rounding

@@ -77,9 +77,10 @@ def bright():
 
 
 def _converted(bright, bits):
-    prepared = prepare(Bright().eval(), QuantConfig(weight_bits=bits), SIZE, qat=False)
+    config = QuantConfig(weight_bits=bits, bias_correction="none")  # the weights as rounded, nothing else
+    prepared = prepare(Bright().eval(), config, SIZE, qat=False)
     calibrate(prepared, bright)
-    return convert_static(prepared, lambda: [as_input(rgb) for rgb in bright], QuantConfig(weight_bits=bits))
+    return convert_static(prepared, lambda: [as_input(rgb) for rgb in bright], config)
 
 
 def test_first_7_gives_7_bit_weights_only_where_8_bit_ones_saturate(bright):
