@@ -11,14 +11,16 @@ can raise mIoU by chance, while agreeing with fp32 can only be earned.
         [--cases 7/none,7/empirical,7/none/cle,7/none/ada,...] [--adaround-budget S] [--openvino]
         [--out FILE.md | --save]
 
-A case is WEIGHT_BITS/BIAS_CORRECTION, optionally /cle (cross-layer equalization), /ada (AdaRound)
-or /cle+ada.
+A case is WEIGHT_BITS/BIAS_CORRECTION, optionally /METHODS: cle (cross-layer equalization), ada
+(AdaRound) and pPERCENTILE (the activation ranges' percentile, default quantize static's) joined by
++, e.g. /cle+ada or /p99.999.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import re
 import shutil
 import statistics
 import sys
@@ -85,11 +87,15 @@ def spread(values: list[float]) -> str:
 
 
 def case(text: str) -> tuple[WeightBits, BiasCorrection, str]:
-    """A --cases entry: (weight bits, bias correction, "" | "cle" | "ada" | "cle+ada")."""
+    """A --cases entry: (weight bits, bias correction, methods): methods "" or "+"-joined tokens of
+    cle, ada and pPERCENTILE (the activation ranges' percentile instead of the default)."""
     bits, method, *extra = text.split("/")
     methods = extra[0] if extra else ""
-    if methods not in ("", "cle", "ada", "cle+ada") or len(extra) > 1:
-        raise SystemExit(f"--cases {text}: expected WEIGHT_BITS/BIAS_CORRECTION[/cle|/ada|/cle+ada]")
+    tokens = methods.split("+") if methods else []
+    if (len(extra) > 1 or len(set(tokens)) != len(tokens)
+            or not all(t in ("cle", "ada") or re.fullmatch(r"p\d+(\.\d+)?", t) for t in tokens)):
+        raise SystemExit(f"--cases {text}: expected WEIGHT_BITS/BIAS_CORRECTION[/METHODS], METHODS cle, ada "
+                         f"or pPERCENTILE joined by +, e.g. 7/none/cle+ada or 7/empirical/p99.999")
     return WeightBits(bits), BiasCorrection(method), methods
 
 
@@ -98,8 +104,10 @@ def start_case(seed: int, key: tuple[WeightBits, BiasCorrection, str], work: Pat
     """Announce case KEY for SEED on stderr; its int8 file's path in WORK and its config."""
     bits, method, extra = key
     print(f"-- seed {seed}, weight bits {bits}, bias correction {method} {extra}", file=sys.stderr, flush=True)
-    config = QuantConfig(weight_bits=bits, bias_correction=method, equalize="cle" in extra, adaround="ada" in extra,
-                         adaround_budget_s=adaround_budget_s)
+    tokens = extra.split("+")
+    percentile = next((float(t[1:]) for t in tokens if t.startswith("p")), QuantConfig.percentile)
+    config = QuantConfig(weight_bits=bits, bias_correction=method, equalize="cle" in tokens, adaround="ada" in tokens,
+                         adaround_budget_s=adaround_budget_s, percentile=percentile)
     return work / f"{bits}-{method}-{extra}-{seed}.onnx", config
 
 
@@ -118,7 +126,7 @@ def main() -> None:
     ap.add_argument("--seeds", default="0,1,2", help="calibration seeds (which train images are drawn)")
     ap.add_argument("--cases", default="7/none,8/none,first-7/none,7/fast,7/empirical,first-7/empirical,7/none/cle,"
                     "7/none/ada,7/empirical/cle,7/empirical/ada,7/empirical/cle+ada",
-                    help="WEIGHT_BITS/BIAS_CORRECTION[/cle|/ada|/cle+ada] cases to compare")
+                    help="WEIGHT_BITS/BIAS_CORRECTION[/METHODS] cases to compare (METHODS: cle, ada, pPERCENTILE joined by +)")
     ap.add_argument("--adaround-budget", type=float, default=QuantConfig.adaround_budget_s,
                     help="AdaRound's time budget per pass, seconds")
     ap.add_argument("--runs", type=int, default=20, help="timed int8 calls per case (seed 0's file)")
@@ -187,7 +195,7 @@ def main() -> None:
              + (f"; OpenVINO {openvino_version()}, ONEDNN_MAX_CPU_ISA={os.environ.get('ONEDNN_MAX_CPU_ISA', 'unset')}"
                 if args.openvino else "") + ".", "",
              f"AdaRound's budget: {args.adaround_budget:g} s per pass.", "",
-             "| Weight bits | 7-bit convs | Bias correction | CLE / AdaRound | Object-pixel agreement with fp32 (%) | "
+             "| Weight bits | 7-bit convs | Bias correction | CLE / AdaRound / percentile | Object-pixel agreement with fp32 (%) | "
              "mIoU - fp32's (pp) | onnxruntime-vs-torch (%) | Calibration (s) | p50 (ms) |"
              + (" OpenVINO: object-pixel agreement with its fp32 (%) | OpenVINO p50 (ms) |" if args.openvino else ""),
              "|---|---|---|---|---|---|---|---|---|" + ("---|---|" if args.openvino else "")]

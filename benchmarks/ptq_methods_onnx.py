@@ -11,7 +11,8 @@ The last --held inputs of --calib are where agreement is measured and latency ti
         [--seeds 0,1,2] [--cases 7/none,first-7/none,7/empirical,7/none/ada,...] [--openvino]
         [--out FILE.md | --save]     # --save: benchmarks/results/ptq-methods/<date>-<machine>-<model>.md
 
-A case is WEIGHT_BITS/BIAS_CORRECTION, optionally /cle, /ada or /cle+ada, as in ptq_methods.py.
+A case is WEIGHT_BITS/BIAS_CORRECTION, optionally /METHODS (cle, ada, pPERCENTILE joined by +), as in
+ptq_methods.py.
 """
 
 from __future__ import annotations
@@ -69,7 +70,7 @@ def main() -> None:
     ap.add_argument("--calib-count", type=int, default=32, help="inputs each seed draws to calibrate")
     ap.add_argument("--seeds", default="0,1,2", help="calibration seeds (which inputs are drawn)")
     ap.add_argument("--cases", default="7/none,8/none,first-7/none,7/empirical,first-7/empirical,7/none/ada",
-                    help="WEIGHT_BITS/BIAS_CORRECTION[/cle|/ada|/cle+ada] cases to compare")
+                    help="WEIGHT_BITS/BIAS_CORRECTION[/METHODS] cases to compare (METHODS: cle, ada, pPERCENTILE joined by +)")
     ap.add_argument("--adaround-budget", type=float, default=QuantConfig.adaround_budget_s,
                     help="AdaRound's time budget per pass, seconds")
     add_input_options(ap)
@@ -158,7 +159,7 @@ def main() -> None:
              "calibration and what the method measures. p50: the first seed's files, timed in alternating "
              f"blocks of 5 ({args.runs} calls each, one process). AdaRound's budget: {args.adaround_budget:g} s "
              "per pass.", "",
-             "| Weight bits | 7-bit convs | Bias correction | CLE / AdaRound | Foreground agreement with fp32 (%) | "
+             "| Weight bits | 7-bit convs | Bias correction | CLE / AdaRound / percentile | Foreground agreement with fp32 (%) | "
              "All-pixel agreement (%) | Calibration (s) | p50 (ms) |"
              + (" OpenVINO: foreground agreement with its fp32 (%) | OpenVINO p50 (ms) |" if args.openvino else ""),
              "|---|---|---|---|---|---|---|---|" + ("---|---|" if args.openvino else "")]
