@@ -94,7 +94,8 @@ def run_level(args: argparse.Namespace, engine: Engine, level: str, labels: Path
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
-def report(args: argparse.Namespace, results: list[tuple[str, str, list[dict]]], reference_note: str) -> str:
+def report(args: argparse.Namespace, results: list[tuple[str, str, list[dict]]], images_seen: int,
+           reference_note: str) -> str:
     names = [Path(m).name for m in args.models]
     lines = [
         "# edgepick int8 files at several instruction-set levels of one CPU",
@@ -104,7 +105,7 @@ def report(args: argparse.Namespace, results: list[tuple[str, str, list[dict]]],
         machine_line() + "  ",
         f"Libraries: onnxruntime {_version('onnxruntime')}, OpenVINO {_version('openvino')}.",
         "",
-        f"{len(images(args.data, args.split, args.count))} images of the {args.split} split; reference: "
+        f"{images_seen} images of the {args.split} split; reference: "
         f"{reference_note}. Object pixels: those either model labels as an object. p50: one frame's "
         f"labels on {args.threads} threads, the models of one level timed in alternating blocks of 5 "
         f"({args.runs} calls each, one process per level); compare p50s within a level.",
@@ -170,7 +171,7 @@ def main() -> None:
                 print(f"-- {engine} at {level}", file=sys.stderr)
                 results.append((engine.value, level if engine == Engine.OPENVINO else "the CPU's own",
                                 run_level(args, engine, level, labels)))
-    emit(report(args, results, note), args)
+    emit(report(args, results, len(frames), note), args)
     return None
 
 
