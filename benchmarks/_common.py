@@ -57,6 +57,17 @@ def emit(report: str, args: argparse.Namespace, suffix: str = "") -> None:
         print(f"written to {path}", file=sys.stderr)
 
 
+def object_agreement(ours, reference) -> float:
+    """The share of object pixels (those either labels as something other than class 0) on which the
+    label maps OURS equal REFERENCE's: the fidelity measure that chance cannot raise."""
+    same = total = 0
+    for a, b in zip(ours, reference):
+        objects = (a > 0) | (b > 0)
+        same += int(((a == b) & objects).sum())
+        total += int(objects.sum())
+    return same / max(total, 1)
+
+
 def interleaved_times(calls: list, runs: int, block: int = 5) -> list[list[float]]:
     """Milliseconds per call of each CALLS[k](i), RUNS timed calls each, in alternating blocks of BLOCK
     after one untimed call: a shared machine's load drifts over all models alike, and no timed call

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import add_output, emit, interleaved_times, machine_line  # noqa: E402
+from _common import add_output, emit, interleaved_times, machine_line, object_agreement  # noqa: E402
 
 from edgepick.data.native import NativeDataset  # noqa: E402
 from edgepick.runtime.engine import Engine  # noqa: E402
@@ -53,8 +53,7 @@ def agreement(labels: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
     if labels.shape != reference.shape:
         raise SystemExit(f"labels of shape {labels.shape} against a reference of {reference.shape}: "
                          "not the same images")
-    equal, objects = labels == reference, (labels != 0) | (reference != 0)
-    return float((equal & objects).sum() / max(int(objects.sum()), 1)), float(equal.mean())
+    return object_agreement(labels, reference), float((labels == reference).mean())
 
 
 def measure(models: list[str], engine: Engine, frames: list[np.ndarray], reference: np.ndarray,

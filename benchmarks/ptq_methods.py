@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import add_output, emit, interleaved_times, machine_line  # noqa: E402
+from _common import add_output, emit, interleaved_times, machine_line, object_agreement  # noqa: E402
 
 from edgepick.data.native import NativeDataset  # noqa: E402
 from edgepick.export.onnx_export import export_checkpoint  # noqa: E402
@@ -49,21 +49,12 @@ def labels(model: Path, frames: list[np.ndarray], engine: Engine = Engine.ONNXRU
 
 def scores(ours: list[np.ndarray], fp32: list[np.ndarray], truth: list[np.ndarray], classes: int) -> tuple[float, float]:
     """(share of object pixels where OURS equals FP32, test mIoU of OURS against TRUTH)."""
-    return agreement(ours, fp32), miou(ours, truth, classes)
+    return object_agreement(ours, fp32), miou(ours, truth, classes)
 
 
 def miou(pred: list[np.ndarray], truth: list[np.ndarray], classes: int) -> float:
     cm = sum(confusion_matrix(t, p, classes) for p, t in zip(pred, truth))
     return float(segmentation_metrics(cm)["miou"])
-
-
-def agreement(ours: list[np.ndarray], fp32: list[np.ndarray]) -> float:
-    same = total = 0
-    for a, b in zip(ours, fp32):
-        objects = (a > 0) | (b > 0)
-        same += int(((a == b) & objects).sum())
-        total += int(objects.sum())
-    return same / max(total, 1)
 
 
 def openvino_version() -> str:
@@ -162,7 +153,7 @@ def main() -> None:
                 pass_s = time.perf_counter() - t0
                 agree, int8_miou = scores(labels(out, frames), fp32, truth, classes)
                 if args.openvino:  # the same file on OpenVINO, against fp32 on OpenVINO
-                    ov_agree[(bits, method, extra)].append(agreement(labels(out, frames, Engine.OPENVINO), fp32_ov))
+                    ov_agree[(bits, method, extra)].append(object_agreement(labels(out, frames, Engine.OPENVINO), fp32_ov))
                 sevens = seven_bit_convs(bits, r.quant, r.int8_convs)
                 results[(bits, method, extra)].append(
                     (agree, int8_miou - fp32_miou, r.agreement_vs_torch, r.calib_s, sevens))
