@@ -174,14 +174,14 @@ def main() -> None:
 
     lines = ["# Static PTQ methods on one float run", "",
              f"Command: `python benchmarks/ptq_methods.py {' '.join(sys.argv[1:])}`  ",
-             f"{machine_line()}; model {args.run}; fp32 test mIoU {100 * fp32_miou:.2f}% on the {args.split} split "
+             f"{machine_line()}; model {args.run}; fp32 mIoU {100 * fp32_miou:.2f}% on the {args.split} split "
              f"({len(frames)} images) of {args.data}; calibration seeds {args.seeds}; onnxruntime, 2 threads.  ",
              f"Libraries: {versions()}.", "",
              "Mean over the seeds, (min-max) in brackets. Object-pixel agreement: the share of pixels that either "
-             "model labels as an object on which the int8 labels equal fp32's (onnxruntime, test split). "
+             f"model labels as an object on which the int8 labels equal fp32's (onnxruntime, {args.split} split). "
              "onnxruntime-vs-torch: labels equal to torch's simulation of the same int8 model on 8 val images. "
              "Calibration time: prepare, calibration, conversion and what the method measures, without the "
-             "export. p50: int8 labels for one test frame, the first seed's files timed in alternating blocks "
+             f"export. p50: int8 labels for one {args.split} frame, the first seed's files timed in alternating blocks "
              f"of 5 ({args.runs} calls each, one process)"
              + (f"; OpenVINO {openvino_version()}, ONEDNN_MAX_CPU_ISA={os.environ.get('ONEDNN_MAX_CPU_ISA', 'unset')}"
                 if args.openvino else "") + ".", "",

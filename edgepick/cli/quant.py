@@ -83,9 +83,9 @@ ptq_methods = [
     click.option("--bias-correction", default=default_of(QuantConfig, "bias_correction"), show_default=True,
                  type=choice(BiasCorrection),
                  help=f"Shift each int8 conv's bias so that its output's per-channel mean is fp32's, on the first "
-                      f"{BIAS_CORRECTION_IMAGES} calibration images (fewer above 320x240): fast (each conv on fp32's "
-                      "input, NNCF's form) or "
-                      "empirical (each conv on the int8 model's own input, layer by layer, AIMET's form)."),
+                      f"{BIAS_CORRECTION_IMAGES} calibration images (fewer above 320x240): empirical (each conv on the "
+                      "int8 model's own input, layer by layer, AIMET's form; the median of the images' gaps), fast "
+                      "(each conv on fp32's input, NNCF's form; not for .onnx models) or none."),
 ]
 
 
@@ -241,8 +241,9 @@ def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int | Non
                          bias_correction: str) -> None:
     """Where int8 drifts from fp32: per conv layer, the SQNR of the int8 simulation against fp32 and
     the drift it adds; the worst layers are the --keep-float candidates. With --equalize,
-    --adaround or --bias-correction, the model is made again with each added in turn (in that
-    order), and each layer says how many dB each one gained it. JSON on stdout."""
+    --adaround or a --bias-correction other than none (empirical by default), the model is made
+    again with each added in turn (in that order), and each layer says how many dB each one gained
+    it. JSON on stdout."""
     from edgepick.quant.inspect import inspect
     from edgepick.quant.passes import check_classes, check_image_count, folder_images
     from edgepick.train.checkpoint import Checkpoint

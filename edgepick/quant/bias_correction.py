@@ -12,7 +12,9 @@ tools people use instead have them (docs/quantization.md, "Bias correction"):
   node by node, so each conv sees the int8 inputs the deployed model gives it, with the errors of
   the layers before it included and those layers already corrected. Correcting every conv from one
   ordinary pass instead would correct an upstream error twice: in its own layer and again in every
-  layer after it.
+  layer after it. The shift is the median over the images of each image's mean error, not the
+  mean over all pixels: an image whose activations the calibrated ranges clip hard can carry a
+  per-channel error a hundred times the others', and a mean would hand its error to every image.
 
 Both act on the converted pt2e graph (BatchNorm folded, each int8 conv reading
 dequantize_per_tensor(x) and dequantize_per_channel(w) with a float bias), and leave every other
@@ -123,15 +125,27 @@ def _run(interpreter: _Means, inputs: Iterable[torch.Tensor]) -> int:
     return seen
 
 
-def _channel_mean(outputs: list[torch.Tensor]) -> torch.Tensor:
-    total = sum(y.detach().double().sum(dim=(0, 2, 3)) for y in outputs)
-    return (total / sum(y.numel() // y.shape[1] for y in outputs)).float()
+class _ImageMeans(_Means):
+    """Runs a graph and keeps, for the nodes in WATCH (node names), each image's per-channel mean."""
+
+    def __init__(self, graph: GraphModule, watch: Iterable[str]):
+        super().__init__(graph, {name: name for name in watch})
+        self.rows: dict[str, list[torch.Tensor]] = {}
+
+    def add(self, key: str, y: torch.Tensor) -> None:
+        self.rows.setdefault(key, []).append(_image_means([y]))
+
+
+def _image_means(outputs: list[torch.Tensor]) -> torch.Tensor:
+    """[images, channels]: each image's per-channel mean of OUTPUTS (batches)."""
+    return torch.cat([y.detach().double().mean(dim=(2, 3)) for y in outputs])
 
 
 def _empirical(converted: GraphModule, convs: dict[str, Node], target: dict[str, torch.Tensor],
                inputs: list[torch.Tensor]) -> dict[str, float]:
-    """Run CONVERTED on all INPUTS in lockstep, node by node; at each conv of CONVS add TARGET -
-    (its mean output) to its bias and to the outputs already computed, before the next node reads them."""
+    """Run CONVERTED on all INPUTS in lockstep, node by node; at each conv of CONVS add the median
+    over the images of TARGET ([images, channels], fp32's image means) - its own image means to its
+    bias and to the outputs already computed, before the next node reads them."""
     runners = []
     for x in inputs:
         runner = Interpreter(converted)
@@ -144,7 +158,7 @@ def _empirical(converted: GraphModule, convs: dict[str, Node], target: dict[str,
                 break
             outs = [runner.run_node(node) for runner in runners]
             if node.name in convs:
-                delta = target[node.name] - _channel_mean(outs)
+                delta = torch.quantile(target[node.name] - _image_means(outs), 0.5, dim=0).float()
                 attrgetter(node.args[2].target)(converted).add_(delta)
                 outs = [y + delta.view(1, -1, 1, 1) for y in outs]
                 moved[node.name] = float(delta.abs().max())
@@ -187,9 +201,9 @@ def correct_biases(prepared: GraphModule, converted: GraphModule, inputs: list[t
     if missing:
         raise ValueError(f"convs {', '.join(missing)} of the int8 graph are not in the float graph")
     if method == BiasCorrection.EMPIRICAL:
-        reference = _Means(prepared, watch)
-        _run(reference, inputs)
-        return _empirical(converted, convs, reference.means(), inputs)
+        images = _ImageMeans(prepared, convs)
+        _run(images, inputs)
+        return _empirical(converted, convs, {k: torch.cat(v) for k, v in images.rows.items()}, inputs)
     weights = {name: _constant(converted, node.args[1]) for name, node in convs.items()}
     shadow = _Means(prepared, {})
 

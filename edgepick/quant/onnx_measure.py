@@ -5,8 +5,10 @@ onnxruntime's quantizer (quant/onnx_static.py), as quant/ptq.py does it for a to
   with its 8-bit weights as an AVX2 U8S8 kernel pairs them (quant/overflow.py); the convs whose
   pair sums come near the int16 limit are requantized to 7-bit weights from the float weights,
   on the grid onnxruntime's own 7-bit weights use (-64..64, symmetric), their int32 biases with them;
-- empirical bias correction (AIMET's form): each conv's int32 bias is shifted so that the
-  per-channel mean of its output on the images equals the float model's. Convs are corrected in
+- empirical bias correction (AIMET's form): each conv's int32 bias is shifted by the median over
+  the images of the gap between the float model's and its own per-channel output mean (the median,
+  so that one image whose activations are clipped hard does not set every image's bias, as in
+  quant/bias_correction.py). Convs are corrected in
   waves: a wave holds the convs whose inputs depend only on convs of earlier waves, which are
   already corrected, so what a conv compensates includes the errors from upstream, once. The graph
   is cut after each wave and the images run through it together, segment by segment (as the torch
@@ -240,8 +242,9 @@ def _segment_session(model: Any, segment: _Segment, examples: dict[str, np.ndarr
     return ort.InferenceSession(part.SerializeToString(), opts, providers=["CPUExecutionProvider"])
 
 
-def _channel_means(y: np.ndarray) -> np.ndarray:
-    return y.mean(axis=(0, *range(2, y.ndim)), dtype=np.float64)
+def _image_means(y: np.ndarray) -> np.ndarray:
+    """[images, channels]: each image's per-channel mean of the batch Y."""
+    return y.reshape(*y.shape[:2], -1).mean(axis=2, dtype=np.float64)
 
 
 def correct_onnx_biases(float_model: Any, model: Any, tensors: list[np.ndarray], skip: set[str]) -> int:
@@ -258,10 +261,11 @@ def correct_onnx_biases(float_model: Any, model: Any, tensors: list[np.ndarray],
     names = list(bias)
     wanted = [by_name[name].output[0] for name in names]
     fp32 = _runner(float_model, wanted)
-    target = {name: np.zeros(0) for name in names}
-    for i, x in enumerate(tensors):
+    rows: dict[str, list[np.ndarray]] = {name: [] for name in names}
+    for x in tensors:
         for name, y in zip(names, fp32(x, wanted), strict=True):
-            target[name] = _channel_means(y) / len(tensors) + (target[name] if i else 0.0)
+            rows[name].append(_image_means(y))
+    target = {name: np.concatenate(r) for name, r in rows.items()}
     values = _Values(model)
     image = model.graph.input[0].name
     env = [{image: x} for x in tensors]  # per tensor, what later segments read
@@ -276,9 +280,10 @@ def correct_onnx_biases(float_model: Any, model: Any, tensors: list[np.ndarray],
         for name in segment.wave:
             codes_name, scale_name = bias[name]
             out, scale = convs[name].node.output[0], values[scale_name].astype(np.float64)
-            got = np.mean([_channel_means(e[out]) for e in env], axis=0)
+            got = np.concatenate([_image_means(e[out]) for e in env])
+            delta = np.median(target[name] - got, axis=0)
             codes = values[codes_name]
-            moved = np.clip(np.round(codes + ((target[name] - got) / scale).reshape(codes.shape)), -2 ** 31, 2 ** 31 - 1)
+            moved = np.clip(np.round(codes + (delta / scale).reshape(codes.shape)), -2 ** 31, 2 ** 31 - 1)
             values[codes_name] = moved.astype(np.int32)
             step = ((moved - codes) * scale).astype(np.float32).reshape(1, -1, *[1] * (env[0][out].ndim - 2))
             for e in env:  # the conv's output as the corrected bias gives it, for the segments after

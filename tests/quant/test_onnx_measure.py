@@ -57,6 +57,35 @@ def test_empirical_correction_removes_a_planted_mean_shift(tmp_path):
     np.testing.assert_array_equal(codes["none"], codes["empirical"])  # the conv writing the float logits is left alone
 
 
+def test_one_tensor_clipped_hard_does_not_set_the_bias_of_the_others(tmp_path):
+    """As on torch graphs (test_bias_correction): calibrated on dark tensors, a white one is clipped
+    and its conv outputs fall far below fp32's; the tensors in range keep their planted shift removed."""
+    from edgepick.quant.onnx_measure import correct_onnx_biases
+
+    path = _export(Planted(), tmp_path / "f.onnx")
+    dark = [t // 2 for t in _tensors(60)]
+    typical, white = dark[:5], np.full_like(dark[0], 255.0)
+    quantize_static(path, dark, tmp_path / "q.onnx", QuantConfig(), progress=False)
+    fp32, model = onnx.load(str(path)), onnx.load(str(tmp_path / "q.onnx"))
+
+    def gaps(tensors):  # per conv, [tensors, channels]: fp32's channel means minus the int8 model's
+        means = []
+        for m in (fp32, model):
+            outs = [next(n for n in m.graph.node if n.name == name).output[0] for name in ("/a/Conv", "/b/Conv")]
+            run = _runner(m, outs)
+            means.append([np.stack([y.mean(axis=(0, 2, 3)) for y in ys]) for ys in zip(*(run(x, outs) for x in tensors))])
+        return {name: means[0][i] - means[1][i] for i, name in enumerate(("/a/Conv", "/b/Conv"))}
+
+    before = gaps([*typical, white])
+    plant = {k: np.abs(g[:5].mean(0)).max() for k, g in before.items()}
+    clipped = {k: np.abs(g[5] - g[:5].mean(0)).max() for k, g in before.items()}
+    assert all(clipped[k] / 6 > plant[k] for k in plant), (clipped, plant)  # a mean would leave more than the plant
+    assert correct_onnx_biases(fp32, model, [*typical, white], {"/logits/Conv"}) == 2
+    after = gaps(typical)
+    for k in plant:
+        assert np.abs(after[k].mean(0)).max() < plant[k] / 10, (k, plant[k], after[k].mean(0))
+
+
 def test_the_convs_summed_into_the_logits_are_left_alone(tmp_path):
     path = _export(SummedLogits(), tmp_path / "f.onnx")
     codes = {}
