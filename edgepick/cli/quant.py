@@ -27,6 +27,7 @@ from edgepick.quant.config import (
     MAX_FLOAT_LAYERS,
     BiasCorrection,
     CalibMethod,
+    Placement,
     QuantConfig,
     WeightBits,
 )
@@ -130,6 +131,11 @@ def quantize() -> None:
                    "images made into tensors by the preprocessing options.")
 @click.option("--input-shape", default=None, metavar="N,C,H,W",
               help="For an .onnx MODEL with dynamic input dims [default: the first calibration tensor's shape].")
+@click.option("--placement", default=default_of(QuantConfig, "placement"), show_default=True, type=choice(Placement),
+              help="For an .onnx MODEL: all (every op onnxruntime runs in int8, with edgepick's activation "
+                   "rewrites: for onnxruntime) or convs (only the convs and the tensors they read and write; the "
+                   "model's own activations stay float as written, which OpenVINO fuses into its int8 convs). Which "
+                   "is faster on OpenVINO depends on the model: time both (benchmarks/peers_onnx.py).")
 @with_options(calibration)
 @click.option("--percentile", default=default_of(QuantConfig, "percentile"), show_default=True,
               help="For --calib-method percentile.")
@@ -143,7 +149,7 @@ def quantize() -> None:
 @with_options(common)
 @with_options(preprocessing_options)
 def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None, input_shape: str | None,
-                        calib_images: int | None, calib_method: str, percentile: float, equalize: bool,
+                        placement: str, calib_images: int | None, calib_method: str, percentile: float, equalize: bool,
                         adaround: bool, adaround_budget_s: float, bias_correction: str, seed: int,
                         max_miou_drop: float | None, max_float_layers: int, out: str, weight_bits: str,
                         keep_float: str, **preprocessing) -> None:
@@ -161,7 +167,8 @@ def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None
         _quantize_onnx(checkpoint, calib, input_shape, calib_images, seed, max_miou_drop, data_dir, out,
                        _quant_config(keep_float, calib_method=calib_method, percentile=percentile,
                                      weight_bits=weight_bits, bias_correction=bias_correction, equalize=equalize,
-                                     adaround=adaround, adaround_budget_s=adaround_budget_s), preprocessing)
+                                     adaround=adaround, adaround_budget_s=adaround_budget_s, placement=placement),
+                       preprocessing)
         return
     from edgepick.quant.passes import agreement_images, check_classes, check_image_count, folder_images, quantize_static
     from edgepick.train.checkpoint import Checkpoint
@@ -171,6 +178,9 @@ def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None
     for flag, value in (("--calib", calib), ("--input-shape", input_shape)):
         if value is not None:
             raise ConfigError(f"{flag} is for an .onnx MODEL; a RUN or checkpoint calibrates on --data")
+    if placement != Placement.ALL:
+        raise ConfigError(f"--placement {placement} is for an .onnx MODEL; a RUN or checkpoint's int8 graph "
+                          "quantizes every activation")
     _check_onnx_out(out, checkpoint, data_dir)
     if seed < 0:
         raise ConfigError(f"--seed {seed}: must be 0 or positive")

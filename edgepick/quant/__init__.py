@@ -15,20 +15,21 @@ from edgepick.lazy import lazy_attributes
 
 _WHERE = {
     "AccuracyAwareResult": "results", "agreement_images": "passes", "BiasCorrection": "config",
-    "CalibMethod": "config", "calibrate": "graph",
+    "CalibMethod": "config", "calibrate": "graph", "Placement": "config",
     "convert": "graph", "folder_images": "passes", "inspect": "inspect", "PassResult": "results",
     "prepare": "graph", "QatHooks": "qat", "QuantConfig": "config", "QuantizationError": "graph",
     "quantize_accuracy_aware": "inspect", "quantize_hybrid": "passes", "quantize_qat": "passes",
     "quantize_static": "passes", "WeightBits": "config", "quantize_onnx_static": "onnx_static", "folder_tensors": "onnx_static",
     "OnnxPassResult": "onnx_static"
 }
-__all__ = ["AccuracyAwareResult", "BiasCorrection", "CalibMethod", "OnnxPassResult", "PassResult", "QatHooks", "QuantConfig",
+__all__ = ["AccuracyAwareResult", "BiasCorrection", "CalibMethod", "OnnxPassResult", "PassResult", "Placement", "QatHooks",
+           "QuantConfig",
            "QuantizationError", "agreement_images", "calibrate", "convert", "folder_images", "folder_tensors",
            "inspect", "prepare", "quantize_accuracy_aware", "quantize_hybrid", "quantize_onnx_static", "quantize_qat",
            "quantize_static", "WeightBits"]
 
 if TYPE_CHECKING:
-    from edgepick.quant.config import BiasCorrection, CalibMethod, QuantConfig, WeightBits
+    from edgepick.quant.config import BiasCorrection, CalibMethod, Placement, QuantConfig, WeightBits
     from edgepick.quant.graph import QuantizationError, calibrate, convert, prepare
     from edgepick.quant.inspect import inspect, quantize_accuracy_aware
     from edgepick.quant.onnx_static import OnnxPassResult, folder_tensors, quantize_onnx_static

@@ -47,6 +47,16 @@ class BiasCorrection(enum.StrEnum):
     EMPIRICAL = "empirical"  # each conv on the int8 model's own input, errors before it included (AIMET's)
 
 
+class Placement(enum.StrEnum):
+    """Which tensors of an .onnx model static PTQ puts on the int8 grid (quant/onnx_static.py); the
+    faster file depends on the engine and the model (benchmarks/results/peers-onnx/)."""
+
+    ALL = "all"  # every op onnxruntime runs in int8, with edgepick's activation rewrites: made for onnxruntime
+    # only the convs (inputs, weights, outputs) and what a conv reads; the model's own activation ops stay float, as
+    # written: OpenVINO fuses them into its int8 convs where it recognises them
+    CONVS = "convs"
+
+
 class WeightBits(enum.StrEnum):
     """Weight precision. onnxruntime's U8S8 kernels on AVX2 CPUs without VNNI (the thesis's laptop) add pairs
     of u8*s8 products in int16, which can saturate with 8-bit weights and never with 7-bit ones (quant/overflow.py)."""
@@ -76,6 +86,7 @@ class QuantConfig:
     equalize: bool = False  # static PTQ: cross-layer equalization of conv pairs before calibration (quant/equalize.py)
     adaround: bool = False  # static PTQ: learn each conv's weight rounding on the calibration images (quant/adaround.py)
     adaround_budget_s: float = 120.0  # AdaRound's time budget, shared by the convs
+    placement: Placement = Placement.ALL  # static PTQ of an .onnx model: which tensors are int8
     keep_float: tuple[str, ...] = ()  # module names (prefixes) left in float
     skip: tuple[str, ...] = ("preprocess",)  # never quantized
 
@@ -83,6 +94,7 @@ class QuantConfig:
         object.__setattr__(self, "calib_method", member(CalibMethod, "calib_method", self.calib_method))
         object.__setattr__(self, "bias_correction", member(BiasCorrection, "bias_correction", self.bias_correction))
         object.__setattr__(self, "weight_bits", member(WeightBits, "weight_bits", str(self.weight_bits)))
+        object.__setattr__(self, "placement", member(Placement, "placement", self.placement))
         object.__setattr__(self, "keep_float", tuple(self.keep_float))
         object.__setattr__(self, "skip", tuple(self.skip))
         if not 50.0 < self.percentile <= 100.0:

@@ -16,7 +16,7 @@ import torch
 from edgepick.errors import ConfigError, EdgepickError, ParameterError
 from edgepick.geometry import Size, check_size
 from edgepick.models.deeplabv3 import DeepLabV3, LogitsNet, trim_dilated_convs
-from edgepick.quant.config import QuantConfig, WeightBits
+from edgepick.quant.config import Placement, QuantConfig, WeightBits
 from edgepick.quant.equalize import equalize
 from edgepick.quant.quantizer import EdgeQuantizer, count_quant_nodes, module_path, under
 from edgepick.quant.rewrites import drop_fake_quants_after_dropout, gate_hardswish, snap_conv_biases
@@ -105,6 +105,9 @@ def prepare(model: torch.nn.Module, config: QuantConfig, size: Size, qat: bool,
     if qat and config.weight_bits == WeightBits.FIRST_SEVEN:
         raise ParameterError("{weight_bits}: first-7 is measured after static calibration; QaT trains on one weight "
                              "grid from the start: use 7 or 8", weight_bits=config.weight_bits)
+    if config.placement != Placement.ALL:
+        raise ParameterError("{placement}: for an .onnx model; a torch model's int8 graph quantizes every "
+                             "activation", placement=config.placement)
     if isinstance(model, DeepLabV3):
         trim_dilated_convs(model, size)  # exact; int8 kernels do not skip taps that only see padding
     if config.hardswish_gate:

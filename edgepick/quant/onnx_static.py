@@ -9,7 +9,9 @@ around it (docs/quantization.md, "Your own model"):
   inferred (onnxruntime's `quant_pre_process`);
 - the recipe: U8S8, weights int8 per output channel and symmetric, 7-bit unless
   weight_bits 8 (or first-7: 7-bit only where 8-bit weights saturate, `onnx_measure`), uint8
-  activations per tensor, HardSigmoid quantized as well; with config.equalize, conv pairs equalized
+  activations per tensor, HardSigmoid quantized as well (with placement convs: only the convs
+  and the tensors they read and write, the model's own activations left float as it writes them,
+  for OpenVINO, which fuses them into its int8 convs); with config.equalize, conv pairs equalized
   before calibration (`onnx_equalize`); with config.adaround, each conv's weight rounding learnt
   on the calibration tensors (`onnx_adaround`); with empirical bias correction, the conv biases
   shifted back to fp32's means (`onnx_measure`);
@@ -48,6 +50,7 @@ from edgepick.quant.config import (
     SATURATION_CHECK_INPUTS,
     BiasCorrection,
     CalibMethod,
+    Placement,
     QuantConfig,
     WeightBits,
     lockstep_images,
@@ -298,7 +301,8 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
     opset_in = opset(proto)
     fix_input_shape(proto, tuple(input_shape))
     proto = lift_opset(proto, model)
-    rewrites = {**rewrite_activations(proto), "affine_folded": fold_affine_into_convs(proto)}
+    every_op = config.placement == Placement.ALL
+    rewrites = {**(rewrite_activations(proto) if every_op else {}), "affine_folded": fold_affine_into_convs(proto)}
     nhwc = len(input_shape) == 4 and input_shape[-1] in (1, 3, 4) and input_shape[1] not in (1, 3, 4)
     with tempfile.TemporaryDirectory(prefix="edgepick-onnx-") as tmp:
         pre, qdq = Path(tmp) / "float.onnx", Path(tmp) / "qdq.onnx"
@@ -315,7 +319,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
         keep = max(CHECK_TENSORS, measured, SATURATION_CHECK_INPUTS if config.weight_bits == WeightBits.FIRST_SEVEN
                    else 0)
         reader = _Reader(name, itertools.chain([first], tensors), tuple(input_shape), keep, progress)
-        ops = sorted({*QDQRegistry, *QLinearOpsRegistry, "HardSigmoid"} - {"ArgMax"})
+        ops = sorted({*QDQRegistry, *QLinearOpsRegistry, "HardSigmoid"} - {"ArgMax"}) if every_op else sorted(CONV_OPS)
         with _quiet():
             quantize_static(str(pre), str(qdq), reader, quant_format=QuantFormat.QDQ, per_channel=True,
                             reduce_range=config.reduce_range, activation_type=QuantType.QUInt8,
@@ -330,7 +334,8 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
                  "cropped_convs": crop_padded_convs(int8)}
         quant = {"mode": "static", "source": "onnx", "calib_method": config.calib_method.value,
                  "calib_images": reader.seen, "percentile": config.percentile, "weight_bits": config.weight_bits.value,
-                 "equalize": config.equalize, "bias_correction": config.bias_correction.value,
+                 "placement": config.placement.value, "equalize": config.equalize,
+                 "bias_correction": config.bias_correction.value,
                  "adaround": config.adaround, **({"adaround_budget_s": config.adaround_budget_s} if config.adaround else {}),
                  "keep_float": list(config.keep_float), **done}
         if config.equalize:

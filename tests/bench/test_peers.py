@@ -41,7 +41,7 @@ def test_peers_onnx_compares_every_tool_on_a_model_edgepick_did_not_make(tmp_pat
         np.save(tmp_path / "calib" / f"{k}.npy", x)
     monkeypatch.setattr(sys, "argv", ["peers_onnx.py", "--onnx", str(tmp_path / "net.onnx"), "--calib",
                                       str(tmp_path / "calib"), "--calib-count", "4", "--runs", "2", "--threads", "1",
-                                      "--edgepick-methods", "first-7/empirical/cle"])
+                                      "--edgepick-methods", "first-7/empirical/cle,7/none/convs"])
     peers_onnx.main()
     report = capsys.readouterr().out
     rows = [line for line in report.splitlines() if line.startswith("| ") and "(ms)" not in line]
@@ -49,7 +49,13 @@ def test_peers_onnx_compares_every_tool_on_a_model_edgepick_did_not_make(tmp_pat
         "| fp32 (onnxruntime)", "| onnxruntime quantize_static, defaults",
         "| onnxruntime quantize_static, QDQ U8S8 per-channel reduce-range", "| fp32 (OpenVINO)", "| NNCF + OpenVINO",
         "| edgepick static (onnxruntime)", "| edgepick static (OpenVINO)"]
-    assert rows[7].startswith("| edgepick static, first-7/empirical/cle (onnxruntime) | ")
+    assert [r.split(" | ")[0] for r in rows[7:11]] == [
+        "| edgepick static, first-7/empirical/cle (onnxruntime)", "| edgepick static, first-7/empirical/cle (OpenVINO)",
+        "| edgepick static, 7/none/convs (onnxruntime)", "| edgepick static, 7/none/convs (OpenVINO)"]
+    assert "edgepick's fastest file on OpenVINO against NNCF + OpenVINO" in report
+    assert peers_onnx.method_config("7/empirical/convs").placement == "convs"
+    with pytest.raises(SystemExit, match="expected"):
+        peers_onnx.method_config("7/empirical/convs/convs")
     assert rows[0].split(" | ")[1] == "100.00 / 100.00"  # fp32 against itself, both outputs
     assert "lifted to opset 13" in report and "9 of 9 convs int8" in report
 

@@ -133,6 +133,8 @@ CASES = [
      "--bias-correction fast is for a RUN"),
     (["quantize", "static", "{W}/none", "--data", "{D}", "--adaround-budget", "0", "--out", "{W}/q.onnx"],
      "--adaround-budget 0"),
+    (["quantize", "static", "{W}/none", "--data", "{D}", "--placement", "convs", "--out", "{W}/q.onnx"],
+     "--placement convs is for an .onnx MODEL"),
     (["quantize", "hybrid", "{W}/none", "--data", "{D}", "--qat-fraction", "0.1", "--out", "{W}/h.onnx", "--run",
       "{W}/busy.run"], "not empty"),
     (["quantize", "hybrid", "{W}/none", "--data", "{D}", "--qat-fraction", "1.5", "--out", "{W}/h.onnx"],

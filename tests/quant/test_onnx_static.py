@@ -51,6 +51,52 @@ def test_an_opset_12_export_with_dynamic_dims_becomes_an_all_int8_model(tmp_path
     assert run(Path(result.out), x)[0].dtype == np.float32  # the logits stay float
 
 
+def _float_ops_on_the_int8_grid(path: Path) -> list[str]:
+    """The ops of the QDQ file at PATH that are not convs yet write a tensor put on the int8 grid
+    that no conv reads."""
+    model = onnx.load(str(path))
+    weights = {i.name for i in model.graph.initializer}
+    writer = {o: n for n in model.graph.node for o in n.output}
+    conv = {"Conv", "ConvTranspose"}
+    found = []
+    for q in (n for n in model.graph.node if n.op_type == "QuantizeLinear" and n.input[0] not in weights):
+        dq = [n for n in model.graph.node if n.op_type == "DequantizeLinear" and q.output[0] in n.input]
+        readers = {r.op_type for d in dq for r in model.graph.node if d.output[0] in r.input}
+        source = writer.get(q.input[0])
+        if source is not None and source.op_type not in conv and not readers & conv:
+            found.append(source.op_type)
+    return found
+
+
+def test_placement_convs_leaves_the_models_own_activations_float(tmp_path):
+    """placement convs (for OpenVINO): only the convs and the tensors they read and write are put on
+    the int8 grid; the hardswish and the squeeze-excitation stay as the model writes them, in
+    float. The default quantizes their outputs too, for onnxruntime's integer kernels."""
+    src = export_torch(tmp_path / "net.onnx", opset=13)
+    files = {}
+    for placement in ("all", "convs"):
+        result = quantize_onnx_static(src, calib_tensors(8), tmp_path / f"{placement}.onnx",
+                                      QuantConfig(placement=placement), progress=False)
+        assert result.convs == result.int8_convs == 8 and result.agreement_vs_fp32["logits"] >= 0.97
+        files[placement] = Path(result.out)
+        quant = json.loads(dict((p.key, p.value) for p in onnx.load(result.out).metadata_props)["edgepick.quant"])
+        assert quant["placement"] == placement
+    assert _float_ops_on_the_int8_grid(files["convs"]) == []
+    assert {"Add", "Concat"} <= set(_float_ops_on_the_int8_grid(files["all"]))  # the gates' integer Add, ...
+    ops = Counter(n.op_type for n in onnx.load(str(files["convs"])).graph.node)
+    assert ops["Clip"] == 1 and ops["HardSigmoid"] == 1 and ops["ReduceMean"] == 1, ops  # as exported
+
+
+def test_placement_convs_is_refused_for_a_torch_model():
+    import torch
+
+    from edgepick.geometry import Size
+    from edgepick.quant import prepare
+
+    with pytest.raises(ParameterError, match="placement"):
+        prepare(torch.nn.Conv2d(3, 2, 1), QuantConfig(placement="convs"), Size(32, 24), qat=False)
+
+
 def test_one_channel_sigmoid_and_two_output_models(tmp_path):
     sig = quantize_onnx_static(export_torch(tmp_path / "sig.onnx", out_channels=1, sigmoid=True), calib_tensors(6),
                                tmp_path / "sig8.onnx", progress=False)
