@@ -10,7 +10,7 @@ from __future__ import annotations
 import csv
 import json
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from itertools import cycle
 from pathlib import Path
 
@@ -65,12 +65,15 @@ def cell_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: int, 
     truth = camera.calibration()
     robot = SimRobot()
     physics = None
+    pick = PickConfig()
     if verdict != VerdictRule.GEOMETRIC:
         from edgepick.sim.physics import physics_judge
 
-        physics = physics_judge(truth, PickConfig(), physics_config)
+        physics = physics_judge(truth, pick, physics_config)
+        if physics_config is not None:  # the planner checks the footprint of the jaw the check simulates
+            pick = replace(pick, hand=replace(pick.hand, jaw_opening_m=physics_config.jaw_stroke_m))
     with camera, robot:
-        results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=PickConfig(), cycles=cycles,
+        results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=pick, cycles=cycles,
                              log=CommandLog(None), echo=lambda line: None, truth_cal=truth, physics=physics)
     times = np.array([r["plan_ms"] for r in results])  # frame -> labels -> records -> the checked plan
     summary = summarize(results)

@@ -19,6 +19,7 @@ import cv2
 
 from edgepick.frames import Camera, Frame
 from edgepick.robot.base import RobotBase
+from edgepick.robot.clearance import hand_clearance
 from edgepick.robot.envelope import Envelope
 from edgepick.robot.grippers import DigitalGripper, RG2Gripper
 from edgepick.robot.pick import CommandLog, PickConfig, Step, choose_target, execute
@@ -147,7 +148,9 @@ def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper
             echo(f"cycle {cycle}: the camera has no more frames")
             break
         start = robot.tcp_pose() if robot is not None else None  # plan only: from the home pose
-        record, plan, note = choose_target(seen.records, envelope, cfg, start, limits)
+        clear = hand_clearance(frame.depth, frame.intrinsics, pipeline.calib, cfg.hand) \
+            if cfg.hand is not None and pipeline.calib is not None else None
+        record, plan, note = choose_target(seen.records, envelope, cfg, start, limits, clear)
         steps: list[StepDone] = []
         t_plan = time.perf_counter()
         result = {"cycle": cycle, "frame": frame.name, "objects": len(seen.records), "stage_ms": seen.ms,

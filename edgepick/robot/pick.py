@@ -18,6 +18,7 @@ from typing import IO
 
 from edgepick.errors import ParameterError
 from edgepick.robot.base import RobotBase, RobotError
+from edgepick.robot.clearance import HandShape
 from edgepick.robot.envelope import Envelope, SafetyError
 from edgepick.robot.motion import HOME_POSE
 from edgepick.schema import member
@@ -47,9 +48,12 @@ class PickConfig:
     speed: float = 0.25  # moveL, m/s
     acc: float = 1.2  # moveL, m/s^2
     transit_radius_m: float = 0.18  # lift -> place passes the base no closer than this (via points on this circle)
+    hand: HandShape | None = HandShape()  # the footprint checked on the frame's depth (robot/clearance.py); None: not checked
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "choose", member(Choose, "choose", self.choose))
+        if isinstance(self.hand, dict):  # as a recording's metadata holds it
+            object.__setattr__(self, "hand", HandShape(**self.hand))
         for name in ("classes", "place_pose", "home_pose"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
         for name in ("speed", "acc"):
@@ -131,11 +135,13 @@ def plan_reason(plan: list[Step], envelope: Envelope, cfg: PickConfig, start: li
 
 
 def choose_target(records: list[dict], envelope: Envelope, cfg: PickConfig, start: list[float] | None = None,
-                  limits: Callable[[list[float]], str | None] | None = None) -> tuple[dict | None, list[Step], str]:
+                  limits: Callable[[list[float]], str | None] | None = None,
+                  clear: Callable[[dict], str | None] | None = None) -> tuple[dict | None, list[Step], str]:
     """The preferred record whose whole plan, from the arm's pose `start` [default: the home
     pose], passes the envelope and LIMITS (see plan_reason); its plan, and a note. An object cut
     by the image border is not chosen (its centroid is that of the part in view, not of the
-    object), nor one with BURIED or more of its rim under other objects."""
+    object), nor one with BURIED or more of its rim under other objects, nor one where CLEAR
+    (robot/clearance.py: the hand's footprint on the frame's depth) says the hand cannot come down."""
     start = list(cfg.home_pose) if start is None else start
     candidates = [r for r in records if not cfg.classes or r["class"] in cfg.classes]
     if not candidates:
@@ -156,6 +162,10 @@ def choose_target(records: list[dict], envelope: Envelope, cfg: PickConfig, star
             continue
         if r.get("pose_robot") is None:
             reasons.append(f"{r['class']}: {r.get('reason', 'no robot pose (no calibration?)')}")
+            continue
+        blocked = clear(r) if clear is not None else None
+        if blocked:
+            reasons.append(f"{r['class']}: {blocked}")
             continue
         plan = plan_pick(r, cfg)
         reason = plan_reason(plan, envelope, cfg, start, limits)

@@ -23,6 +23,7 @@ import numpy as np
 
 from edgepick.errors import EdgepickError
 from edgepick.geometry import Intrinsics
+from edgepick.robot.clearance import hand_clearance
 from edgepick.robot.envelope import Envelope
 from edgepick.robot.messages import rotation, schemas
 from edgepick.robot.pick import PickConfig, choose_target
@@ -150,7 +151,9 @@ def replay(recording: Recording, segmenter: Segmenter | None = None) -> Iterator
         if segmenter is not None:
             labels = segmenter.restore(segmenter.infer(segmenter.prepare(rc.rgb)), rc.rgb.shape[:2])
         records = grasp_records(labels, rc.depth, recording.intrinsics, classes, recording.calibration, grasp_cfg)
-        chosen, _, note = choose_target(records, envelope, pick_cfg, rc.start_pose)
+        clear = hand_clearance(rc.depth, recording.intrinsics, recording.calibration, pick_cfg.hand) \
+            if pick_cfg.hand is not None and recording.calibration is not None else None
+        chosen, _, note = choose_target(records, envelope, pick_cfg, rc.start_pose, clear=clear)
         recorded = {"target": rc.result.get("target"), "pixel": rc.result.get("pixel")}
         now = {"target": chosen["class"], "pixel": chosen["pixel"], "pose_robot": chosen["pose_robot"]} \
             if chosen else {"target": None, "pixel": None, "reason": note}

@@ -41,7 +41,8 @@ MAGNETIC = ("bearing", "disk")  # steel and cast iron; the box (cardboard) and a
 CONTACT_M = 0.0005  # a pole face this close to the part's top touches it
 NEAR_M = 0.3  # objects farther than this from the target are left out of its check
 FINGER_DAMPING = 300.0  # N s/m: at 40 N an RG2-like finger moves at about 0.13 m/s
-PHYSICS_FAILURES = ("false detection", "blocked", "too wide", "missed", "dropped", "unstable")
+PHYSICS_FAILURES = ("false detection", "blocked", "too wide", "missed", "dropped", "unsettled", "unstable")
+SETTLED_M = 0.005  # a target that moves farther than this before the hand reaches it was not at rest in the scene
 
 
 @dataclass(frozen=True)
@@ -140,10 +141,9 @@ def _hand_xml(magnet: bool, cfg: PhysicsConfig) -> str:
     mocap), so that it moves with a velocity and its contacts carry friction."""
     palm = '<geom name="palm" type="box" size="0.04 0.03 0.02" pos="0 0 {z}" mass="0.5"/>'
     target = '<body name="target" mocap="true"/>'
-    if magnet:  # collides as a square plate of the pole face's area (fast box contacts); pulls as a disc
-        half = cfg.pole_radius_m * math.sqrt(math.pi) / 2
+    if magnet:  # the pole face: a disc
         return (f'{target}<body name="hand"><freejoint/>'
-                f'<geom name="pole" type="box" size="{half:.4f} {half:.4f} 0.01" pos="0 0 0.01" mass="0.5"/>'
+                f'<geom name="pole" type="cylinder" size="{cfg.pole_radius_m:.4f} 0.01" pos="0 0 0.01" mass="0.5"/>'
                 f'{palm.format(z=0.04)}</body>')
     pad_h = 0.02
     z = -cfg.finger_depth_m + pad_h
@@ -261,6 +261,9 @@ def physics_verdict(record: dict, truth: list[dict], cal: Calibration, place_pos
     yaw = math.radians(closing_yaw_deg(record["pose_robot"]))
     grasp = np.asarray(record["pose_robot"][:3], np.float64) + [0, 0, grasp_offset_m]
     verdict = sim.run(grasp, yaw, np.asarray(place_pose[:3], np.float64))
+    if not verdict["success"] and sim.settled_m > SETTLED_M:  # the scene, not the grasp, failed
+        verdict = {**verdict, "failure": "unsettled", "note": f"the scene does not stand as rendered: the "
+                   f"{target.cls} moved {1000 * sim.settled_m:.0f} mm before the hand reached it"}
     if data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number:  # MuJoCo reset a diverging state
         verdict = {"success": False, "failure": "unstable", "lifted_m": 0.0,
                    "note": "the simulation diverged; this check says nothing"}
@@ -270,30 +273,63 @@ def physics_verdict(record: dict, truth: list[dict], cal: Calibration, place_pos
 
 
 OVERLAP_M = 0.003  # solids that the scene placed this far into each other cannot both be simulated
+TOUCH_M = 0.005  # solids this close touch: one rests on or leans against the other
 
 
 def _without_overlaps(mujoco, world: list[Solid], magnet: bool, cfg: PhysicsConfig):
     """The model and data of WORLD less the objects the scene placed inside others (the renderer
-    lets neighbours intersect; pushed apart, they would explode): of each such pair, the one
-    farther from the target (index 0), so that what the target rests on stays. Returns the left
-    out indices too."""
+    lets neighbours intersect; pushed apart, they would explode). Of each such pair the one left
+    out is the one farther from the target (index 0) along the chain of objects touching it (what
+    the target rests on, and what that rests on, stay), then in space. Returns the left out
+    indices too."""
     left_out: set[int] = set()
+    hops: list[float] | None = None
     while True:
         kept = [i for i in range(len(world)) if i not in left_out]
         model = mujoco.MjModel.from_xml_string(scene_xml([world[i] for i in kept], magnet, cfg))
         data = mujoco.MjData(model)
         mujoco.mj_forward(model, data)
         names = [model.body(model.geom_bodyid[g]).name for g in range(model.ngeom)]
+        if hops is None:
+            hops = _touch_hops(mujoco, model, data, names, len(world))
         clash = None
         for c in data.contact[:data.ncon]:
             a, b = names[c.geom1], names[c.geom2]
             if c.dist < -OVERLAP_M and a.startswith("obj") and b.startswith("obj") and a != b:
                 pair = (kept[int(a[3:])], kept[int(b[3:])])
-                clash = max(pair, key=lambda i: (i != 0, float(np.linalg.norm(world[i].base - world[0].base))))
+                clash = max(pair, key=lambda i: (i != 0, hops[i], float(np.linalg.norm(world[i].base - world[0].base))))
                 break
         if clash is None:
             return model, data, left_out
         left_out.add(clash)
+
+
+def _touch_hops(mujoco, model, data, names: list[str], count: int) -> list[float]:
+    """For each of COUNT objects (bodies obj0, obj1, ...), how many objects touching one another
+    (within TOUCH_M) lie between it and obj0, the target: 0 for the target, 1 for what it rests on
+    or leans against, inf for an object not linked to it."""
+    geoms: dict[int, list[int]] = {}
+    for g, name in enumerate(names):
+        if name.startswith("obj"):
+            geoms.setdefault(int(name[3:]), []).append(g)
+    touching = {k: set() for k in range(count)}
+    for a in range(count):
+        for b in range(a + 1, count):
+            if any(mujoco.mj_geomDistance(model, data, ga, gb, TOUCH_M, None) < TOUCH_M
+                   for ga in geoms.get(a, []) for gb in geoms.get(b, [])):
+                touching[a].add(b)
+                touching[b].add(a)
+    hops, front = [math.inf] * count, [0]
+    hops[0] = 0
+    while front:
+        nearer = []
+        for i in front:
+            for j in touching[i]:
+                if hops[j] == math.inf:
+                    hops[j] = hops[i] + 1
+                    nearer.append(j)
+        front = nearer
+    return hops
 
 
 class _Sim:
@@ -307,6 +343,7 @@ class _Sim:
         self.target_geoms = {g for g in range(model.ngeom) if model.geom_bodyid[g] == self.body}
         self.hand = model.body("hand").id
         self.magnet_on = False
+        self.settled_m = 0.0  # how far the target moved while the scene settled, before the hand came down
 
     def step(self, hand: np.ndarray, seconds: float, ctrl: float | None = None) -> None:
         """Hold the hand at HAND for SECONDS (fingers driven to CTRL), 5 steps per update."""
@@ -379,6 +416,7 @@ class _Sim:
         opening = 0.1 + cfg.jaw_stroke_m / 2 * FINGER_DAMPING / cfg.jaw_force_n
         self.step(above, 0.3, None) if self.magnet else self.step(above, opening, 1.0)
         start_z = float(self.data.xpos[self.body][2])
+        self.settled_m = float(np.linalg.norm(self.data.xpos[self.body] - self.solid.base))
         # a magnet on its spring mount comes down until its face touches, at most its travel below the
         # commanded point; a jaw goes where it is sent
         bottom = grasp - [0, 0, cfg.magnet_travel_m] if self.magnet else grasp

@@ -108,6 +108,30 @@ def test_a_neighbour_under_the_hand_blocks_the_descent():
     assert not v["success"] and v["failure"] == "blocked" and "box" in v["note"]
 
 
+def on(item: dict, z: float) -> dict:
+    """ITEM lifted so that its base lies at height Z: stacked on what is under it."""
+    item = {**item, "solid": {**item["solid"], "base_camera_m": [*item["solid"]["base_camera_m"][:2], z]}}
+    item["point_camera_m"] = [*item["point_camera_m"][:2], item["point_camera_m"][2] + z]
+    return item
+
+
+def test_what_the_target_rests_on_stays_when_a_nearer_neighbour_intersects_it():
+    # an adapter on the end of a long box; a bearing placed 13 mm into that box, nearer the adapter
+    # than the box's centre: the bearing is left out, not the box the adapter stands on
+    support = block("box", 0.40, 0.0, 0.0, 0.30, 0.09, 0.05)
+    target = on(block("adapter", 0.285, 0.0, 0.0, 0.062, 0.044, 0.036), 0.05)
+    v = verdict(grasp("adapter", 0.285, 0.0, 0.086, math.pi / 2), [target, support, bearing(0.30, 0.07)])
+    assert v["success"] and v["left_out"] == 1, v
+
+
+def test_a_failure_of_a_target_that_was_not_at_rest_is_the_scenes():
+    # an adapter at the height of a disk's hub but beside it, over its lower ring: it falls before
+    # the hand reaches it
+    target = on(block("adapter", 0.25 + 0.10, 0.0, 0.0, 0.062, 0.044, 0.036), 0.055)
+    v = verdict(grasp("adapter", 0.35, 0.0, 0.091, math.pi / 2), [target, disk(0.25, 0.0)])
+    assert not v["success"] and v["failure"] == "unsettled" and "moved" in v["note"], v
+
+
 def test_a_false_detection_is_judged_without_simulating():
     v = verdict(grasp("disk", 0.25, 0.0, 0.05), [bearing(0.25, 0.0)])
     assert v == {"success": False, "failure": "false detection", "lifted_m": 0.0, "ms": 0.0}

@@ -1,0 +1,108 @@
+"""Is the hand's way down to a grasp clear? Checked on the frame's depth before a target is chosen.
+
+The grasp step finds where an object's top is; the hand is larger than that point. A 100 mm
+magnet face over a bearing lands on a taller adapter beside it; a parallel jaw opened to its
+stroke puts its fingers down on a neighbour's top, or on the object itself when it is wider than
+the opening. Either way the descent stops short (docs/contracts.md#physics-verdict: blocked, too
+wide). This module looks at the surface under the hand's footprint, from the depth readings
+deprojected into the robot frame (no parallax: a tall neighbour leans outward in the image), and
+names what is in the way, so that `choose_target` picks another object first.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from edgepick.errors import ParameterError
+from edgepick.geometry import Intrinsics
+from edgepick.robot.verdict import GRIPPER, closing_yaw_deg
+from edgepick.runtime.calibration import Calibration
+
+REACH_ABOVE_M = 0.2  # surfaces higher than this above a grasp point are not looked for (the tallest stack is lower)
+
+
+@dataclass(frozen=True)
+class HandShape:
+    """The hand's footprint, checked on creation. The defaults are an RG2-like jaw opened to its
+    110 mm stroke and a 100 mm electro-holding magnet, as sim/physics.py simulates them."""
+
+    jaw_opening_m: float = 0.110  # between the fingers' inner faces, open
+    finger_thickness_m: float = 0.010  # across: each finger's pad beyond the opening
+    finger_width_m: float = 0.024  # along the object
+    finger_depth_m: float = 0.015  # the fingertips below the commanded point
+    pole_radius_m: float = 0.05  # the magnet's face
+    margin_m: float = 0.003  # depth noise and calibration error: footprints grow by this, heights too
+    min_share: float = 0.02  # a footprint is in the way when this share of its readings stands too high
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ParameterError(f"{{{f.name}}}: must be 0 or more", **{f.name: value})
+
+
+def hand_clearance(depth: np.ndarray, intr: Intrinsics, calib: Calibration,
+                   shape: HandShape | None = None) -> Callable[[dict], str | None]:
+    """choose_target's CLEAR for one frame: a grasp record with a robot pose -> why the hand
+    cannot come down there (what stands too high under its footprint), or None when it can."""
+    shape = shape or HandShape()
+    z = depth.astype(np.float32) * intr.depth_scale
+    inverse = np.linalg.inv(calib.R)
+
+    def reason(record: dict) -> str | None:
+        pose = record.get("pose_robot")
+        if pose is None or record.get("class") not in GRIPPER:
+            return None
+        grasp = np.asarray(pose[:3], np.float64)
+        magnet = GRIPPER[record["class"]] == "electromagnet"
+        reach = shape.pole_radius_m if magnet else \
+            math.hypot(shape.jaw_opening_m / 2 + shape.finger_thickness_m, shape.finger_width_m / 2)
+        points = _surface_near(z, intr, calib, inverse, grasp, reach + shape.margin_m)
+        if points is None:
+            return None
+        xy = points[:, :2] - grasp[:2]
+        if magnet:  # the face comes down until it touches: nothing under it may stand above the target's top
+            under = np.hypot(xy[:, 0], xy[:, 1]) <= shape.pole_radius_m + shape.margin_m
+            floor, what = grasp[2], "the magnet's face"
+        else:  # the fingertips go down finger_depth_m below the grasp point, on both sides
+            yaw = math.radians(closing_yaw_deg(pose))
+            across = np.abs(xy @ [math.cos(yaw), math.sin(yaw)])
+            along = np.abs(xy @ [-math.sin(yaw), math.cos(yaw)])
+            under = (across >= shape.jaw_opening_m / 2 - shape.margin_m) & \
+                (across <= shape.jaw_opening_m / 2 + shape.finger_thickness_m + shape.margin_m) & \
+                (along <= shape.finger_width_m / 2 + shape.margin_m)
+            floor, what = grasp[2] - shape.finger_depth_m, "a finger"
+        high = points[under, 2] > floor + shape.margin_m
+        if under.sum() == 0 or high.sum() < shape.min_share * under.sum():
+            return None
+        return f"{what} would land on something {1000 * (np.percentile(points[under][high, 2], 50) - floor):.0f} mm " \
+               f"above where it must go ({100 * high.mean():.0f}% of the readings under it)"
+
+    return reason
+
+
+def _surface_near(z: np.ndarray, intr: Intrinsics, calib: Calibration, inverse: np.ndarray, grasp: np.ndarray,
+                  radius: float) -> np.ndarray | None:
+    """The depth readings around GRASP (robot frame) as robot-frame points, Nx3: those of the image
+    window that holds every surface point within RADIUS of it, from the table up to the camera."""
+    centre = inverse @ (grasp - calib.t)  # the grasp point in the camera frame
+    if centre[2] <= 0:
+        return None
+    # the window: the footprint circle seen at the nearest a surface could be (REACH_ABOVE_M above the grasp)
+    near = max(centre[2] - REACH_ABOVE_M, centre[2] / 4)
+    u, v = intr.fx * centre[0] / centre[2] + intr.cx, intr.fy * centre[1] / centre[2] + intr.cy
+    r_u, r_v = intr.fx * radius / near, intr.fy * radius / near
+    h, w = z.shape
+    u0, u1 = max(int(u - r_u), 0), min(int(u + r_u) + 1, w)
+    v0, v1 = max(int(v - r_v), 0), min(int(v + r_v) + 1, h)
+    if u0 >= u1 or v0 >= v1:
+        return None
+    window = z[v0:v1, u0:u1]
+    rows, cols = np.nonzero(window > 0)
+    d = window[rows, cols].astype(np.float64)
+    cam = np.stack([(cols + u0 - intr.cx) * d / intr.fx, (rows + v0 - intr.cy) * d / intr.fy, d], axis=1)
+    return calib.apply(cam)

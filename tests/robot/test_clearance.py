@@ -1,0 +1,96 @@
+"""The hand's footprint on the frame's depth: a magnet face or a finger that would come down on a
+taller neighbour, or a jaw too narrow for its object, is refused before the target is chosen."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from edgepick.errors import ParameterError
+from edgepick.geometry import Intrinsics
+from edgepick.robot.clearance import HandShape, hand_clearance
+from edgepick.robot.envelope import Envelope
+from edgepick.robot.pick import PickConfig, choose_target
+from edgepick.runtime.calibration import Calibration
+
+INTR = Intrinsics.d415(640, 480)
+MOUNT = 0.7
+# a camera straight above robot point (0.28, 0): camera x = robot x, camera y = -robot y, depth = 0.7 - z
+CAL = Calibration(np.diag([1.0, -1.0, -1.0]), np.array([0.28, 0.0, MOUNT]), 0.0, 0)
+
+
+def depth_of(objects: list[tuple]) -> np.ndarray:
+    """Depth readings (mm) of flat-topped objects on the table: (x, y, top height, inside(dx, dy))."""
+    v, u = np.mgrid[0:INTR.height, 0:INTR.width].astype(np.float64)
+    height = np.zeros(u.shape)
+    for x, y, top, inside in objects:
+        d = MOUNT - top  # where the ray meets the object's top plane
+        rx, ry = 0.28 + (u - INTR.cx) * d / INTR.fx, -(v - INTR.cy) * d / INTR.fy
+        height = np.where(inside(rx - x, ry - y) & (top > height), top, height)
+    return np.round((MOUNT - height) / INTR.depth_scale).astype(np.uint16)
+
+
+def disc(r: float):
+    return lambda dx, dy: np.hypot(dx, dy) <= r
+
+
+def rect(half_x: float, half_y: float):
+    return lambda dx, dy: (np.abs(dx) <= half_x) & (np.abs(dy) <= half_y)
+
+
+def record(cls: str, x: float, y: float, z: float, closing_yaw: float = 0.0, area: int = 1000) -> dict:
+    return {"class": cls, "pixel": [0.0, 0.0], "area_px": area, "depth_m": MOUNT - z,
+            "pose_robot": [x, y, z, math.pi * math.cos(closing_yaw / 2), math.pi * math.sin(closing_yaw / 2), 0.0]}
+
+
+def test_a_magnet_face_over_a_taller_neighbour_is_refused():
+    bearing = (0.28, 0.0, 0.035, disc(0.038))
+    clear = hand_clearance(depth_of([bearing]), INTR, CAL)
+    assert clear(record("bearing", 0.28, 0.0, 0.035)) is None
+    beside = (0.28, 0.085, 0.045, rect(0.03, 0.022))  # an adapter 10 mm taller, its edge 63 mm from the centre
+    clear = hand_clearance(depth_of([bearing, beside]), INTR, CAL)
+    assert clear(record("bearing", 0.28, 0.0, 0.035)) is None  # beyond the 50 mm face
+    near = (0.28, 0.065, 0.045, rect(0.03, 0.022))  # its edge 43 mm from the centre: under the face
+    reason = hand_clearance(depth_of([bearing, near]), INTR, CAL)(record("bearing", 0.28, 0.0, 0.035))
+    assert reason is not None and "magnet" in reason
+    lower = (0.28, 0.065, 0.025, rect(0.03, 0.022))  # a lower neighbour: the face touches the bearing first
+    assert hand_clearance(depth_of([bearing, lower]), INTR, CAL)(record("bearing", 0.28, 0.0, 0.035)) is None
+
+
+def test_a_jaw_needs_its_opening_to_reach_past_the_object():
+    box = (0.28, 0.0, 0.08, rect(0.08, 0.065))  # 130 mm across y
+    across_y = record("box", 0.28, 0.0, 0.08, closing_yaw=math.pi / 2)
+    reason = hand_clearance(depth_of([box]), INTR, CAL)(across_y)
+    assert reason is not None and "finger" in reason  # the 110 mm jaw's fingers land on its top
+    assert hand_clearance(depth_of([box]), INTR, CAL, HandShape(jaw_opening_m=0.16))(across_y) is None
+
+
+def test_a_finger_over_a_taller_neighbour_is_refused_and_another_object_chosen():
+    adapter = (0.28, 0.0, 0.036, rect(0.022, 0.031))  # 44 mm across x
+    tall = (0.28 + 0.065, 0.0, 0.09, rect(0.02, 0.05))  # a box beside it, where a finger of the open jaw goes
+    depth = depth_of([adapter, tall])
+    clear = hand_clearance(depth, INTR, CAL)
+    across_x = record("adapter", 0.28, 0.0, 0.036, closing_yaw=0.0, area=2000)
+    along_y = record("adapter", 0.28, 0.0, 0.036, closing_yaw=math.pi / 2, area=2000)
+    assert "finger" in clear(across_x)
+    assert clear(along_y) is None  # closing the other way the fingers miss the box
+    other = record("box", 0.345, 0.0, 0.09, closing_yaw=0.0, area=1500)
+    chosen, _, note = choose_target([across_x, other], Envelope(), PickConfig(), clear=clear)
+    assert chosen is other, note
+    chosen, _, note = choose_target([across_x], Envelope(), PickConfig(), clear=clear)
+    assert chosen is None and "adapter: a finger would land" in note
+
+
+def test_pick_config_carries_the_hand_and_reads_it_back_from_a_recording():
+    from dataclasses import asdict
+
+    cfg = PickConfig(hand=HandShape(jaw_opening_m=0.16))
+    assert PickConfig(**{**asdict(cfg)}).hand == cfg.hand  # asdict makes it a dict, as metadata holds it
+    assert PickConfig(hand=None).hand is None
+
+
+def test_hand_shape_refuses_what_is_not_a_size():
+    with pytest.raises(ParameterError, match="jaw_opening_m"):
+        HandShape(jaw_opening_m=-0.1)
