@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -39,6 +40,16 @@ def check_gripper(spec: str, robot_host: str | None) -> tuple[str, int | str]:
             raise ConfigError("--gripper rg2 needs the robot's host (rg2:HOST, or --robot ur:HOST)")
         return kind, host
     raise ConfigError(f"--gripper {spec}: unknown gripper; use digital:N, tool:N or rg2[:HOST]")
+
+
+def with_gripper(cfg: PickConfig, spec: tuple[str, int | str]) -> PickConfig:
+    """CFG with the hand the planner checks (robot/clearance.py) matching a checked gripper spec:
+    an RG2's jaw opens only as far as RG2Gripper opens it."""
+    if spec[0] != "rg2" or cfg.hand is None:
+        return cfg
+    from edgepick.robot.grippers import RG2Gripper
+
+    return replace(cfg, hand=replace(cfg.hand, jaw_opening_m=RG2Gripper.OPEN_WIDTH_M))
 
 
 def make_gripper(spec: tuple[str, int | str], robot):
@@ -154,6 +165,7 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     pipeline = Pipeline(segmenter, cal)
     truth_cal = source.calibration() if isinstance(source, SynthCamera) and source.mount is not None else None
     cfg = PickConfig(classes=tuple(classes), choose=choose, speed=speed, acc=acc)
+    cfg = with_gripper(cfg, gripper_spec)
     physics = None
     if verdict != VerdictRule.GEOMETRIC and truth_cal is not None:
         from edgepick.sim.physics import physics_judge

@@ -56,7 +56,9 @@ class RG2Gripper:
     """OnRobot RG2 two-finger gripper: `rg_grip(width_mm, force_N, tool_index, blocking, ...)`
     on the URCap's XML-RPC server. Widths in metres here, millimetres on the wire."""
 
-    def __init__(self, host: str, port: int = RG2_PORT, open_width_m: float = 0.10, force_n: float = 40.0,
+    OPEN_WIDTH_M = 0.10  # how far it opens before a grip
+
+    def __init__(self, host: str, port: int = RG2_PORT, open_width_m: float = OPEN_WIDTH_M, force_n: float = 40.0,
                  tool_index: int = 0, timeout_s: float = 5.0):
         if not 0 < open_width_m <= 0.11:
             raise RobotError(f"RG2 opening {open_width_m} m outside (0, 0.11]")

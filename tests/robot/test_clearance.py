@@ -94,3 +94,10 @@ def test_pick_config_carries_the_hand_and_reads_it_back_from_a_recording():
 def test_hand_shape_refuses_what_is_not_a_size():
     with pytest.raises(ParameterError, match="jaw_opening_m"):
         HandShape(jaw_opening_m=-0.1)
+
+
+def test_pick_with_an_rg2_checks_the_jaw_as_far_as_the_rg2_opens():
+    from edgepick.cli.pick import check_gripper, with_gripper
+
+    assert with_gripper(PickConfig(), check_gripper("rg2:host", None)).hand.jaw_opening_m == 0.10
+    assert with_gripper(PickConfig(), check_gripper("digital:0", None)).hand == HandShape()
