@@ -10,7 +10,7 @@ from __future__ import annotations
 import csv
 import json
 import math
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from itertools import cycle
 from pathlib import Path
 
@@ -22,6 +22,7 @@ from edgepick.bench.machine import machine_line
 from edgepick.bench.measure import mode_label
 from edgepick.bench.report import draw_axes, markdown
 from edgepick.data.render import CLASSES, LIGHTINGS
+from edgepick.robot.clearance import HandShape
 from edgepick.robot.grippers import DigitalGripper
 from edgepick.robot.loop import run_cycles
 from edgepick.robot.pick import CommandLog, PickConfig
@@ -65,13 +66,15 @@ def cell_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: int, 
     truth = camera.calibration()
     robot = SimRobot()
     physics = None
-    pick = PickConfig()
+    # the thesis's Table 5.6 (the geometric rule alone) judges the choice as the thesis made it; with
+    # the physics check the planner also checks the hand it simulates (robot/clearance.py)
+    pick = PickConfig(hand=None)
     if verdict != VerdictRule.GEOMETRIC:
-        from edgepick.sim.physics import physics_judge
+        from edgepick.sim.physics import PhysicsConfig, physics_judge
 
+        physics_config = physics_config or PhysicsConfig()
         physics = physics_judge(truth, pick, physics_config)
-        if physics_config is not None:  # the planner checks the footprint of the jaw the check simulates
-            pick = replace(pick, hand=replace(pick.hand, jaw_opening_m=physics_config.jaw_stroke_m))
+        pick = PickConfig(hand=HandShape(jaw_opening_m=physics_config.jaw_stroke_m))
     with camera, robot:
         results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=pick, cycles=cycles,
                              log=CommandLog(None), echo=lambda line: None, truth_cal=truth, physics=physics)
