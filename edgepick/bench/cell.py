@@ -92,7 +92,9 @@ def physics_summary(results: list[dict]) -> dict:
     judged = [r["physics"] for r in results if "physics" in r]
     times = [p["ms"] for p in judged if p.get("ms")]
     s = summarize(results, "physics")
+    standing = len(judged) - s["failures"].get("unsettled", 0)  # the scenes that stand as rendered
     return {"success": s["success"], "executions": len(judged), "success_rate": s["success_rate"],
+            "success_rate_standing": round(s["success"] / standing, 4) if standing else None,
             "failures": s["failures"], "ms_p50": round(float(np.median(times)), 1) if times else None}
 
 
@@ -152,7 +154,7 @@ def run_cell(models: list[str | Path], cycles: int, out_dir: str | Path, threads
     return {"rows": [asdict(r) for r in rows], "reports": write_cell_reports(rows, out_dir, context)}
 
 
-PHYSICS_HEADER = ["Physics success (%)", "Physics failures", "Check p50 (ms)"]
+PHYSICS_HEADER = ["Physics success (%)", "of standing scenes (%)", "Physics failures", "Check p50 (ms)"]
 
 
 def _pct(v: float | None) -> str:
@@ -178,7 +180,8 @@ def table(rows: list[CellRow]) -> list[list[str]]:
         if physics:
             p = r.physics or {}
             line += [f"{_pct(p.get('success_rate'))} ({p.get('success', 0)}/{p.get('executions', 0)})",
-                     _kinds(p.get("failures", {})), "-" if p.get("ms_p50") is None else f"{p['ms_p50']:.0f}"]
+                     _pct(p.get("success_rate_standing")), _kinds(p.get("failures", {})),
+                     "-" if p.get("ms_p50") is None else f"{p['ms_p50']:.0f}"]
         out.append(line)
     return out
 

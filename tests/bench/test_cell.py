@@ -83,6 +83,8 @@ def test_cell_physics_verdict_beside_the_geometric_one(tmp_path, capfd):
     for r in rows:
         p = r["physics"]
         assert p["executions"] == 6 and p["success"] + sum(p["failures"].values()) == 6
+        standing = 6 - p["failures"].get("unsettled", 0)  # the rate over the scenes that stand as rendered
+        assert p["success_rate_standing"] == (round(p["success"] / standing, 4) if standing else None)
         assert set(p["failures"]) <= {*PHYSICS_FAILURES, "unreachable", "no object seen", "robot stopped"}
         for counts in r["disagreements"].values():  # each disagreement is a cycle one rule passed and one did not
             assert sum(counts.values()) <= 6
@@ -94,7 +96,7 @@ def test_cell_physics_verdict_beside_the_geometric_one(tmp_path, capfd):
     physics_only = sum(c["physics only"] for c in truth["disagreements"].values())
     assert truth["success"] - geometric_only + physics_only == truth["physics"]["success"]
     md = (tmp_path / "out" / "cell.md").read_text()
-    assert "Physics success (%)" in md and "## By light condition (thesis Table 5.3)" in md
+    assert "Physics success (%)" in md and "of standing scenes (%)" in md and "## By light condition (thesis Table 5.3)" in md
     assert "## Where the geometric rule and the physics check disagree" in err
 
 
