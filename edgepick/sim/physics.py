@@ -290,12 +290,12 @@ def _without_overlaps(mujoco, world: list[Solid], magnet: bool, cfg: PhysicsConf
         data = mujoco.MjData(model)
         mujoco.mj_forward(model, data)
         names = [model.body(model.geom_bodyid[g]).name for g in range(model.ngeom)]
-        if hops is None:
-            hops = _touch_hops(mujoco, model, data, names, len(world))
         clash = None
         for c in data.contact[:data.ncon]:
             a, b = names[c.geom1], names[c.geom2]
             if c.dist < -OVERLAP_M and a.startswith("obj") and b.startswith("obj") and a != b:
+                if hops is None:  # at the first clash, on the whole scene
+                    hops = _touch_hops(mujoco, model, data, names, len(world))
                 pair = (kept[int(a[3:])], kept[int(b[3:])])
                 clash = max(pair, key=lambda i: (i != 0, hops[i], float(np.linalg.norm(world[i].base - world[0].base))))
                 break
