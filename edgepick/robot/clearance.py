@@ -50,7 +50,6 @@ def hand_clearance(depth: np.ndarray, intr: Intrinsics, calib: Calibration,
     """choose_target's CLEAR for one frame: a grasp record with a robot pose -> why the hand
     cannot come down there (what stands too high under its footprint), or None when it can."""
     shape = shape or HandShape()
-    z = depth.astype(np.float32) * intr.depth_scale
     inverse = np.linalg.inv(calib.R)
 
     def reason(record: dict) -> str | None:
@@ -61,7 +60,7 @@ def hand_clearance(depth: np.ndarray, intr: Intrinsics, calib: Calibration,
         magnet = GRIPPER[record["class"]] == "electromagnet"
         reach = shape.pole_radius_m if magnet else \
             math.hypot(shape.jaw_opening_m / 2 + shape.finger_thickness_m, shape.finger_width_m / 2)
-        points = _surface_near(z, intr, calib, inverse, grasp, reach + shape.margin_m)
+        points = _surface_near(depth, intr, calib, inverse, grasp, reach + shape.margin_m)
         if points is None:
             return None
         xy = points[:, :2] - grasp[:2]
@@ -85,10 +84,11 @@ def hand_clearance(depth: np.ndarray, intr: Intrinsics, calib: Calibration,
     return reason
 
 
-def _surface_near(z: np.ndarray, intr: Intrinsics, calib: Calibration, inverse: np.ndarray, grasp: np.ndarray,
+def _surface_near(depth: np.ndarray, intr: Intrinsics, calib: Calibration, inverse: np.ndarray, grasp: np.ndarray,
                   radius: float) -> np.ndarray | None:
-    """The depth readings around GRASP (robot frame) as robot-frame points, Nx3: those of the image
-    window that holds every surface point within RADIUS of it, from the table up to the camera."""
+    """The depth readings (DEPTH, intr.depth_scale metres each) around GRASP (robot frame) as
+    robot-frame points, Nx3: those of the image window that holds every surface point within RADIUS
+    of it, up to REACH_ABOVE_M above it."""
     centre = inverse @ (grasp - calib.t)  # the grasp point in the camera frame
     if centre[2] <= 0:
         return None
@@ -96,13 +96,13 @@ def _surface_near(z: np.ndarray, intr: Intrinsics, calib: Calibration, inverse: 
     near = max(centre[2] - REACH_ABOVE_M, centre[2] / 4)
     u, v = intr.fx * centre[0] / centre[2] + intr.cx, intr.fy * centre[1] / centre[2] + intr.cy
     r_u, r_v = intr.fx * radius / near, intr.fy * radius / near
-    h, w = z.shape
+    h, w = depth.shape
     u0, u1 = max(int(u - r_u), 0), min(int(u + r_u) + 1, w)
     v0, v1 = max(int(v - r_v), 0), min(int(v + r_v) + 1, h)
     if u0 >= u1 or v0 >= v1:
         return None
-    window = z[v0:v1, u0:u1]
+    window = depth[v0:v1, u0:u1]
     rows, cols = np.nonzero(window > 0)
-    d = window[rows, cols].astype(np.float64)
+    d = window[rows, cols].astype(np.float64) * intr.depth_scale
     cam = np.stack([(cols + u0 - intr.cx) * d / intr.fx, (rows + v0 - intr.cy) * d / intr.fy, d], axis=1)
     return calib.apply(cam)
