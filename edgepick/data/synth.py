@@ -7,10 +7,15 @@ place at the end: an interrupted run leaves nothing half-written.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import multiprocessing
+import multiprocessing.pool
+import multiprocessing.resource_tracker
 import os
 import shutil
+import signal
+import threading
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -92,7 +97,6 @@ def _end_with_parent() -> None:
     worker never outlives a killed `data synth` (prctl PR_SET_PDEATHSIG)."""
     import ctypes
     import ctypes.util
-    import signal
 
     try:
         ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").prctl(1, int(signal.SIGTERM))
@@ -101,13 +105,56 @@ def _end_with_parent() -> None:
 
 
 def _init_worker() -> None:
-    import signal
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the parent stops the workers
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # held since spawn (_start_pool); now ignored
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     _end_with_parent()
     cv2.setNumThreads(1)  # one process per core: no nested thread pools
     _keep_freed_memory()
+
+
+@contextlib.contextmanager
+def _signals_deferred(signums: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)):
+    """Record SIGNUMS instead of acting on them for the body, then raise the first through the
+    handler it had: an interrupt never lands half-way through what the body starts."""
+    if threading.current_thread() is not threading.main_thread():  # only the main thread handles signals
+        yield
+        return
+    caught: list[int] = []
+    previous = {sig: signal.signal(sig, lambda signum, frame: caught.append(signum)) for sig in signums}
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+        if caught:
+            signal.raise_signal(caught[0])
+
+
+def _start_pool(workers: int) -> multiprocessing.pool.Pool:
+    """Start WORKERS spawned processes so that a Ctrl-C or SIGTERM at any moment stops them quietly.
+
+    A spawned worker spends seconds importing before `_init_worker` can ignore SIGINT, so it starts
+    with SIGINT blocked (inherited through exec; dropped once ignored). The parent holds its own
+    signals until the pool stands: interrupted half-way, a worker would wait on a pipe never written.
+    The resource tracker starts first, as starting it unblocks SIGINT in this thread
+    (multiprocessing/resource_tracker.py, bpo-33613).
+    """
+    multiprocessing.resource_tracker.ensure_running()
+    pool = None
+    try:
+        with _signals_deferred():
+            held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+            try:
+                # spawn, not fork: a fork after OpenCV's thread pool has run in this process deadlocks
+                pool = multiprocessing.get_context("spawn").Pool(workers, initializer=_init_worker)
+            finally:
+                signal.pthread_sigmask(signal.SIG_SETMASK, held)
+    except BaseException:
+        if pool is not None:
+            pool.terminate()
+        raise
+    return pool
 
 
 def _render_one(job: tuple[str, int, int, int, int, int, str]) -> tuple[str, str, list, dict]:
@@ -167,8 +214,7 @@ def synthesize(out: str | Path, config: SynthConfig, progress: bool = True) -> d
             results = map(_render_one, jobs)
             pool = None
         else:
-            # spawn, not fork: a fork after OpenCV's thread pool has run in this process deadlocks
-            pool = multiprocessing.get_context("spawn").Pool(workers, initializer=_init_worker)
+            pool = _start_pool(workers)
             results = pool.imap(_render_one, jobs, chunksize=4)
         try:
             for split, sid, g, info in results:

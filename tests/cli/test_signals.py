@@ -65,6 +65,23 @@ def _partial(folder: Path, pattern: str) -> list[Path]:
     return list(folder.glob(pattern))
 
 
+def _importing_workers(pgid: int) -> int:
+    """How many multiprocessing workers of the group PGID have Python's own SIGINT handler (a
+    KeyboardInterrupt), as they have from Python's start until they set their own disposition."""
+    count = 0
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            if int(fields[2]) != pgid or b"spawn_main" not in (stat.parent / "cmdline").read_bytes():
+                continue
+            caught = next(line for line in (stat.parent / "status").read_text().splitlines()
+                          if line.startswith("SigCgt:"))
+            count += bool(int(caught.split()[1], 16) & (1 << (signal.SIGINT - 1)))
+        except (OSError, IndexError, ValueError, StopIteration):  # a process that ended meanwhile
+            continue
+    return count
+
+
 @pytest.mark.parametrize("sig, group, code", [(signal.SIGTERM, False, 143), (signal.SIGINT, True, 130)],
                          ids=["SIGTERM", "Ctrl-C to the group"])
 def test_data_synth_with_workers_stops_them_within_5_s_and_leaves_nothing(tmp_path, sig, group, code):
@@ -77,6 +94,21 @@ def test_data_synth_with_workers_stops_them_within_5_s_and_leaves_nothing(tmp_pa
     assert not _group_alive(proc.pid), "a worker process outlived data synth"
     assert list(tmp_path.iterdir()) == []
     assert "Traceback" not in err and err.strip().splitlines()[-1].startswith("edgepick: ")
+
+
+@pytest.mark.parametrize("sig, group, code", [(signal.SIGTERM, False, 143), (signal.SIGINT, True, 130)],
+                         ids=["SIGTERM", "Ctrl-C to the group"])
+def test_data_synth_stopped_while_its_workers_start_stops_quietly(tmp_path, sig, group, code):
+    """The workers take seconds to import: a signal then must neither print a worker's traceback
+    nor catch the parent half-way through starting them."""
+    proc = _start("data", "synth", str(tmp_path / "data"), "--scenes", "3000", "--workers", "2", "--size", "320x240")
+    _wait_for(proc, lambda: _importing_workers(proc.pid) >= 1, "a worker process importing")
+    status, err, seconds = _stop(proc, sig, group)
+    assert status == code, err
+    assert seconds <= 5, f"the workers took {seconds:.1f} s to stop"
+    assert not _group_alive(proc.pid), "a worker process outlived data synth"
+    assert list(tmp_path.iterdir()) == []
+    assert "Traceback" not in err and err.strip().splitlines()[-1].startswith("edgepick: "), err
 
 
 def test_data_capture_terminated_leaves_no_folder(tmp_path):
