@@ -18,6 +18,7 @@ from __future__ import annotations
 import enum
 import json
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, NoReturn, TypeVar, overload
@@ -40,11 +41,26 @@ class Where:
     path: str = ""
 
     def at(self, key: str | int) -> Where:
-        step = f"[{key}]" if isinstance(key, int) else (f".{key}" if self.path else str(key))
+        step = f"[{key}]" if isinstance(key, int) else (f".{key_name(key)}" if self.path else key_name(key))
         return Where(self.file, self.path + step)
 
     def fail(self, problem: str) -> NoReturn:
         raise FileContentError(f"{self.file}: {self.path + ' ' if self.path else ''}{problem}")
+
+
+def key_name(key: object) -> str:
+    """KEY as a message shows it: as is when it is plain one-line text, else quoted (a name with a
+    line break or surrounding spaces must not break the one-line error)."""
+    text = str(key)
+    return text if text and text.isprintable() and text.strip() == text else repr(text)
+
+
+def refuse_unknown(values: dict, known: Iterable[str], where: Where) -> None:
+    """Fail at WHERE naming every key of VALUES that is not one of KNOWN."""
+    known = set(known)
+    unknown = sorted({key_name(k) for k in values if k not in known})
+    if unknown:
+        where.fail(f"has unknown fields {', '.join(unknown)}")
 
 
 def describe(value: Any) -> str:

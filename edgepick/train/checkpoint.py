@@ -16,7 +16,7 @@ from edgepick.geometry import Size, check_size
 from edgepick.models.blocks import NORMALISATION
 from edgepick.models.config import Arch, ColorSpace, ModelConfig, Variant
 from edgepick.models.zoo import build_model
-from edgepick.schema import Where, as_dict, as_list, as_names, as_number, as_numbers, as_str
+from edgepick.schema import Where, as_dict, as_list, as_names, as_number, as_numbers, as_str, refuse_unknown
 from edgepick.schema import field as required_field
 from edgepick.train.config import TrainConfig
 from edgepick.train.run import checkpoint_path
@@ -117,9 +117,7 @@ def load_model(path: str | Path) -> tuple[nn.Module, Checkpoint]:
 def check_model_config(value: object, where: Where) -> ModelConfig:
     """A checkpoint's model_config: every field typed and in range."""
     mc = as_dict(value, where)
-    unknown = sorted(set(mc) - {f.name for f in fields(ModelConfig)})
-    if unknown:
-        where.fail(f"has unknown fields {', '.join(map(str, unknown))}")
+    refuse_unknown(mc, (f.name for f in fields(ModelConfig)), where)
     checked: dict[str, Any] = {
         "arch": _arch(required_field(mc, "arch", where), where.at("arch")),
         "num_classes": as_number(required_field(mc, "num_classes", where), where.at("num_classes"), integer=True,
@@ -164,9 +162,7 @@ def _checked(d: dict, where: Where) -> Checkpoint:
     """A Checkpoint from a file's dict: the model's config, its state dict, one class name per output
     class, the input size (H, W: multiples of 8, at least 32, the backbone's stride), and the run's
     config and bookkeeping when present. A field edgepick does not write is refused."""
-    unknown = sorted(set(map(str, d)) - {f.name for f in fields(Checkpoint)} - {"path"})
-    if unknown:
-        where.fail(f"has unknown fields {', '.join(unknown)}")
+    refuse_unknown(d, {f.name for f in fields(Checkpoint)} - {"path"}, where)
     cfg = check_model_config(d["model_config"], where.at("model_config"))
     if not isinstance(d["model"], dict) or not all(torch.is_tensor(v) for v in d["model"].values()):
         where.at("model").fail("must be a state dict (parameter names to tensors)")

@@ -12,7 +12,7 @@ from typing import Any
 from edgepick.errors import ParameterError
 from edgepick.geometry import Size, check_size
 from edgepick.models.config import Arch, ColorSpace, OutputStride, Variant
-from edgepick.schema import Where, as_dict, as_list, as_number, as_numbers, as_str, member, plain
+from edgepick.schema import Where, as_dict, as_list, as_number, as_numbers, as_str, member, plain, refuse_unknown
 from edgepick.schema import field as required_field
 
 
@@ -98,9 +98,7 @@ class TrainConfig:
         """The config a checkpoint recorded, each field's type checked (WHERE names the file in errors)."""
         where = where or Where("train_config")
         values = as_dict(values, where)
-        unknown = sorted(set(values) - {f.name for f in fields(cls)})
-        if unknown:
-            where.fail(f"has unknown fields {', '.join(map(str, unknown))}")
+        refuse_unknown(values, (f.name for f in fields(cls)), where)
         checked: dict[str, Any] = {}
         for f in fields(cls):
             if f.name not in values:

@@ -71,6 +71,8 @@ def test_any_mutated_description_reads_or_is_one_line(tmp_path, ckpt):
     ({"model": [1]}, "model must be a state dict"),
     ({"colorspace": "rgb"}, "has unknown fields colorspace"),
     ({"train_config": {**GOOD["train_config"], "quant": {}}}, "train_config has unknown fields quant"),
+    ({"model_config": {**GOOD["model_config"], "\n": None}}, "model_config has unknown fields '\\n'"),
+    ({"model_config": {**GOOD["model_config"], " x": 1, 5: 1}}, "model_config has unknown fields ' x', 5"),
 ])
 def test_the_field_at_fault_is_named(tmp_path, change, message):
     torch.save({**GOOD, **change}, tmp_path / "c.pt")
