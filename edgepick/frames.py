@@ -31,6 +31,7 @@ class Frame:
     truth: list[dict] | None = None  # per-object grasp truth, when the source knows it (synthetic)
     labels: np.ndarray | None = None  # true class ids per pixel, when the source knows them (synthetic)
     scene: dict | None = None  # the scene's conditions, when the source knows them (synthetic: lighting, table)
+    hidden: list[dict] | None = None  # truth of the objects no pixel shows (synthetic): what they hold up rests on them
 
 
 class Camera:

@@ -1,9 +1,9 @@
 """Render one synthetic RGB-D tabletop scene: z-buffered solids, lights, shadows, sensor noise.
 
 A scene is a tilted table plane seen by a D415-like camera, 1-4 objects from `shapes.py`
-(touching, sometimes resting on each other), one of the thesis's lighting conditions
-(Table 5.3), and a depth map with the D415's failure modes (noise growing with distance,
-holes on shiny metal, at depth edges and in the left invalid band).
+(touching, sometimes resting on each other where they would stay: `stacking.py`), one of the
+thesis's lighting conditions (Table 5.3), and a depth map with the D415's failure modes (noise
+growing with distance, holes on shiny metal, at depth edges and in the left invalid band).
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ import numpy as np
 
 from edgepick.data.shading import lights_for, shade, table_albedo
 from edgepick.data.shapes import MAKERS, ObjectModel
+from edgepick.data.stacking import rest_height
 from edgepick.geometry import Intrinsics
 
 CLASSES = ("background", "bearing", "disk", "adapter", "box")
@@ -40,6 +41,7 @@ class Scene:
     mask: np.ndarray  # uint8 [H, W] class ids
     grasps: list[dict]
     info: dict
+    hidden: list[dict]  # the placed objects no pixel shows, as grasp truth (e.g. under a box): physics needs them
 
 
 def _plane_frame(n: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
@@ -81,7 +83,8 @@ class SceneRenderer:
     # ------------------------------------------------------------------ sampling
     def sample_objects(self, rng: np.random.Generator, n: np.ndarray, d: float,
                        area: Callable[[np.ndarray], bool] | None = None) -> list[Placed]:
-        """1-4 objects on the table plane n . X = d, in view; with AREA, only where AREA(ground point,
+        """1-4 objects on the table plane n . X = d, in view, each resting on the table or on those
+        under it where it would stay (data/stacking.py); with AREA, only where AREA(ground point,
         camera frame) holds (a robot cell's pick area)."""
         intr = self.intr
         classes = list(OBJECT_WEIGHTS)
@@ -92,7 +95,7 @@ class SceneRenderer:
             if cls == "disk" and any(p.model.cls == "disk" for p in placed):
                 cls = "bearing"
             model = MAKERS[cls](rng)
-            ground = None
+            rest = None
             for _try in range(20):
                 if placed and rng.random() < 0.45:  # touch or lean on a neighbour
                     other = placed[int(rng.integers(len(placed)))]
@@ -107,18 +110,15 @@ class SceneRenderer:
                     cand = d / (n @ ray) * ray
                 uv = cand[:2] / cand[2] * [intr.fx, intr.fy] + [intr.cx, intr.cy]
                 inside = (0.04 * intr.width < uv[0] < 0.96 * intr.width) and (0.04 * intr.height < uv[1] < 0.96 * intr.height)
-                if inside and (area is None or area(cand)):
-                    ground = cand
+                if not inside or (area is not None and not area(cand)):
+                    continue
+                a1, a2 = _plane_frame(n, rng.uniform(-np.pi, np.pi))
+                base = rest_height(placed, model, cand, a1, a2)  # None: it would tip over there
+                if base is not None:
+                    rest = Placed(model, cand, base, a1, a2)
                     break
-            if ground is None:
-                continue
-            base = 0.0
-            for p in placed:  # rest on an object whose centre is well under this one's footprint
-                if np.linalg.norm(p.ground - ground) < 0.5 * (p.model.radius + model.radius) and \
-                        model.radius < 1.2 * p.model.radius:
-                    base = max(base, p.base_elev + p.model.height)
-            a1, a2 = _plane_frame(n, rng.uniform(-np.pi, np.pi))
-            placed.append(Placed(model, ground, base, a1, a2))
+            if rest is not None:
+                placed.append(rest)
         return placed
 
     # ----------------------------------------------------------------- rendering
@@ -209,11 +209,11 @@ class SceneRenderer:
         dark = np.zeros((h, w), bool)
         dark[ys, xs] = albedo[ys, xs].mean(1) < 0.01
         depth = self._depth(rng, zbuf, metal, spec_lum * gain, dark)
-        grasps = self._grasps(placed, footprints, inst, n)
+        grasps, hidden = self._grasps(placed, footprints, inst, n)
         info = {"lighting": lighting, "table": table, "camera_height_m": round(cam_h, 4),
                 "tilt_deg": round(float(np.rad2deg(tilt)), 2), "exposure_gain": round(gain, 3),
                 "objects": [f"{p.model.cls}:{p.model.variant}" for p in placed]}
-        return Scene(rgb, depth, label, grasps, info)
+        return Scene(rgb, depth, label, grasps, info, hidden)
 
     def _rasterize(self, p: Placed, k: int, n: np.ndarray, d: float, ndotr: np.ndarray, buf: dict) -> tuple | None:
         """Z-buffer object K (its parts as extruded footprints at four levels, top face first) into
@@ -331,16 +331,19 @@ class SceneRenderer:
         mm[~valid] = 0
         return mm
 
-    def _grasps(self, placed: list[Placed], footprints: list, inst: np.ndarray, n: np.ndarray) -> list[dict]:
+    def _grasps(self, placed: list[Placed], footprints: list, inst: np.ndarray,
+                n: np.ndarray) -> tuple[list[dict], list[dict]]:
+        """The grasp truth of the objects the image shows, and that of those it does not (no visible
+        pixel, or out of view: only their class, top point and solid)."""
         intr = self.intr
-        out = []
+        out, hidden = [], []
         for k, (p, fp) in enumerate(zip(placed, footprints), start=1):
-            if fp is None:
-                continue
-            visible = int((inst == k).sum())
-            if visible == 0:
-                continue
             top = p.ground - n * (p.base_elev + p.model.height)
+            visible = 0 if fp is None else int((inst == k).sum())
+            if visible == 0:
+                hidden.append({"class": p.model.cls, "point_camera_m": [round(float(c), 5) for c in top],
+                               "solid": solid_truth(p, n)})
+                continue
             uv = top[:2] / top[2] * [intr.fx, intr.fy] + [intr.cx, intr.cy]
             angle = 0.0
             if p.model.major_axis:
@@ -357,4 +360,4 @@ class SceneRenderer:
                 "visible_fraction": round(visible / max(1, int(full.sum())), 3),
                 "solid": solid_truth(p, n),
             })
-        return out
+        return out, hidden

@@ -116,9 +116,10 @@ def _srgb_to_linear(c: tuple[float, float, float]) -> Array:
 # -------------------------------------------------------------------------- objects
 
 def make_box(rng: np.random.Generator) -> ObjectModel:
-    """Cardboard box: brown fibre texture, flap seam, tape or print variants."""
+    """Cardboard box: brown fibre texture, flap seam, tape or print variants. At most 100 mm wide, so
+    that an RG2's 110 mm opening takes it across, as the thesis's boxes (5.2: picked with the RG2)."""
     length = rng.uniform(0.12, 0.22)
-    width = rng.uniform(0.08, min(0.15, length * 0.85))
+    width = rng.uniform(0.08, min(0.10, length * 0.85))
     height = rng.uniform(0.05, 0.11)
     variant = str(rng.choice(["plain", "tape", "clear-tape", "print", "label"]))
     base = _srgb_to_linear((rng.uniform(0.55, 0.72), rng.uniform(0.40, 0.52), rng.uniform(0.22, 0.33)))

@@ -30,7 +30,7 @@ from edgepick.errors import ParameterError
 from edgepick.geometry import Intrinsics
 from edgepick.progress import progress as progress_bar
 
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2  # 2: objects rest where they would stay (data/stacking.py)
 BYTES_PER_PIXEL = 2.2  # a scene's RGB, depth and mask PNGs per pixel: 1.9 at 640x480, 2.1 at 320x240, rounded up
 MAX_SCENES = 1_000_000  # the thesis's set is 5100; beyond this the job list alone fills the memory
 

@@ -121,4 +121,4 @@ class SynthCamera(Camera):
             corners = (self.tool_marker.plate_robot() - cal.t) @ cal.R  # robot -> camera frame
             draw_plate(scene.rgb, scene.depth, self.intrinsics, self.renderer.rays, corners, self._plate,
                        np.random.default_rng([self.seed, 11, self.index]), self.tool_marker.depth_bias)
-        return Frame(scene.rgb, scene.depth, self.intrinsics, name, scene.grasps, scene.mask, scene.info)
+        return Frame(scene.rgb, scene.depth, self.intrinsics, name, scene.grasps, scene.mask, scene.info, scene.hidden)

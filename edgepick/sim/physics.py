@@ -105,16 +105,18 @@ def physics_judge(truth_cal: Calibration, pick: PickConfig, cfg: PhysicsConfig |
     cfg = cfg or PhysicsConfig()
 
     def judge(record: dict, frame: Frame) -> dict:
-        return physics_verdict(record, frame.truth or [], truth_cal, list(pick.place_pose), pick.grasp_offset_m, cfg)
+        return physics_verdict(record, frame.truth or [], truth_cal, list(pick.place_pose), pick.grasp_offset_m, cfg,
+                               hidden=frame.hidden or [])
 
     return judge
 
 
 def physics_verdict(record: dict, truth: list[dict], cal: Calibration, place_pose: list[float],
-                    grasp_offset_m: float = 0.0, cfg: PhysicsConfig | None = None) -> dict:
+                    grasp_offset_m: float = 0.0, cfg: PhysicsConfig | None = None, hidden: list[dict] = ()) -> dict:
     """Carry out RECORD's grasp (its pose_robot, the chosen object) on the scene TRUTH (the true
     calibration CAL puts it in the robot frame): {"success", "failure" (PHYSICS_FAILURES),
-    "lifted_m", "ms"}. The gripper is the class's (robot/verdict.py GRIPPER)."""
+    "lifted_m", "ms"}. The gripper is the class's (robot/verdict.py GRIPPER). HIDDEN: the truth of
+    objects the camera does not see, in the scene too (what rests on them) but never the target."""
     mujoco = require_mujoco()
     from edgepick.robot.verdict import GRIPPER, closing_yaw_deg
 
@@ -124,6 +126,7 @@ def physics_verdict(record: dict, truth: list[dict], cal: Calibration, place_pos
     k = _target(record, world)
     if k is None:
         return {"success": False, "failure": "false detection", "lifted_m": 0.0, "ms": 0.0}
+    world += solids(list(hidden), cal)
     # what the hand can meet on its way down, up and off: objects within NEAR_M of the target
     target = world[k]
     world = [target] + [s for s in world if s is not target and np.linalg.norm((s.base - target.base)[:2]) < NEAR_M]
@@ -212,12 +215,17 @@ class _Sim:
             return
         pos, rot = self.data.xpos[self.body], self.data.xmat[self.body].reshape(3, 3)
         face = self.data.xpos[self.hand]
-        gap = float(face[2] - (pos + rot @ [0, 0, self.solid.dims["height"]])[2])
+        gap = self._gap()
         share = steel_share(self.solid, face, self.cfg.pole_radius_m, pos, rot)
         if gap <= CONTACT_M:
             self.data.ctrl[0] = share
         elif gap < self.cfg.magnet_reach_m:
             self.data.xfrc_applied[self.body, 2] = self.cfg.magnet_force_n * share / (1 + gap / self.cfg.magnet_gap_m) ** 2
+
+    def _gap(self) -> float:
+        """The height of the hand (the magnet's face) above the target's top face."""
+        pos, rot = self.data.xpos[self.body], self.data.xmat[self.body].reshape(3, 3)
+        return float(self.data.xpos[self.hand][2] - (pos + rot @ [0, 0, self.solid.dims["height"]])[2])
 
     def run(self, grasp: np.ndarray, yaw: float, place: np.ndarray) -> dict:
         cfg = self.cfg
@@ -235,7 +243,10 @@ class _Sim:
         # commanded point; a jaw goes where it is sent
         bottom = grasp - [0, 0, cfg.magnet_travel_m] if self.magnet else grasp
         reached, landed = self.move(above, bottom, cfg.speed_m_s, guarded=True)
-        if landed is not None and not (self.magnet and landed == self.solid.cls):
+        # a finger that lands on anything but the target is blocked; the magnet's spring mount stops
+        # its face on whatever it meets first, and the pull reaches the part across the gap left
+        if landed is not None and not (self.magnet and (landed == self.solid.cls or
+                                                        (landed != "table" and 0.0 <= self._gap() < cfg.magnet_reach_m))):
             what = "the table" if landed == "table" else f"a {landed}"
             return {"success": False, "failure": "blocked", "note": f"the hand lands on {what}", "lifted_m": 0.0}
         if self.magnet:

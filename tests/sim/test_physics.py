@@ -94,6 +94,17 @@ def test_a_magnet_comes_down_its_spring_travel_until_it_touches():
     assert verdict(grasp("bearing", 0.25, 0.0, 0.035 + 0.015), scene, magnet_travel_m=0.002)["failure"] == "missed"
 
 
+def test_a_magnet_that_lands_on_a_slightly_taller_neighbour_pulls_the_part_across_the_gap():
+    # the face comes down on an adapter 4 mm higher than the bearing and overlapping its rim; its spring
+    # mount stops there, and the pull across 4 mm lifts the bearing to the face
+    scene = [bearing(0.25, 0.0), block("adapter", 0.25, 0.06, 0.0, 0.062, 0.044, 0.039)]
+    v = verdict(grasp("bearing", 0.25, 0.0, 0.035), scene)
+    assert v["success"] and v["lifted_m"] > 0.07, v
+    beyond = [bearing(0.25, 0.0), block("adapter", 0.25, 0.06, 0.0, 0.062, 0.044, 0.035 + 0.014)]  # past its reach
+    v = verdict(grasp("bearing", 0.25, 0.0, 0.035), beyond)
+    assert not v["success"] and v["failure"] == "blocked" and "adapter" in v["note"], v
+
+
 def test_steel_share_is_the_pole_face_over_the_annulus():
     (ring,) = solids([bearing(0.0, 0.0, r_out=0.04, r_in=0.02)], IDENTITY)
     centre = np.array([0.0, 0.0, 0.035])
@@ -130,6 +141,15 @@ def test_a_failure_of_a_target_that_was_not_at_rest_is_the_scenes():
     target = on(block("adapter", 0.25 + 0.10, 0.0, 0.0, 0.062, 0.044, 0.036), 0.055)
     v = verdict(grasp("adapter", 0.35, 0.0, 0.091, math.pi / 2), [target, disk(0.25, 0.0)])
     assert not v["success"] and v["failure"] == "unsettled" and "moved" in v["note"], v
+
+
+def test_an_object_the_camera_does_not_see_still_holds_up_what_rests_on_it():
+    # a bearing hidden under a box: without it in the scene, the box would fall onto the table
+    target = on(block("box", 0.25, 0.0, 0.0, 0.16, 0.09, 0.06), 0.035)
+    record = grasp("box", 0.25, 0.0, 0.095, math.pi / 2)
+    assert verdict(record, [target])["failure"] == "unsettled"
+    v = physics_verdict(record, [target], IDENTITY, PLACE, hidden=[bearing(0.25, 0.0)])
+    assert v["success"] and v["lifted_m"] > 0.07, v
 
 
 def test_a_false_detection_is_judged_without_simulating():
