@@ -67,17 +67,25 @@ def trapezoid(distance: float, speed: float, acc: float, dt: float) -> list[floa
     return out
 
 
-UNIT_DISC = np.array([(x, y) for x in np.linspace(-1, 1, 31) for y in np.linspace(-1, 1, 31) if x * x + y * y <= 1])
+def _overlap(r1: float, r2: float, d: float) -> float:
+    """The area two circles of radii R1 and R2 whose centres lie D apart have in common."""
+    if d >= r1 + r2:
+        return 0.0
+    if d <= abs(r1 - r2):
+        return math.pi * min(r1, r2) ** 2
+    a1 = r1 * r1 * math.acos((d * d + r1 * r1 - r2 * r2) / (2 * d * r1))
+    a2 = r2 * r2 * math.acos((d * d + r2 * r2 - r1 * r1) / (2 * d * r2))
+    return a1 + a2 - 0.5 * math.sqrt((-d + r1 + r2) * (d + r1 - r2) * (d - r1 + r2) * (d + r1 + r2))
 
 
 def steel_share(solid: Solid, centre: np.ndarray, radius: float, body_pos: np.ndarray, body_rot: np.ndarray) -> float:
-    """The share of a round pole face centred at CENTRE (robot frame) over the solid's top face."""
+    """The share of a round pole face centred at CENTRE (robot frame) over the solid's top face (a
+    bearing's annulus, a disk's hub): exact, from the areas the face has in common with its circles."""
     local = body_rot.T @ (centre - body_pos)
-    pts = UNIT_DISC * radius + local[:2]
-    r = np.hypot(pts[:, 0], pts[:, 1])
-    d = solid.dims
-    inner, outer = (d["r_in"], d["r_out"]) if solid.cls == "bearing" else (d["r_bore"], d["r_hat"])
-    return float(np.mean((r >= inner) & (r <= outer)))
+    d = math.hypot(float(local[0]), float(local[1]))
+    dims = solid.dims
+    inner, outer = (dims["r_in"], dims["r_out"]) if solid.cls == "bearing" else (dims["r_bore"], dims["r_hat"])
+    return (_overlap(radius, outer, d) - _overlap(radius, inner, d)) / (math.pi * radius * radius)
 
 
 def _target(record: dict, world: list[Solid]) -> int | None:
@@ -157,6 +165,7 @@ class _Sim:
         self.solid = world[target]
         self.body = model.body(f"obj{target}").id
         self.hand_geoms = {model.geom(n).id for n in (["pole", "palm"] if magnet else ["pad_r", "pad_l", "palm"])}
+        self.hand_array = np.array(sorted(self.hand_geoms))
         self.target_geoms = {g for g in range(model.ngeom) if model.geom_bodyid[g] == self.body}
         self.hand = model.body("hand").id
         self.magnet_on = False
@@ -186,12 +195,18 @@ class _Sim:
 
     def _landed(self) -> str | None:
         """What a hand geom touches from above (a contact normal within 45 degrees of vertical)."""
-        for c in self.data.contact[:self.data.ncon]:
-            if (c.geom1 in self.hand_geoms or c.geom2 in self.hand_geoms) and abs(c.frame[2]) > 0.7:
-                other = c.geom2 if c.geom1 in self.hand_geoms else c.geom1
-                body = self.model.geom_bodyid[other]
-                return "table" if body == 0 else self.world[int(self.model.body(body).name[3:])].cls
-        return None
+        n = self.data.ncon
+        if not n:
+            return None
+        contact = self.data.contact
+        first, second = contact.geom1[:n], contact.geom2[:n]
+        mine = np.isin(first, self.hand_array)
+        hits = np.flatnonzero((mine | np.isin(second, self.hand_array)) & (np.abs(contact.frame[:n, 2]) > 0.7))
+        if not len(hits):
+            return None
+        i = hits[0]
+        body = self.model.geom_bodyid[second[i] if mine[i] else first[i]]
+        return "table" if body == 0 else self.world[int(self.model.body(body).name[3:])].cls
 
     def _touching(self) -> set[int]:
         """The hand geoms in contact with the target."""

@@ -111,6 +111,12 @@ def test_steel_share_is_the_pole_face_over_the_annulus():
     expected = (0.04 ** 2 - 0.02 ** 2) / 0.05 ** 2  # the whole annulus under a 50 mm pole face
     assert abs(steel_share(ring, centre, 0.05, ring.base, ring.rotation) - expected) < 0.03
     assert steel_share(ring, centre, 0.015, ring.base, ring.rotation) == 0.0  # a small face over the bore
+    xs, ys = np.meshgrid(np.linspace(-0.05, 0.05, 801), np.linspace(-0.05, 0.05, 801))
+    face = np.hypot(xs, ys) <= 0.05
+    for offset in (0.01, 0.03, 0.06, 0.085):  # the face moved off the part's axis: a dense count agrees
+        r = np.hypot(xs + offset, ys)[face]
+        counted = float(np.mean((r >= 0.02) & (r <= 0.04)))
+        assert abs(steel_share(ring, centre + [offset, 0, 0], 0.05, ring.base, ring.rotation) - counted) < 0.002
 
 
 def test_a_neighbour_under_the_hand_blocks_the_descent():
