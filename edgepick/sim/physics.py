@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -120,7 +120,7 @@ def physics_judge(truth_cal: Calibration, pick: PickConfig, cfg: PhysicsConfig |
 
 
 def physics_verdict(record: dict, truth: list[dict], cal: Calibration, place_pose: list[float],
-                    grasp_offset_m: float = 0.0, cfg: PhysicsConfig | None = None, hidden: list[dict] = ()) -> dict:
+                    grasp_offset_m: float = 0.0, cfg: PhysicsConfig | None = None, hidden: Sequence[dict] = ()) -> dict:
     """Carry out RECORD's grasp (its pose_robot, the chosen object) on the scene TRUTH (the true
     calibration CAL puts it in the robot frame): {"success", "failure" (PHYSICS_FAILURES),
     "lifted_m", "ms"}. The gripper is the class's (robot/verdict.py GRIPPER). HIDDEN: the truth of

@@ -149,8 +149,9 @@ TOUCH_M = 0.005  # solids this close touch: one rests on or leans against the ot
 
 
 def without_overlaps(mujoco, world: list[Solid], magnet: bool, cfg: PhysicsConfig):
-    """The model and data of WORLD less the objects the scene placed inside others (the renderer
-    lets neighbours intersect; pushed apart, they would explode). Of each such pair the one left
+    """The model and data of WORLD less the objects the scene placed inside others (a scene from
+    elsewhere may, and the simulated shapes fill in what the renderer's leave open, such as a box's
+    rounded corners; pushed apart, they would explode). Of each such pair the one left
     out is the one farther from the target (index 0) along the chain of objects touching it (what
     the target rests on, and what that rests on, stay), then in space. Returns the left out
     indices too."""
