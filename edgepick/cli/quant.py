@@ -170,9 +170,6 @@ def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None
                                      adaround=adaround, adaround_budget_s=adaround_budget_s, placement=placement),
                        preprocessing)
         return
-    from edgepick.quant.passes import agreement_images, check_classes, check_image_count, folder_images, quantize_static
-    from edgepick.train.checkpoint import Checkpoint
-
     if data_dir is None:
         raise ConfigError("--data is needed to calibrate a RUN or checkpoint (--calib is for .onnx models)")
     for flag, value in (("--calib", calib), ("--input-shape", input_shape)):
@@ -192,6 +189,9 @@ def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None
 
         emit(quantize_accuracy_aware(checkpoint, data_dir, out, max_miou_drop, cfg, calib_images, max_float_layers))
         return
+    from edgepick.quant.passes import agreement_images, check_classes, check_image_count, folder_images, quantize_static
+    from edgepick.train.checkpoint import Checkpoint
+
     check_image_count(data_dir, "train", calib_images)
     ckpt = Checkpoint.load(checkpoint)
     check_classes(ckpt, data_dir)

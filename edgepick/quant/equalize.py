@@ -19,16 +19,14 @@ from __future__ import annotations
 
 from operator import attrgetter
 
-import numpy as np
 import torch
 from torch.fx import GraphModule, Node
 from torchao.quantization.pt2e import ObserverBase
 
 from edgepick.quant.bias_correction import conv_geometry
+from edgepick.quant.cle_scales import ROUNDS, TOLERANCE, equalizing_scales
 
 EQUALIZED = "edgepick_equalized"  # GraphModule.meta key: the equalized pairs, (first conv, [next convs])
-ROUNDS = 20  # passes over the pairs: a conv between two others is pulled both ways and settles in a few
-TOLERANCE = 1e-3  # stop when no scale moves by more than this share
 
 _aten = torch.ops.aten
 _CONV = _aten.conv2d.default
@@ -38,13 +36,6 @@ _HOMOGENEOUS = {
     _aten.max_pool2d.default, _aten.upsample_bilinear2d.vec, _aten.upsample_nearest2d.vec,
     _aten.dropout.default, _aten.clone.default,
 }
-
-
-def equalizing_scales(r1: np.ndarray, r2: np.ndarray) -> np.ndarray:
-    """Per channel s = sqrt(r1 / r2), which gives both layers the range sqrt(r1 * r2); 1 where
-    either range is 0 (a dead channel stays as it is)."""
-    live = (r1 > 0) & (r2 > 0)
-    return np.where(live, np.sqrt(r1 / np.where(live, r2, 1.0)), 1.0)
 
 
 def _is_observer(gm: GraphModule, n: Node) -> bool:

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from edgepick.quant.equalize import ROUNDS, TOLERANCE, equalizing_scales
+from edgepick.quant.cle_scales import ROUNDS, TOLERANCE, equalizing_scales
 from edgepick.quant.onnx_graph import _conv_params, _Graph, _set_conv_params
 
 # one data input, commutes with a positive per-channel scale of it
