@@ -34,6 +34,15 @@ def run_cli(*args: str, check: bool = False, timeout: float = 600, env: dict | N
     return proc
 
 
+def without_torch(folder: Path) -> dict:
+    """The environment of a subprocess in which `import torch` fails (a stand-in package under
+    FOLDER comes first on its path): for the mistakes a command must report before loading torch."""
+    blocked = folder / "torch"
+    blocked.mkdir(parents=True, exist_ok=True)
+    (blocked / "__init__.py").write_text("raise ImportError('torch is not imported before a mistake is found')\n")
+    return {"PYTHONPATH": str(folder)}
+
+
 def worker_index() -> int:
     """This pytest-xdist worker's number (gw0 -> 0), 0 without xdist."""
     return int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0)

@@ -65,12 +65,10 @@ def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, 
     Multi-GPU: torchrun --nproc_per_node N -m edgepick train DATA --out RUN ...
     --resume continues RUN on DATA (the same data set, at any path) after a kill.
     """
-    from edgepick.train.loop import resume_run
-    from edgepick.train.loop import train as run_train
     from edgepick.train.run import Run
-    from edgepick.train.setup import dist_env
+    from edgepick.train.torchrun import dist_env
 
-    dist_env()
+    dist_env()  # every mistake below is found before torch is imported
     try:
         keep = sorted({int(v) for v in keep_epochs.split(",") if v.strip()})
     except ValueError:
@@ -78,6 +76,8 @@ def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, 
     input_size = model_size(size)
     if resume:
         check_output(out, "--out", kind="dir", inputs=(data_dir,), reuse="train")
+        from edgepick.train.loop import resume_run
+
         result = resume_run(out, data_dir, epochs)
     else:
         cfg = TrainConfig(data=data_dir, out=out, arch=arch, variant=variant, batch_size=batch_size, lr=lr,
@@ -88,6 +88,8 @@ def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, 
         Run(out).check_new()
         check_output(out, "--out", kind="dir", inputs=(data_dir,))
         check_data_orientation(data_dir, input_size)
+        from edgepick.train.loop import train as run_train
+
         result = run_train(cfg)
     if result is not None:
         emit(result.to_dict())

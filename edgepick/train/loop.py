@@ -38,7 +38,8 @@ from edgepick.train.checkpoint import Checkpoint
 from edgepick.train.config import Augment, TrainConfig, check_world
 from edgepick.train.data import IGNORE, augment, class_weights
 from edgepick.train.run import EpochRecord, Run, TrainResult
-from edgepick.train.setup import device_for, dist_env, log, logits, make_loaders, validate
+from edgepick.train.setup import device_for, log, logits, make_loaders, validate
+from edgepick.train.torchrun import dist_env
 
 
 class Hooks:

@@ -16,7 +16,7 @@ from edgepick.errors import ParameterError
 from edgepick.export.checks import conv_weight_report
 from edgepick.quant.config import QuantConfig
 from edgepick.quant.onnx_static import quantize_onnx_static
-from tests.conftest import run_cli
+from tests.conftest import run_cli, without_torch
 from tests.quant.onnx_models import calib_tensors, export_torch, run
 
 
@@ -192,13 +192,10 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
     (["{NET}", "--calib", "{NPY}", "--mean", "1,2"], "--mean 1,2: must be 3"),
 ])
 def test_a_mistake_is_one_line_exit_2_and_nothing_written(inputs, tmp_path, args, message):
-    """Found before torch is imported (seconds): here torch cannot be imported at all."""
-    blocked = tmp_path / "blocked" / "torch"
-    blocked.mkdir(parents=True)
-    (blocked / "__init__.py").write_text("raise ImportError('torch is not imported before a mistake is found')\n")
+    """Found before torch is imported (in a second, not after seconds of imports): here torch cannot be imported."""
     out = tmp_path / "out" / "q.onnx"
     proc = run_cli("quantize", "static", *(a.format(**inputs) for a in args), "--out", str(out),
-                   env={"PYTHONPATH": str(blocked.parent)})
+                   env=without_torch(tmp_path / "blocked"))
     assert proc.returncode == 2, proc.stderr
     assert proc.stderr.startswith("edgepick: error:") and proc.stderr.count("\n") == 1, proc.stderr
     assert re.search(message, proc.stderr), proc.stderr

@@ -14,7 +14,7 @@ import torch
 
 from edgepick.geometry import Size
 from edgepick.train.checkpoint import Checkpoint, load_model
-from tests.conftest import REPO, run_cli
+from tests.conftest import REPO, run_cli, without_torch
 
 
 def test_short_cpu_training_beats_chance_and_is_not_degenerate(trained_run, small_data):
@@ -123,8 +123,9 @@ def test_ddp_two_cpu_processes_with_gloo(small_data, tmp_path):
     (["eval", "{out}/none.pt", "{data}"], "no checkpoint"),
 ])
 def test_bad_input_is_one_line_and_exit_2(args, needle, small_data, tmp_path):
+    """train's mistakes are found before torch is imported: here it cannot be."""
     fill = {"missing": str(tmp_path / "nope"), "out": str(tmp_path / "run"), "data": str(small_data)}
-    proc = run_cli(*[a.format(**fill) for a in args])
+    proc = run_cli(*[a.format(**fill) for a in args], env=without_torch(tmp_path / "blocked") if args[0] == "train" else None)
     assert proc.returncode == 2, proc.stderr
     assert needle in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "run").exists()
