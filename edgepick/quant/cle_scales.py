@@ -1,5 +1,5 @@
 """Cross-layer equalization's scale rule, shared by the pt2e pass (equalize.py) and the ONNX pass
-(onnx_equalize.py). numpy only: quantizing an ONNX file does not import torch."""
+(onnx_equalize.py). numpy only: a mistake with an .onnx model is reported before torch is imported."""
 
 from __future__ import annotations
 

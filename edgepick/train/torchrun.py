@@ -8,7 +8,7 @@ import os
 from edgepick.errors import ConfigError
 
 
-def env_int(name: str, default: int) -> int:
+def _env_int(name: str, default: int) -> int:
     """The whole number in environment variable NAME, DEFAULT when it is not set."""
     text = os.environ.get(name)
     if text is None:
@@ -23,7 +23,7 @@ def dist_env() -> tuple[int, int, int]:
     """(rank, world size, local rank) under torchrun; (0, 1, 0) otherwise. The variables are
     checked: a WORLD_SIZE above 1 needs the rest of what torchrun sets (RANK, MASTER_ADDR,
     MASTER_PORT), or the process group would wait for peers that never come."""
-    world = env_int("WORLD_SIZE", 1)
+    world = _env_int("WORLD_SIZE", 1)
     if world < 1:
         raise ConfigError(f"WORLD_SIZE={world}: must be 1 or more")
     if world == 1:
@@ -32,7 +32,7 @@ def dist_env() -> tuple[int, int, int]:
     if missing:
         raise ConfigError(f"WORLD_SIZE={world} but {', '.join(missing)} not set: start multi-process training with "
                           "torchrun --nproc_per_node N -m edgepick train ...")
-    rank, local_rank = env_int("RANK", 0), env_int("LOCAL_RANK", 0)
+    rank, local_rank = _env_int("RANK", 0), _env_int("LOCAL_RANK", 0)
     if not 0 <= rank < world or local_rank < 0:
         raise ConfigError(f"RANK={rank} (LOCAL_RANK={local_rank}) does not fit WORLD_SIZE={world}")
     return rank, world, local_rank
