@@ -41,7 +41,8 @@ def batch(ds: NativeDataset, ids: list[str], size: tuple[int, int]) -> tuple[tor
     return torch.from_numpy(x.transpose(0, 3, 1, 2).copy()), torch.from_numpy(y)
 
 
-def recompute_batchnorm(model: nn.Module, ds: NativeDataset, size: tuple[int, int], batch_size: int) -> None:
+def recompute_batchnorm(model: nn.Module, ds: NativeDataset, size: tuple[int, int], batch_size: int,
+                        device: str = "cpu") -> None:
     """BatchNorm's running statistics recomputed as exact averages over the train set: a short run
     leaves moving averages far from the weights it ends with, and the eval-mode model then
     predicts one class."""
@@ -52,7 +53,7 @@ def recompute_batchnorm(model: nn.Module, ds: NativeDataset, size: tuple[int, in
     model.train()
     with torch.no_grad():
         for k in range(0, len(ds.ids), batch_size):
-            model(batch(ds, ds.ids[k:k + batch_size], size)[0])
+            model(batch(ds, ds.ids[k:k + batch_size], size)[0].to(device))
 
 
 def main() -> None:
@@ -65,6 +66,7 @@ def main() -> None:
     ap.add_argument("--lr", type=float, default=1e-3)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--opset", type=int, default=17)
+    ap.add_argument("--device", default="cpu", help="cpu or cuda (training only; the export runs on the CPU)")
     ap.add_argument("--out", required=True)
     args = ap.parse_args()
 
@@ -74,6 +76,7 @@ def main() -> None:
     train, val = NativeDataset.open(args.data, "train"), NativeDataset.open(args.data, "val")
     size = tuple(int(v) for v in args.size.split("x"))
     model = getattr(segmentation, args.arch)(weights=None, weights_backbone=None, num_classes=len(train.classes))
+    model.to(args.device)
     opt = torch.optim.AdamW(model.parameters(), lr=args.lr)
     rng = np.random.default_rng(args.seed)
     for epoch in range(args.epochs):
@@ -81,21 +84,22 @@ def main() -> None:
         order, t0, losses = rng.permutation(len(train.ids)), time.time(), []
         for k in range(0, len(order), args.batch_size):
             x, y = batch(train, [train.ids[i] for i in order[k:k + args.batch_size]], size)
+            x, y = x.to(args.device), y.to(args.device)
             loss = nn.functional.cross_entropy(model(x)["out"], y, ignore_index=255)
             opt.zero_grad()
             loss.backward()
             opt.step()
             losses.append(loss.item())
-        recompute_batchnorm(model, train, size, args.batch_size)
+        recompute_batchnorm(model, train, size, args.batch_size, args.device)
         model.eval()
         with torch.no_grad():
             x, y = batch(val, val.ids, size)
-            acc = float((model(x)["out"].argmax(1) == y).float().mean())
+            acc = float((model(x.to(args.device))["out"].argmax(1).cpu() == y).float().mean())
         print(f"epoch {epoch + 1}/{args.epochs}: loss {np.mean(losses):.3f}, val pixel acc {acc:.3f}, "
               f"{time.time() - t0:.0f} s", flush=True)
     with warnings.catch_warnings(), torch.no_grad():
         warnings.simplefilter("ignore")
-        torch.onnx.export(Out(model.eval()), torch.zeros(1, 3, size[1], size[0]), args.out, dynamo=False,
+        torch.onnx.export(Out(model.cpu().eval()), torch.zeros(1, 3, size[1], size[0]), args.out, dynamo=False,
                           opset_version=args.opset, input_names=["input"], output_names=["out"],
                           dynamic_axes={"input": {0: "n", 2: "h", 3: "w"}, "out": {0: "n", 2: "h", 3: "w"}})
     print(f"written to {args.out}")
