@@ -4,6 +4,7 @@ normalisation expected at its input: a model from elsewhere for benchmarks/peers
 
     pip install torchvision     # the build that matches your torch
     python benchmarks/torchvision_onnx.py --arch lraspp_mobilenet_v3_large --data DATA --epochs 3 --out lraspp.onnx
+    python benchmarks/torchvision_onnx.py ... --epochs 15 --device cuda    # train on a GPU
 """
 
 from __future__ import annotations
