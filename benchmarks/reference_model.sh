@@ -11,8 +11,8 @@
 # the default 99.99th: on this recipe's GPU float runs that brings static int8 to fp32's mIoU, where
 # the default leaves it 0.5-0.7 pp under (benchmarks/results/ptq-methods/). Every setting is an environment
 # variable. Without a GPU, a smaller run fits in two hours on 2 cores and picks far worse
-# (MODEL_CARD.md, "Limits"):
-#   DEVICE=cpu EPOCHS=45 EPOCH_IMAGES=400 SIZE=320x240 SPLITS=2000,200,100 BATCH=8 bash benchmarks/reference_model.sh
+# (MODEL_CARD.md, "Limits"; its static PTQ was measured at the default percentile):
+#   DEVICE=cpu EPOCHS=45 EPOCH_IMAGES=400 SIZE=320x240 SPLITS=2000,200,100 BATCH=8 PERCENTILE=99.99 bash benchmarks/reference_model.sh
 # Then Table 5.6 in the cell:
 #   python benchmarks/table56.py --models WORK/models/fp32.onnx WORK/models/static.onnx WORK/models/hybrid.onnx --save
 set -euo pipefail
