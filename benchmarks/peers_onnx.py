@@ -14,7 +14,7 @@ more) are where agreement is measured and latency timed.
     python benchmarks/peers.py --onnx ...   # the same
     # --edgepick-methods first-7/empirical,7/empirical/convs: two more edgepick rows each
     # (onnxruntime, OpenVINO), with static PTQ's methods that work on an ONNX graph (weight bits, bias
-    # correction, /cle) and the placement (/convs)
+    # correction, /cle), the placement (/convs) and the GELU form (/gelu-sigmoid)
 """
 
 from __future__ import annotations
@@ -33,8 +33,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import add_output, emit, interleaved_times, machine_line  # noqa: E402
 
+from edgepick.errors import ParameterError  # noqa: E402
 from edgepick.geometry import Size  # noqa: E402
-from edgepick.quant.config import BiasCorrection, Placement, QuantConfig, WeightBits  # noqa: E402
+from edgepick.quant.config import BiasCorrection, GeluForm, Placement, QuantConfig, WeightBits  # noqa: E402
 from edgepick.quant.onnx_static import decisions, folder_tensors, quantize_onnx_static  # noqa: E402
 from edgepick.runtime.preprocessing import Preprocessing  # noqa: E402
 from edgepick.runtime.session import openvino_config, plain_session  # noqa: E402
@@ -119,14 +120,22 @@ def agreement(model, reference: list[list[np.ndarray]], inputs: list[np.ndarray]
     return list(same / np.maximum(total, 1))
 
 
+GELU_SIGMOID = f"gelu-{GeluForm.SIGMOID.value}"
+
+
 def method_config(text: str) -> QuantConfig:
-    """An --edgepick-methods entry WEIGHT_BITS/BIAS_CORRECTION[/cle][/convs] as the config of a pass."""
+    """An --edgepick-methods entry WEIGHT_BITS/BIAS_CORRECTION[/cle][/convs][/gelu-sigmoid] as the config of a pass."""
     bits, method, *extra = text.split("/")
-    if (not set(extra) <= {"cle", Placement.CONVS.value} or len(set(extra)) < len(extra)
+    if (not set(extra) <= {"cle", Placement.CONVS.value, GELU_SIGMOID} or len(set(extra)) < len(extra)
             or bits not in set(WeightBits) or method not in set(BiasCorrection)):
-        raise SystemExit(f"--edgepick-methods {text}: expected WEIGHT_BITS/BIAS_CORRECTION[/cle][/convs]")
+        raise SystemExit(f"--edgepick-methods {text}: expected WEIGHT_BITS/BIAS_CORRECTION[/cle][/convs][/{GELU_SIGMOID}]")
     placement = Placement.CONVS if Placement.CONVS.value in extra else Placement.ALL
-    return QuantConfig(weight_bits=bits, bias_correction=method, equalize="cle" in extra, placement=placement)
+    gelu = GeluForm.SIGMOID if GELU_SIGMOID in extra else GeluForm.FLOAT
+    try:
+        return QuantConfig(weight_bits=bits, bias_correction=method, equalize="cle" in extra, placement=placement,
+                           gelu=gelu)
+    except ParameterError as e:
+        raise SystemExit(f"--edgepick-methods {text}: {e}") from None
 
 
 def add_input_options(ap: argparse.ArgumentParser) -> None:
@@ -158,8 +167,8 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=30)
     ap.add_argument("--model-note", default="", help="where the model comes from, for the report's header")
     ap.add_argument("--edgepick-methods", default="", help="comma-separated WEIGHT_BITS/BIAS_CORRECTION[/cle]"
-                    "[/convs] cases, two more edgepick rows each (onnxruntime, OpenVINO), e.g. "
-                    "first-7/empirical,7/empirical/convs")
+                    f"[/convs][/{GELU_SIGMOID}] cases, two more edgepick rows each (onnxruntime, OpenVINO), e.g. "
+                    f"first-7/empirical,7/empirical/convs,7/empirical/{GELU_SIGMOID}")
     add_output(ap)
     args = ap.parse_args()
     methods = {text: method_config(text) for text in filter(None, args.edgepick_methods.split(","))}
@@ -244,6 +253,8 @@ def main() -> None:
     best = p50[2]
     nncf_p50 = p50[4]
     fastest = min((m50, label) for (label, _, _), m50 in zip(rows, p50) if label.startswith("edgepick") and "OpenVINO" in label)
+    fastest_ort = min((m50, label) for (label, _, _), m50 in zip(rows, p50)
+                      if label.startswith("edgepick") and "onnxruntime" in label)
     lines = [f"# Peers on a model edgepick did not make: {Path(args.onnx).name}, {args.threads} threads", "",
              f"Command: `python benchmarks/peers_onnx.py {shlex.join(sys.argv[1:])}`  ",
              f"{machine_line()}; onnxruntime {ort.__version__}, openvino {ov.__version__.split('-')[0]}, nncf "
@@ -264,7 +275,9 @@ def main() -> None:
     lines += ["", f"edgepick on onnxruntime against onnxruntime's own best settings: {best / p50[5]:.2f}x (p50; "
                   f"target 1.25x). edgepick on OpenVINO against NNCF + OpenVINO: {nncf_p50 / p50[6]:.2f}x (target: "
                   "1.00x or more).",
-              *([f"edgepick's fastest file on OpenVINO against NNCF + OpenVINO: {nncf_p50 / fastest[0]:.2f}x "
+              *([f"edgepick's fastest file on onnxruntime against onnxruntime's own best settings: "
+                 f"{best / fastest_ort[0]:.2f}x ({fastest_ort[1]}).",
+                 f"edgepick's fastest file on OpenVINO against NNCF + OpenVINO: {nncf_p50 / fastest[0]:.2f}x "
                  f"({fastest[1]})."] if methods else []), "",
               f"edgepick's pass: {ours.int8_convs} of {ours.convs} convs int8"
               f"{' (float: ' + ', '.join(ours.float_convs) + ')' if ours.float_convs else ''}; rewrites "

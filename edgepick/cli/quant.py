@@ -27,6 +27,7 @@ from edgepick.quant.config import (
     MAX_FLOAT_LAYERS,
     BiasCorrection,
     CalibMethod,
+    GeluForm,
     Placement,
     QuantConfig,
     WeightBits,
@@ -136,6 +137,11 @@ def quantize() -> None:
                    "rewrites: for onnxruntime) or convs (only the convs and the tensors they read and write; the "
                    "model's own activations stay float as written, which OpenVINO fuses into its int8 convs). Which "
                    "is faster on OpenVINO depends on the model: time both (benchmarks/peers_onnx.py).")
+@click.option("--gelu", default=default_of(QuantConfig, "gelu"), show_default=True, type=choice(GeluForm),
+              help="For an .onnx MODEL with --placement all: float (each GELU runs as the model writes it, in float "
+                   "between its Q/DQ: onnxruntime has no integer Erf) or sigmoid (written as c*x*sigmoid(alpha*x), "
+                   "alpha fitted per layer, on onnxruntime's integer kernels: faster, an approximation). Time both "
+                   "and compare their agreement with benchmarks/peers_onnx.py.")
 @with_options(calibration)
 @click.option("--percentile", default=default_of(QuantConfig, "percentile"), show_default=True,
               help="For --calib-method percentile.")
@@ -149,7 +155,7 @@ def quantize() -> None:
 @with_options(common)
 @with_options(preprocessing_options)
 def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None, input_shape: str | None,
-                        placement: str, calib_images: int | None, calib_method: str, percentile: float, equalize: bool,
+                        placement: str, gelu: str, calib_images: int | None, calib_method: str, percentile: float, equalize: bool,
                         adaround: bool, adaround_budget_s: float, bias_correction: str, seed: int,
                         max_miou_drop: float | None, max_float_layers: int, out: str, weight_bits: str,
                         keep_float: str, **preprocessing) -> None:
@@ -167,7 +173,8 @@ def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None
         _quantize_onnx(checkpoint, calib, input_shape, calib_images, seed, max_miou_drop, data_dir, out,
                        _quant_config(keep_float, calib_method=calib_method, percentile=percentile,
                                      weight_bits=weight_bits, bias_correction=bias_correction, equalize=equalize,
-                                     adaround=adaround, adaround_budget_s=adaround_budget_s, placement=placement),
+                                     adaround=adaround, adaround_budget_s=adaround_budget_s, placement=placement,
+                                     gelu=gelu),
                        preprocessing)
         return
     if data_dir is None:
@@ -178,6 +185,8 @@ def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None
     if placement != Placement.ALL:
         raise ConfigError(f"--placement {placement} is for an .onnx MODEL; a RUN or checkpoint's int8 graph "
                           "quantizes every activation")
+    if gelu != GeluForm.FLOAT:
+        raise ConfigError(f"--gelu {gelu} is for an .onnx MODEL; a RUN or checkpoint has no GELU")
     _check_onnx_out(out, checkpoint, data_dir)
     if seed < 0:
         raise ConfigError(f"--seed {seed}: must be 0 or positive")

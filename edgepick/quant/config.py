@@ -57,6 +57,14 @@ class Placement(enum.StrEnum):
     CONVS = "convs"
 
 
+class GeluForm(enum.StrEnum):
+    """How static PTQ of an .onnx model runs a GELU (x * Phi(x), written with Erf): onnxruntime has no
+    integer kernel for Erf (quant/onnx_gelu.py; benchmarks/results/peers-onnx/ times both)."""
+
+    FLOAT = "float"  # as the model writes it, each step in float between its Q/DQ: exact but for their rounding
+    SIGMOID = "sigmoid"  # c * x * sigmoid(alpha * x), alpha fitted per layer: integer kernels, an approximation
+
+
 class WeightBits(enum.StrEnum):
     """Weight precision. onnxruntime's U8S8 kernels on AVX2 CPUs without VNNI (the thesis's laptop) add pairs
     of u8*s8 products in int16, which can saturate with 8-bit weights and never with 7-bit ones (quant/overflow.py)."""
@@ -87,6 +95,7 @@ class QuantConfig:
     adaround: bool = False  # static PTQ: learn each conv's weight rounding on the calibration images (quant/adaround.py)
     adaround_budget_s: float = 120.0  # AdaRound's time budget, shared by the convs
     placement: Placement = Placement.ALL  # static PTQ of an .onnx model: which tensors are int8
+    gelu: GeluForm = GeluForm.FLOAT  # static PTQ of an .onnx model with placement all: how a GELU is quantized
     keep_float: tuple[str, ...] = ()  # module names (prefixes) left in float
     skip: tuple[str, ...] = ("preprocess",)  # never quantized
 
@@ -95,8 +104,12 @@ class QuantConfig:
         object.__setattr__(self, "bias_correction", member(BiasCorrection, "bias_correction", self.bias_correction))
         object.__setattr__(self, "weight_bits", member(WeightBits, "weight_bits", str(self.weight_bits)))
         object.__setattr__(self, "placement", member(Placement, "placement", self.placement))
+        object.__setattr__(self, "gelu", member(GeluForm, "gelu", self.gelu))
         object.__setattr__(self, "keep_float", tuple(self.keep_float))
         object.__setattr__(self, "skip", tuple(self.skip))
+        if self.gelu != GeluForm.FLOAT and self.placement != Placement.ALL:
+            raise ParameterError("{gelu}: with {placement} the GELU's own ops stay float; it needs placement all",
+                                 gelu=self.gelu, placement=self.placement)
         if not 50.0 < self.percentile <= 100.0:
             raise ParameterError("{percentile}: must be in (50, 100]", percentile=self.percentile)
         if not self.adaround_budget_s > 0.0:

@@ -16,7 +16,7 @@ import torch
 from edgepick.errors import ConfigError, EdgepickError, ParameterError
 from edgepick.geometry import Size, check_size
 from edgepick.models.deeplabv3 import DeepLabV3, LogitsNet, trim_dilated_convs
-from edgepick.quant.config import Placement, QuantConfig, WeightBits
+from edgepick.quant.config import GeluForm, Placement, QuantConfig, WeightBits
 from edgepick.quant.equalize import equalize
 from edgepick.quant.quantizer import EdgeQuantizer, count_quant_nodes, module_path, under
 from edgepick.quant.rewrites import drop_fake_quants_after_dropout, gate_hardswish, snap_conv_biases
@@ -108,6 +108,9 @@ def prepare(model: torch.nn.Module, config: QuantConfig, size: Size, qat: bool,
     if config.placement != Placement.ALL:
         raise ParameterError("{placement}: for an .onnx model; a torch model's int8 graph quantizes every "
                              "activation", placement=config.placement)
+    if config.gelu != GeluForm.FLOAT:
+        raise ParameterError("{gelu}: for an .onnx model; a torch model's GELU is quantized as torch.export "
+                             "writes it", gelu=config.gelu)
     if isinstance(model, DeepLabV3):
         trim_dilated_convs(model, size)  # exact; int8 kernels do not skip taps that only see padding
     if config.hardswish_gate:

@@ -11,7 +11,8 @@ around it (docs/quantization.md, "Your own model"):
   weight_bits 8 (or first-7: 7-bit only where 8-bit weights saturate, `onnx_measure`), uint8
   activations per tensor, HardSigmoid quantized as well (with placement convs: only the convs
   and the tensors they read and write, the model's own activations left float as it writes them,
-  for OpenVINO, which fuses them into its int8 convs); with config.equalize, conv pairs equalized
+  for OpenVINO, which fuses them into its int8 convs); with gelu sigmoid, each GELU written as
+  c * x * sigmoid(alpha * x) on integer kernels (`onnx_gelu`); with config.equalize, conv pairs equalized
   before calibration (`onnx_equalize`); with config.adaround, each conv's weight rounding learnt
   on the calibration tensors (`onnx_adaround`); with empirical bias correction, the conv biases
   shifted back to fp32's means (`onnx_measure`);
@@ -50,12 +51,14 @@ from edgepick.quant.config import (
     SATURATION_CHECK_INPUTS,
     BiasCorrection,
     CalibMethod,
+    GeluForm,
     Placement,
     QuantConfig,
     WeightBits,
     lockstep_images,
 )
 from edgepick.quant.onnx_equalize import equalize_onnx
+from edgepick.quant.onnx_gelu import sigmoid_gelu
 from edgepick.quant.onnx_graph import fold_affine_into_convs, rewrite_activations
 from edgepick.quant.onnx_measure import correct_onnx_biases, qdq_convs, saturating_onnx_convs, to_seven_bit_onnx
 from edgepick.runtime.preprocessing import Preprocessing
@@ -329,12 +332,14 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
                             extra_options={"ActivationSymmetric": False, "WeightSymmetric": True,
                                            "CalibPercentile": config.percentile, "CalibMaxIntermediateOutputs": 4})
         int8 = onnx.load(str(qdq))
+        if config.gelu == GeluForm.SIGMOID:  # before the bias correction, which then measures it
+            rewrites["sigmoid_gelu"] = sigmoid_gelu(int8)
         done = _measure(prepared, int8, reader.kept, measured, config)
         steps = {**rewrites, "float_outputs": _float_outputs(int8, _float_tail(prepared)), **integer_activations(int8),
                  "cropped_convs": crop_padded_convs(int8)}
         quant = {"mode": "static", "source": "onnx", "calib_method": config.calib_method.value,
                  "calib_images": reader.seen, "percentile": config.percentile, "weight_bits": config.weight_bits.value,
-                 "placement": config.placement.value, "equalize": config.equalize,
+                 "placement": config.placement.value, "gelu": config.gelu.value, "equalize": config.equalize,
                  "bias_correction": config.bias_correction.value,
                  "adaround": config.adaround, **({"adaround_budget_s": config.adaround_budget_s} if config.adaround else {}),
                  "keep_float": list(config.keep_float), **done}

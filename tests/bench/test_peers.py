@@ -53,9 +53,13 @@ def test_peers_onnx_compares_every_tool_on_a_model_edgepick_did_not_make(tmp_pat
         "| edgepick static, first-7/empirical/cle (onnxruntime)", "| edgepick static, first-7/empirical/cle (OpenVINO)",
         "| edgepick static, 7/none/convs (onnxruntime)", "| edgepick static, 7/none/convs (OpenVINO)"]
     assert "edgepick's fastest file on OpenVINO against NNCF + OpenVINO" in report
+    assert "edgepick's fastest file on onnxruntime against onnxruntime's own best settings" in report
     assert peers_onnx.method_config("7/empirical/convs").placement == "convs"
+    assert peers_onnx.method_config("7/empirical/gelu-sigmoid").gelu == "sigmoid"
     with pytest.raises(SystemExit, match="expected"):
         peers_onnx.method_config("7/empirical/convs/convs")
+    with pytest.raises(SystemExit, match="with placement='convs'"):
+        peers_onnx.method_config("7/empirical/convs/gelu-sigmoid")
     assert rows[0].split(" | ")[1] == "100.00 / 100.00"  # fp32 against itself, both outputs
     assert "lifted to opset 13" in report and "9 of 9 convs int8" in report
 

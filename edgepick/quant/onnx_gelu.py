@@ -1,0 +1,243 @@
+"""ONNX pass (opt-in): GELU on onnxruntime's integer kernels, as c * x * sigmoid(alpha * x).
+
+onnxruntime has no integer kernel for Erf. In a QDQ graph a GELU, x * Phi(x) written with Erf (Div,
+Erf, Add, Mul, and the Mul by 0.5 unless a conv took it), therefore dequantizes its map, runs each step
+in float, and quantizes again between the steps. On a GELU network such as PP-OCRv5/v6 or a
+ConvNeXt-style block, these chains take a large share of the int8 run. An exact lookup table of the
+256 input codes is the natural replacement, but onnxruntime's Gather copies one element at a time and
+is slower than the float chain. QLinearSigmoid is a lookup table of its own, so this pass writes each
+GELU as
+
+    DequantizeLinear(x; scale * alpha) -> Sigmoid -> QuantizeLinear(1/256)    (QLinearSigmoid)
+    Mul(DequantizeLinear(x), the sigmoid) -> QuantizeLinear(scale / c)         (QLinearMul)
+
+x * sigmoid(1.702 x) differs from GELU by up to 0.02. For each layer, alpha is fitted to its 256
+input codes: the fit minimises the mean error in output codes against the float chain, computed
+without the rounding between its steps. It is an approximation, so QuantConfig.gelu chooses it;
+benchmarks/peers_onnx.py (`--edgepick-methods 7/empirical/gelu-sigmoid`) times both forms and
+measures their agreement with fp32.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+ELEMENTWISE = frozenset({"Add", "Sub", "Mul", "Div", "Erf", "Tanh", "Pow", "Sqrt", "Neg", "Identity",
+                         "QuantizeLinear", "DequantizeLinear"})
+ANCHORS = frozenset({"Erf", "Tanh"})  # GELU with erf, or its tanh approximation
+ALPHAS = np.arange(1.2, 2.4, 0.002)
+MAX_FIT_ERROR = 0.03  # of the output's range: beyond it the chain is not a GELU, and is left as it is
+TAG = "_sigmoid_gelu"
+
+
+def sigmoid_gelu(model) -> int:
+    """Rewrite each uint8 QDQ GELU chain of MODEL (onnx ModelProto, in place) as above; returns how many."""
+    from onnx import numpy_helper
+
+    graph = model.graph
+    nodes = list(graph.node)
+    inits = {i.name: numpy_helper.to_array(i) for i in graph.initializer}
+    const = _constants(nodes, inits)
+    producer = {o: k for k, n in enumerate(nodes) for o in n.output}
+    consumers: dict[str, list[int]] = {}
+    for k, n in enumerate(nodes):
+        for name in n.input:
+            consumers.setdefault(name, []).append(k)
+    outputs = {o.name for o in graph.output}
+    removed: set[int] = set()
+    inserted: dict[int, list] = {}
+    for anchor in (k for k, n in enumerate(nodes) if n.op_type in ANCHORS):
+        if anchor in removed:
+            continue
+        dq = _source_dequantize(anchor, nodes, producer, const)
+        x_params = None if dq is None or dq in removed else _uint8_qparams(nodes[dq], inits)
+        chain = None if dq is None or x_params is None else _closed_chain(
+            dq, anchor, nodes, producer, consumers, const, outputs, inits)
+        if dq is None or x_params is None or chain is None:
+            continue
+        members, q = chain[0], chain[1]
+        (x_scale, x_zero), (y_scale, y_zero) = x_params, chain[2]
+        x = (np.arange(256) - x_zero) * x_scale
+        f = _float_chain(model, nodes, members, dq, q, inits, const, producer, x)
+        fit = fit_sigmoid_gelu(x, f, y_scale, y_zero)
+        if fit is None:
+            continue
+        alpha, c = fit
+        inserted[q] = _replacement(graph, nodes[dq], nodes[q], x_scale * alpha, y_scale / c)
+        removed |= members - {dq}
+    kept = []
+    for k, n in enumerate(nodes):
+        kept += inserted.get(k, [])
+        if k not in removed:
+            kept.append(n)
+    del graph.node[:]
+    graph.node.extend(kept)
+    return len(inserted)
+
+
+def fit_sigmoid_gelu(x: np.ndarray, f: np.ndarray, y_scale: float, y_zero: int) -> tuple[float, float] | None:
+    """(alpha, c) with c * x * q(sigmoid(alpha * x)) closest to F in uint8 output codes, where q is
+    QLinearSigmoid's 1/256 grid; None when F (on the codes X) is no GELU-like curve c * x * Phi(x)."""
+    if not np.all(np.isfinite(f)):
+        return None
+    gate = np.clip(np.round(256.0 / (1.0 + np.exp(-np.outer(ALPHAS, x)))), 0, 255) / 256.0
+    g = gate * x  # one row per alpha
+    c = (g @ f) / np.maximum((g * g).sum(axis=1), 1e-12)
+    codes = lambda v: np.clip(np.round(v / y_scale) + y_zero, 0, 255)  # noqa: E731
+    error = np.abs(codes(c[:, None] * g) - codes(f)[None]).mean(axis=1)
+    best = int(np.argmin(error))
+    span = float(f.max() - f.min())
+    if c[best] <= 0 or span <= 0 or np.abs(c[best] * g[best] - f).max() > MAX_FIT_ERROR * span:
+        return None
+    return float(ALPHAS[best]), float(c[best])
+
+
+def _constants(nodes, inits) -> set[str]:
+    """Tensors that do not depend on the model's input: initializers, Constant outputs, and the
+    outputs of nodes that read only those."""
+    const = set(inits)
+    grew = True
+    while grew:
+        grew = False
+        for n in nodes:
+            if all(i in const for i in n.input if i) and not set(n.output) <= const:
+                const.update(n.output)
+                grew = True
+    return const
+
+
+def _uint8_qparams(node, inits) -> tuple[float, int] | None:
+    """The per-tensor scale and uint8 zero point of a Q/DQ node, or None."""
+    scale = inits.get(node.input[1])
+    zero = inits.get(node.input[2]) if len(node.input) > 2 else None
+    if scale is None or zero is None or scale.size != 1 or zero.size != 1 or zero.dtype != np.uint8:
+        return None
+    return float(scale.ravel()[0]), int(zero.ravel()[0])
+
+
+def _live(node, const) -> list[str]:
+    return [i for i in node.input if i and i not in const]
+
+
+def _source_dequantize(anchor: int, nodes, producer, const) -> int | None:
+    """The DequantizeLinear the anchor's input comes from, through elementwise ops with one live input."""
+    k = anchor
+    while True:
+        live = _live(nodes[k], const)
+        if len(live) != 1 or live[0] not in producer:
+            return None
+        k = producer[live[0]]
+        if nodes[k].op_type == "DequantizeLinear":
+            return k
+        if nodes[k].op_type not in ELEMENTWISE:
+            return None
+
+
+def _scalar(name: str, nodes, producer, inits) -> bool:
+    """Whether the constant NAME holds one value (an initializer, or a Q/DQ of one)."""
+    while name not in inits:
+        if name not in producer:
+            return False
+        node = nodes[producer[name]]
+        if node.op_type not in ("DequantizeLinear", "QuantizeLinear", "Identity", "Cast"):
+            return False
+        name = node.input[0]
+    return inits[name].size == 1
+
+
+def _closed_chain(dq: int, anchor: int, nodes, producer, consumers, const, outputs, inits):
+    """(members, final Q, its scale and zero point): the largest set of elementwise nodes from DQ to a uint8 QuantizeLinear
+    that reads only DQ's map and scalar constants, contains ANCHOR, and that nothing outside reads
+    but through the final Q; None if there is none."""
+    region, names, grew = {dq}, set(nodes[dq].output), True
+    while grew:
+        grew = False
+        for k in list(region):
+            for name in nodes[k].output:
+                for c in consumers.get(name, []):
+                    n = nodes[c]
+                    if c in region or n.op_type not in ELEMENTWISE:
+                        continue
+                    if all(i in names for i in _live(n, const)) and all(
+                            _scalar(i, nodes, producer, inits) for i in n.input if i in const):
+                        region.add(c)
+                        names.update(n.output)
+                        grew = True
+    for q in sorted((k for k in region if nodes[k].op_type == "QuantizeLinear"), reverse=True):
+        members, todo = set(), [q]
+        while todo:
+            k = todo.pop()
+            if k not in members:
+                members.add(k)
+                todo += [producer[i] for i in _live(nodes[k], const) if producer.get(i) in region]
+        if dq not in members or anchor not in members:
+            continue
+        y_params = _uint8_qparams(nodes[q], inits)
+        if y_params is not None and all(o not in outputs and all(c in members for c in consumers.get(o, []))
+                                        for k in members - {q} for o in nodes[k].output):
+            return members, q, y_params
+    return None
+
+
+def _float_chain(model, nodes, members, dq: int, q: int, inits, const, producer, x: np.ndarray) -> np.ndarray:
+    """The chain's value for the inputs X, computed in float: the Q -> DQ pairs inside it skipped
+    and its final Q left out (onnxruntime runs the nodes, so every op means what the file says)."""
+    import onnx
+    import onnxruntime as ort
+    from onnx import helper, numpy_helper
+
+    alias = {}
+    for k in members - {dq, q}:
+        n = nodes[k]
+        if n.op_type == "DequantizeLinear" and producer.get(n.input[0]) in members:
+            alias[n.output[0]] = nodes[producer[n.input[0]]].input[0]
+    body = []
+    for k in sorted(members - {dq, q}):
+        n = nodes[k]
+        if n.op_type == "QuantizeLinear" or n.output[0] in alias:
+            continue
+        copy = onnx.NodeProto()
+        copy.CopyFrom(n)
+        copy.input[:] = [alias.get(i, i) for i in n.input]
+        body.append(copy)
+    needed = {i for n in body for i in n.input if i in const and i not in inits}
+    setup: list = []
+    while needed:
+        node = nodes[producer[needed.pop()]]
+        setup.insert(0, node)
+        needed |= {i for i in node.input if i in const and i not in inits}
+    used = {i for n in [*setup, *body] for i in n.input if i in inits}
+    source, result = nodes[dq].output[0], nodes[q].input[0]
+    graph = helper.make_graph(
+        [*setup, *body], "chain", [helper.make_tensor_value_info(source, onnx.TensorProto.FLOAT, [x.size])],
+        [helper.make_tensor_value_info(result, onnx.TensorProto.FLOAT, [x.size])],
+        [numpy_helper.from_array(inits[i], i) for i in sorted(used)])
+    chain = helper.make_model(graph, opset_imports=model.opset_import, ir_version=model.ir_version)
+    opts = ort.SessionOptions()
+    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
+    opts.log_severity_level = 3
+    session = ort.InferenceSession(chain.SerializeToString(), opts, providers=["CPUExecutionProvider"])
+    return session.run([result], {source: x.astype(np.float32)})[0].astype(np.float64).ravel()
+
+
+def _replacement(graph, dq, q, gate_scale: float, out_scale: float) -> list:
+    """The gate DequantizeLinear -> Sigmoid -> Q/DQ on the 1/256 grid, and Mul -> the final Q's output."""
+    from onnx import helper, numpy_helper
+
+    tag = f"{q.name or q.output[0]}{TAG}"
+
+    def constant(suffix: str, value, dtype) -> str:
+        graph.initializer.append(numpy_helper.from_array(np.asarray(value, dtype=dtype), f"{tag}_{suffix}"))
+        return f"{tag}_{suffix}"
+
+    gate_s, step, zero = constant("gate_scale", gate_scale, np.float32), constant("step", 1 / 256, np.float32), \
+        constant("zero", 0, np.uint8)
+    return [
+        helper.make_node("DequantizeLinear", [dq.input[0], gate_s, dq.input[2]], [f"{tag}_gate_in"], name=f"{tag}_dq"),
+        helper.make_node("Sigmoid", [f"{tag}_gate_in"], [f"{tag}_gate"], name=f"{tag}_sigmoid"),
+        helper.make_node("QuantizeLinear", [f"{tag}_gate", step, zero], [f"{tag}_gate_q"], name=f"{tag}_gate_q"),
+        helper.make_node("DequantizeLinear", [f"{tag}_gate_q", step, zero], [f"{tag}_gate_dq"], name=f"{tag}_gate_dq"),
+        helper.make_node("Mul", [dq.output[0], f"{tag}_gate_dq"], [f"{tag}_product"], name=f"{tag}_mul"),
+        helper.make_node("QuantizeLinear", [f"{tag}_product", constant("out_scale", out_scale, np.float32), q.input[2]],
+                         [q.output[0]], name=f"{tag}_q"),
+    ]
