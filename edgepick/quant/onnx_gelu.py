@@ -50,13 +50,13 @@ def sigmoid_gelu(model) -> int:
         if anchor in removed:
             continue
         dq = _source_dequantize(anchor, nodes, producer, const)
-        x_params = None if dq is None or dq in removed else _uint8_qparams(nodes[dq], inits)
-        chain = None if dq is None or x_params is None else _closed_chain(
-            dq, anchor, nodes, producer, consumers, const, outputs, inits)
-        if dq is None or x_params is None or chain is None:
+        if dq is None or dq in removed or (x_params := _uint8_qparams(nodes[dq], inits)) is None:
             continue
-        members, q = chain[0], chain[1]
-        (x_scale, x_zero), (y_scale, y_zero) = x_params, chain[2]
+        chain = _closed_chain(dq, anchor, nodes, producer, consumers, const, outputs, inits)
+        if chain is None:
+            continue
+        members, q, (y_scale, y_zero) = chain
+        x_scale, x_zero = x_params
         x = (np.arange(256) - x_zero) * x_scale
         f = _float_chain(model, nodes, members, dq, q, inits, const, producer, x)
         fit = fit_sigmoid_gelu(x, f, y_scale, y_zero)
@@ -145,10 +145,11 @@ def _scalar(name: str, nodes, producer, inits) -> bool:
     return inits[name].size == 1
 
 
-def _closed_chain(dq: int, anchor: int, nodes, producer, consumers, const, outputs, inits):
-    """(members, final Q, its scale and zero point): the largest set of elementwise nodes from DQ to a uint8 QuantizeLinear
-    that reads only DQ's map and scalar constants, contains ANCHOR, and that nothing outside reads
-    but through the final Q; None if there is none."""
+def _closed_chain(dq: int, anchor: int, nodes, producer, consumers, const, outputs,
+                  inits) -> tuple[set[int], int, tuple[float, int]] | None:
+    """(members, final Q, its scale and zero point): the largest set of elementwise nodes from DQ
+    to a uint8 QuantizeLinear that reads only DQ's map and scalar constants, contains ANCHOR, and
+    that nothing outside reads but through the final Q; None if there is none."""
     region, names, grew = {dq}, set(nodes[dq].output), True
     while grew:
         grew = False
@@ -164,7 +165,8 @@ def _closed_chain(dq: int, anchor: int, nodes, producer, consumers, const, outpu
                         names.update(n.output)
                         grew = True
     for q in sorted((k for k in region if nodes[k].op_type == "QuantizeLinear"), reverse=True):
-        members, todo = set(), [q]
+        members: set[int] = set()
+        todo = [q]
         while todo:
             k = todo.pop()
             if k not in members:
