@@ -17,19 +17,7 @@ from edgepick.export.checks import conv_weight_report
 from edgepick.quant.config import QuantConfig
 from edgepick.quant.onnx_static import quantize_onnx_static
 from tests.conftest import run_cli, without_torch
-from tests.quant.onnx_models import calib_tensors, export_torch, run
-
-
-def _optimized_ops(path: Path) -> Counter:
-    """The op types onnxruntime runs for the file after its graph optimisations (QDQ fused into QLinear*)."""
-    import onnxruntime as ort
-
-    opts = ort.SessionOptions()
-    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED
-    opts.optimized_model_filepath = str(path.with_suffix(".opt.onnx"))
-    opts.log_severity_level = 3
-    ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
-    return Counter(n.op_type for n in onnx.load(opts.optimized_model_filepath).graph.node)
+from tests.quant.onnx_models import calib_tensors, export_torch, optimized_ops, run
 
 
 def test_an_opset_12_export_with_dynamic_dims_becomes_an_all_int8_model(tmp_path):
@@ -42,7 +30,7 @@ def test_an_opset_12_export_with_dynamic_dims_becomes_an_all_int8_model(tmp_path
     assert result.agreement_vs_fp32["logits"] >= 0.97, result.agreement_vs_fp32
     assert result.calib_tensors == 8 and json.loads(
         dict((p.key, p.value) for p in onnx.load(result.out).metadata_props)["edgepick.quant"])["source"] == "onnx"
-    ops = _optimized_ops(Path(result.out))
+    ops = optimized_ops(Path(result.out))
     # every activation on integer kernels: no float HardSigmoid/ReduceMean/BatchNormalization/Div is left to run
     assert not {"HardSigmoid", "ReduceMean", "BatchNormalization", "Div", "Clip"} & set(ops), ops
     # the head's output (the logits) stays float, and onnxruntime has no integer ConvTranspose kernel
