@@ -36,7 +36,9 @@ from _common import add_output, emit, interleaved_times, machine_line  # noqa: E
 from edgepick.errors import ParameterError  # noqa: E402
 from edgepick.geometry import Size  # noqa: E402
 from edgepick.quant.config import BiasCorrection, GeluForm, Placement, QuantConfig, WeightBits  # noqa: E402
-from edgepick.quant.onnx_static import decisions, folder_tensors, quantize_onnx_static  # noqa: E402
+from edgepick.quant.fidelity import guess_task  # noqa: E402
+from edgepick.quant.onnx_inputs import folder_tensors  # noqa: E402
+from edgepick.quant.onnx_static import quantize_onnx_static  # noqa: E402
 from edgepick.runtime.preprocessing import Preprocessing  # noqa: E402
 from edgepick.runtime.session import openvino_config, plain_session  # noqa: E402
 
@@ -114,7 +116,10 @@ def agreement(model, reference: list[list[np.ndarray]], inputs: list[np.ndarray]
     same, total = np.zeros(len(probability)), np.zeros(len(probability))
     for x, ref in zip(inputs, reference):
         for k, (a, b) in enumerate(zip(model(x), ref)):
-            da, db = decisions(a, nhwc, probability[k]), decisions(b, nhwc, probability[k])
+            task = guess_task(a.shape, probability[k], nhwc)
+            da, db = task.decide(a, nhwc), task.decide(b, nhwc)
+            if da is None or db is None:  # a raw output decides nothing
+                continue
             same[k] += (da == db).sum()
             total[k] += da.size
     return list(same / np.maximum(total, 1))

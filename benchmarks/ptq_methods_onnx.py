@@ -35,7 +35,8 @@ from peers_onnx import OpenVino, Ort, add_input_options, input_tensors  # noqa: 
 from ptq_methods import case, seven_bit_convs, spread, start_case  # noqa: E402
 
 from edgepick.quant.config import QuantConfig  # noqa: E402
-from edgepick.quant.onnx_static import decisions, quantize_onnx_static  # noqa: E402
+from edgepick.quant.fidelity import guess_task  # noqa: E402
+from edgepick.quant.onnx_static import quantize_onnx_static  # noqa: E402
 
 
 def agreement(model, reference: list[list[np.ndarray]], inputs: list[np.ndarray], nhwc: bool,
@@ -47,7 +48,10 @@ def agreement(model, reference: list[list[np.ndarray]], inputs: list[np.ndarray]
     fg_same, fg_total, same, total = (np.zeros(outputs) for _ in range(4))
     for x, ref in zip(inputs, reference):
         for k, (a, b) in enumerate(zip(model(x), ref)):
-            da, db = decisions(a, nhwc, probability[k]), decisions(b, nhwc, probability[k])
+            task = guess_task(a.shape, probability[k], nhwc)
+            da, db = task.decide(a, nhwc), task.decide(b, nhwc)
+            if da is None or db is None:  # a raw output decides nothing
+                continue
             equal, foreground = da == db, (da != 0) | (db != 0)
             fg_same[k] += (equal & foreground).sum()
             fg_total[k] += foreground.sum()

@@ -53,6 +53,10 @@ def python_name(parameter: str, value: object, with_value: bool) -> str:
     return f"{parameter}={str(value)!r}" if isinstance(value, Path) else f"{parameter}={value!r}"
 
 
+class QuantizationError(EdgepickError):
+    """A pass that would silently produce an unquantized model, or one far from its float model."""
+
+
 class CheckpointError(EdgepickError):
     """A checkpoint or model file is missing, unreadable or incompatible."""
 

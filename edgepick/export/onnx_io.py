@@ -77,6 +77,22 @@ def fix_input_shape(model: Any, shape: tuple[int, ...]) -> None:
         out.type.tensor_type.ClearField("shape")
 
 
+def drop_unused_initializers(model: Any) -> int:
+    """Remove the initializers no node (nor a subgraph) reads, and their graph-input entries;
+    onnxruntime warns about each one on every load. Returns how many went."""
+    used = {name for node in model.graph.node for name in node.input}
+    used |= {name for node in model.graph.node for attr in node.attribute if attr.g.node
+             for sub in attr.g.node for name in sub.input}
+    used |= {o.name for o in model.graph.output}
+    unused = [i for i in model.graph.initializer if i.name not in used]
+    for init in unused:
+        model.graph.initializer.remove(init)
+    names = {i.name for i in unused}
+    for value in [v for v in model.graph.input if v.name in names]:
+        model.graph.input.remove(value)
+    return len(unused)
+
+
 def opset(model: Any) -> int:
     """The model's version of the default ONNX domain."""
     return next((o.version for o in model.opset_import if o.domain in ("", "ai.onnx")), 1)

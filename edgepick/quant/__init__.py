@@ -11,15 +11,16 @@ nn.Module of one's own, goes through `quantize_static` too, calibrated on its ow
 
 from typing import TYPE_CHECKING
 
+from edgepick.errors import QuantizationError
 from edgepick.lazy import lazy_attributes
 
 _WHERE = {
     "AccuracyAwareResult": "results", "agreement_images": "passes", "BiasCorrection": "config",
     "CalibMethod": "config", "calibrate": "graph", "Placement": "config",
     "convert": "graph", "folder_images": "passes", "inspect": "inspect", "PassResult": "results",
-    "prepare": "graph", "QatHooks": "qat", "QuantConfig": "config", "QuantizationError": "graph",
+    "prepare": "graph", "QatHooks": "qat", "QuantConfig": "config",
     "quantize_accuracy_aware": "inspect", "quantize_hybrid": "passes", "quantize_qat": "passes",
-    "quantize_static": "passes", "WeightBits": "config", "quantize_onnx_static": "onnx_static", "folder_tensors": "onnx_static",
+    "quantize_static": "passes", "WeightBits": "config", "quantize_onnx_static": "onnx_static", "folder_tensors": "onnx_inputs",
     "OnnxPassResult": "onnx_static"
 }
 __all__ = ["AccuracyAwareResult", "BiasCorrection", "CalibMethod", "OnnxPassResult", "PassResult", "Placement", "QatHooks",
@@ -30,9 +31,10 @@ __all__ = ["AccuracyAwareResult", "BiasCorrection", "CalibMethod", "OnnxPassResu
 
 if TYPE_CHECKING:
     from edgepick.quant.config import BiasCorrection, CalibMethod, Placement, QuantConfig, WeightBits
-    from edgepick.quant.graph import QuantizationError, calibrate, convert, prepare
+    from edgepick.quant.graph import calibrate, convert, prepare
     from edgepick.quant.inspect import inspect, quantize_accuracy_aware
-    from edgepick.quant.onnx_static import OnnxPassResult, folder_tensors, quantize_onnx_static
+    from edgepick.quant.onnx_inputs import folder_tensors
+    from edgepick.quant.onnx_static import OnnxPassResult, quantize_onnx_static
     from edgepick.quant.passes import agreement_images, folder_images, quantize_hybrid, quantize_qat, quantize_static
     from edgepick.quant.qat import QatHooks
     from edgepick.quant.results import AccuracyAwareResult, PassResult

@@ -18,6 +18,9 @@ FREEZE_AT = 0.7  # share of the QaT steps after which observers and BN statistic
 BIAS_CORRECTION_IMAGES = 32
 LOCKSTEP_PIXELS = BIAS_CORRECTION_IMAGES * 320 * 240
 MIN_LOCKSTEP_IMAGES = 4  # below this the per-channel means and AdaRound's sampled positions get too few images
+# calib_method auto: calibration inputs the candidate rules are compared on, held out of the ranges while they are
+# (with fewer other inputs than these to calibrate on, they are used for both)
+HELD_OUT_INPUTS = 8
 SATURATION_CHECK_INPUTS = 8  # calibration inputs on which first-7 measures where 8-bit weights saturate
 # first-7 also gives 7 bits to a conv whose pair sums come within this share of the int16 limit on those
 # inputs, since other images go further (benchmarks/results/ptq-methods/ measures the agreement it keeps).
@@ -33,6 +36,9 @@ MAX_FLOAT_LAYERS = 6  # accuracy-aware static PTQ: the most layers it keeps in f
 class CalibMethod(enum.StrEnum):
     """How static PTQ sets activation ranges (compared by benchmarks/calib_methods.py)."""
 
+    # every rule below, each tried on held-out calibration inputs; the one whose int8 outputs stay closest to
+    # fp32's is kept (quant/onnx_qdq.py, quant/graph.py)
+    AUTO = "auto"
     MINMAX = "minmax"
     PERCENTILE = "percentile"  # a percentile of each histogram: clips rare outliers
     ENTROPY = "entropy"  # KL-divergence minimisation (TensorRT's entropy calibration)
@@ -78,7 +84,7 @@ class WeightBits(enum.StrEnum):
 class QuantConfig:
     """How a model is quantized, checked on creation; written into the ONNX metadata (`edgepick.quant`)."""
 
-    calib_method: CalibMethod = CalibMethod.PERCENTILE  # activation ranges for static PTQ
+    calib_method: CalibMethod = CalibMethod.AUTO  # activation ranges for static PTQ
     percentile: float = 99.99
     weight_bits: WeightBits = WeightBits.SEVEN
     # QaT: moving-average constant of the per-channel weight ranges (torch.ao's default 0.01; 1.0: each step's

@@ -13,20 +13,18 @@ import cv2
 import numpy as np
 import torch
 
-from edgepick.errors import ConfigError, EdgepickError, ParameterError
+from edgepick.errors import ConfigError, ParameterError, QuantizationError
 from edgepick.geometry import Size, check_size
 from edgepick.models.deeplabv3 import DeepLabV3, LogitsNet, trim_dilated_convs
 from edgepick.quant.config import GeluForm, Placement, QuantConfig, WeightBits
 from edgepick.quant.equalize import equalize
-from edgepick.quant.quantizer import EdgeQuantizer, count_quant_nodes, module_path, under
+from edgepick.quant.fidelity import RuleScore, balanced_error
+from edgepick.quant.quantizer import EdgeQuantizer, RuleObserver, count_quant_nodes, module_path, under
+from edgepick.quant.ranges import candidate_rules
 from edgepick.quant.rewrites import drop_fake_quants_after_dropout, gate_hardswish, snap_conv_biases
 from edgepick.quant.torchao_compat import bn_folds_with_own_eps, install_train_eval, patterns_traced_once, set_mode
 
 PREFIX = "model."  # LogitsNet's attribute in front of every module name
-
-
-class QuantizationError(EdgepickError):
-    """A pass that would silently produce an unquantized model."""
 
 
 def as_input(rgb: np.ndarray) -> torch.Tensor:
@@ -43,18 +41,19 @@ def at_input_size(rgb: np.ndarray, size: Size, what: str = "calib") -> np.ndarra
 
 
 def calibrate(prepared: torch.fx.GraphModule, images: Iterable[np.ndarray], size: Size | None = None,
-              progress: bool = False) -> int:
+              progress: bool = False, total: int | None = None, at_least_one: bool = True) -> int:
     """Run PREPARED on each of IMAGES (HxWx3 uint8 RGB, resized to the model's input SIZE when given)
-    so that its observers see the activations; returns how many images it saw (at least one)."""
+    so that its observers see the activations; returns how many images it saw (at least one, unless
+    not AT_LEAST_ONE). TOTAL: how many there are, for the progress line."""
     from edgepick.progress import progress as progress_bar
 
     device = next(prepared.parameters()).device
     seen = 0
     with torch.no_grad():
-        for rgb in progress_bar(images, desc="calibrate", unit="img", enabled=progress):
+        for rgb in progress_bar(images, desc="calibrate", unit="img", total=total, enabled=progress):
             prepared(as_input(at_input_size(rgb, size) if size is not None else rgb).to(device))
             seen += 1
-    if not seen:
+    if not seen and at_least_one:
         raise ConfigError("calib: no images; calibration needs at least one")
     return seen
 
@@ -152,6 +151,56 @@ def convert(prepared: torch.fx.GraphModule, snap_biases: bool = True) -> torch.f
     if snap_biases:
         snap_conv_biases(converted)
     return converted
+
+
+def choose_rule(prepared: torch.fx.GraphModule, held: list[torch.Tensor], config: QuantConfig, fitted: int) -> dict:
+    """Set the range rule of PREPARED's activation observers (calibrated on FITTED other inputs than
+    HELD) and count HELD in. With calib_method auto, each candidate rule is converted and run on
+    HELD, and the one whose logits stay closest to fp32's is kept (each class weighted alike: the
+    ONNX path's measure). With fewer FITTED inputs than HELD, HELD are counted in first and the
+    choice is made on them. Returns what was chosen and measured."""
+    import copy
+
+    observers = [m for m in prepared.modules() if isinstance(m, RuleObserver)]
+    rules = candidate_rules(config)
+    held_out = bool(held) and fitted >= len(held)
+    device = next(prepared.parameters()).device
+    if not held_out:
+        _count_in(prepared, held, device)
+    if len(rules) == 1 or not held or not observers:
+        _count_in(prepared, held if held_out else [], device)
+        return {"rule": str(observers[0].rule) if observers else str(rules[0])}
+    for o in observers:
+        o.observing = False
+    with torch.no_grad():
+        reference = [_arrays(prepared(x.to(device))) for x in held]
+        scores = []
+        for rule in rules:
+            for o in observers:
+                o.rule = rule
+            converted = convert(copy.deepcopy(prepared))
+            outputs = [_arrays(converted(x.to(device))) for x in held]
+            worst = max(balanced_error([r[k] for r in reference], [o[k] for o in outputs])
+                        for k in range(len(reference[0])))
+            scores.append(RuleScore(rule, worst))
+    best = min(scores, key=lambda s: s.error)
+    for o in observers:
+        o.rule, o.observing = best.rule, True
+    if held_out:
+        _count_in(prepared, held, device)
+    return {"rule": str(best.rule), "held_out": len(held) if held_out else 0,
+            "candidates": [s.to_dict() for s in scores]}
+
+
+def _arrays(out: torch.Tensor | tuple | list) -> list[np.ndarray]:
+    """A graph's output (a tensor, or several) as arrays."""
+    return [t.detach().cpu().numpy() for t in (out if isinstance(out, (tuple, list)) else [out])]
+
+
+def _count_in(prepared: torch.fx.GraphModule, inputs: list[torch.Tensor], device: torch.device) -> None:
+    with torch.no_grad():
+        for x in inputs:
+            prepared(x.to(device))
 
 
 def expected_int8_convs(prepared: torch.fx.GraphModule, config: QuantConfig) -> int:

@@ -10,19 +10,21 @@ import copy
 import itertools
 import json
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Sized
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from edgepick.errors import ParameterError
+from edgepick.errors import ParameterError, QuantizationError
 from edgepick.export.checks import check_onnx_out, conv_weight_report
 from edgepick.export.onnx_export import export_module_onnx
 from edgepick.geometry import Size
-from edgepick.quant.config import BIAS_CORRECTION_IMAGES, QuantConfig
-from edgepick.quant.graph import QuantizationError, expected_int8_convs, prepare
-from edgepick.quant.onnx_static import CHECK_TENSORS, OnnxPassResult, check_tensor, decisions
+from edgepick.quant.config import BIAS_CORRECTION_IMAGES, HELD_OUT_INPUTS, CalibMethod, QuantConfig
+from edgepick.quant.fidelity import compare_outputs, guess_task
+from edgepick.quant.graph import choose_rule, expected_int8_convs, prepare
+from edgepick.quant.onnx_inputs import check_tensor
+from edgepick.quant.onnx_static import CHECK_TENSORS, OnnxPassResult
 from edgepick.quant.ptq import convert_static, measures
 from edgepick.quant.rewrites import GatedHardswish
 
@@ -69,22 +71,28 @@ def quantize_module_static(module: torch.nn.Module, calib: Iterable[Any], out: s
     gated = sum(isinstance(m, GatedHardswish) for m in model.modules())
     measuring = measures(config)
     keep = max(CHECK_TENSORS, BIAS_CORRECTION_IMAGES if measuring else 0)
-    kept, seen = [first], 0
+    kept, held, seen = [first], [], 0
+    hold = HELD_OUT_INPUTS if config.calib_method == CalibMethod.AUTO else 0
+    total = len(calib) if isinstance(calib, Sized) else None
     with torch.no_grad():
         for k, x in enumerate(progress_bar(itertools.chain([first], batches), desc="calibrate", unit="batch",
-                                           enabled=progress)):
+                                           total=total, enabled=progress)):
             x = first if k == 0 else _tensor(x, shape, f"calibration batch {k + 1}")
-            prepared(x)
+            if k < hold:
+                held.append(x)  # counted in by choose_rule, after the candidates are measured on them
+            else:
+                prepared(x)
             seen += 1
             if 0 < k < keep:
                 kept.append(x)
+    ranges = choose_rule(prepared, held, config, seen - len(held))
     converted, measured = convert_static(prepared, lambda: kept[:BIAS_CORRECTION_IMAGES], config)
     kept = kept[:CHECK_TENSORS]
     calib_s = time.perf_counter() - t0
     quant = {"mode": "static", "source": "module", "calib_method": config.calib_method.value, "calib_images": seen,
              "percentile": config.percentile, "weight_bits": config.weight_bits.value,
              "bias_correction": config.bias_correction.value, "equalize": config.equalize,
-             "adaround": config.adaround, "keep_float": list(config.keep_float), **measured}
+             "adaround": config.adaround, "keep_float": list(config.keep_float), "ranges": ranges, **measured}
     path = export_module_onnx(converted, out, shape, {"edgepick.quant": json.dumps(quant)})
     report = conv_weight_report(path)
     expected = expected_int8_convs(prepared, config)
@@ -93,22 +101,20 @@ def quantize_module_static(module: torch.nn.Module, calib: Iterable[Any], out: s
         raise QuantizationError(f"only {report['int8']} of {expected} convs got int8 weights in the ONNX")
     session = plain_session(path)
     names = [o.name for o in session.get_outputs()]
-    same, total = dict.fromkeys(names, 0), dict.fromkeys(names, 0)
     float_model = copy.deepcopy(module).eval()
     with torch.no_grad():
-        for x in kept:
-            for name, ours, ref in zip(names, session.run(names, {"input": x.numpy()}), _outputs(float_model(x))):
-                ref = ref.numpy()
-                # a one-channel map inside [0, 1] is taken as a probability (threshold 0.5), else a logit (0)
-                probability = bool(ref.shape[1] == 1 and ref.min() >= 0.0 and ref.max() <= 1.0)
-                a, b = decisions(ours, False, probability), decisions(ref, False, probability)
-                same[name] += int((a == b).sum())
-                total[name] += a.size
+        pairs = [([r.numpy() for r in _outputs(float_model(x))], session.run(names, {"input": x.numpy()}))
+                 for x in kept]
+    # a map inside [0, 1] is taken as a probability (threshold 0.5), else a logit (0)
+    tasks = {name: guess_task(ref.shape, bool(ref.min() >= 0.0 and ref.max() <= 1.0))
+             for name, ref in zip(names, pairs[0][0])}
+    fidelity = {n: f.to_dict() for n, f in compare_outputs(names, tasks, pairs).items()}
     import onnx
 
     return OnnxPassResult(out=str(path), size_bytes=path.stat().st_size, input_shape=list(shape), opset_in=None,
                           opset_out=next(o.version for o in onnx.load(str(path)).opset_import if o.domain == ""),
                           convs=report["convs"], int8_convs=report["int8"], float_convs=report["float"],
-                          agreement_vs_fp32={n: round(same[n] / max(total[n], 1), 5) for n in names},
+                          agreement_vs_fp32={n: f["agreement"] for n, f in fidelity.items() if f["agreement"] is not None},
+                          fidelity=fidelity,
                           rewrites={"gated_hardswish": gated}, quant=quant, calib_tensors=seen,
                           calib_s=round(calib_s, 2))

@@ -1,8 +1,9 @@
-"""Static PTQ of a float ONNX model edgepick did not train: edgepick's int8 recipe on any graph.
+"""Static PTQ of a float ONNX model edgepick did not make: edgepick's int8 recipe on any graph.
 
-onnxruntime.quantization calibrates (min/max, percentile or entropy over the caller's input
-tensors) and writes the QDQ graph; edgepick chooses what it quantizes and how, and rewrites
-around it (docs/quantization.md, "Your own model"):
+edgepick calibrates (quant/onnx_calibrate.py: every calibration tensor streamed once through the
+model, a histogram per activation, memory bounded), chooses the range rule per model by measuring
+the outputs (quant/onnx_qdq.py; `CalibMethod.AUTO`, the default), has onnxruntime's QDQ quantizer
+write the Q/DQ pairs for those ranges, and rewrites around it (docs/quantization.md, "Your own model"):
 
 - before: the input dims fixed, opset lifted to 13, hardswish/hardsigmoid/mean pooling in the
   forms with integer kernels (`onnx_graph.rewrite_activations`), BatchNorm folded and shapes
@@ -18,10 +19,12 @@ around it (docs/quantization.md, "Your own model"):
   shifted back to fp32's means (`onnx_measure`);
 - after: the model's outputs and the ops between its last conv and them (Resize, Sigmoid,
   Softmax, ...) in float, as edgepick's own logits are (uint8 logits tie in an ArgMax or a
-  threshold); the integer activations and the padding-tap crop of `edgepick.export`.
+  threshold); the integer activations and the padding-tap crop of `edgepick.export`; initializers
+  no node reads dropped.
 
 The file is checked before it is kept: every conv not named in keep_float has int8 weights, and
-onnxruntime's int8 outputs are compared with its fp32 outputs (labels, or a thresholded map).
+onnxruntime's int8 outputs are compared with its fp32 outputs (quant/fidelity.py: SQNR and
+cosine per output, and the share of agreeing decisions where the output decides something).
 """
 
 from __future__ import annotations
@@ -32,22 +35,30 @@ import itertools
 import json
 import tempfile
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping, Sized
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from edgepick.errors import ParameterError
+from edgepick.errors import ParameterError, QuantizationError
 from edgepick.export.checks import check_onnx_out, conv_weight_report
 from edgepick.export.crop_convs import crop_padded_convs, graph_links
 from edgepick.export.int8_activations import integer_activations
-from edgepick.export.onnx_io import CONV_OPS, fix_input_shape, graph_inputs, input_dims, lift_opset, load_float_onnx, opset
+from edgepick.export.onnx_io import (
+    CONV_OPS,
+    drop_unused_initializers,
+    fix_input_shape,
+    input_dims,
+    lift_opset,
+    load_float_onnx,
+    opset,
+)
 from edgepick.files import atomic_path
-from edgepick.geometry import Size
 from edgepick.quant.config import (
     HEADROOM,
+    HELD_OUT_INPUTS,
     SATURATION_CHECK_INPUTS,
     BiasCorrection,
     CalibMethod,
@@ -57,19 +68,21 @@ from edgepick.quant.config import (
     WeightBits,
     lockstep_images,
 )
+from edgepick.quant.fidelity import Task, compare_outputs, guess_task, probability_outputs
+from edgepick.quant.onnx_calibrate import Collector, calibrated_tensors, check_memory
 from edgepick.quant.onnx_equalize import equalize_onnx
 from edgepick.quant.onnx_gelu import sigmoid_gelu
 from edgepick.quant.onnx_graph import fold_affine_into_convs, rewrite_activations
+from edgepick.quant.onnx_inputs import check_tensor
 from edgepick.quant.onnx_measure import correct_onnx_biases, qdq_convs, saturating_onnx_convs, to_seven_bit_onnx
-from edgepick.runtime.preprocessing import Preprocessing
+from edgepick.quant.onnx_qdq import exact_tensors, qdq_model, score_rules
+from edgepick.quant.ranges import RangeRule, candidate_rules
 
 CHECK_TENSORS = 8  # calibration tensors on which int8 outputs are compared with fp32's
 # ops that may stand between a model's last conv and its outputs; they stay float with the outputs
 FLOAT_TAIL_OPS = ("Resize", "Upsample", "Sigmoid", "Softmax", "LogSoftmax", "Transpose", "Reshape", "Identity",
                   "Squeeze", "Unsqueeze", "Flatten", "Slice", "Cast")
-_ORT_METHODS = {CalibMethod.MINMAX: "MinMax", CalibMethod.PERCENTILE: "Percentile", CalibMethod.ENTROPY: "Entropy"}
 LOGIT_SUMS = ("Add", "Sub")  # between the logits convs and the float tail, they keep a conv's output the logits
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp", ".tif", ".tiff")
 
 
 @dataclass(frozen=True)
@@ -85,7 +98,8 @@ class OnnxPassResult:
     convs: int
     int8_convs: int
     float_convs: list[str]
-    agreement_vs_fp32: dict[str, float]  # per output: share of equal labels (or thresholded pixels)
+    agreement_vs_fp32: dict[str, float]  # per output that decides something: share of equal decisions
+    fidelity: dict[str, dict]  # per output: task, sqnr_db, cosine, agreement (quant/fidelity.py)
     rewrites: dict[str, int]  # float rewrites before quantizing, and the int8 graph passes after
     quant: dict
     calib_tensors: int
@@ -95,76 +109,27 @@ class OnnxPassResult:
         return asdict(self)
 
 
-def check_tensor(x: Any, shape: tuple[int, ...] | None, what: str) -> np.ndarray:
-    """X as a float32 input tensor with a batch axis (added when X lacks it), refused in one line
-    naming WHAT when it is not a finite float array of SHAPE."""
-    if not isinstance(x, np.ndarray) or x.dtype.kind != "f":
-        got = f"{x.dtype} {x.shape}" if isinstance(x, np.ndarray) else type(x).__name__
-        raise ParameterError(f"{{calib:name}}: {what} must be a float array, got {got}", calib=what)
-    if shape is not None and x.ndim == len(shape) - 1:
-        x = x[None]
-    if shape is not None and tuple(x.shape) != tuple(shape):
-        raise ParameterError(f"{{calib:name}}: {what} has shape {list(x.shape)}, the model takes {list(shape)}",
-                             calib=what)
-    if not np.isfinite(x).all():
-        raise ParameterError(f"{{calib:name}}: {what} holds NaN or infinity", calib=what)
-    return np.ascontiguousarray(x, dtype=np.float32)
+def check_task_names(model: Any, task: Task | Mapping[str, Task] | None) -> None:
+    """Refuse a TASK mapping that names an output MODEL does not have."""
+    names = [o.name for o in model.graph.output]
+    unknown = sorted(set(task) - set(names)) if isinstance(task, Mapping) else []
+    if unknown:
+        raise ParameterError(f"{{task:name}} names no output of the model: {', '.join(unknown)} (it has "
+                             f"{', '.join(names)})", task=None)
 
 
-def folder_tensors(folder: str | Path, preprocessing: Preprocessing | None = None,
-                   size: Size | None = None) -> Iterator[np.ndarray]:
-    """Calibration inputs from FOLDER: its .npy files (one input tensor each, in the model's
-    layout), or else its images, made into tensors by PREPROCESSING at SIZE (its own size, or this)."""
-    import cv2
-
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise ParameterError("{calib}: not a folder", calib=folder)
-    arrays = sorted(p for p in folder.iterdir() if p.suffix.lower() == ".npy")
-    images = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-    if not arrays and not images:
-        raise ParameterError("{calib}: holds no .npy tensors and no images", calib=folder)
-    if arrays:
-        for p in arrays:
-            try:
-                yield np.load(p, allow_pickle=False)
-            except (OSError, ValueError) as exc:
-                raise ParameterError(f"{{calib}}: {p.name} is not a readable .npy file ({exc})", calib=folder) from None
-        return
-    prep = preprocessing or Preprocessing()
-    at = prep.size or size
-    if at is None:
-        raise ParameterError("{size:name} is needed for images: the model's input has no fixed size", size=None)
-    for p in images:
-        bgr = cv2.imread(str(p), cv2.IMREAD_COLOR)
-        if bgr is None:
-            raise ParameterError(f"{{calib}}: {p.name} is not a readable image", calib=folder)
-        yield prep.tensor(bgr[..., ::-1], at)
-
-
-class _Reader:
-    """onnxruntime's CalibrationDataReader over checked tensors, keeping the first KEEP (for the
-    check and for what the pass measures)."""
-
-    def __init__(self, name: str, tensors: Iterator[np.ndarray], shape: tuple[int, ...], keep: int, progress: bool):
-        from edgepick.progress import progress as progress_bar
-
-        self.name, self.shape, self.seen, self.keep = name, shape, 0, keep
-        self.kept: list[np.ndarray] = []
-        self.it = iter(progress_bar(tensors, desc="calibrate", unit="tensor", enabled=progress))
-
-    def get_next(self) -> dict | None:
-        x = next(self.it, None)
-        if x is None:
-            return None
-        x = check_tensor(x, self.shape, f"calibration tensor {self.seen + 1}")
-        self.seen += 1
-        if len(self.kept) < self.keep:
-            self.kept.append(x)
-        return {self.name: x}
-
-    def rewind(self) -> None:  # onnxruntime's API; each tensor is read once
-        pass
+def output_tasks(model: Any, shapes: Mapping[str, tuple[int, ...]], task: Task | Mapping[str, Task] | None,
+                 nhwc: bool) -> dict[str, Task]:
+    """Per graph output of MODEL, the Task its fidelity is judged by: TASK (one for all, or per output
+    name), else guessed from its shape and whether a Sigmoid or Softmax makes it."""
+    names = [o.name for o in model.graph.output]
+    check_task_names(model, task)
+    probability = probability_outputs(model)
+    found = {}
+    for name in names:
+        given = task.get(name) if isinstance(task, Mapping) else task
+        found[name] = given if given is not None else guess_task(shapes[name], probability[name], nhwc)
+    return found
 
 
 def _float_tail(model: Any) -> list[str]:
@@ -225,81 +190,35 @@ def _float_outputs(model: Any, tail: list[str]) -> int:
     return freed
 
 
-def decisions(y: np.ndarray, nhwc: bool, probability: bool) -> np.ndarray:
-    """What a segmentation output decides per pixel: the argmax over channels, or a threshold of
-    a one-channel map (0.5 for a probability, 0 for a logit)."""
-    axis = -1 if nhwc else 1
-    if y.ndim == 4 and y.shape[axis] > 1:
-        return y.argmax(axis)
-    return y > (0.5 if probability else 0.0)
-
-
-def output_agreement(fp32: Path, int8: Path, name: str, tensors: list[np.ndarray], nhwc: bool) -> dict[str, float]:
-    """Per output, the share of pixels where the int8 model decides as the fp32 model does."""
-    import onnx
-
-    from edgepick.runtime.session import plain_session
-
-    model = onnx.load(str(fp32))
-    producer = {o: n for n in model.graph.node for o in n.output}
-    prob = {o.name: getattr(producer.get(o.name), "op_type", "") in ("Sigmoid", "Softmax") for o in model.graph.output}
-    a, b = plain_session(fp32), plain_session(int8)
-    names = [o.name for o in a.get_outputs()]
-    same = dict.fromkeys(names, 0)
-    total = dict.fromkeys(names, 0)
-    for x in tensors:
-        for n, ya, yb in zip(names, a.run(names, {name: x}), b.run(names, {name: x})):
-            da, db = decisions(ya, nhwc, prob[n]), decisions(yb, nhwc, prob[n])
-            same[n] += int((da == db).sum())
-            total[n] += da.size
-    return {n: round(same[n] / max(total[n], 1), 5) for n in names}
-
-
 def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: str | Path,
                          config: QuantConfig | None = None, input_shape: tuple[int, ...] | None = None,
-                         progress: bool = True) -> OnnxPassResult:
+                         progress: bool = True, task: Task | Mapping[str, Task] | None = None) -> OnnxPassResult:
     """Static PTQ of the float ONNX file MODEL with edgepick's recipe, calibrated on CALIB (the
     model's input tensors, float, with or without the batch axis; `folder_tensors` reads a folder),
     written to OUT. INPUT_SHAPE fixes dynamic input dims [default: the first tensor's shape].
-    config.keep_float names ONNX nodes to leave in float."""
+    config.keep_float names ONNX nodes to leave in float. TASK says what the outputs decide, for
+    the fidelity report (one Task for all, or per output name) [default: guessed per output]."""
+    import onnx
     import onnxruntime
-    from onnxruntime.quantization import (
-        CalibrationMethod,
-        QuantFormat,
-        QuantType,
-        quant_pre_process,
-        quantize_static,
-    )
+    from onnxruntime.quantization import quant_pre_process
     from onnxruntime.quantization.registry import QDQRegistry, QLinearOpsRegistry
 
     config = config or QuantConfig()
     check_onnx_out(out, model)
-    onnxruntime.set_default_logger_severity(3)  # its quantizer's sessions warn about every unused initializer
+    onnxruntime.set_default_logger_severity(3)  # its sessions warn about every unused initializer of the input
     if config.bias_correction == BiasCorrection.FAST:
         raise ParameterError("{bias_correction}: fast is not available for ONNX models; use empirical",
                              bias_correction=config.bias_correction)
-    if config.calib_method not in _ORT_METHODS:
-        raise ParameterError(f"{{calib_method}}: not available for ONNX models; use one of "
-                             f"{', '.join(m.value for m in _ORT_METHODS)}", calib_method=config.calib_method)
     proto = load_float_onnx(model)
     known = {n.name for n in proto.graph.node}
     unknown = [k for k in config.keep_float if k not in known]
     if unknown:
         raise ParameterError(f"{{keep_float:name}} names no node of the model: {', '.join(unknown)}",
                              keep_float=tuple(unknown))
-    name, rank = graph_inputs(proto)[0].name, len(input_dims(proto))
+    check_task_names(proto, task)
+    total = len(calib) if isinstance(calib, Sized) else None
     tensors = iter(calib)
-    first = next(tensors, None)
-    if first is None:
-        raise ParameterError("{calib:name}: no tensors; calibration needs at least one", calib=None)
-    if input_shape is None:
-        fixed = [d if isinstance(d, int) else None for d in input_dims(proto)]
-        arr = check_tensor(first, None, "calibration tensor 1")
-        input_shape = tuple(arr.shape if arr.ndim == rank else (1, *arr.shape))
-        if any(f is not None and f != s for f, s in zip(fixed, input_shape)):
-            raise ParameterError(f"{{calib:name}}: calibration tensor 1 has shape {list(arr.shape)}, the model "
-                                 f"takes {input_dims(proto)}", calib=None)
-    check_tensor(first, input_shape, "calibration tensor 1")
+    first, input_shape = _first_tensor(proto, next(tensors, None), input_shape)
     t0 = time.perf_counter()
     opset_in = opset(proto)
     fix_input_shape(proto, tuple(input_shape))
@@ -308,62 +227,165 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
     rewrites = {**(rewrite_activations(proto) if every_op else {}), "affine_folded": fold_affine_into_convs(proto)}
     nhwc = len(input_shape) == 4 and input_shape[-1] in (1, 3, 4) and input_shape[1] not in (1, 3, 4)
     with tempfile.TemporaryDirectory(prefix="edgepick-onnx-") as tmp:
-        pre, qdq = Path(tmp) / "float.onnx", Path(tmp) / "qdq.onnx"
+        pre = Path(tmp) / "float.onnx"
         with _quiet():
             quant_pre_process(proto, str(pre))
-        import onnx
-
         prepared = onnx.load(str(pre))
+        drop_unused_initializers(prepared)
         if config.equalize:
             rewrites["equalized_pairs"] = equalize_onnx(prepared)
-            onnx.save(prepared, str(pre))
+        onnx.save(prepared, str(pre))
+        shapes = _output_shapes(prepared)
+        tasks = output_tasks(prepared, shapes, task, nhwc)
         hw = input_shape[1:3] if nhwc else input_shape[-2:]
         measured = lockstep_images(*hw) if config.bias_correction != BiasCorrection.NONE or config.adaround else 0
         keep = max(CHECK_TENSORS, measured, SATURATION_CHECK_INPUTS if config.weight_bits == WeightBits.FIRST_SEVEN
                    else 0)
-        reader = _Reader(name, itertools.chain([first], tensors), tuple(input_shape), keep, progress)
         ops = sorted({*QDQRegistry, *QLinearOpsRegistry, "HardSigmoid"} - {"ArgMax"}) if every_op else sorted(CONV_OPS)
-        with _quiet():
-            quantize_static(str(pre), str(qdq), reader, quant_format=QuantFormat.QDQ, per_channel=True,
-                            reduce_range=config.reduce_range, activation_type=QuantType.QUInt8,
-                            weight_type=QuantType.QInt8, calibrate_method=CalibrationMethod[_ORT_METHODS[
-                                config.calib_method]], op_types_to_quantize=ops,
-                            nodes_to_exclude=[*config.keep_float, *_float_tail(prepared)],
-                            extra_options={"ActivationSymmetric": False, "WeightSymmetric": True,
-                                           "CalibPercentile": config.percentile, "CalibMaxIntermediateOutputs": 4})
-        int8 = onnx.load(str(qdq))
+        exclude = [*config.keep_float, *_float_tail(prepared)]
+        sizes = calibrated_tensors(prepared, ops)
+        check_memory(prepared, sizes, int(np.prod(input_shape)) * 4 * keep)
+        collector = Collector(prepared, sizes)
+        hold = HELD_OUT_INPUTS if config.calib_method == CalibMethod.AUTO else 0
+        kept, seen = _calibrate(collector, first, tensors, tuple(input_shape), keep, hold, total, progress)
+        rule, ranges_record = _choose_rule(collector, pre, kept[:hold], ops, exclude, config, nhwc, progress)
+        exact = exact_tensors(prepared)
+        int8 = qdq_model(pre, collector.ranges(rule, exact), ops, exclude, config.reduce_range)
         if config.gelu == GeluForm.SIGMOID:  # before the bias correction, which then measures it
             rewrites["sigmoid_gelu"] = sigmoid_gelu(int8)
-        done = _measure(prepared, int8, reader.kept, measured, config)
+        done = _measure(prepared, int8, kept, measured, config)
         steps = {**rewrites, "float_outputs": _float_outputs(int8, _float_tail(prepared)), **integer_activations(int8),
                  "cropped_convs": crop_padded_convs(int8)}
+        steps["unused_initializers"] = drop_unused_initializers(int8)
         quant = {"mode": "static", "source": "onnx", "calib_method": config.calib_method.value,
-                 "calib_images": reader.seen, "percentile": config.percentile, "weight_bits": config.weight_bits.value,
+                 "calib_images": seen, "percentile": config.percentile, "weight_bits": config.weight_bits.value,
                  "placement": config.placement.value, "gelu": config.gelu.value, "equalize": config.equalize,
                  "bias_correction": config.bias_correction.value,
                  "adaround": config.adaround, **({"adaround_budget_s": config.adaround_budget_s} if config.adaround else {}),
-                 "keep_float": list(config.keep_float), **done}
+                 "keep_float": list(config.keep_float), "ranges": {**ranges_record, "exact_tensors": len(exact & set(sizes))},
+                 **done}
         if config.equalize:
             quant["equalized_pairs"] = rewrites["equalized_pairs"]
-        entry = int8.metadata_props.add()
-        entry.key, entry.value = "edgepick.quant", json.dumps(quant)
         calib_s = time.perf_counter() - t0
         with atomic_path(out) as path:
-            onnx.save(int8, str(path))
-            onnx.checker.check_model(str(path), full_check=True)
+            fidelity = _write_checked(int8, path, pre, prepared, config, quant, kept[:CHECK_TENSORS], tasks, nhwc)
             report = conv_weight_report(path)
-            expected = sum(1 for n in prepared.graph.node if n.op_type in CONV_OPS and n.name not in config.keep_float)
-            if report["int8"] < expected:
-                from edgepick.quant.graph import QuantizationError
-
-                raise QuantizationError(f"only {report['int8']} of {expected} convs got int8 weights in the ONNX: "
-                                        f"{', '.join(report['float'])} stayed float")
-            agreement = output_agreement(pre, path, name, reader.kept[:CHECK_TENSORS], nhwc)
     out = Path(out)
     return OnnxPassResult(out=str(out), size_bytes=out.stat().st_size, input_shape=list(input_shape),
                           opset_in=opset_in, opset_out=opset(int8), convs=report["convs"], int8_convs=report["int8"],
-                          float_convs=report["float"], agreement_vs_fp32=agreement, rewrites=steps, quant=quant,
-                          calib_tensors=reader.seen, calib_s=round(calib_s, 2))
+                          float_convs=report["float"],
+                          agreement_vs_fp32={n: f["agreement"] for n, f in fidelity.items() if f["agreement"] is not None},
+                          fidelity=fidelity, rewrites=steps, quant=quant, calib_tensors=seen, calib_s=round(calib_s, 2))
+
+
+def _first_tensor(proto: Any, first: Any, input_shape: tuple[int, ...] | None) -> tuple[np.ndarray, tuple[int, ...]]:
+    """The first calibration tensor, checked, and the input shape (INPUT_SHAPE, or the tensor's)."""
+    if first is None:
+        raise ParameterError("{calib:name}: no tensors; calibration needs at least one", calib=None)
+    if input_shape is None:
+        rank = len(input_dims(proto))
+        fixed = [d if isinstance(d, int) else None for d in input_dims(proto)]
+        arr = check_tensor(first, None, "calibration tensor 1")
+        input_shape = tuple(arr.shape if arr.ndim == rank else (1, *arr.shape))
+        if any(f is not None and f != s for f, s in zip(fixed, input_shape)):
+            raise ParameterError(f"{{calib:name}}: calibration tensor 1 has shape {list(arr.shape)}, the model "
+                                 f"takes {input_dims(proto)}", calib=None)
+    return check_tensor(first, input_shape, "calibration tensor 1"), tuple(input_shape)
+
+
+def _output_shapes(model: Any) -> dict[str, tuple[int, ...]]:
+    """The static shape of each graph output (0 where a dim is unknown)."""
+    return {o.name: tuple(d.dim_value for d in o.type.tensor_type.shape.dim) for o in model.graph.output}
+
+
+def _calibrate(collector: Collector, first: np.ndarray, rest: Iterator[Any], shape: tuple[int, ...], keep: int,
+               hold: int, total: int | None, progress: bool) -> tuple[list[np.ndarray], int]:
+    """Every calibration tensor, checked, into COLLECTOR but the first HOLD (held out for choosing the
+    rule, counted in later); returns the first KEEP tensors and how many there were."""
+    from edgepick.progress import progress as progress_bar
+
+    kept: list[np.ndarray] = []
+    bar = progress_bar(desc="calibrate", total=total, unit="tensor", enabled=progress)
+    seen = 0
+    for k, x in enumerate(itertools.chain([first], rest)):
+        x = first if k == 0 else check_tensor(x, shape, f"calibration tensor {k + 1}")
+        if len(kept) < keep:
+            kept.append(x)
+        if k >= hold:
+            collector.add(x)
+        seen += 1
+        bar.update()
+    bar.close()
+    return kept, seen
+
+
+def _choose_rule(collector: Collector, pre: Path, held: list[np.ndarray], ops: list[str], exclude: list[str],
+                 config: QuantConfig, nhwc: bool, progress: bool) -> tuple[RangeRule, dict]:
+    """The range rule: config's own, or with auto the candidate whose int8 outputs on the HELD tensors
+    (held out of COLLECTOR until now, unless fewer others were counted) stay closest to fp32's. HELD
+    is counted into COLLECTOR on the way. Returns the rule and what was measured."""
+    rules = candidate_rules(config)
+    held_out = bool(held) and collector.seen >= len(held)
+    if not held_out:
+        for x in held:
+            collector.add(x)
+    if len(rules) == 1:
+        return rules[0], {"rule": str(rules[0])}
+    from edgepick.progress import progress as progress_bar
+    from edgepick.runtime.session import plain_session
+
+    fp32 = plain_session(pre)
+    reference = [fp32.run(None, {fp32.get_inputs()[0].name: x}) for x in held]
+    tail = _float_tail(onnx_load(pre))
+    exact = exact_tensors(onnx_load(pre))
+
+    def build(rule: RangeRule) -> Any:
+        int8 = qdq_model(pre, collector.ranges(rule, exact), ops, exclude, config.reduce_range)
+        _float_outputs(int8, tail)
+        return int8
+
+    scores = score_rules(progress_bar(rules, desc="choose ranges", unit="rule", enabled=progress), build, held,
+                         reference, nhwc)
+    best = min(scores, key=lambda s: s.error)
+    if held_out:
+        for x in held:
+            collector.add(x)
+    return best.rule, {"rule": str(best.rule), "held_out": len(held) if held_out else 0,
+                       "candidates": [s.to_dict() for s in scores]}
+
+
+def onnx_load(path: Path) -> Any:
+    import onnx
+
+    return onnx.load(str(path))
+
+
+def _write_checked(int8: Any, path: Path, pre: Path, prepared: Any, config: QuantConfig, quant: dict,
+                   check: list[np.ndarray], tasks: dict[str, Task], nhwc: bool) -> dict[str, dict]:
+    """Write INT8 with its metadata to PATH, check it (onnx's checker, every conv not kept float int8)
+    and compare its outputs with fp32's (PRE) on CHECK; returns the fidelity per output, also
+    recorded in the file."""
+    import onnx
+
+    from edgepick.runtime.session import plain_session
+
+    expected = sum(1 for n in prepared.graph.node if n.op_type in CONV_OPS and n.name not in config.keep_float)
+    onnx.save(int8, str(path))
+    report = conv_weight_report(path)
+    if report["int8"] < expected:
+        raise QuantizationError(f"only {report['int8']} of {expected} convs got int8 weights in the ONNX: "
+                                f"{', '.join(report['float'])} stayed float")
+    a, b = plain_session(pre), plain_session(path)
+    name = a.get_inputs()[0].name
+    names = [o.name for o in a.get_outputs()]
+    found = compare_outputs(names, tasks, ((a.run(names, {name: x}), b.run(names, {name: x})) for x in check), nhwc)
+    fidelity = {n: f.to_dict() for n, f in found.items()}
+    for key, value in (("edgepick.quant", quant), ("edgepick.fidelity", fidelity)):
+        entry = int8.metadata_props.add()
+        entry.key, entry.value = key, json.dumps(value)
+    onnx.save(int8, str(path))
+    onnx.checker.check_model(str(path), full_check=True)
+    return fidelity
 
 
 def _measure(prepared: Any, int8: Any, kept: list[np.ndarray], images: int, config: QuantConfig) -> dict:

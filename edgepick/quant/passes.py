@@ -9,9 +9,10 @@ torch.onnx.export(dynamo=True), and all assert that quantization really happened
 
 from __future__ import annotations
 
+import itertools
 import sys
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Sequence, Sized
 from dataclasses import asdict, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -20,7 +21,7 @@ import numpy as np
 import torch
 
 from edgepick.data.native import NativeDataset
-from edgepick.errors import CheckpointError, ConfigError, ParameterError
+from edgepick.errors import CheckpointError, ConfigError, ParameterError, QuantizationError
 from edgepick.export.checks import conv_weight_report, label_agreement
 from edgepick.export.onnx_export import EXPORT_PASSES, check_onnx_out, contract_metadata, export_onnx
 from edgepick.geometry import Size
@@ -28,15 +29,17 @@ from edgepick.quant.config import (
     BIAS_CORRECTION_IMAGES,
     DEFAULT_CALIB_IMAGES,
     FREEZE_AT,
+    HELD_OUT_INPUTS,
+    CalibMethod,
     QuantConfig,
 )
 from edgepick.quant.graph import (
-    QuantizationError,
     as_input,
     at_input_size,
     calibrate,
     check_keep_float,
     checked_first,
+    choose_rule,
     convert,
     expected_int8_convs,
     first_of,
@@ -148,6 +151,7 @@ def quantize_static(checkpoint: str | Path | Checkpoint | torch.nn.Module, calib
     ckpt = checkpoint if isinstance(checkpoint, Checkpoint) else Checkpoint.load(checkpoint)
     model, size = ckpt.build_model(), ckpt.input_size
     check_keep_float(model, config.keep_float)
+    total = len(calib) if isinstance(calib, Sized) else None
     calib = checked_first(calib, size)
     t0 = time.perf_counter()
     _stage("prepare the graph (torch.export, observers), then calibrate", progress)
@@ -155,7 +159,12 @@ def quantize_static(checkpoint: str | Path | Checkpoint | torch.nn.Module, calib
     kept: list[np.ndarray] = []
     measuring = measures(config)
     keep = max(AGREEMENT_IMAGES, BIAS_CORRECTION_IMAGES if measuring else 0)
-    seen = calibrate(prepared, first_of(calib, keep, kept), size, progress)
+    images = first_of(calib, keep, kept)
+    held = list(itertools.islice(images, HELD_OUT_INPUTS if config.calib_method == CalibMethod.AUTO else 0))
+    rest = calibrate(prepared, images, size, progress, total=total - len(held) if total else None,
+                     at_least_one=not held)
+    ranges = choose_rule(prepared, [as_input(at_input_size(rgb, size)) for rgb in held], config, rest)
+    seen = len(held) + rest
     if measuring:
         _stage(f"convert, then measure on up to {BIAS_CORRECTION_IMAGES} calibration images (weight bits "
                f"{config.weight_bits}, bias correction {config.bias_correction})", progress)
@@ -164,7 +173,8 @@ def quantize_static(checkpoint: str | Path | Checkpoint | torch.nn.Module, calib
     kept = kept[:AGREEMENT_IMAGES]
     calib_s = time.perf_counter() - t0
     quant = {"mode": "static", "qat_fraction": None, "calib_method": config.calib_method, "calib_images": seen,
-             **{k: v for k, v in config.to_dict().items() if k not in ("calib_method", "weight_averaging")}, **measured}
+             **{k: v for k, v in config.to_dict().items() if k not in ("calib_method", "weight_averaging")},
+             "ranges": ranges, **measured}
     meta = contract_metadata(ckpt, "int8", quant)
     check = [at_input_size(rgb, size, "check_images") for rgb in (kept if check_images is None else check_images)]
     file = _export_int8(converted, out, meta, size, expected_int8_convs(prepared, config), check, progress,

@@ -23,9 +23,10 @@ import torch
 
 from edgepick.errors import CheckpointError
 from edgepick.models.zoo import build_model
-from edgepick.quant.config import FREEZE_AT, QuantConfig
+from edgepick.quant.config import FREEZE_AT, CalibMethod, QuantConfig
 from edgepick.quant.graph import PREFIX, calibrate, prepare
-from edgepick.quant.quantizer import PercentileObserver
+from edgepick.quant.quantizer import RuleObserver
+from edgepick.quant.ranges import RangeRule
 from edgepick.quant.torchao_compat import set_mode
 from edgepick.train.checkpoint import Checkpoint
 from edgepick.train.config import TrainConfig
@@ -68,9 +69,10 @@ def calibrate_activations(prepared: torch.fx.GraphModule, images: list[np.ndarra
     from torchao.quantization.pt2e import disable_fake_quant, disable_observer, enable_fake_quant, enable_observer
 
     targets = activation_fake_quants(prepared)
-    observers = {name: PercentileObserver(percentile=percentile, eps=2 ** -12, dtype=torch.quint8,
-                                          quant_min=fq.activation_post_process.quant_min,
-                                          quant_max=fq.activation_post_process.quant_max) for name, fq in targets.items()}
+    rule = RangeRule(CalibMethod.PERCENTILE, percentile)
+    observers = {name: RuleObserver(rule=rule, eps=2 ** -12, dtype=torch.quint8,
+                                    quant_min=fq.activation_post_process.quant_min,
+                                    quant_max=fq.activation_post_process.quant_max) for name, fq in targets.items()}
     hooks = [fq.register_forward_pre_hook(_observing(observers[name])) for name, fq in targets.items()]
     prepared.apply(disable_fake_quant)
     prepared.apply(disable_observer)

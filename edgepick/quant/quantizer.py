@@ -13,7 +13,6 @@ from here as well.
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 from torch.fx import GraphModule, Node
 from torchao.quantization.pt2e import (
@@ -32,6 +31,7 @@ from torchao.quantization.pt2e.quantizer import (
 )
 
 from edgepick.quant.config import CalibMethod, QuantConfig
+from edgepick.quant.ranges import Histogram, RangeRule
 
 aten = torch.ops.aten
 CONV_OPS = {aten.conv2d.default}
@@ -46,46 +46,24 @@ QUANT_OPS = {aten.hardswish.default, aten.hardswish_.default, aten.hardsigmoid.d
 SHARED_OPS = {aten.upsample_bilinear2d.vec, aten.upsample_nearest2d.vec, aten.max_pool2d.default}
 
 
-class PercentileObserver(HistogramObserver):
-    """Activation range from the histogram's lower/upper percentiles (clips rare outliers)."""
+class RuleObserver(HistogramObserver):
+    """Activation range read off the observer's histogram by a `RangeRule` (quant/ranges.py, the rules
+    the ONNX path uses too). The rule can change after calibration: with calib_method auto each
+    candidate is converted and measured (quant/graph.py `choose_rule`). While `observing` is off the
+    observer passes values through without counting them (held-out inputs)."""
 
-    def __init__(self, percentile: float = 99.99, **kwargs):
+    def __init__(self, rule: RangeRule | None = None, **kwargs):
         super().__init__(**kwargs)
-        self.percentile = percentile
+        self.rule = rule or RangeRule(CalibMethod.PERCENTILE)
+        self.observing = True
+
+    def forward(self, x_orig: torch.Tensor) -> torch.Tensor:
+        return super().forward(x_orig) if self.observing else x_orig
 
     def _non_linear_param_search(self) -> tuple[torch.Tensor, torch.Tensor]:
-        hist = self.histogram.double().cpu().numpy()
-        cdf = np.cumsum(hist) / max(hist.sum(), 1.0)
-        tail = (100.0 - self.percentile) / 100.0
-        lo, hi = int(np.searchsorted(cdf, tail)), int(np.searchsorted(cdf, 1.0 - tail))
-        width = (self.max_val - self.min_val) / self.bins
-        return self.min_val + width * lo, self.min_val + width * min(hi + 1, self.bins)
-
-
-class EntropyObserver(HistogramObserver):
-    """Upper range by KL-divergence minimisation (TensorRT's entropy calibration) over 256 levels.
-
-    The lower end stays at the observed minimum (0 after ReLU); only the upper tail is clipped.
-    """
-
-    def _non_linear_param_search(self) -> tuple[torch.Tensor, torch.Tensor]:
-        hist = self.histogram.double().cpu().numpy()
-        levels = 256
-        best, best_kl = self.bins, np.inf
-        for stop in range(levels, self.bins + 1, 16):
-            p = hist[:stop].copy()
-            p[-1] += hist[stop:].sum()
-            if p.sum() == 0:
-                continue
-            chunks = np.array_split(hist[:stop], levels)
-            q = np.concatenate([np.where(c > 0, c.sum() / max((c > 0).sum(), 1), 0.0) for c in chunks])
-            mask = (p > 0)
-            pn, qn = p / p.sum(), q / max(q.sum(), 1e-12)
-            kl = float(np.sum(pn[mask] * np.log(pn[mask] / np.maximum(qn[mask], 1e-12))))
-            if kl < best_kl:
-                best, best_kl = stop, kl
-        width = (self.max_val - self.min_val) / self.bins
-        return self.min_val, self.min_val + width * best
+        hist = Histogram.of(self.histogram.double().cpu().numpy(), float(self.min_val), float(self.max_val))
+        low, high = self.rule.range(hist)
+        return torch.tensor(low, dtype=self.min_val.dtype), torch.tensor(high, dtype=self.max_val.dtype)
 
 
 def activation_spec(config: QuantConfig, qat: bool) -> QuantizationSpec:
@@ -93,12 +71,9 @@ def activation_spec(config: QuantConfig, qat: bool) -> QuantizationSpec:
         ctr = FusedMovingAvgObsFakeQuantize.with_args(eps=2 ** -12)
     elif config.calib_method == CalibMethod.MINMAX:
         ctr = MinMaxObserver.with_args(eps=2 ** -12)
-    elif config.calib_method == CalibMethod.PERCENTILE:
-        ctr = PercentileObserver.with_args(percentile=config.percentile, eps=2 ** -12)
-    elif config.calib_method == CalibMethod.ENTROPY:
-        ctr = EntropyObserver.with_args(eps=2 ** -12)
-    else:
-        ctr = HistogramObserver.with_args(eps=2 ** -12)  # L2-error (MSE) search
+    else:  # with auto, the configured percentile until a rule is chosen
+        method = CalibMethod.PERCENTILE if config.calib_method == CalibMethod.AUTO else config.calib_method
+        ctr = RuleObserver.with_args(rule=RangeRule(method, config.percentile), eps=2 ** -12)
     return QuantizationSpec(torch.uint8, ctr, 0, 255, torch.per_tensor_affine)
 
 

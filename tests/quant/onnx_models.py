@@ -127,3 +127,66 @@ def optimized_ops(path: Path) -> Counter:
     opts.log_severity_level = 3
     ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
     return Counter(n.op_type for n in onnx.load(opts.optimized_model_filepath).graph.node)
+
+
+def helper_model(nodes: list, inputs: list, outputs: list, initializers: dict[str, np.ndarray], path: Path,
+                 opset: int = 13):
+    """An ONNX model of NODES written with onnx.helper (no exporter): the graph's INPUTS and OUTPUTS
+    as (name, shape) pairs, float32; INITIALIZERS by name. Saved to PATH, which is returned."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    graph = helper.make_graph(nodes, "test",
+                              [helper.make_tensor_value_info(n, TensorProto.FLOAT, s) for n, s in inputs],
+                              [helper.make_tensor_value_info(n, TensorProto.FLOAT, s) for n, s in outputs],
+                              [numpy_helper.from_array(v.astype(np.float32) if v.dtype.kind == "f" else v, k)
+                               for k, v in initializers.items()])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", opset)])
+    model.ir_version = 8
+    onnx.checker.check_model(model)
+    onnx.save(model, str(path))
+    return path
+
+
+def conv_relu_model(path: Path, shape=(1, 2, 32, 32)) -> tuple[Path, np.ndarray, np.ndarray]:
+    """input -> 1x1 Conv (3 channels) -> conv_out -> Relu -> output: a model whose activations a test
+    computes with numpy. Returns the path and the conv's weights and bias."""
+    from onnx import helper
+
+    rng = np.random.default_rng(1)
+    w = rng.normal(0, 1, (3, shape[1], 1, 1)).astype(np.float32)
+    b = rng.normal(0, 0.1, 3).astype(np.float32)
+    nodes = [helper.make_node("Conv", ["input", "w", "b"], ["conv_out"], name="conv"),
+             helper.make_node("Relu", ["conv_out"], ["output"], name="relu")]
+    out_shape = [shape[0], 3, *shape[2:]]
+    return helper_model(nodes, [("input", list(shape))], [("output", out_shape)], {"w": w, "b": b}, path), w, b
+
+
+def detector_head_model(path: Path, size: int = 64) -> Path:
+    """A detector's head as exporters write one: two 1x1 convs over a feature map, box values and an
+    objectness logit, the logit through a Sigmoid, both concatenated, reshaped to [1, boxes, 5] rows.
+    The objectness logit is 50 * (sum of the 3 channels) - 145: on inputs in [0, 1], a score near 0
+    but where all three channels are near 1 (a box in 10^5 or fewer), up to 0.993 where they are 1."""
+    from onnx import helper
+
+    rng = np.random.default_rng(2)
+    box_w = rng.normal(0, 1, (4, 3, 1, 1)).astype(np.float32)
+    obj_w = np.full((1, 3, 1, 1), 50.0, np.float32)
+    nodes = [helper.make_node("Conv", ["input", "box_w"], ["box"], name="box_conv"),
+             helper.make_node("Conv", ["input", "obj_w", "obj_b"], ["obj_logit"], name="obj_conv"),
+             helper.make_node("Sigmoid", ["obj_logit"], ["obj"], name="obj_sigmoid"),
+             helper.make_node("Concat", ["box", "obj"], ["rows_nchw"], axis=1, name="concat"),
+             helper.make_node("Reshape", ["rows_nchw", "rows_shape"], ["rows_t"], name="reshape"),
+             helper.make_node("Transpose", ["rows_t"], ["rows"], perm=[0, 2, 1], name="transpose")]
+    inits = {"box_w": box_w, "obj_w": obj_w, "obj_b": np.array([-145.0], np.float32),
+             "rows_shape": np.array([1, 5, -1], np.int64)}
+    return helper_model(nodes, [("input", [1, 3, size, size])], [("rows", [1, size * size, 5])], inits, path)
+
+
+def unused_initializers(path: Path) -> list[str]:
+    """The initializers of the ONNX file at PATH that no node reads (onnxruntime warns of each on every load)."""
+    import onnx
+
+    model = onnx.load(str(path))
+    read = {name for node in model.graph.node for name in node.input}
+    return [i.name for i in model.graph.initializer if i.name not in read]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 
+from edgepick.errors import QuantizationError
 from edgepick.geometry import Size
 
 
@@ -14,5 +15,5 @@ def test_a_quantizer_that_marks_nothing_is_refused(trained_run, monkeypatch):
 
     monkeypatch.setattr(EdgeQuantizer, "annotate", lambda self, model: model)
     model, _ = load_model(trained_run)
-    with pytest.raises(graph.QuantizationError):
+    with pytest.raises(QuantizationError):
         graph.prepare(model, QuantConfig(), Size(128, 96), qat=False)

@@ -17,7 +17,7 @@ from edgepick.export.checks import conv_weight_report
 from edgepick.quant.config import QuantConfig
 from edgepick.quant.onnx_static import quantize_onnx_static
 from tests.conftest import run_cli, without_torch
-from tests.quant.onnx_models import calib_tensors, export_torch, optimized_ops, run
+from tests.quant.onnx_models import calib_tensors, export_torch, optimized_ops, run, unused_initializers
 
 
 def test_an_opset_12_export_with_dynamic_dims_becomes_an_all_int8_model(tmp_path):
@@ -37,6 +37,8 @@ def test_an_opset_12_export_with_dynamic_dims_becomes_an_all_int8_model(tmp_path
     assert ops["QLinearConv"] == 6 and ops["QLinearMul"] == 2 and ops["QLinearGlobalAveragePool"] == 1, ops
     x = calib_tensors(1, seed=5)[0]
     assert run(Path(result.out), x)[0].dtype == np.float32  # the logits stay float
+    # the folded affine blocks' constants are gone from the file, not left for onnxruntime to warn about
+    assert unused_initializers(Path(result.out)) == [] and result.rewrites["unused_initializers"] > 0
 
 
 def _float_ops_on_the_int8_grid(path: Path) -> list[str]:
@@ -108,8 +110,6 @@ def test_bad_calibration_data_is_refused_before_anything_is_written(tmp_path):
                          ([good[0], np.zeros((1, 3, 32, 32), np.float32)], "tensor 2 has shape")):
         with pytest.raises(ParameterError, match=message):
             quantize_onnx_static(src, bad, tmp_path / "out.onnx", progress=False)
-    with pytest.raises(ParameterError, match="calib_method"):
-        quantize_onnx_static(src, good, tmp_path / "out.onnx", QuantConfig(calib_method="mse"), progress=False)
     with pytest.raises(ParameterError, match="keep_float"):
         quantize_onnx_static(src, good, tmp_path / "out.onnx", QuantConfig(keep_float=("nope",)), progress=False)
     before = src.read_bytes()
@@ -178,6 +178,9 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
     (["{NET}", "--data", "{EMPTY}", "--calib", "{NPY}"], "--data is for a RUN or checkpoint"),
     (["{NET}"], "--calib DIR is needed"),
     (["{NET}", "--calib", "{NPY}", "--mean", "1,2"], "--mean 1,2: must be 3"),
+    (["{NET}", "--calib", "{NPY}", "--task", "boxes"], "--task boxes: not one of labels, threshold, top1, raw"),
+    (["{NET}", "--calib", "{NPY}", "--task", "nope=raw"], "--task names no output of the model: nope"),
+    (["{NET}", "--calib", "{NPY}", "--task", "raw", "--task", "labels"], "--task labels: one task for all"),
 ])
 def test_a_mistake_is_one_line_exit_2_and_nothing_written(inputs, tmp_path, args, message):
     """Found before torch is imported (in a second, not after seconds of imports): here torch cannot be imported."""
@@ -188,3 +191,17 @@ def test_a_mistake_is_one_line_exit_2_and_nothing_written(inputs, tmp_path, args
     assert proc.stderr.startswith("edgepick: error:") and proc.stderr.count("\n") == 1, proc.stderr
     assert re.search(message, proc.stderr), proc.stderr
     assert not (tmp_path / "out").exists() or list((tmp_path / "out").iterdir()) == []
+
+
+def test_the_json_reports_sqnr_and_cosine_per_output_and_a_raw_output_no_agreement(inputs, tmp_path):
+    out = tmp_path / "q.onnx"
+    proc = run_cli("quantize", "static", str(inputs["NET"]), "--calib", str(inputs["NPY"]), "--task", "logits=raw",
+                   "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads(proc.stdout)
+    fidelity = result["fidelity"]["logits"]
+    assert fidelity["task"] == "raw" and fidelity["agreement"] is None and result["agreement_vs_fp32"] == {}
+    assert 10.0 < fidelity["sqnr_db"] < 80.0 and 0.9 < fidelity["cosine"] <= 1.0
+    recorded = json.loads({p.key: p.value for p in onnx.load(str(out)).metadata_props}["edgepick.fidelity"])
+    assert recorded == result["fidelity"]
+

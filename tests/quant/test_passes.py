@@ -14,6 +14,7 @@ from edgepick.bench.machine import cpu_flags
 from edgepick.geometry import Size
 from edgepick.runtime.session import Segmenter
 from tests.conftest import EPOCHS, run_cli
+from tests.quant.onnx_models import unused_initializers
 
 # onnxruntime int8 labels vs torch's simulation (conv biases snapped to the int32 grid). onnxruntime's int8
 # kernels differ by instruction set: on a CPU without VNNI (AVX2 only) the same model's labels agree with torch's
@@ -28,12 +29,16 @@ def test_static_int8_meets_the_contract(onnx_files):
     seg = Segmenter(static["out"])  # docs/contracts.md#onnx-model: uint8 image, uint8 labels, metadata
     assert seg.info.precision == "int8" and seg.info.input_size == Size(128, 96)
     quant = json.loads(seg.info.metadata["edgepick.quant"])
-    assert quant["mode"] == "static" and quant["calib_images"] == 16 and quant["calib_method"] == "percentile"
+    assert quant["mode"] == "static" and quant["calib_images"] == 16 and quant["calib_method"] == "auto"
+    # the rule auto kept, among the candidates it measured on 8 held-out images
+    assert quant["ranges"]["held_out"] == 8 and quant["ranges"]["rule"] in {c["rule"] for c in quant["ranges"]["candidates"]}
     assert len(seg.info.metadata["edgepick.source_sha256"]) == 64
     assert static["observers"] > 0
     assert static["convs"] == static["int8_convs"] == 70 and static["float_convs"] == []
     assert static["agreement_vs_torch"] >= AGREEMENT
     assert onnx_files["fp32"]["size_bytes"] / static["size_bytes"] >= 3.8
+    for name in ("fp32", "static"):
+        assert unused_initializers(Path(onnx_files[name]["out"])) == [], name
 
 
 def test_preprocessing_constants_span_the_width(onnx_files):

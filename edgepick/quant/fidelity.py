@@ -1,0 +1,218 @@
+"""How close an int8 model's outputs stay to fp32's, for any kind of output.
+
+Per output: the SQNR (signal-to-quantization-noise ratio, dB) and the cosine similarity of the int8
+values against fp32's, which mean something for every output (logits, probabilities, box
+regressions, embeddings); and, where the output decides something, the share of decisions that
+agree (`Task`): per-pixel labels (the argmax over channels), a thresholded map, the top-1 class of
+each row. A raw regression decides nothing and gets no agreement: the sign of a box coordinate
+says nothing about the box. Numpy only.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from edgepick.errors import ParameterError
+from edgepick.quant.ranges import RangeRule
+
+PROBABILITY_OPS = ("Sigmoid", "Softmax")
+# ops that move or reshape values without changing them: a probability stays one through them
+SHAPE_OPS = ("Reshape", "Transpose", "Squeeze", "Unsqueeze", "Flatten", "Identity", "Concat", "Slice", "Gather",
+             "Split")
+
+
+class TaskKind(enum.StrEnum):
+    """What an output decides (`--task`)."""
+
+    LABELS = "labels"  # a class per pixel: the argmax over the channel axis
+    THRESHOLD = "threshold"  # a map thresholded at T (threshold:T; 0.5 for a probability)
+    TOP1 = "top1"  # a class per row: the argmax over the last axis
+    RAW = "raw"  # nothing: SQNR and cosine only
+
+
+@dataclass(frozen=True)
+class Task:
+    """What an output decides, and how the decision is read off it."""
+
+    kind: TaskKind
+    threshold: float = 0.5
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kind", TaskKind(self.kind))
+        if not math.isfinite(self.threshold):
+            raise ParameterError("{task}: the threshold must be a finite number", task=str(self))
+
+    def __str__(self) -> str:
+        return f"threshold:{self.threshold:g}" if self.kind == TaskKind.THRESHOLD else self.kind.value
+
+    @classmethod
+    def parse(cls, text: str) -> Task:
+        """'labels', 'threshold:T', 'top1' or 'raw', refused in one line naming `task`."""
+        kind, _, value = str(text).strip().partition(":")
+        try:
+            task_kind = TaskKind(kind)
+        except ValueError:
+            raise ParameterError(f"{{task}}: not one of {', '.join(k.value for k in TaskKind)} (threshold:T)",
+                                 task=text) from None
+        if task_kind != TaskKind.THRESHOLD:
+            if value:
+                raise ParameterError("{task}: only threshold takes a value (threshold:T)", task=text)
+            return cls(task_kind)
+        try:
+            return cls(task_kind, float(value) if value else 0.5)
+        except ValueError:
+            raise ParameterError("{task}: T in threshold:T must be a number", task=text) from None
+
+    def decide(self, y: np.ndarray, nhwc: bool = False) -> np.ndarray | None:
+        """The decisions Y makes (None for raw)."""
+        if self.kind == TaskKind.LABELS:
+            return y.argmax(-1 if nhwc else 1)
+        if self.kind == TaskKind.THRESHOLD:
+            return y > self.threshold
+        if self.kind == TaskKind.TOP1:
+            return y.argmax(-1)
+        return None
+
+
+def guess_task(shape: tuple[int, ...], made_by: str | bool | None, nhwc: bool = False) -> Task:
+    """The task an output of SHAPE most likely has, given the op that MADE_BY it ("Softmax",
+    "Sigmoid"; True: some probability; None or False: not one): labels for a multi-channel map, a
+    threshold for a one-channel map (0.5 for a probability, else 0); for a table of probabilities,
+    the top-1 class of each row after a Softmax, each score above or below 0.5 after a Sigmoid;
+    raw (no decision) for anything else, box regressions among them."""
+    if len(shape) == 4:
+        channels = shape[-1] if nhwc else shape[1]
+        return Task(TaskKind.LABELS) if channels > 1 else Task(TaskKind.THRESHOLD, 0.5 if made_by else 0.0)
+    if made_by == "Softmax" and len(shape) in (2, 3) and shape[-1] > 1:
+        return Task(TaskKind.TOP1)
+    if made_by:
+        return Task(TaskKind.THRESHOLD, 0.5)
+    return Task(TaskKind.RAW)
+
+
+def probability_outputs(model) -> dict[str, str | None]:
+    """Per graph output of the ONNX MODEL: the op (Sigmoid or Softmax) that makes it a probability,
+    through ops that only move values (Reshape, Transpose, a Concat of such, ...); None if none."""
+    producer = {o: n for n in model.graph.node for o in n.output}
+
+    def made_by(name: str, depth: int = 0) -> str | None:
+        node = producer.get(name)
+        if node is None or depth > 32:
+            return None
+        if node.op_type in PROBABILITY_OPS:
+            return node.op_type
+        if node.op_type not in SHAPE_OPS:
+            return None
+        inputs = [i for i in node.input if i in producer]
+        if not inputs:
+            return None
+        if node.op_type == "Concat":
+            found = {made_by(i, depth + 1) for i in inputs}
+            return found.pop() if len(found) == 1 else None
+        return made_by(inputs[0], depth + 1)
+
+    return {o.name: made_by(o.name) for o in model.graph.output}
+
+
+@dataclass
+class OutputFidelity:
+    """Running sums for one output over several inputs."""
+
+    task: Task
+    signal: float = 0.0  # sum of fp32's squares
+    noise: float = 0.0  # sum of squared differences
+    dot: float = 0.0
+    norm_int8: float = 0.0
+    same: int = 0
+    decided: int = 0
+    cosines: list[float] = field(default_factory=list)
+
+    def add(self, ref: np.ndarray, int8: np.ndarray, nhwc: bool = False) -> None:
+        a, b = ref.astype(np.float64).ravel(), int8.astype(np.float64).ravel()
+        self.signal += float(a @ a)
+        self.noise += float((a - b) @ (a - b))
+        self.dot += float(a @ b)
+        self.norm_int8 += float(b @ b)
+        da, db = self.task.decide(ref, nhwc), self.task.decide(int8, nhwc)
+        if da is not None and db is not None:
+            self.same += int((da == db).sum())
+            self.decided += da.size
+
+    @property
+    def sqnr_db(self) -> float:
+        if self.noise == 0.0:
+            return math.inf
+        return 10.0 * math.log10(max(self.signal, 1e-30) / self.noise)
+
+    @property
+    def cosine(self) -> float:
+        if self.signal == 0.0 or self.norm_int8 == 0.0:
+            return 1.0 if self.signal == self.norm_int8 else 0.0
+        return self.dot / math.sqrt(self.signal * self.norm_int8)
+
+    @property
+    def agreement(self) -> float | None:
+        return round(self.same / self.decided, 5) if self.decided else None
+
+    def to_dict(self) -> dict:
+        sqnr = self.sqnr_db
+        return {"task": str(self.task), "sqnr_db": round(sqnr, 2) if math.isfinite(sqnr) else None,
+                "cosine": round(self.cosine, 6), "agreement": self.agreement}
+
+
+def compare_outputs(names: list[str], tasks: dict[str, Task], pairs, nhwc: bool = False) -> dict[str, OutputFidelity]:
+    """Per output name, the fidelity over PAIRS ((fp32 outputs, int8 outputs) per input, in NAMES' order)."""
+    found = {name: OutputFidelity(tasks[name]) for name in names}
+    for ref, int8 in pairs:
+        for name, a, b in zip(names, ref, int8):
+            found[name].add(a, b, nhwc)
+    return found
+
+
+def worst_sqnr(fidelity: dict[str, OutputFidelity]) -> float:
+    """The lowest SQNR over the outputs (inf when every output is exact)."""
+    return min((f.sqnr_db for f in fidelity.values()), default=math.inf)
+
+
+def channel_axis(shape: tuple[int, ...], nhwc: bool = False) -> int | None:
+    """The axis whose entries are different quantities of an output: the channels of a map, the
+    attributes of a [1, boxes, attributes] table (the shorter of its two axes), None otherwise."""
+    if len(shape) == 4:
+        return 3 if nhwc else 1
+    if len(shape) == 3:
+        return 1 if shape[1] < shape[2] else 2
+    return None
+
+
+def balanced_error(ref: list[np.ndarray], test: list[np.ndarray], nhwc: bool = False) -> float:
+    """Relative squared error of TEST against REF (one output over several inputs), each channel
+    (`channel_axis`) weighted alike, so that a small-valued score channel counts as much as a
+    box coordinate in pixels."""
+    axis = channel_axis(ref[0].shape, nhwc)
+    if axis is None:
+        signal = sum(float((r.astype(np.float64) ** 2).sum()) for r in ref)
+        noise = sum(float(((r.astype(np.float64) - t) ** 2).sum()) for r, t in zip(ref, test))
+        return noise / max(signal, 1e-30)
+    others = tuple(a for a in range(ref[0].ndim) if a != axis)
+    signal = sum((r.astype(np.float64) ** 2).sum(axis=others) for r in ref)
+    noise = sum(((r.astype(np.float64) - t) ** 2).sum(axis=others) for r, t in zip(ref, test))
+    return float(np.mean(noise / np.maximum(signal, 1e-30)))
+
+
+@dataclass(frozen=True)
+class RuleScore:
+    """A candidate rule and how far its int8 outputs fell from fp32's on the held-out tensors."""
+
+    rule: RangeRule
+    error: float  # the worst output's balanced relative squared error
+
+    @property
+    def sqnr_db(self) -> float:
+        return -10.0 * math.log10(self.error) if self.error > 0 else math.inf
+
+    def to_dict(self) -> dict:
+        return {"rule": str(self.rule), "balanced_sqnr_db": round(self.sqnr_db, 2) if self.error > 0 else None}

@@ -1,0 +1,88 @@
+"""How close int8 outputs stay to fp32's, for any output (quant/fidelity.py)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from onnx import helper
+
+from edgepick.errors import ParameterError
+from edgepick.quant.fidelity import (
+    OutputFidelity,
+    Task,
+    TaskKind,
+    balanced_error,
+    guess_task,
+    probability_outputs,
+)
+from edgepick.quant.onnx_static import quantize_onnx_static
+from tests.quant.onnx_models import detector_head_model, helper_model
+
+
+def test_tasks_parse_and_refuse_in_one_line():
+    assert Task.parse("labels") == Task(TaskKind.LABELS)
+    assert Task.parse("threshold:0.3") == Task(TaskKind.THRESHOLD, 0.3) and str(Task.parse("threshold")) == "threshold:0.5"
+    assert Task.parse(" top1 ").kind == TaskKind.TOP1 and Task.parse("raw").decide(np.ones(3)) is None
+    for bad, message in (("boxes2", "not one of"), ("labels:3", "only threshold"), ("threshold:x", "must be a number"),
+                         ("threshold:nan", "finite")):
+        with pytest.raises(ParameterError, match=f"^task=.*{message}"):
+            Task.parse(bad)
+
+
+def test_each_output_shape_gets_the_task_it_most_likely_has():
+    assert guess_task((1, 5, 32, 32), False) == Task(TaskKind.LABELS)
+    assert guess_task((1, 32, 32, 5), False, nhwc=True) == Task(TaskKind.LABELS)
+    assert guess_task((1, 1, 32, 32), True) == Task(TaskKind.THRESHOLD, 0.5)
+    assert guess_task((1, 1, 32, 32), False) == Task(TaskKind.THRESHOLD, 0.0)
+    assert guess_task((1, 4), "Softmax") == Task(TaskKind.TOP1) and guess_task((1, 80, 4), "Softmax").kind == "top1"
+    assert guess_task((1, 8400, 80), "Sigmoid") == Task(TaskKind.THRESHOLD, 0.5)  # multi-label scores
+    # a detector's raw rows (boxes in pixels, scores) decide nothing by their sign
+    assert guess_task((1, 8400, 85), False) == Task(TaskKind.RAW) and guess_task((1, 4), False) == Task(TaskKind.RAW)
+
+
+def test_sqnr_cosine_and_agreement_against_numpy():
+    rng = np.random.default_rng(0)
+    ref = rng.normal(0, 1, (2, 3, 8, 8)).astype(np.float32)
+    noisy = ref + rng.normal(0, 0.1, ref.shape).astype(np.float32)
+    f = OutputFidelity(Task(TaskKind.LABELS))
+    f.add(ref[:1], noisy[:1])
+    f.add(ref[1:], noisy[1:])
+    a, b = ref.astype(np.float64).ravel(), noisy.astype(np.float64).ravel()
+    assert f.sqnr_db == pytest.approx(10 * math.log10((a @ a) / ((a - b) @ (a - b))))
+    assert f.cosine == pytest.approx((a @ b) / math.sqrt((a @ a) * (b @ b)))
+    assert f.agreement == pytest.approx(float((ref.argmax(1) == noisy.argmax(1)).mean()), abs=1e-5)
+    exact = OutputFidelity(Task(TaskKind.RAW))
+    exact.add(ref, ref)
+    assert exact.to_dict() == {"task": "raw", "sqnr_db": None, "cosine": 1.0, "agreement": None}
+
+
+def test_a_small_score_channel_counts_as_much_as_box_coordinates():
+    rng = np.random.default_rng(1)
+    rows = np.concatenate([rng.uniform(0, 640, (1, 100, 4)), rng.uniform(0, 1, (1, 100, 1))], 2)
+    boxes_off = rows.copy()
+    boxes_off[..., :4] += 1.0  # a pixel off on every box
+    scores_off = rows.copy()
+    scores_off[..., 4] *= 0.5  # every score halved
+    plain = [float(((rows - t) ** 2).sum() / (rows**2).sum()) for t in (boxes_off, scores_off)]
+    assert plain[1] < plain[0]  # plain relative error hides the halved scores behind the pixels
+    assert balanced_error([rows], [scores_off]) > 10 * balanced_error([rows], [boxes_off])
+
+
+def test_a_sigmoid_behind_reshape_and_transpose_is_still_a_probability(tmp_path):
+    w = np.random.default_rng(3).normal(0, 1, (2, 3, 1, 1)).astype(np.float32)
+    nodes = [helper.make_node("Conv", ["input", "w"], ["logit"], name="conv"),
+             helper.make_node("Sigmoid", ["logit"], ["p"], name="sigmoid"),
+             helper.make_node("Reshape", ["p", "shape"], ["flat"], name="reshape"),
+             helper.make_node("Transpose", ["flat"], ["scores"], perm=[0, 2, 1], name="transpose")]
+    path = helper_model(nodes, [("input", [1, 3, 16, 16])], [("scores", [1, 256, 2])],
+                        {"w": w, "shape": np.array([1, 2, -1], np.int64)}, tmp_path / "m.onnx")
+    import onnx
+
+    assert probability_outputs(onnx.load(str(path))) == {"scores": "Sigmoid"}
+    assert probability_outputs(onnx.load(str(detector_head_model(tmp_path / "d.onnx")))) == {"rows": None}
+    xs = [np.random.default_rng(k).normal(0, 1, (1, 3, 16, 16)).astype(np.float32) for k in range(6)]
+    result = quantize_onnx_static(path, xs, tmp_path / "int8.onnx", progress=False)
+    assert result.fidelity["scores"]["task"] == "threshold:0.5"  # [1, rows, 2] sigmoid scores, each decided
+    assert result.agreement_vs_fp32["scores"] >= 0.95 and result.fidelity["scores"]["cosine"] > 0.99

@@ -1,0 +1,108 @@
+"""Streaming calibration of an ONNX model (quant/onnx_calibrate.py): every tensor counted, whatever
+their number, memory bounded, and the ranges the int8 file is written with."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import onnx
+import pytest
+
+from edgepick.quant.config import CalibMethod, QuantConfig
+from edgepick.quant.onnx_calibrate import (
+    CalibrationMemoryError,
+    Collector,
+    calibrated_tensors,
+    check_memory,
+    output_groups,
+)
+from edgepick.quant.onnx_static import quantize_onnx_static
+from edgepick.quant.ranges import RangeRule
+from tests.quant.onnx_models import conv_relu_model
+
+
+def _inputs(count: int) -> list[np.ndarray]:
+    """COUNT inputs whose range grows with each one: the last tensor holds values no other has."""
+    rng = np.random.default_rng(count)
+    return [(rng.normal(0, 1, (1, 2, 32, 32)) * (1 + k)).astype(np.float32) for k in range(count)]
+
+
+def _activations(xs: list[np.ndarray], w: np.ndarray, b: np.ndarray) -> dict[str, np.ndarray]:
+    """Every value each calibrated tensor takes over XS (the conv in float64: onnxruntime's float32
+    sums round differently, a value at the very end of a range may differ in its last bit)."""
+    conv = [np.einsum("oc,nchw->nohw", w[:, :, 0, 0].astype(np.float64), x) + b[None, :, None, None] for x in xs]
+    return {"input": np.concatenate([x.ravel() for x in xs]), "conv_out": np.concatenate([c.ravel() for c in conv]),
+            "output": np.concatenate([np.maximum(c, 0).ravel() for c in conv])}
+
+
+@pytest.mark.parametrize("count", [1, 4, 5, 33])
+@pytest.mark.parametrize("method", [CalibMethod.MINMAX, CalibMethod.PERCENTILE, CalibMethod.ENTROPY, CalibMethod.MSE])
+def test_every_method_uses_every_tensor_whatever_their_number(tmp_path, method, count):
+    path, w, b = conv_relu_model(tmp_path / "m.onnx")
+    model = onnx.shape_inference.infer_shapes(onnx.load(str(path)))
+    sizes = calibrated_tensors(model, ["Conv", "Relu"])
+    assert list(sizes) == ["input", "conv_out", "output"] and sizes["input"] == 2 * 1024 * 4
+    collector = Collector(model, sizes, budget=sizes["input"])  # one tensor per run: three runs per input
+    assert len(collector.groups) == 3
+    xs = _inputs(count)
+    for x in xs:
+        collector.add(x)
+    rule = RangeRule(method, 99.9)
+    ranges = collector.ranges(rule)
+    for name, values in _activations(xs, w, b).items():
+        hist = collector.histograms[name]
+        assert hist.total == values.size  # every value of every tensor counted once, in its bin
+        edges = hist.edges()
+        edges[0], edges[-1] = min(edges[0], values.min()), max(edges[-1], values.max())  # float32's last bit
+        reference = np.histogram(values, bins=edges)[0]
+        assert np.abs(np.cumsum(reference) - np.cumsum(hist.counts)).max() <= 2
+        low, high = ranges[name]
+        if method == CalibMethod.MINMAX:
+            assert (low, high) == (pytest.approx(values.min(), abs=1e-5), pytest.approx(values.max(), abs=1e-5))
+        elif method == CalibMethod.PERCENTILE:
+            ref = np.percentile(values, [0.1, 99.9], method="inverted_cdf")
+            # to a bin, or to the next value where the tail holds a few (a value within float32 rounding of an edge)
+            slack = 2 * hist.width + 0.02 * (ref[1] - ref[0])
+            assert abs(low - ref[0]) <= slack and abs(high - ref[1]) <= slack, (name, low, high, ref)
+        else:  # the rule reads the same histogram (tests/quant/test_ranges.py): a range inside the values'
+            assert values.min() - 1e-5 <= low <= high <= values.max() + 1e-5
+
+
+def test_the_int8_file_takes_its_input_range_from_the_last_of_33_tensors(tmp_path):
+    """onnxruntime's MinMax calibrator with CalibMaxIntermediateOutputs drops each full batch of
+    outputs (its issue 18893): with 33 tensors the range would miss the last one's values."""
+    path, _, _ = conv_relu_model(tmp_path / "m.onnx")
+    xs = _inputs(33)
+    first_32 = np.concatenate([x.ravel() for x in xs[:32]])
+    xs[-1][0, 0, 0, 0] = 2 * first_32.max()  # only the last tensor reaches this far
+    result = quantize_onnx_static(path, xs, tmp_path / "int8.onnx", QuantConfig(calib_method="minmax",
+                                                                                bias_correction="none"),
+                                  progress=False)
+    assert result.calib_tensors == 33
+    model = onnx.load(result.out)
+    scale = next(onnx.numpy_helper.to_array(i) for i in model.graph.initializer if i.name == "input_scale")
+    values = np.concatenate([x.ravel() for x in xs])
+    assert float(scale) == pytest.approx((values.max() - min(values.min(), 0.0)) / 255, rel=1e-5)
+    assert float(scale) > 1.3 * (first_32.max() - values.min()) / 255
+    quant = json.loads({p.key: p.value for p in model.metadata_props}["edgepick.quant"])
+    assert quant["calib_images"] == 33 and quant["ranges"] == {"rule": "minmax", "exact_tensors": 2}
+
+
+def test_outputs_are_fetched_in_groups_within_the_budget():
+    sizes = {"a": 100, "b": 300, "c": 50, "d": 400, "e": 10}
+    assert output_groups(sizes, 400) == [["a", "b"], ["c"], ["d"], ["e"]]
+    assert output_groups(sizes, 10_000) == [list(sizes)]
+    assert output_groups({"big": 900, "small": 1}, 100) == [["big"], ["small"]]  # a tensor over budget runs alone
+
+
+def test_a_calibration_that_cannot_fit_is_refused_in_one_line(tmp_path, monkeypatch):
+    path, _, _ = conv_relu_model(tmp_path / "m.onnx")
+    model = onnx.shape_inference.infer_shapes(onnx.load(str(path)))
+    sizes = calibrated_tensors(model, ["Conv", "Relu"])
+    monkeypatch.setattr("edgepick.quant.onnx_calibrate.available_memory", lambda: 100)
+    with pytest.raises(CalibrationMemoryError, match=r"^calib: calibration needs about .* GB and 0.0 GB is "
+                                                     r"available .*: give smaller input tensors"):
+        check_memory(model, sizes, input_bytes=512)
+    monkeypatch.setattr("edgepick.quant.onnx_calibrate.available_memory", lambda: None)  # unknown: no refusal
+    assert check_memory(model, sizes, input_bytes=512) > 0

@@ -1,0 +1,82 @@
+"""The QDQ graph for edgepick's own ranges, the tensors never clipped and the per-model choice of the
+range rule (quant/onnx_qdq.py, through quantize_onnx_static)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import onnx
+import pytest
+
+from edgepick.quant.config import QuantConfig
+from edgepick.quant.onnx_qdq import exact_tensors
+from edgepick.quant.onnx_static import quantize_onnx_static
+from tests.quant.onnx_models import conv_relu_model, detector_head_model, run
+
+
+def _head_inputs(count: int, size: int = 64, seed: int = 0) -> list[np.ndarray]:
+    """Feature maps in [0, 1]; in the first, one box where every channel is 1: the one confident box
+    (a score of 0.993) among all of them, which a 99.99th percentile leaves out."""
+    rng = np.random.default_rng(seed)
+    out = [rng.random((1, 3, size, size), dtype=np.float32) for _ in range(count)]
+    out[0][0, :, 5, 7] = 1.0
+    return out
+
+
+def test_the_tensors_that_reach_an_output_through_no_conv_are_found(tmp_path):
+    model = onnx.load(str(detector_head_model(tmp_path / "d.onnx")))
+    assert exact_tensors(model) == {"rows", "rows_t", "rows_nchw", "rows_shape", "box", "obj", "obj_logit"}
+    path, _, _ = conv_relu_model(tmp_path / "m.onnx")
+    assert exact_tensors(onnx.load(str(path))) == {"output", "conv_out"}
+
+
+def test_a_detectors_rare_high_scores_are_not_clipped(tmp_path):
+    """onnxruntime's percentile ranges clip the objectness logit and the score where one box in a
+    thousand is confident; edgepick keeps the whole range of every tensor that reaches an output
+    through no conv, whatever the rule for the others."""
+    from onnxruntime.quantization import CalibrationMethod, QuantFormat, QuantType, quantize_static
+
+    src = detector_head_model(tmp_path / "head.onnx")
+    calib, check = _head_inputs(16), _head_inputs(4, seed=9)
+    ours = quantize_onnx_static(src, calib, tmp_path / "ours.onnx", QuantConfig(calib_method="percentile",
+                                                                                bias_correction="none"),
+                                progress=False)
+
+    class Reader:
+        def __init__(self):
+            self.it = iter(calib)
+
+        def get_next(self):
+            x = next(self.it, None)
+            return None if x is None else {"input": x}
+
+    theirs = tmp_path / "ort.onnx"
+    quantize_static(str(src), str(theirs), Reader(), quant_format=QuantFormat.QDQ, per_channel=True,
+                    activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
+                    calibrate_method=CalibrationMethod.Percentile, extra_options={"CalibPercentile": 99.99})
+    for x in check[:1]:  # with its confident box
+        fp32 = run(src, x)[0][0, :, 4]
+        top = int(fp32.argmax())
+        assert fp32[top] > 0.99
+        assert abs(run(Path(ours.out), x)[0][0, top, 4] - fp32[top]) < 0.01
+        assert run(theirs, x)[0][0, top, 4] < fp32[top] - 0.1  # clipped: the check can tell the two apart
+    assert ours.fidelity["rows"]["task"] == "raw" and ours.fidelity["rows"]["agreement"] is None
+    assert ours.quant["ranges"]["exact_tensors"] == 6  # box, obj_logit, obj, rows_nchw, rows_t, rows
+
+
+@pytest.mark.parametrize("count, held_out", [(20, 8), (10, 0)])
+def test_auto_measures_every_rule_on_held_out_tensors_and_keeps_the_closest(tmp_path, count, held_out):
+    path, _, _ = conv_relu_model(tmp_path / "m.onnx")
+    rng = np.random.default_rng(4)
+    xs = [rng.standard_t(2, (1, 2, 32, 32)).astype(np.float32) for _ in range(count)]
+    result = quantize_onnx_static(path, xs, tmp_path / "int8.onnx", progress=False)
+    ranges = result.quant["ranges"]
+    assert result.quant["calib_method"] == "auto" and result.calib_tensors == count
+    assert ranges["held_out"] == held_out  # with fewer than twice the held-out tensors, all are used for both
+    scores = {c["rule"]: c["balanced_sqnr_db"] for c in ranges["candidates"]}
+    assert set(scores) == {"minmax", "percentile 99.99", "percentile 99.999", "percentile 99.9999", "entropy", "mse"}
+    assert scores[ranges["rule"]] == max(scores.values())
+    recorded = json.loads({p.key: p.value for p in onnx.load(result.out).metadata_props}["edgepick.quant"])
+    assert recorded["ranges"] == ranges
