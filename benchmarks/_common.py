@@ -12,7 +12,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from edgepick.bench.machine import machine_line, results_file  # noqa: E402,F401 - machine_line for the scripts
+from edgepick.machine import machine_line, results_file  # noqa: E402,F401 - machine_line for the scripts
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -48,7 +48,7 @@ def emit(report: str, args: argparse.Namespace, suffix: str = "") -> None:
     print(report)
     targets = [Path(args.out)] if args.out else []
     if args.save:
-        from edgepick.bench.machine import machine_slug
+        from edgepick.machine import machine_slug
 
         targets.append(results_file(RESULTS, study_name(), f"{machine_slug()}-{suffix}" if suffix else None))
     for path in targets:

@@ -34,12 +34,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import RESULTS, interleaved_times, machine_line  # noqa: E402
 
 from edgepick.bench.cell import run_cell  # noqa: E402
-from edgepick.bench.machine import machine_slug, results_file  # noqa: E402
 from edgepick.bench.report import draw_axes, markdown  # noqa: E402
 from edgepick.data.synth import SynthConfig, synthesize  # noqa: E402
 from edgepick.evaluation import evaluate  # noqa: E402
 from edgepick.export.onnx_export import export_checkpoint  # noqa: E402
 from edgepick.geometry import Size  # noqa: E402
+from edgepick.machine import machine_slug, results_file  # noqa: E402
 from edgepick.models.config import Arch  # noqa: E402
 from edgepick.quant.config import DEFAULT_CALIB_IMAGES  # noqa: E402
 from edgepick.quant.passes import folder_images, quantize_hybrid, quantize_static  # noqa: E402

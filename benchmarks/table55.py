@@ -22,8 +22,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from edgepick.bench.machine import results_file  # noqa: E402
 from edgepick.bench.table55 import PHASES, SETTINGS, make_table55  # noqa: E402
+from edgepick.machine import results_file  # noqa: E402
 
 
 def main() -> None:

@@ -18,10 +18,10 @@ import cv2
 import numpy as np
 import onnxruntime as ort
 
-from edgepick.bench.machine import machine_line
 from edgepick.bench.measure import mode_label
 from edgepick.bench.report import draw_axes, markdown
 from edgepick.data.render import CLASSES, LIGHTINGS
+from edgepick.machine import machine_line
 from edgepick.robot.clearance import HandShape
 from edgepick.robot.grippers import DigitalGripper
 from edgepick.robot.loop import run_cycles

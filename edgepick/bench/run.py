@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
-from edgepick.bench.machine import machine_line
 from edgepick.bench.measure import BenchConfig, Row, bench_model, order_key
 from edgepick.bench.report import write_reports
 from edgepick.data.native import NativeDataset
 from edgepick.errors import ConfigError
+from edgepick.machine import machine_line
 from edgepick.runtime.session import check_model
 
 

@@ -15,11 +15,11 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from edgepick.bench.machine import machine_line, machine_slug
 from edgepick.bench.measure import BenchConfig
 from edgepick.bench.run import run_bench
 from edgepick.files import atomic_write
 from edgepick.geometry import Size
+from edgepick.machine import machine_line, machine_slug
 
 
 @dataclass(frozen=True)

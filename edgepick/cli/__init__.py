@@ -48,7 +48,8 @@ TRAIN_EXTRA = {"torch", "torchao", "onnx", "onnxscript", "torchvision"}
 ALIASES = {"calib": "calib_images", "data": "data_dir", "debug_log": "robot_log", "depth_scale_m": "depth_scale",
            "interval_s": "interval", "max_drop_pp": "max_miou_drop", "max_rmse_m": "max_rmse",
            "offset_m": "marker_offset", "settle_s": "settle", "sizes": "subsets", "spec": "marker_spec",
-           "split_fractions": "splits", "size": "image_size", "task": "tasks", "model": ("checkpoint", "model_file")}
+           "split_fractions": "splits", "size": "image_size", "task": "tasks",
+           "min_sqnr_db": "min_sqnr", "max_float": "max_float_layers", "model": ("checkpoint", "model_file")}
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})

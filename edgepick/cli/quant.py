@@ -156,15 +156,23 @@ def quantize() -> None:
 @click.option("--max-miou-drop", default=None, type=float, metavar="PP",
               help="Accuracy-aware: keep the layers adding the most drift in float, one at a time, until the val "
                    "mIoU (onnxruntime) is within PP percentage points of fp32's.")
+@click.option("--min-agreement", default=None, type=float, metavar="SHARE",
+              help="For an .onnx MODEL, accuracy-aware: leave the activations whose float values bring the outputs "
+                   "closest to fp32 float, one at a time, until every output that decides something agrees with "
+                   "fp32 on at least SHARE (0-1) of its decisions on the check tensors.")
+@click.option("--min-sqnr", default=None, type=float, metavar="DB",
+              help="For an .onnx MODEL, accuracy-aware: ... until every output's SQNR against fp32 is at least DB.")
 @click.option("--max-float-layers", default=MAX_FLOAT_LAYERS, show_default=True,
-              help="With --max-miou-drop: at most this many.")
+              help="With --max-miou-drop, --min-agreement or --min-sqnr: at most this many layers (activations) "
+                   "left float.")
 @with_options(common)
 @with_options(preprocessing_options)
 def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None, input_shape: str | None,
                         placement: str, gelu: str, calib_images: int | None, calib_method: str, percentile: float,
                         tasks: tuple[str, ...], equalize: bool,
                         adaround: bool, adaround_budget_s: float, bias_correction: str, seed: int,
-                        max_miou_drop: float | None, max_float_layers: int, out: str, weight_bits: str,
+                        max_miou_drop: float | None, min_agreement: float | None, min_sqnr: float | None,
+                        max_float_layers: int, out: str, weight_bits: str,
                         keep_float: str, **preprocessing) -> None:
     """Static post-training quantization of MODEL: a float RUN or checkpoint of edgepick's (BN
     folded, ranges calibrated on --calib-images train images of --data), or a float ONNX file
@@ -182,8 +190,11 @@ def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None
                                      weight_bits=weight_bits, bias_correction=bias_correction, equalize=equalize,
                                      adaround=adaround, adaround_budget_s=adaround_budget_s, placement=placement,
                                      gelu=gelu),
-                       preprocessing, tasks)
+                       preprocessing, tasks, _budget(min_agreement, min_sqnr, max_float_layers))
         return
+    for flag, value in (("--min-agreement", min_agreement), ("--min-sqnr", min_sqnr)):
+        if value is not None:
+            raise ConfigError(f"{flag} is for an .onnx MODEL; a RUN or checkpoint takes --max-miou-drop")
     if tasks:
         raise ConfigError("--task is for an .onnx MODEL; a RUN or checkpoint's output is its labels")
     if data_dir is None:
@@ -217,6 +228,15 @@ def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None
                          check_images=agreement_images(data_dir, seed)))
 
 
+def _budget(min_agreement: float | None, min_sqnr: float | None, max_float: int):
+    """The accuracy-aware mode's FidelityBudget of the flags, or None when neither is given."""
+    if min_agreement is None and min_sqnr is None:
+        return None
+    from edgepick.quant.onnx_accuracy import FidelityBudget
+
+    return FidelityBudget(min_agreement=min_agreement, min_sqnr_db=min_sqnr, max_float=max_float)
+
+
 def _task_option(values: tuple[str, ...]):
     """--task values as quantize_onnx_static takes them: one Task for all outputs, or per output name."""
     from edgepick.quant.fidelity import Task
@@ -238,7 +258,7 @@ def _task_option(values: tuple[str, ...]):
 
 def _quantize_onnx(model: str, calib: str | None, input_shape: str | None, calib_images: int | None, seed: int,
                    max_miou_drop: float | None, data_dir: str | None, out: str, config: QuantConfig,
-                   preprocessing: dict, tasks: tuple[str, ...] = ()) -> None:
+                   preprocessing: dict, tasks: tuple[str, ...] = (), budget=None) -> None:
     """`quantize static MODEL.onnx --calib DIR`: edgepick's recipe on a float ONNX file."""
     from edgepick.export.onnx_io import image_size, load_float_onnx
     from edgepick.quant.onnx_inputs import folder_tensors
@@ -265,7 +285,7 @@ def _quantize_onnx(model: str, calib: str | None, input_shape: str | None, calib
     if calib_images is not None and calib_images < 1:
         raise ConfigError(f"--calib-images {calib_images}: must be 1 or more")
     tensors = folder_tensors(calib, prep, size, calib_images)
-    emit(quantize_onnx_static(model, tensors, out, config, input_shape=shape, task=_task_option(tasks)))
+    emit(quantize_onnx_static(model, tensors, out, config, input_shape=shape, task=_task_option(tasks), budget=budget))
 
 
 _GAIN_HEADERS = {"equalize": "CLE gain dB", "adaround": "AdaRound gain dB", "bias_correction": "bias corr. gain dB"}

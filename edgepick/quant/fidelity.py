@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import enum
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -216,3 +218,26 @@ class RuleScore:
 
     def to_dict(self) -> dict:
         return {"rule": str(self.rule), "balanced_sqnr_db": round(self.sqnr_db, 2) if self.error > 0 else None}
+
+
+def check_task_names(model: Any, task: Task | Mapping[str, Task] | None) -> None:
+    """Refuse a TASK mapping that names an output MODEL does not have."""
+    names = [o.name for o in model.graph.output]
+    unknown = sorted(set(task) - set(names)) if isinstance(task, Mapping) else []
+    if unknown:
+        raise ParameterError(f"{{task:name}} names no output of the model: {', '.join(unknown)} (it has "
+                             f"{', '.join(names)})", task=None)
+
+
+def output_tasks(model: Any, shapes: Mapping[str, tuple[int, ...]], task: Task | Mapping[str, Task] | None,
+                 nhwc: bool) -> dict[str, Task]:
+    """Per graph output of MODEL, the Task its fidelity is judged by: TASK (one for all, or per output
+    name), else guessed from its shape and whether a Sigmoid or Softmax makes it."""
+    names = [o.name for o in model.graph.output]
+    check_task_names(model, task)
+    probability = probability_outputs(model)
+    found = {}
+    for name in names:
+        given = task.get(name) if isinstance(task, Mapping) else task
+        found[name] = given if given is not None else guess_task(shapes[name], probability[name], nhwc)
+    return found

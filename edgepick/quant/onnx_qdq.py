@@ -21,9 +21,17 @@ from typing import Any
 
 import numpy as np
 
+from edgepick.export.crop_convs import graph_links
+from edgepick.export.onnx_io import CONV_OPS
+from edgepick.quant.config import QuantConfig
 from edgepick.quant.fidelity import RuleScore, balanced_error
-from edgepick.quant.ranges import RangeRule
+from edgepick.quant.onnx_calibrate import Collector
+from edgepick.quant.ranges import RangeRule, candidate_rules
 
+# ops that may stand between a model's last conv and its outputs; they stay float with the outputs
+FLOAT_TAIL_OPS = ("Resize", "Upsample", "Sigmoid", "Softmax", "LogSoftmax", "Transpose", "Reshape", "Identity",
+                  "Squeeze", "Unsqueeze", "Flatten", "Slice", "Cast")
+LOGIT_SUMS = ("Add", "Sub")  # between the logits convs and the float tail, they keep a conv's output the logits
 COMPUTE_OPS = ("Conv", "ConvTranspose", "MatMul", "Gemm", "LSTM", "GRU", "RNN", "Einsum", "Attention")
 
 
@@ -80,3 +88,98 @@ def score_rules(rules: Iterable[RangeRule], build: Callable[[RangeRule], Any], h
                     for k in range(len(reference[0])))
         scores.append(RuleScore(rule, worst))
     return scores
+
+
+def float_tail(model: Any) -> list[str]:
+    """Nodes between the last convs (or other compute) and the graph outputs, left in float."""
+    producer = {o: n for n in model.graph.node for o in n.output}
+    names, todo = [], [o.name for o in model.graph.output]
+    while todo:
+        node = producer.get(todo.pop())
+        if node is None or node.op_type not in FLOAT_TAIL_OPS or node.name in names:
+            continue
+        names.append(node.name)
+        todo.append(node.input[0])
+    return names
+
+
+def writes_float_output(model: Any) -> set[str]:
+    """The convs that write the logits: their output reaches a graph output through nothing but
+    FLOAT_TAIL_OPS and additions (LR-ASPP sums two convs' logits). Bias correction leaves them
+    alone, as quant/bias_correction.py does."""
+    producer = {o: n for n in model.graph.node for o in n.output}
+    todo, seen, convs = [o.name for o in model.graph.output], set(), set()
+    while todo:
+        node = producer.get(todo.pop())
+        if node is None or node.name in seen:
+            continue
+        seen.add(node.name)
+        if node.op_type in CONV_OPS:
+            convs.add(node.name)
+        elif node.op_type in LOGIT_SUMS:
+            todo.extend(node.input)
+        elif node.op_type in FLOAT_TAIL_OPS:
+            todo.append(node.input[0])
+    return convs
+
+
+def float_outputs(model: Any, tail: list[str]) -> int:
+    """Drop the Q -> DQ pair in front of each graph output and of each TAIL node (the float ops
+    before the outputs), so that they get the float tensor the last quantized node makes; returns
+    how many pairs it dropped."""
+    producer, consumers, _ = graph_links(model.graph)
+    readers = {name: len(nodes) for name, nodes in consumers.items()}
+    into_tail = [n.input[0] for n in model.graph.node if n.name in tail]
+    freed = 0
+    for name in [*(o.name for o in model.graph.output), *into_tail]:
+        dq = producer.get(name)
+        q = producer.get(dq.input[0]) if dq is not None and dq.op_type == "DequantizeLinear" else None
+        if q is None or q.op_type != "QuantizeLinear" or readers.get(q.output[0]) != 1:
+            continue
+        source = q.input[0]
+        made = producer.get(source)
+        if made is None or readers.get(source, 0) != 1 or readers.get(name, 0) > 1:
+            continue
+        made.output[list(made.output).index(source)] = name
+        producer[name] = made
+        model.graph.node.remove(q)
+        model.graph.node.remove(dq)
+        freed += 1
+    return freed
+
+
+def choose_rule(collector: Collector, pre: Path, held: list[np.ndarray], ops: list[str], exclude: list[str],
+                 config: QuantConfig, nhwc: bool, progress: bool) -> tuple[RangeRule, dict]:
+    """The range rule: config's own, or with auto the candidate whose int8 outputs on the HELD tensors
+    (held out of COLLECTOR until now, unless fewer others were counted) stay closest to fp32's. HELD
+    is counted into COLLECTOR on the way. Returns the rule and what was measured."""
+    rules = candidate_rules(config)
+    held_out = bool(held) and collector.seen >= len(held)
+    if not held_out:
+        for x in held:
+            collector.add(x)
+    if len(rules) == 1:
+        return rules[0], {"rule": str(rules[0])}
+    import onnx
+
+    from edgepick.progress import progress as progress_bar
+    from edgepick.runtime.session import plain_session
+
+    fp32 = plain_session(pre)
+    reference = [fp32.run(None, {fp32.get_inputs()[0].name: x}) for x in held]
+    float_model = onnx.load(str(pre))
+    tail, exact = float_tail(float_model), exact_tensors(float_model)
+
+    def build(rule: RangeRule) -> Any:
+        int8 = qdq_model(pre, collector.ranges(rule, exact), ops, exclude, config.reduce_range)
+        float_outputs(int8, tail)
+        return int8
+
+    scores = score_rules(progress_bar(rules, desc="choose ranges", unit="rule", enabled=progress), build, held,
+                         reference, nhwc)
+    best = min(scores, key=lambda s: s.error)
+    if held_out:
+        for x in held:
+            collector.add(x)
+    return best.rule, {"rule": str(best.rule), "held_out": len(held) if held_out else 0,
+                       "candidates": [s.to_dict() for s in scores]}

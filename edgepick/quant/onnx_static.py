@@ -44,7 +44,7 @@ import numpy as np
 
 from edgepick.errors import ParameterError, QuantizationError
 from edgepick.export.checks import check_onnx_out, conv_weight_report
-from edgepick.export.crop_convs import crop_padded_convs, graph_links
+from edgepick.export.crop_convs import crop_padded_convs
 from edgepick.export.int8_activations import integer_activations
 from edgepick.export.onnx_io import (
     CONV_OPS,
@@ -68,23 +68,24 @@ from edgepick.quant.config import (
     WeightBits,
     lockstep_images,
 )
-from edgepick.quant.fidelity import Task, compare_outputs, guess_task, probability_outputs
+from edgepick.quant.fidelity import Task, check_task_names, output_tasks
+from edgepick.quant.onnx_accuracy import (
+    Evaluator,
+    FidelityBudget,
+    evaluator_for,
+    fidelity_first,
+    float_tensors,
+    node_tensors,
+)
 from edgepick.quant.onnx_calibrate import Collector, calibrated_tensors, check_memory
 from edgepick.quant.onnx_equalize import equalize_onnx
 from edgepick.quant.onnx_gelu import sigmoid_gelu
 from edgepick.quant.onnx_graph import fold_affine_into_convs, rewrite_activations
 from edgepick.quant.onnx_inputs import check_tensor
 from edgepick.quant.onnx_measure import correct_onnx_biases, qdq_convs, saturating_onnx_convs, to_seven_bit_onnx
-from edgepick.quant.onnx_qdq import exact_tensors, qdq_model, score_rules
-from edgepick.quant.ranges import RangeRule, candidate_rules
+from edgepick.quant.onnx_qdq import choose_rule, exact_tensors, float_outputs, float_tail, qdq_model, writes_float_output
 
 CHECK_TENSORS = 8  # calibration tensors on which int8 outputs are compared with fp32's
-# ops that may stand between a model's last conv and its outputs; they stay float with the outputs
-FLOAT_TAIL_OPS = ("Resize", "Upsample", "Sigmoid", "Softmax", "LogSoftmax", "Transpose", "Reshape", "Identity",
-                  "Squeeze", "Unsqueeze", "Flatten", "Slice", "Cast")
-LOGIT_SUMS = ("Add", "Sub")  # between the logits convs and the float tail, they keep a conv's output the logits
-
-
 @dataclass(frozen=True)
 class OnnxPassResult:
     """The int8 file of a model edgepick did not make (an ONNX file or an nn.Module), what was done
@@ -109,95 +110,18 @@ class OnnxPassResult:
         return asdict(self)
 
 
-def check_task_names(model: Any, task: Task | Mapping[str, Task] | None) -> None:
-    """Refuse a TASK mapping that names an output MODEL does not have."""
-    names = [o.name for o in model.graph.output]
-    unknown = sorted(set(task) - set(names)) if isinstance(task, Mapping) else []
-    if unknown:
-        raise ParameterError(f"{{task:name}} names no output of the model: {', '.join(unknown)} (it has "
-                             f"{', '.join(names)})", task=None)
-
-
-def output_tasks(model: Any, shapes: Mapping[str, tuple[int, ...]], task: Task | Mapping[str, Task] | None,
-                 nhwc: bool) -> dict[str, Task]:
-    """Per graph output of MODEL, the Task its fidelity is judged by: TASK (one for all, or per output
-    name), else guessed from its shape and whether a Sigmoid or Softmax makes it."""
-    names = [o.name for o in model.graph.output]
-    check_task_names(model, task)
-    probability = probability_outputs(model)
-    found = {}
-    for name in names:
-        given = task.get(name) if isinstance(task, Mapping) else task
-        found[name] = given if given is not None else guess_task(shapes[name], probability[name], nhwc)
-    return found
-
-
-def _float_tail(model: Any) -> list[str]:
-    """Nodes between the last convs (or other compute) and the graph outputs, left in float."""
-    producer = {o: n for n in model.graph.node for o in n.output}
-    names, todo = [], [o.name for o in model.graph.output]
-    while todo:
-        node = producer.get(todo.pop())
-        if node is None or node.op_type not in FLOAT_TAIL_OPS or node.name in names:
-            continue
-        names.append(node.name)
-        todo.append(node.input[0])
-    return names
-
-
-def _writes_float_output(model: Any) -> set[str]:
-    """The convs that write the logits: their output reaches a graph output through nothing but
-    FLOAT_TAIL_OPS and additions (LR-ASPP sums two convs' logits). Bias correction leaves them
-    alone, as quant/bias_correction.py does."""
-    producer = {o: n for n in model.graph.node for o in n.output}
-    todo, seen, convs = [o.name for o in model.graph.output], set(), set()
-    while todo:
-        node = producer.get(todo.pop())
-        if node is None or node.name in seen:
-            continue
-        seen.add(node.name)
-        if node.op_type in CONV_OPS:
-            convs.add(node.name)
-        elif node.op_type in LOGIT_SUMS:
-            todo.extend(node.input)
-        elif node.op_type in FLOAT_TAIL_OPS:
-            todo.append(node.input[0])
-    return convs
-
-
-def _float_outputs(model: Any, tail: list[str]) -> int:
-    """Drop the Q -> DQ pair in front of each graph output and of each TAIL node (the float ops
-    before the outputs), so that they get the float tensor the last quantized node makes; returns
-    how many pairs it dropped."""
-    producer, consumers, _ = graph_links(model.graph)
-    readers = {name: len(nodes) for name, nodes in consumers.items()}
-    into_tail = [n.input[0] for n in model.graph.node if n.name in tail]
-    freed = 0
-    for name in [*(o.name for o in model.graph.output), *into_tail]:
-        dq = producer.get(name)
-        q = producer.get(dq.input[0]) if dq is not None and dq.op_type == "DequantizeLinear" else None
-        if q is None or q.op_type != "QuantizeLinear" or readers.get(q.output[0]) != 1:
-            continue
-        source = q.input[0]
-        made = producer.get(source)
-        if made is None or readers.get(source, 0) != 1 or readers.get(name, 0) > 1:
-            continue
-        made.output[list(made.output).index(source)] = name
-        producer[name] = made
-        model.graph.node.remove(q)
-        model.graph.node.remove(dq)
-        freed += 1
-    return freed
-
-
 def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: str | Path,
                          config: QuantConfig | None = None, input_shape: tuple[int, ...] | None = None,
-                         progress: bool = True, task: Task | Mapping[str, Task] | None = None) -> OnnxPassResult:
+                         progress: bool = True, task: Task | Mapping[str, Task] | None = None,
+                         budget: FidelityBudget | None = None) -> OnnxPassResult:
     """Static PTQ of the float ONNX file MODEL with edgepick's recipe, calibrated on CALIB (the
     model's input tensors, float, with or without the batch axis; `folder_tensors` reads a folder),
     written to OUT. INPUT_SHAPE fixes dynamic input dims [default: the first tensor's shape].
-    config.keep_float names ONNX nodes to leave in float. TASK says what the outputs decide, for
-    the fidelity report (one Task for all, or per output name) [default: guessed per output]."""
+    config.keep_float names ONNX nodes to leave in float (their weights, inputs and outputs). TASK
+    says what the outputs decide, for the fidelity report (one Task for all, or per output name)
+    [default: guessed per output]. BUDGET: the accuracy-aware mode (quant/onnx_accuracy.py), which
+    leaves the activations that matter most float until the outputs meet it; without one, a file
+    whose worst output falls under SQNR_FLOOR_DB is written with a warning naming them."""
     import onnx
     import onnxruntime
     from onnxruntime.quantization import quant_pre_process
@@ -242,20 +166,24 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
         keep = max(CHECK_TENSORS, measured, SATURATION_CHECK_INPUTS if config.weight_bits == WeightBits.FIRST_SEVEN
                    else 0)
         ops = sorted({*QDQRegistry, *QLinearOpsRegistry, "HardSigmoid"} - {"ArgMax"}) if every_op else sorted(CONV_OPS)
-        exclude = [*config.keep_float, *_float_tail(prepared)]
+        exclude = [*config.keep_float, *float_tail(prepared)]
         sizes = calibrated_tensors(prepared, ops)
         check_memory(prepared, sizes, int(np.prod(input_shape)) * 4 * keep)
         collector = Collector(prepared, sizes)
         hold = HELD_OUT_INPUTS if config.calib_method == CalibMethod.AUTO else 0
         kept, seen = _calibrate(collector, first, tensors, tuple(input_shape), keep, hold, total, progress)
-        rule, ranges_record = _choose_rule(collector, pre, kept[:hold], ops, exclude, config, nhwc, progress)
+        rule, ranges_record = choose_rule(collector, pre, kept[:hold], ops, exclude, config, nhwc, progress)
         exact = exact_tensors(prepared)
         int8 = qdq_model(pre, collector.ranges(rule, exact), ops, exclude, config.reduce_range)
         if config.gelu == GeluForm.SIGMOID:  # before the bias correction, which then measures it
             rewrites["sigmoid_gelu"] = sigmoid_gelu(int8)
         done = _measure(prepared, int8, kept, measured, config)
-        steps = {**rewrites, "float_outputs": _float_outputs(int8, _float_tail(prepared)), **integer_activations(int8),
-                 "cropped_convs": crop_padded_convs(int8)}
+        steps = {**rewrites, "float_outputs": float_outputs(int8, float_tail(prepared))}
+        if config.keep_float:
+            steps["kept_float_tensors"] = float_tensors(int8, node_tensors(int8, config.keep_float), prepared)
+        evaluator = evaluator_for(pre, prepared, kept[:CHECK_TENSORS], tasks, nhwc)
+        int8, accuracy = fidelity_first(int8, evaluator, budget, progress)
+        steps.update(**integer_activations(int8), cropped_convs=crop_padded_convs(int8))
         steps["unused_initializers"] = drop_unused_initializers(int8)
         quant = {"mode": "static", "source": "onnx", "calib_method": config.calib_method.value,
                  "calib_images": seen, "percentile": config.percentile, "weight_bits": config.weight_bits.value,
@@ -263,12 +191,12 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
                  "bias_correction": config.bias_correction.value,
                  "adaround": config.adaround, **({"adaround_budget_s": config.adaround_budget_s} if config.adaround else {}),
                  "keep_float": list(config.keep_float), "ranges": {**ranges_record, "exact_tensors": len(exact & set(sizes))},
-                 **done}
+                 **done, **accuracy}
         if config.equalize:
             quant["equalized_pairs"] = rewrites["equalized_pairs"]
         calib_s = time.perf_counter() - t0
         with atomic_path(out) as path:
-            fidelity = _write_checked(int8, path, pre, prepared, config, quant, kept[:CHECK_TENSORS], tasks, nhwc)
+            fidelity = _write_checked(int8, path, prepared, config, quant, evaluator)
             report = conv_weight_report(path)
     out = Path(out)
     return OnnxPassResult(out=str(out), size_bytes=out.stat().st_size, input_shape=list(input_shape),
@@ -319,55 +247,12 @@ def _calibrate(collector: Collector, first: np.ndarray, rest: Iterator[Any], sha
     return kept, seen
 
 
-def _choose_rule(collector: Collector, pre: Path, held: list[np.ndarray], ops: list[str], exclude: list[str],
-                 config: QuantConfig, nhwc: bool, progress: bool) -> tuple[RangeRule, dict]:
-    """The range rule: config's own, or with auto the candidate whose int8 outputs on the HELD tensors
-    (held out of COLLECTOR until now, unless fewer others were counted) stay closest to fp32's. HELD
-    is counted into COLLECTOR on the way. Returns the rule and what was measured."""
-    rules = candidate_rules(config)
-    held_out = bool(held) and collector.seen >= len(held)
-    if not held_out:
-        for x in held:
-            collector.add(x)
-    if len(rules) == 1:
-        return rules[0], {"rule": str(rules[0])}
-    from edgepick.progress import progress as progress_bar
-    from edgepick.runtime.session import plain_session
-
-    fp32 = plain_session(pre)
-    reference = [fp32.run(None, {fp32.get_inputs()[0].name: x}) for x in held]
-    tail = _float_tail(onnx_load(pre))
-    exact = exact_tensors(onnx_load(pre))
-
-    def build(rule: RangeRule) -> Any:
-        int8 = qdq_model(pre, collector.ranges(rule, exact), ops, exclude, config.reduce_range)
-        _float_outputs(int8, tail)
-        return int8
-
-    scores = score_rules(progress_bar(rules, desc="choose ranges", unit="rule", enabled=progress), build, held,
-                         reference, nhwc)
-    best = min(scores, key=lambda s: s.error)
-    if held_out:
-        for x in held:
-            collector.add(x)
-    return best.rule, {"rule": str(best.rule), "held_out": len(held) if held_out else 0,
-                       "candidates": [s.to_dict() for s in scores]}
-
-
-def onnx_load(path: Path) -> Any:
-    import onnx
-
-    return onnx.load(str(path))
-
-
-def _write_checked(int8: Any, path: Path, pre: Path, prepared: Any, config: QuantConfig, quant: dict,
-                   check: list[np.ndarray], tasks: dict[str, Task], nhwc: bool) -> dict[str, dict]:
+def _write_checked(int8: Any, path: Path, prepared: Any, config: QuantConfig, quant: dict,
+                   evaluator: Evaluator) -> dict[str, dict]:
     """Write INT8 with its metadata to PATH, check it (onnx's checker, every conv not kept float int8)
-    and compare its outputs with fp32's (PRE) on CHECK; returns the fidelity per output, also
-    recorded in the file."""
+    and compare its outputs with fp32's (EVALUATOR's check tensors); returns the fidelity per output,
+    also recorded in the file."""
     import onnx
-
-    from edgepick.runtime.session import plain_session
 
     expected = sum(1 for n in prepared.graph.node if n.op_type in CONV_OPS and n.name not in config.keep_float)
     onnx.save(int8, str(path))
@@ -375,11 +260,7 @@ def _write_checked(int8: Any, path: Path, pre: Path, prepared: Any, config: Quan
     if report["int8"] < expected:
         raise QuantizationError(f"only {report['int8']} of {expected} convs got int8 weights in the ONNX: "
                                 f"{', '.join(report['float'])} stayed float")
-    a, b = plain_session(pre), plain_session(path)
-    name = a.get_inputs()[0].name
-    names = [o.name for o in a.get_outputs()]
-    found = compare_outputs(names, tasks, ((a.run(names, {name: x}), b.run(names, {name: x})) for x in check), nhwc)
-    fidelity = {n: f.to_dict() for n, f in found.items()}
+    fidelity = {n: f.to_dict() for n, f in evaluator.fidelity(int8).items()}
     for key, value in (("edgepick.quant", quant), ("edgepick.fidelity", fidelity)):
         entry = int8.metadata_props.add()
         entry.key, entry.value = key, json.dumps(value)
@@ -408,7 +289,7 @@ def _measure(prepared: Any, int8: Any, kept: list[np.ndarray], images: int, conf
     if config.adaround or config.bias_correction == BiasCorrection.EMPIRICAL:
         done["measured_images"] = min(images, len(kept))
     if config.bias_correction == BiasCorrection.EMPIRICAL:
-        correct_onnx_biases(prepared, int8, kept[:images], _writes_float_output(prepared))
+        correct_onnx_biases(prepared, int8, kept[:images], writes_float_output(prepared))
     return done
 
 

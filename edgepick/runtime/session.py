@@ -24,6 +24,7 @@ import onnxruntime as ort
 from edgepick.errors import EdgepickError
 from edgepick.files import atomic_write
 from edgepick.geometry import Size
+from edgepick.machine import cpu_model
 from edgepick.runtime.engine import Engine
 from edgepick.schema import Where, as_names, as_numbers, member
 
@@ -130,17 +131,7 @@ def _cache_file() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "edgepick" / "engines.json"
 
 
-def _cpu() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return "unknown CPU"
-
-
-def _median_ms(runs: dict[str, Callable[[np.ndarray], object]], image: np.ndarray, timed: int = 10, block: int = 5) -> dict[str, float]:
+def median_ms(runs: dict[str, Callable[[np.ndarray], object]], image: np.ndarray, timed: int = 10, block: int = 5) -> dict[str, float]:
     """Median milliseconds of each runner on IMAGE, timed in alternating blocks after 3 warm-up calls
     (so that a shared machine's load drifts over both alike)."""
     times: dict[str, list[float]] = {name: [] for name in runs}
@@ -162,7 +153,7 @@ def choose_engine(path: Path, threads: int, ort_run: Callable[[np.ndarray], obje
     blank frame and written there. Returns (engine, its OpenVINO runner or None, the record)."""
     if importlib.util.find_spec("openvino") is None:
         return Engine.ONNXRUNTIME, None, {"engine": Engine.ONNXRUNTIME.value, "why": "OpenVINO is not installed"}
-    key = f"{hashlib.sha256(path.read_bytes()).hexdigest()}:{threads}:{_cpu()}"
+    key = f"{hashlib.sha256(path.read_bytes()).hexdigest()}:{threads}:{cpu_model()}"
     cache = _cache_file()
     try:
         known = json.loads(cache.read_text())
@@ -172,7 +163,7 @@ def choose_engine(path: Path, threads: int, ort_run: Callable[[np.ndarray], obje
     ov_run = None
     if record is None or record.get("engine") not in (Engine.ONNXRUNTIME, Engine.OPENVINO):
         ov_run = _openvino_runner(path, threads)
-        ms = _median_ms({Engine.ONNXRUNTIME.value: ort_run, Engine.OPENVINO.value: ov_run},
+        ms = median_ms({Engine.ONNXRUNTIME.value: ort_run, Engine.OPENVINO.value: ov_run},
                         np.zeros((1, *size.hw, 3), np.uint8))
         record = {"engine": min(ms, key=ms.__getitem__), "p50_ms": ms, "model": str(path)}
         try:

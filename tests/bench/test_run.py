@@ -8,8 +8,8 @@ import pytest
 
 pytest.importorskip("onnx")
 
-from edgepick.bench.machine import machine_line  # noqa: E402
 from edgepick.data.synth import SynthConfig, synthesize  # noqa: E402
+from edgepick.machine import machine_line  # noqa: E402
 from edgepick.runtime.grasp import DEFAULT_CLASSES  # noqa: E402
 from tests.conftest import run_cli  # noqa: E402
 from tests.runtime.test_session import red_channel_model  # noqa: E402

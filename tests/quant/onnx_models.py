@@ -190,3 +190,32 @@ def unused_initializers(path: Path) -> list[str]:
     model = onnx.load(str(path))
     read = {name for node in model.graph.node for name in node.input}
     return [i.name for i in model.graph.initializer if i.name not in read]
+
+
+def faint_channel_model(path: Path) -> Path:
+    """input (3 channels) -> 1x1 Conv -> Relu -> 1x1 Conv -> output, where the first conv reads input
+    channel 2 alone, with a gain of 400: with inputs whose channel 2 spans 0.01 while the others span
+    0-100, that channel's whole range is under one uint8 step of the input tensor, and it decides
+    the output."""
+    from onnx import helper
+
+    w1 = np.zeros((4, 3, 1, 1), np.float32)
+    w1[:, 2, 0, 0] = 400.0
+    b1 = np.array([-200.0, -201.0, -199.0, -200.5], np.float32)
+    w2 = np.random.default_rng(5).normal(0, 1, (2, 4, 1, 1)).astype(np.float32)
+    nodes = [helper.make_node("Conv", ["input", "w1", "b1"], ["hidden"], name="conv"),
+             helper.make_node("Relu", ["hidden"], ["relu"], name="relu"),
+             helper.make_node("Conv", ["relu", "w2"], ["output"], name="head")]
+    return helper_model(nodes, [("input", [1, 3, 16, 16])], [("output", [1, 2, 16, 16])],
+                        {"w1": w1, "b1": b1, "w2": w2}, path)
+
+
+def faint_channel_inputs(count: int, seed: int = 0) -> list[np.ndarray]:
+    """Inputs for faint_channel_model: channels 0 and 1 over 0-100, channel 2 over 0.495-0.505."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(count):
+        x = rng.uniform(0, 100, (1, 3, 16, 16)).astype(np.float32)
+        x[0, 2] = rng.uniform(0.495, 0.505, (16, 16))
+        out.append(x)
+    return out

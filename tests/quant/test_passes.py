@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from edgepick.bench.machine import cpu_flags
 from edgepick.geometry import Size
+from edgepick.machine import cpu_flags
 from edgepick.runtime.session import Segmenter
 from tests.conftest import EPOCHS, run_cli
 from tests.quant.onnx_models import unused_initializers

@@ -102,7 +102,7 @@ def test_engine_auto_measures_once_per_model_and_caches(tmp_path, monkeypatch):
     (record,) = json.loads(cache.read_text()).values()
     assert first.engine == record["engine"] == min(record["p50_ms"], key=record["p50_ms"].get)
     assert set(record["p50_ms"]) == {"onnxruntime", "openvino"}
-    monkeypatch.setattr(session, "_median_ms", lambda *a, **k: pytest.fail("measured again"))
+    monkeypatch.setattr(session, "median_ms", lambda *a, **k: pytest.fail("measured again"))
     again = session.Segmenter(model, engine="auto")
     assert again.engine == first.engine and again.labels(np.zeros((240, 320, 3), np.uint8)).shape == (240, 320)
     with pytest.raises(ConfigError, match="engine='fastest': must be one of"):

@@ -1,0 +1,86 @@
+"""Fidelity first: which activations to leave float, found by measuring (quant/onnx_accuracy.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from edgepick.errors import ParameterError
+from edgepick.quant.config import QuantConfig
+from edgepick.quant.onnx_accuracy import FidelityBudget
+from edgepick.quant.onnx_static import quantize_onnx_static
+from tests.quant.onnx_models import faint_channel_inputs, faint_channel_model
+
+
+def _sqnr(path, xs, reference, engine: str) -> float:
+    """The output's SQNR in dB of the model at PATH on XS against fp32's REFERENCE, run by ENGINE."""
+    if engine == "onnxruntime":
+        import onnxruntime as ort
+
+        session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+        got = [session.run(None, {"input": x})[0] for x in xs]
+    else:
+        import openvino as ov
+
+        from edgepick.runtime.session import openvino_config
+
+        # float parts in f32, as the runtime runs them (OpenVINO's own default is bf16 where the CPU has it)
+        compiled = ov.Core().compile_model(str(path), "CPU", openvino_config(2))
+        got = [compiled({0: x})[compiled.outputs[0]] for x in xs]
+    signal = sum(float((r.astype(np.float64) ** 2).sum()) for r in reference)
+    noise = sum(float(((r.astype(np.float64) - g) ** 2).sum()) for r, g in zip(reference, got))
+    return 10 * np.log10(signal / noise)
+
+
+@pytest.fixture(scope="module")
+def faint(tmp_path_factory):
+    """The faint-channel model, its inputs (calibration, check) and fp32's outputs on the check inputs."""
+    import onnxruntime as ort
+
+    tmp = tmp_path_factory.mktemp("faint")
+    path = faint_channel_model(tmp / "faint.onnx")
+    check = faint_channel_inputs(4, seed=9)
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    return path, faint_channel_inputs(16), check, [session.run(None, {"input": x})[0] for x in check], tmp
+
+
+def test_a_faint_channel_is_named_and_the_accuracy_aware_mode_leaves_it_float(faint, capsys):
+    path, calib, check, reference, tmp = faint
+    plain = quantize_onnx_static(path, calib, tmp / "plain.onnx", QuantConfig(bias_correction="none"))
+    assert plain.fidelity["output"]["sqnr_db"] < 10  # the faint channel is lost on the input's uint8 grid
+    warning = capsys.readouterr().err.splitlines()[-1]
+    assert warning.startswith("edgepick: warning: the int8 outputs are far from fp32's") and "input (+" in warning
+    assert plain.quant["fidelity_warning"] in warning
+    fixed = quantize_onnx_static(path, calib, tmp / "fixed.onnx", QuantConfig(bias_correction="none"), progress=False,
+                                 budget=FidelityBudget(min_sqnr_db=25.0))
+    record = fixed.quant["accuracy_aware"]
+    assert record["float_tensors"] == ["input"] and record["met"]  # the fewest: one tensor
+    assert fixed.fidelity["output"]["sqnr_db"] >= 25.0
+    assert fixed.int8_convs == fixed.convs == 2  # the convs keep int8 weights; only the input stays float
+    speed = record["speed"]
+    assert speed["all_int8_ms"] > 0 and speed["slowdown"] == pytest.approx(speed["kept_float_ms"] / speed["all_int8_ms"],
+                                                                          abs=1e-3)
+    for engine in ("onnxruntime", "openvino"):
+        assert _sqnr(fixed.out, check, reference, engine) > _sqnr(plain.out, check, reference, engine) + 15, engine
+
+
+def test_keeping_a_node_float_never_lowers_fidelity_on_either_engine(faint):
+    path, calib, check, reference, tmp = faint
+    config = {"bias_correction": "none", "calib_method": "minmax"}
+    plain = quantize_onnx_static(path, calib, tmp / "p.onnx", QuantConfig(**config), progress=False)
+    for node in ("conv", "relu", "head"):
+        kept = quantize_onnx_static(path, calib, tmp / f"{node}.onnx", QuantConfig(keep_float=(node,), **config),
+                                    progress=False)
+        for engine in ("onnxruntime", "openvino"):
+            assert _sqnr(kept.out, check, reference, engine) >= _sqnr(plain.out, check, reference, engine) - 0.05, \
+                (node, engine)
+    conv = quantize_onnx_static(path, calib, tmp / "c.onnx", QuantConfig(keep_float=("conv",), **config), progress=False)
+    assert conv.fidelity["output"]["sqnr_db"] > 25  # the conv reads the input's float values
+
+
+def test_a_budget_is_checked_on_creation():
+    for kwargs, message in (({}, "min_agreement or min_sqnr_db"), ({"min_agreement": 1.5}, "min_agreement=1.5"),
+                            ({"min_sqnr_db": float("nan")}, "min_sqnr_db=nan"),
+                            ({"min_sqnr_db": 20, "max_float": 0}, "max_float=0")):
+        with pytest.raises(ParameterError, match=message):
+            FidelityBudget(**kwargs)
