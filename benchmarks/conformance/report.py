@@ -66,15 +66,15 @@ def markdown(results: list[ModelResult], header: Header, figure: str | None = No
              f"p50 over {header.runs} timed runs per engine, all engines of a model in one process in "
              "alternating blocks of 5; speed-up against fp32 on the same runtime.", "",
              "## Summary", "", "Task metric against fp32 (%) and speed-up, per engine:", "",
-             "| model | family | metric | fp32 vs truth (%) | " + " | ".join(engines) + " |",
+             "| " + " | ".join(["model", "family", "metric", "fp32 vs truth (%)", *engines]) + " |",
              "|---|---|---|---|" + "---|" * len(engines)]
     for m in results:
         by = {e.engine: e for e in m.engines}
         fp32 = by.get(BASELINES["onnxruntime"])
         cells = [("failed" if by[n].failure else f"{percent(by[n].metric)}, {number(by[n].speedup)}x")
                  if n in by else "-" for n in engines]
-        lines.append(f"| {m.name} | {m.family} | {m.metric} | {percent(fp32.truth) if fp32 else '-'} | "
-                     + (" | ".join(cells) if not m.failure else "model failed: " + m.failure) + " |")
+        cells = cells if not m.failure else ["model failed: " + m.failure]
+        lines.append("| " + " | ".join([m.name, m.family, m.metric, percent(fp32.truth) if fp32 else "-", *cells]) + " |")
     if figure:
         lines += ["", f"![speed-up against task metric, one point per model and engine]({figure})"]
     lines += ["", "## Per model"]
