@@ -47,6 +47,8 @@ class Quantized:
 
 @dataclass(frozen=True)
 class Quantizer:
+    """A named function from a Job to its int8 file; engines that share one share its file."""
+
     name: str
     run: Callable[[Job], Quantized]
 
@@ -67,6 +69,7 @@ class Engine:
 
 
 def _fp32(job: Job) -> Quantized:
+    """No quantizer: the fp32 file itself."""
     return Quantized(job.fp32, (job.fp32,))
 
 
@@ -91,6 +94,7 @@ def _ort(best: bool) -> Callable[[Job], Quantized]:
 
 
 def _nncf(job: Job) -> Quantized:
+    """NNCF's defaults, saved as OpenVINO IR with its float parts in f32 (as run, for the size)."""
     import logging
 
     import nncf

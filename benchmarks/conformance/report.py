@@ -23,6 +23,8 @@ MARKERS = (cv2.MARKER_SQUARE, cv2.MARKER_TRIANGLE_UP, cv2.MARKER_DIAMOND, cv2.MA
 
 @dataclass(frozen=True)
 class Header:
+    """What a run's report says before its results: how it was run, where and with what."""
+
     command: str
     machine: str
     versions: dict[str, str]
@@ -34,14 +36,17 @@ class Header:
 
 
 def percent(v: float | None) -> str:
+    """A share as a percentage with two decimals, '-' when there is none."""
     return "-" if v is None else f"{100 * v:.2f}"
 
 
 def number(v: float | None, digits: int = 2, suffix: str = "") -> str:
+    """V with DIGITS decimals and SUFFIX, '-' when there is none."""
     return "-" if v is None else f"{v:.{digits}f}{suffix}"
 
 
 def sqnr_text(e: EngineResult) -> str:
+    """The SQNR of each output in dB, in the model's order ('exact' where int8 equals fp32)."""
     return " / ".join("exact" if v is None else f"{v:.1f}" for v in e.sqnr_db.values()) or "-"
 
 
@@ -113,6 +118,7 @@ def markdown(results: list[ModelResult], header: Header, figure: str | None = No
 
 
 def write_csv(results: list[ModelResult], path: Path) -> None:
+    """One row per model and engine, the lowest SQNR over the outputs."""
     fields = ["model", "family", "engine", "runtime", "metric_name", "metric", "truth", "min_sqnr_db", "p50_ms",
               "speedup", "size_mb", "quantize_s", "calib_s", "peak_mb", "minimum", "regressed", "failure", "note"]
     with open(path, "w", newline="") as f:
@@ -127,6 +133,7 @@ def write_csv(results: list[ModelResult], path: Path) -> None:
 
 
 def write_json(results: list[ModelResult], header: Header, path: Path) -> None:
+    """Everything the run recorded, per output and per metric."""
     path.write_text(json.dumps({"header": asdict(header), "models": [asdict(m) for m in results]}, indent=1) + "\n")
 
 

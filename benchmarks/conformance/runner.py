@@ -29,6 +29,8 @@ from .spec import Assets, Entry
 
 @dataclass(frozen=True)
 class Settings:
+    """What a run does to each model: which engines, where fetched files are kept, how many inputs and runs."""
+
     engines: tuple[Engine, ...]
     cache: Path
     calib: int = 32  # calibration inputs, seed 0
@@ -61,6 +63,8 @@ class EngineResult:
 
 @dataclass(frozen=True)
 class ModelResult:
+    """One model's run: what it is, every engine's result; failure when the model itself could not run."""
+
     name: str
     family: str
     origin: str
@@ -217,6 +221,7 @@ Made = tuple[Quantized | str, float, float | None]  # the file or why there is n
 
 
 def _file(made: Made) -> Quantized:
+    """The file of MADE, or its failure raised."""
     if isinstance(made[0], str):
         raise RuntimeError(made[0])
     return made[0]
