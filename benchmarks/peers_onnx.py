@@ -32,6 +32,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import add_output, emit, interleaved_times, machine_line  # noqa: E402
+from _quantizers import OpenVino, Ort, nncf_quantize, ort_quantize, ort_ready  # noqa: E402
 
 from edgepick.errors import ParameterError  # noqa: E402
 from edgepick.geometry import Size  # noqa: E402
@@ -40,28 +41,7 @@ from edgepick.quant.fidelity import guess_task  # noqa: E402
 from edgepick.quant.onnx_inputs import folder_tensors  # noqa: E402
 from edgepick.quant.onnx_static import quantize_onnx_static  # noqa: E402
 from edgepick.runtime.preprocessing import Preprocessing  # noqa: E402
-from edgepick.runtime.session import openvino_config, plain_session  # noqa: E402
-
-
-class Ort:
-    def __init__(self, path: Path, threads: int):
-        self.session = plain_session(path, threads)
-        self.input = self.session.get_inputs()[0].name
-
-    def __call__(self, x: np.ndarray) -> list[np.ndarray]:
-        return self.session.run(None, {self.input: x})
-
-
-class OpenVino:
-    def __init__(self, model, threads: int):
-        import openvino as ov
-
-        self.compiled = ov.Core().compile_model(model, "CPU", openvino_config(threads))
-        self.request = self.compiled.create_infer_request()
-
-    def __call__(self, x: np.ndarray) -> list[np.ndarray]:
-        result = self.request.infer({0: x})
-        return [result[o] for o in self.compiled.outputs]
+from edgepick.runtime.session import openvino_config  # noqa: E402
 
 
 def onnxruntime_by_op(path: Path, threads: int, x: np.ndarray, runs: int = 10) -> dict[str, float]:
@@ -182,8 +162,6 @@ def main() -> None:
     import onnx
     import onnxruntime as ort
     import openvino as ov
-    from onnx import version_converter
-    from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quant_pre_process, quantize_static
 
     from edgepick.export.onnx_io import fix_input_shape, load_float_onnx, opset
 
@@ -199,28 +177,11 @@ def main() -> None:
         fix_input_shape(model, shape)
         fp32 = work / "fp32.onnx"
         onnx.save(model, fp32)
-        quant_pre_process(str(fp32), str(work / "pre.onnx"))
-        pre = onnx.load(work / "pre.onnx")
-        lifted = opset_in < 13  # onnxruntime's per-channel QDQ needs 13: a user lifts it as its error says
-        if lifted:
-            pre = version_converter.convert_version(pre, 13)
-        onnx.save(pre, work / "pre.onnx")
-        name = model.graph.input[0].name
-
-        class Reader(CalibrationDataReader):
-            def __init__(self):
-                self.it = iter(calib)
-
-            def get_next(self):
-                x = next(self.it, None)
-                return None if x is None else {name: x}
-
+        lifted = ort_ready(fp32, work / "pre.onnx")  # onnxruntime's per-channel QDQ needs opset 13
         ort_default, ort_best = work / "ort_default.onnx", work / "ort_best.onnx"
-        quantize_static(str(work / "pre.onnx"), str(ort_default), Reader())
-        quantize_static(str(work / "pre.onnx"), str(ort_best), Reader(), quant_format=QuantFormat.QDQ,
-                        per_channel=True, reduce_range=True, activation_type=QuantType.QUInt8,
-                        weight_type=QuantType.QInt8)
-        nncf_model = nncf.quantize(ov.Core().read_model(str(fp32)), nncf.Dataset(calib), subset_size=len(calib))
+        ort_quantize(work / "pre.onnx", ort_default, calib, best=False)
+        ort_quantize(work / "pre.onnx", ort_best, calib, best=True)
+        nncf_model = nncf_quantize(fp32, calib)
         ov.save_model(nncf_model, work / "nncf.xml")
         ours = quantize_onnx_static(args.onnx, calib, work / "edgepick.onnx", input_shape=shape, progress=False)
 

@@ -1,0 +1,147 @@
+"""The engines a conformance run compares: a quantizer (none for fp32) and the runtime that runs its
+file. Every quantizer gets the same fp32 file (input shape fixed) and the same calibration tensors,
+and runs once per model even where two engines share its file (edgepick's on onnxruntime and on
+OpenVINO). Another edgepick setting is one more Engine with its own edgepick_quantizer(QuantConfig(...)).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from _quantizers import OpenVino, Ort, nncf_quantize, ort_quantize, ort_ready
+
+from edgepick.quant.config import QuantConfig
+
+ONNXRUNTIME, OPENVINO = "onnxruntime", "openvino"
+
+
+@dataclass(frozen=True)
+class Job:
+    """What a quantizer is given: the fp32 file, the calibration tensors, a folder of its own for its
+    files, and edgepick's --task for the model (None: guessed)."""
+
+    fp32: Path
+    calib: Sequence[np.ndarray]
+    work: Path
+    input_shape: tuple[int, ...]
+    task: str | None = None
+
+
+@dataclass(frozen=True)
+class Quantized:
+    """A quantizer's result: the file a runtime loads (.onnx, or OpenVINO's .xml), every file it
+    takes (for the size), the quantizer's own calibration time where it reports one, and a note."""
+
+    model: Path
+    files: tuple[Path, ...]
+    calib_s: float | None = None
+    note: str = ""
+
+    @property
+    def size_mb(self) -> float:
+        return round(sum(p.stat().st_size for p in self.files) / 1e6, 2)
+
+
+@dataclass(frozen=True)
+class Quantizer:
+    """A named function from a Job to its int8 file; engines that share one share its file."""
+
+    name: str
+    run: Callable[[Job], Quantized]
+
+
+@dataclass(frozen=True)
+class Engine:
+    """A quantizer's file on a runtime."""
+
+    name: str
+    runtime: str  # onnxruntime | openvino
+    quantizer: Quantizer
+
+    def load(self, quantized: Quantized, threads: int, outputs: Sequence[str]) -> Callable[[np.ndarray], list[np.ndarray]]:
+        """The file as a function of one input tensor, its outputs in OUTPUTS' order."""
+        if self.runtime == ONNXRUNTIME:
+            return Ort(quantized.model, threads, outputs)
+        return OpenVino(quantized.model, threads, outputs)
+
+
+def _fp32(job: Job) -> Quantized:
+    """No quantizer: the fp32 file itself."""
+    return Quantized(job.fp32, (job.fp32,))
+
+
+def _ort(best: bool) -> Callable[[Job], Quantized]:
+    """onnxruntime's quantize_static after its pre-processing; where the pre-processing itself fails
+    on the model, without it, as a user would go on (the note says so)."""
+    def run(job: Job) -> Quantized:
+        from .runner import one_line
+
+        pre, out = job.work / "pre.onnx", job.work / "int8.onnx"
+        notes = []
+        try:
+            lifted = ort_ready(job.fp32, pre)
+        except Exception as exc:  # noqa: BLE001 - quant_pre_process's shape inference fails on some graphs
+            notes.append(f"quant_pre_process failed ({one_line(exc)}), quantized without it")
+            lifted = ort_ready(job.fp32, pre, preprocess=False)
+        if lifted:
+            notes.append("opset lifted to 13 first")
+        ort_quantize(pre, out, job.calib, best)
+        return Quantized(out, (out,), note="; ".join(notes))
+    return run
+
+
+def _nncf(job: Job) -> Quantized:
+    """NNCF's defaults, saved as OpenVINO IR with its float parts in f32 (as run, for the size)."""
+    import logging
+
+    import nncf
+    import openvino as ov
+
+    nncf.set_log_level(logging.ERROR)
+    xml = job.work / "nncf.xml"
+    ov.save_model(nncf_quantize(job.fp32, job.calib), xml, compress_to_fp16=False)
+    return Quantized(xml, (xml, xml.with_suffix(".bin")))
+
+
+def edgepick_quantizer(name: str, config: QuantConfig) -> Quantizer:
+    """edgepick's static PTQ of the fp32 file with CONFIG, through its public API."""
+    def run(job: Job) -> Quantized:
+        from edgepick.quant.fidelity import Task
+        from edgepick.quant.onnx_static import quantize_onnx_static
+
+        out = job.work / "edgepick.onnx"
+        result = quantize_onnx_static(job.fp32, list(job.calib), out, config, input_shape=job.input_shape,
+                                      progress=False, task=Task.parse(job.task) if job.task else None)
+        note = f"{result.int8_convs} of {result.convs} convs int8, ranges {result.quant['ranges']['rule']}"
+        return Quantized(Path(result.out), (Path(result.out),), calib_s=result.calib_s, note=note)
+    return Quantizer(name, run)
+
+
+FP32 = Quantizer("fp32", _fp32)
+EDGEPICK = edgepick_quantizer("edgepick", QuantConfig())
+ENGINES: tuple[Engine, ...] = (
+    Engine("fp32", ONNXRUNTIME, FP32),
+    Engine("fp32-openvino", OPENVINO, FP32),  # what the OpenVINO engines' speed-up is measured against
+    Engine("ort-default", ONNXRUNTIME, Quantizer("ort-default", _ort(best=False))),
+    Engine("ort-best", ONNXRUNTIME, Quantizer("ort-best", _ort(best=True))),
+    Engine("nncf", OPENVINO, Quantizer("nncf", _nncf)),
+    Engine("edgepick", ONNXRUNTIME, EDGEPICK),
+    Engine("edgepick-openvino", OPENVINO, EDGEPICK),
+)
+BASELINES = {ONNXRUNTIME: "fp32", OPENVINO: "fp32-openvino"}  # the fp32 engine of each runtime
+
+
+def select(names: Sequence[str] | None, available: Sequence[Engine] = ENGINES) -> tuple[Engine, ...]:
+    """The engines NAMES asks for (all when None), in the table's order, with the fp32 engine of each
+    runtime they use: every metric is measured against fp32 on onnxruntime, each speed-up against fp32
+    on the same runtime."""
+    by_name = {e.name: e for e in available}
+    unknown = [n for n in names or () if n not in by_name]
+    if unknown:
+        raise SystemExit(f"--engines: unknown {', '.join(unknown)} (known: {', '.join(by_name)})")
+    wanted = set(names or by_name)
+    wanted |= {BASELINES[ONNXRUNTIME]} | {BASELINES[by_name[n].runtime] for n in wanted}
+    return tuple(e for e in available if e.name in wanted)

