@@ -13,7 +13,7 @@ from pathlib import Path
 
 from _common import RESULTS, machine_line
 
-from edgepick.bench.machine import machine_slug, results_file
+from edgepick.machine import machine_slug, results_file
 
 from . import engines as engine_table
 from .fetch import default_cache

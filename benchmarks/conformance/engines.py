@@ -1,7 +1,8 @@
 """The engines a conformance run compares: a quantizer (none for fp32) and the runtime that runs its
 file. Every quantizer gets the same fp32 file (input shape fixed) and the same calibration tensors,
-and runs once per model even where two engines share its file (edgepick's on onnxruntime and on
-OpenVINO). Another edgepick setting is one more Engine with its own edgepick_quantizer(QuantConfig(...)).
+and runs once per model even where two engines share its file (fp32 on onnxruntime and on OpenVINO).
+Another edgepick setting is one more Engine with its own edgepick_quantizer(QuantConfig(...)):
+edgepick-openvino is the file `--placement auto --target openvino` makes.
 """
 
 from __future__ import annotations
@@ -112,10 +113,12 @@ def edgepick_quantizer(name: str, config: QuantConfig) -> Quantizer:
         from edgepick.quant.fidelity import Task
         from edgepick.quant.onnx_static import quantize_onnx_static
 
-        out = job.work / "edgepick.onnx"
+        out = job.work / f"{name}.onnx"
         result = quantize_onnx_static(job.fp32, list(job.calib), out, config, input_shape=job.input_shape,
                                       progress=False, task=Task.parse(job.task) if job.task else None)
         note = f"{result.int8_convs} of {result.convs} convs int8, ranges {result.quant['ranges']['rule']}"
+        if "placement_choice" in result.quant:
+            note += f", placement {result.quant['placement_choice']['chosen']} (timed on {config.target})"
         return Quantized(Path(result.out), (Path(result.out),), calib_s=result.calib_s, note=note)
     return Quantizer(name, run)
 
@@ -129,7 +132,9 @@ ENGINES: tuple[Engine, ...] = (
     Engine("ort-best", ONNXRUNTIME, Quantizer("ort-best", _ort(best=True))),
     Engine("nncf", OPENVINO, Quantizer("nncf", _nncf)),
     Engine("edgepick", ONNXRUNTIME, EDGEPICK),
-    Engine("edgepick-openvino", OPENVINO, EDGEPICK),
+    # the file made for OpenVINO: placement auto, the candidates timed on OpenVINO
+    Engine("edgepick-openvino", OPENVINO, edgepick_quantizer("edgepick-openvino",
+                                                             QuantConfig(placement="auto", target="openvino"))),
 )
 BASELINES = {ONNXRUNTIME: "fp32", OPENVINO: "fp32-openvino"}  # the fp32 engine of each runtime
 

@@ -30,6 +30,7 @@ from edgepick.quant.config import (
     GeluForm,
     Placement,
     QuantConfig,
+    Target,
     WeightBits,
 )
 from edgepick.train.config import Device, TrainConfig
@@ -136,9 +137,13 @@ def quantize() -> None:
               help="For an .onnx MODEL with dynamic input dims [default: the first calibration tensor's shape].")
 @click.option("--placement", default=default_of(QuantConfig, "placement"), show_default=True, type=choice(Placement),
               help="For an .onnx MODEL: all (every op onnxruntime runs in int8, with edgepick's activation "
-                   "rewrites: for onnxruntime) or convs (only the convs and the tensors they read and write; the "
-                   "model's own activations stay float as written, which OpenVINO fuses into its int8 convs). Which "
-                   "is faster on OpenVINO depends on the model: time both (benchmarks/peers_onnx.py).")
+                   "rewrites: for onnxruntime), convs (only the convs and the tensors they read and write; the "
+                   "model's own activations stay float as written, which OpenVINO fuses into its int8 convs) or "
+                   "auto (both made and timed on --target on this machine; the faster that keeps the outputs as "
+                   "close to fp32 is written, the times in its metadata).")
+@click.option("--target", default=default_of(QuantConfig, "target"), show_default=True, type=choice(Target),
+              help="For an .onnx MODEL with --placement auto: the engine the file is timed on (openvino needs the "
+                   "[peers] extra).")
 @click.option("--gelu", default=default_of(QuantConfig, "gelu"), show_default=True, type=choice(GeluForm),
               help="For an .onnx MODEL with --placement all: float (each GELU runs as the model writes it, in float "
                    "between its Q/DQ: onnxruntime has no integer Erf) or sigmoid (written as c*x*sigmoid(alpha*x), "
@@ -168,7 +173,7 @@ def quantize() -> None:
 @with_options(common)
 @with_options(preprocessing_options)
 def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None, input_shape: str | None,
-                        placement: str, gelu: str, calib_images: int | None, calib_method: str, percentile: float,
+                        placement: str, target: str, gelu: str, calib_images: int | None, calib_method: str, percentile: float,
                         tasks: tuple[str, ...], equalize: bool,
                         adaround: bool, adaround_budget_s: float, bias_correction: str, seed: int,
                         max_miou_drop: float | None, min_agreement: float | None, min_sqnr: float | None,
@@ -189,7 +194,7 @@ def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None
                        _quant_config(keep_float, calib_method=calib_method, percentile=percentile,
                                      weight_bits=weight_bits, bias_correction=bias_correction, equalize=equalize,
                                      adaround=adaround, adaround_budget_s=adaround_budget_s, placement=placement,
-                                     gelu=gelu),
+                                     target=target, gelu=gelu),
                        preprocessing, tasks, _budget(min_agreement, min_sqnr, max_float_layers))
         return
     for flag, value in (("--min-agreement", min_agreement), ("--min-sqnr", min_sqnr)):
@@ -205,6 +210,8 @@ def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None
     if placement != Placement.ALL:
         raise ConfigError(f"--placement {placement} is for an .onnx MODEL; a RUN or checkpoint's int8 graph "
                           "quantizes every activation")
+    if target != Target.ONNXRUNTIME:
+        raise ConfigError(f"--target {target} is for an .onnx MODEL with --placement auto")
     if gelu != GeluForm.FLOAT:
         raise ConfigError(f"--gelu {gelu} is for an .onnx MODEL; a RUN or checkpoint has no GELU")
     _check_onnx_out(out, checkpoint, data_dir)

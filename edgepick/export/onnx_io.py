@@ -77,6 +77,21 @@ def fix_input_shape(model: Any, shape: tuple[int, ...]) -> None:
         out.type.tensor_type.ClearField("shape")
 
 
+def constants_to_initializers(model: Any) -> int:
+    """Turn MODEL's Constant nodes that hold a tensor into initializers of the same name (Paddle's
+    exporter writes every weight so): onnxruntime's quantizer finds weights among the initializers
+    only, and its pre-processing fails on a model that has none. Returns how many were turned."""
+    from onnx import numpy_helper
+
+    turned = [n for n in model.graph.node if n.op_type == "Constant" and len(n.attribute) == 1
+              and n.attribute[0].name == "value"]
+    for node in turned:
+        tensor = numpy_helper.from_array(numpy_helper.to_array(node.attribute[0].t), node.output[0])
+        model.graph.initializer.append(tensor)
+        model.graph.node.remove(node)
+    return len(turned)
+
+
 def drop_unused_initializers(model: Any) -> int:
     """Remove the initializers no node (nor a subgraph) reads, and their graph-input entries;
     onnxruntime warns about each one on every load. Returns how many went."""

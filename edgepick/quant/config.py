@@ -61,6 +61,16 @@ class Placement(enum.StrEnum):
     # only the convs (inputs, weights, outputs) and what a conv reads; the model's own activation ops stay float, as
     # written: OpenVINO fuses them into its int8 convs where it recognises them
     CONVS = "convs"
+    # each of the above made, timed on the target engine on this machine, and the fastest whose outputs stay as close
+    # to fp32 as the closest's (quant/onnx_placement.py)
+    AUTO = "auto"
+
+
+class Target(enum.StrEnum):
+    """The engine an .onnx model's int8 file is made for: placement auto times the candidates on it."""
+
+    ONNXRUNTIME = "onnxruntime"
+    OPENVINO = "openvino"  # the [peers] extra
 
 
 class GeluForm(enum.StrEnum):
@@ -101,6 +111,7 @@ class QuantConfig:
     adaround: bool = False  # static PTQ: learn each conv's weight rounding on the calibration images (quant/adaround.py)
     adaround_budget_s: float = 120.0  # AdaRound's time budget, shared by the convs
     placement: Placement = Placement.ALL  # static PTQ of an .onnx model: which tensors are int8
+    target: Target = Target.ONNXRUNTIME  # static PTQ of an .onnx model with placement auto: the engine it times
     gelu: GeluForm = GeluForm.FLOAT  # static PTQ of an .onnx model with placement all: how a GELU is quantized
     keep_float: tuple[str, ...] = ()  # module names (prefixes) left in float
     skip: tuple[str, ...] = ("preprocess",)  # never quantized
@@ -110,12 +121,17 @@ class QuantConfig:
         object.__setattr__(self, "bias_correction", member(BiasCorrection, "bias_correction", self.bias_correction))
         object.__setattr__(self, "weight_bits", member(WeightBits, "weight_bits", str(self.weight_bits)))
         object.__setattr__(self, "placement", member(Placement, "placement", self.placement))
+        object.__setattr__(self, "target", member(Target, "target", self.target))
         object.__setattr__(self, "gelu", member(GeluForm, "gelu", self.gelu))
         object.__setattr__(self, "keep_float", tuple(self.keep_float))
         object.__setattr__(self, "skip", tuple(self.skip))
-        if self.gelu != GeluForm.FLOAT and self.placement != Placement.ALL:
+        if self.gelu != GeluForm.FLOAT and self.placement == Placement.CONVS:
             raise ParameterError("{gelu}: with {placement} the GELU's own ops stay float; it needs placement all",
                                  gelu=self.gelu, placement=self.placement)
+        if self.target != Target.ONNXRUNTIME and self.placement != Placement.AUTO:
+            raise ParameterError("{target}: the engine placement auto times the candidates on; with {placement} the "
+                                 "file is made as that placement says: give placement auto",
+                                 target=self.target, placement=self.placement)
         if not 50.0 < self.percentile <= 100.0:
             raise ParameterError("{percentile}: must be in (50, 100]", percentile=self.percentile)
         if not self.adaround_budget_s > 0.0:

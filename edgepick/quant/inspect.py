@@ -30,10 +30,11 @@ from edgepick.errors import ParameterError
 from edgepick.export.onnx_export import check_onnx_out
 from edgepick.geometry import Size
 from edgepick.models.deeplabv3 import LogitsNet, trim_dilated_convs
-from edgepick.quant.config import BIAS_CORRECTION_IMAGES, MAX_FLOAT_LAYERS, BiasCorrection, QuantConfig
+from edgepick.quant.config import BIAS_CORRECTION_IMAGES, MAX_FLOAT_LAYERS, BiasCorrection, CalibMethod, QuantConfig
 from edgepick.quant.graph import PREFIX, as_input, at_input_size, calibrate, first_of, prepare
 from edgepick.quant.ptq import convert_static, measures
 from edgepick.quant.quantizer import module_path
+from edgepick.quant.ranges import RangeRule
 from edgepick.quant.results import AccuracyAwareResult
 from edgepick.train.checkpoint import Checkpoint
 
@@ -224,6 +225,8 @@ def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str |
             cfg = replace(config, keep_float=tuple(keep))
             path = work / f"step{len(steps)}.onnx"
             res = quantize_static(ckpt, calib, path, cfg, check_images=check, progress=False)
+            if config.calib_method == CalibMethod.AUTO:  # the rule auto chose holds for the steps after this one
+                config = RangeRule.parse(res.quant["ranges"]["rule"]).pinned(config)
             miou = evaluate(path, data, "val", progress=False)["miou"]
             drop = round(100 * (base - miou), 3)
             steps.append({"keep_float": list(keep), "val_miou": miou, "drop_pp": drop, "file": str(path)})

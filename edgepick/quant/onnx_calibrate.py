@@ -105,7 +105,8 @@ class Collector:
     """Streams input tensors through a float model (onnxruntime, its graph optimisations off so
     that every named tensor exists) and keeps a Histogram per calibrated tensor."""
 
-    def __init__(self, model: Any, sizes: dict[str, int], budget: int = OUTPUT_BUDGET, threads: int = 0):
+    def __init__(self, model: Any, sizes: dict[str, int], budget: int = OUTPUT_BUDGET, threads: int = 0,
+                 minmax_only: bool = False):
         import onnx
         import onnxruntime as ort
 
@@ -125,6 +126,7 @@ class Collector:
         self.session = ort.InferenceSession(augmented.SerializeToString(), opts, providers=["CPUExecutionProvider"])
         self.input = self.session.get_inputs()[0].name
         self.seen = 0
+        self.counts = not minmax_only  # minmax reads the extremes alone: no histogram to fill
 
     def add(self, x: np.ndarray) -> list[np.ndarray]:
         """Count one input tensor in; returns the model's own outputs for it."""
@@ -133,7 +135,7 @@ class Collector:
             wanted = group + (self.outputs if k == 0 else [])
             values = self.session.run(wanted, {self.input: x})
             for name, value in zip(group, values):
-                self.histograms[name].update(value)
+                self.histograms[name].update(value, self.counts)
             if k == 0:
                 outputs = values[len(group):]
             del values

@@ -48,6 +48,7 @@ from edgepick.export.crop_convs import crop_padded_convs
 from edgepick.export.int8_activations import integer_activations
 from edgepick.export.onnx_io import (
     CONV_OPS,
+    constants_to_initializers,
     drop_unused_initializers,
     fix_input_shape,
     input_dims,
@@ -124,16 +125,22 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
     whose worst output falls under SQNR_FLOOR_DB is written with a warning naming them."""
     import onnx
     import onnxruntime
-    from onnxruntime.quantization import quant_pre_process
     from onnxruntime.quantization.registry import QDQRegistry, QLinearOpsRegistry
 
     config = config or QuantConfig()
+    if config.placement == Placement.AUTO:
+        from edgepick.quant.onnx_placement import choose_placement
+
+        return choose_placement(quantize_onnx_static, model, calib, out, config, progress, input_shape=input_shape,
+                                task=task, budget=budget)
     check_onnx_out(out, model)
     onnxruntime.set_default_logger_severity(3)  # its sessions warn about every unused initializer of the input
     if config.bias_correction == BiasCorrection.FAST:
         raise ParameterError("{bias_correction}: fast is not available for ONNX models; use empirical",
                              bias_correction=config.bias_correction)
     proto = load_float_onnx(model)
+    name_nodes(proto)
+    constants = constants_to_initializers(proto)
     known = {n.name for n in proto.graph.node}
     unknown = [k for k in config.keep_float if k not in known]
     if unknown:
@@ -145,15 +152,15 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
     first, input_shape = _first_tensor(proto, next(tensors, None), input_shape)
     t0 = time.perf_counter()
     opset_in = opset(proto)
+    proto = lift_opset(proto, model)  # before the shapes are cleared: the converter needs them
     fix_input_shape(proto, tuple(input_shape))
-    proto = lift_opset(proto, model)
     every_op = config.placement == Placement.ALL
-    rewrites = {**(rewrite_activations(proto) if every_op else {}), "affine_folded": fold_affine_into_convs(proto)}
+    rewrites = {"constants_to_initializers": constants, **(rewrite_activations(proto) if every_op else {}),
+                "affine_folded": fold_affine_into_convs(proto)}
     nhwc = len(input_shape) == 4 and input_shape[-1] in (1, 3, 4) and input_shape[1] not in (1, 3, 4)
     with tempfile.TemporaryDirectory(prefix="edgepick-onnx-") as tmp:
         pre = Path(tmp) / "float.onnx"
-        with _quiet():
-            quant_pre_process(proto, str(pre))
+        _pre_process(proto, pre)
         prepared = onnx.load(str(pre))
         drop_unused_initializers(prepared)
         if config.equalize:
@@ -169,7 +176,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
         exclude = [*config.keep_float, *float_tail(prepared)]
         sizes = calibrated_tensors(prepared, ops)
         check_memory(prepared, sizes, int(np.prod(input_shape)) * 4 * keep)
-        collector = Collector(prepared, sizes)
+        collector = Collector(prepared, sizes, minmax_only=config.calib_method == CalibMethod.MINMAX)
         hold = HELD_OUT_INPUTS if config.calib_method == CalibMethod.AUTO else 0
         kept, seen = _calibrate(collector, first, tensors, tuple(input_shape), keep, hold, total, progress)
         rule, ranges_record = choose_rule(collector, pre, kept[:hold], ops, exclude, config, nhwc, progress)
@@ -291,6 +298,48 @@ def _measure(prepared: Any, int8: Any, kept: list[np.ndarray], images: int, conf
     if config.bias_correction == BiasCorrection.EMPIRICAL:
         correct_onnx_biases(prepared, int8, kept[:images], writes_float_output(prepared))
     return done
+
+
+def _pre_process(proto: Any, out: Path) -> None:
+    """onnxruntime's pre-processing (shapes inferred, BatchNorm folded, graph optimised) of PROTO into
+    OUT. Its symbolic shape inference asserts on some graphs (a Concat of an LSTM's outputs, among
+    them): then onnx's own shape inference does, and what still fails is refused in one line. It
+    reads PROTO from a file: given a ModelProto, it moves the weights out of it (to a placeholder
+    file) before its shape inference reads them."""
+    import onnx
+    from onnxruntime.quantization import quant_pre_process
+
+    source = out.with_name(f"{out.stem}-in.onnx")
+    onnx.save(proto, str(source))
+    try:
+        with _quiet():
+            quant_pre_process(str(source), str(out))
+        return
+    except Exception:  # noqa: BLE001 - its shape inference raises AssertionError and others
+        pass
+    try:
+        with _quiet():
+            quant_pre_process(str(source), str(out), skip_symbolic_shape=True)
+    except Exception as exc:  # noqa: BLE001
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
+        raise ParameterError(f"{{model:name}}: onnxruntime's pre-processing (shape inference, optimisation) fails "
+                             f"on this graph: {first}", model=None) from None
+
+
+def name_nodes(model: Any) -> int:
+    """Give every node of MODEL without a name a unique one (its op type and place): the quantizer
+    and keep_float know nodes by name. Returns how many were named."""
+    taken = {n.name for n in model.graph.node}
+    named = 0
+    for k, node in enumerate(model.graph.node):
+        if not node.name:
+            name = f"{node.op_type}_{k}"
+            while name in taken:
+                name += "_"
+            node.name = name
+            taken.add(name)
+            named += 1
+    return named
 
 
 @contextlib.contextmanager

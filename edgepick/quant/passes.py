@@ -59,7 +59,7 @@ if TYPE_CHECKING:
 AGREEMENT_IMAGES = 8  # images on which each pass compares onnxruntime's labels with torch's simulation
 # QuantConfig fields that only static PTQ uses: a QaT file's metadata leaves them out
 STATIC_ONLY = ("calib_method", "percentile", "bias_correction", "equalize", "adaround", "adaround_budget_s",
-               "placement", "gelu")
+               "placement", "target", "gelu")
 
 
 def check_image_count(data: str | Path, split: str, count: int | None, what: str = "calibration images") -> int:

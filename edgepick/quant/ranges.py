@@ -5,7 +5,7 @@ rules that read a range off it (`RangeRule`: minmax, percentile, entropy, mse). 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -14,6 +14,10 @@ from edgepick.quant.config import CalibMethod, QuantConfig
 
 BINS = 2048  # per histogram; a range that grows merges bins pairwise, so 1024-2048 of them span the values
 CHUNK = 1 << 22  # values binned at once: bounds numpy's temporaries for a large tensor
+# values of one tensor counted per input: a larger tensor (a feature map of a megapixel input) is counted at evenly
+# spaced places, a million of its values, which still resolves a 99.9999th percentile over a few inputs; its min and
+# max stay exact
+SAMPLED = 1 << 20
 UINT8_LEVELS = 255
 AUTO_PERCENTILES = (99.99, 99.999, 99.9999)  # with calib_method auto, beside minmax, entropy and mse
 
@@ -66,22 +70,36 @@ class Histogram:
     def edges(self) -> np.ndarray:
         return self.lo + self.width * np.arange(BINS + 1, dtype=np.float64)
 
-    def update(self, values: np.ndarray) -> None:
-        """Count VALUES (any shape) in."""
+    def update(self, values: np.ndarray, counts: bool = True) -> None:
+        """Count VALUES (any shape) in: all of them, or SAMPLED evenly spaced ones of a larger tensor
+        (with its exact min and max); without COUNTS, only their min and max (all minmax needs)."""
         flat = values.reshape(-1)
+        if flat.size > SAMPLED or not counts:
+            mn, mx = float(flat.min()), float(flat.max())
+            if not np.isfinite([mn, mx]).all():
+                kept = _finite(flat)
+                mn, mx = (float(kept.min()), float(kept.max())) if kept.size else (mn, mx)
+            if np.isfinite([mn, mx]).all():
+                self._extend(mn, mx)
+            if not counts:
+                return
+            flat = flat[::-(-flat.size // SAMPLED)]
         for start in range(0, flat.size, CHUNK):
             chunk = _finite(flat[start:start + CHUNK])
             if chunk.size:
                 self._add(chunk)
 
-    def _add(self, x: np.ndarray) -> None:
-        mn, mx = float(x.min()), float(x.max())
+    def _extend(self, mn: float, mx: float) -> None:
+        """Widen the bins to hold [MN, MX] and take them as seen extremes."""
         if self.width == 0.0:
             span = mx - mn
             self.width = span / BINS if span > 0 else max(abs(mn), 1.0) * 2.0 ** -30
             self.lo = mn
         self._cover(mn, mx)
         self.min, self.max = min(self.min, mn), max(self.max, mx)
+
+    def _add(self, x: np.ndarray) -> None:
+        self._extend(float(x.min()), float(x.max()))
         index = x.astype(np.float64)  # in float32 a value near a bin edge may land in the bin beside it
         index -= self.lo
         index /= self.width
@@ -117,9 +135,21 @@ class RangeRule:
     def __str__(self) -> str:
         return f"percentile {self.percentile:g}" if self.method == CalibMethod.PERCENTILE else str(self.method.value)
 
+    @classmethod
+    def parse(cls, text: str) -> RangeRule:
+        """The rule str(rule) wrote ("mse", "percentile 99.999")."""
+        method, _, percentile = text.partition(" ")
+        return cls(CalibMethod(method), float(percentile)) if percentile else cls(CalibMethod(method))
+
+    def pinned(self, config: QuantConfig) -> QuantConfig:
+        """CONFIG with this rule as its calibration method: what calib_method auto chose, to make the
+        same model again without measuring the candidates again."""
+        return replace(config, calib_method=self.method, percentile=self.percentile if
+                       self.method == CalibMethod.PERCENTILE else config.percentile)
+
     def range(self, hist: Histogram) -> tuple[float, float]:
         """The (low, high) range of HIST's tensor by this rule (never beyond its min and max)."""
-        if hist.total == 0:
+        if hist.min > hist.max:  # nothing seen
             return 0.0, 0.0
         if self.method == CalibMethod.MINMAX or hist.max == hist.min:
             return hist.min, hist.max

@@ -65,7 +65,7 @@ def test_choices_and_defaults_are_the_librarys():
     quantize = cli.commands["quantize"]
     static = {p.name: p for p in quantize.commands["static"].params}
     assert list(static["calib_method"].type.choices) == [m.value for m in CalibMethod]
-    assert static["percentile"].default == QuantConfig().percentile and static["calib_method"].default == "percentile"
+    assert static["percentile"].default == QuantConfig().percentile and static["calib_method"].default == "auto"
     train = {p.name: p for p in cli.commands["train"].params}
     assert list(train["device"].type.choices) == [m.value for m in Device] and train["device"].default == "auto"
     defaults = TrainConfig(data="d", out="r")

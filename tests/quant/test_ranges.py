@@ -86,3 +86,17 @@ def test_auto_tries_every_rule_with_the_configured_percentile():
     assert candidate_rules(QuantConfig(calib_method="mse")) == [RangeRule(CalibMethod.MSE, 99.99)]
     with pytest.raises(ParameterError, match="calib_method"):
         RangeRule(CalibMethod.AUTO).range(Histogram.of(np.ones(BINS), 0.0, 1.0))
+
+
+def test_a_large_tensor_is_counted_at_evenly_spaced_places_with_its_exact_extremes():
+    from edgepick.quant.ranges import SAMPLED
+
+    values = np.random.default_rng(4).standard_t(4, 3 * SAMPLED + 17).astype(np.float32)
+    values[-1] = 500.0  # the one extreme value is never skipped by the sampling
+    hist = Histogram()
+    hist.update(values)
+    assert SAMPLED // 2 <= hist.total <= SAMPLED and (hist.min, hist.max) == (float(values.min()), 500.0)
+    assert RangeRule(CalibMethod.MINMAX).range(hist) == (float(values.min()), 500.0)
+    low, high = RangeRule(CalibMethod.PERCENTILE, 99.9).range(hist)
+    ref = np.percentile(values, [0.1, 99.9])
+    assert abs(low - ref[0]) < 0.05 * abs(ref[0]) and abs(high - ref[1]) < 0.05 * ref[1]

@@ -1,0 +1,126 @@
+"""Placement auto: which tensors of an .onnx model go on the int8 grid, chosen by timing the target
+engine on this machine.
+
+Which placement runs faster depends on the engine and the model: onnxruntime runs a quantized
+activation on an integer kernel and a float one between a DequantizeLinear and a
+QuantizeLinear, while OpenVINO fuses the float activations it recognises into its int8 convs
+(docs/quantization.md). So each candidate (`Placement.ALL`, `Placement.CONVS`) is made, each file
+is timed on the target engine in alternating blocks (p50, the engine's own threads), and the
+fastest whose worst output stays within PLACEMENT_FIDELITY_DB of the closest candidate's SQNR is
+kept. The choice, every candidate's time and fidelity and the machine go into the file's
+metadata.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import tempfile
+from collections.abc import Callable, Iterable, Mapping, Sized
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from edgepick.errors import EdgepickError, ParameterError
+from edgepick.files import atomic_path
+from edgepick.machine import cpu_flags, cpu_model
+from edgepick.quant.config import GeluForm, Placement, QuantConfig, Target
+from edgepick.quant.onnx_inputs import check_tensor
+
+PLACEMENT_CANDIDATES = (Placement.ALL, Placement.CONVS)
+# a candidate whose worst output SQNR is this much under the closest candidate's is not taken for its speed
+PLACEMENT_FIDELITY_DB = 1.0
+TIMING_THREADS = 2  # as the runtime and the benchmarks run a model on a laptop
+
+
+def engine_runner(path: Path, target: Target, threads: int = TIMING_THREADS) -> Callable[[np.ndarray], object]:
+    """A function running the ONNX file at PATH on TARGET with THREADS threads (OpenVINO's float
+    parts in f32, as the runtime runs them)."""
+    if target == Target.OPENVINO:
+        try:
+            import openvino as ov
+        except ImportError:
+            raise ParameterError("{target}: OpenVINO is not installed (pip install 'edgepick[peers]')",
+                                 target=target) from None
+        from edgepick.runtime.session import openvino_config
+
+        compiled = ov.Core().compile_model(str(path), "CPU", openvino_config(threads))
+        request = compiled.create_infer_request()
+        return lambda x: request.infer({0: x})
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads, opts.inter_op_num_threads, opts.log_severity_level = threads, 1, 3
+    session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+    name = session.get_inputs()[0].name
+    return lambda x: session.run(None, {name: x})
+
+
+def worst_sqnr(fidelity: Mapping[str, Mapping]) -> float:
+    """The lowest SQNR over a result's outputs (an exact output counts as infinite)."""
+    values = [f["sqnr_db"] for f in fidelity.values()]
+    return min((math.inf if v is None else v for v in values), default=math.inf)
+
+
+def choose_placement(quantize: Callable[..., Any], model: str | Path, calib: Iterable[np.ndarray], out: str | Path,
+                     config: QuantConfig, progress: bool, **options: Any) -> Any:
+    """Make MODEL's int8 file with each candidate placement (QUANTIZE: quantize_onnx_static, given
+    OPTIONS), time each on config.target, and write the fastest that keeps fidelity to OUT. Returns
+    its result, with the choice in its quant record."""
+    from edgepick.export.checks import check_onnx_out
+    from edgepick.runtime.session import median_ms
+
+    check_onnx_out(out, model)
+    tensors = calib if isinstance(calib, Sized) and iter(calib) is not calib else list(calib)
+    first = next(iter(tensors), None)
+    made: dict[Placement, Any] = {}
+    failed: dict[str, str] = {}
+    with tempfile.TemporaryDirectory(prefix="edgepick-placement-") as tmp:
+        for placement in PLACEMENT_CANDIDATES:
+            candidate = replace(config, placement=placement, target=Target.ONNXRUNTIME,
+                                gelu=config.gelu if placement == Placement.ALL else GeluForm.FLOAT)
+            if progress:
+                print(f"placement auto: make the {placement} file", file=sys.stderr, flush=True)
+            try:
+                made[placement] = quantize(model, tensors, Path(tmp) / f"{placement}.onnx", candidate,
+                                           progress=progress, **options)
+            except EdgepickError as exc:
+                if not made and placement == PLACEMENT_CANDIDATES[-1]:
+                    raise
+                failed[placement.value] = str(exc)
+        if not made:
+            raise ParameterError("{placement}: no candidate placement could be made", placement=config.placement)
+        x = check_tensor(first, tuple(next(iter(made.values())).input_shape), "calibration tensor 1")
+        runners = {p.value: engine_runner(Path(r.out), config.target) for p, r in made.items()}
+        ms = median_ms(runners, x, timed=20)
+        sqnr = {p.value: worst_sqnr(r.fidelity) for p, r in made.items()}
+        best_sqnr = max(sqnr.values())
+        good = [p for p in made if sqnr[p.value] >= best_sqnr - PLACEMENT_FIDELITY_DB]
+        chosen = min(good, key=lambda p: ms[p.value])
+        record = {"target": config.target.value, "chosen": chosen.value, "threads": TIMING_THREADS,
+                  "machine": f"{cpu_model()} ({', '.join(cpu_flags()) or 'no int8 flags'})",
+                  "candidates": [{"placement": p.value, "p50_ms": ms[p.value],
+                                  "worst_sqnr_db": None if math.isinf(sqnr[p.value]) else round(sqnr[p.value], 2)}
+                                 for p in made],
+                  **({"failed": failed} if failed else {})}
+        if progress:
+            times = ", ".join(f"{p} {ms[p]:.1f} ms" for p in ms)
+            print(f"placement auto: {chosen} on {config.target} ({times})", file=sys.stderr, flush=True)
+        result = made[chosen]
+        quant = {**result.quant, "placement_choice": record}
+        _write_with(Path(result.out), Path(out), quant)
+    return replace(result, out=str(out), size_bytes=Path(out).stat().st_size, quant=quant)
+
+
+def _write_with(source: Path, out: Path, quant: dict) -> None:
+    """Copy the int8 file SOURCE to OUT with QUANT as its edgepick.quant record."""
+    import onnx
+
+    model = onnx.load(str(source))
+    entry = next(p for p in model.metadata_props if p.key == "edgepick.quant")
+    entry.value = json.dumps(quant)
+    with atomic_path(out) as path:
+        onnx.save(model, str(path))
