@@ -34,7 +34,7 @@ from edgepick.metrics import segmentation_metrics
 from edgepick.models.config import ModelConfig
 from edgepick.models.zoo import build_model, load_backbone_weights
 from edgepick.progress import progress as progress_bar
-from edgepick.train.checkpoint import Checkpoint
+from edgepick.train.checkpoint import Checkpoint, load_weights
 from edgepick.train.config import Augment, TrainConfig, check_world
 from edgepick.train.data import IGNORE, augment, class_weights
 from edgepick.train.run import EpochRecord, Run, TrainResult
@@ -85,8 +85,8 @@ def new_model(cfg: TrainConfig, start: Checkpoint | None = None) -> nn.Module:
             raise ConfigError(f"{start.path} was trained on classes {list(start.classes)}, the data has {classes}")
         if start.epoch >= cfg.epochs:
             raise ConfigError(f"{start.path} is at epoch {start.epoch}, the budget is {cfg.epochs} epochs")
-        model.load_state_dict({k: v for k, v in start.model.items()
-                               if cfg.aux_loss or not k.startswith("aux_classifier.")})
+        load_weights(model, {k: v for k, v in start.model.items() if cfg.aux_loss or not k.startswith("aux_classifier.")},
+                     start)
     return model
 
 
@@ -172,7 +172,7 @@ def _starting_state(model: torch.nn.Module, opt: torch.optim.Optimizer, sched: t
     if resume is not None:
         if resume.optimizer is None or resume.scheduler is None:
             raise CheckpointError(f"{resume.path} holds no optimizer state to resume from (a best.pt?)")
-        model.load_state_dict(resume.model)
+        load_weights(model, resume.model, resume)
         opt.load_state_dict(resume.optimizer)
         sched.load_state_dict(resume.scheduler)
         state = {k: getattr(resume, k) for k in state}
