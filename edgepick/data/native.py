@@ -14,7 +14,7 @@ from edgepick.data.config import Split
 from edgepick.errors import ConfigError, DatasetError
 from edgepick.files import atomic_dir
 from edgepick.frames import read_grasps
-from edgepick.geometry import Intrinsics
+from edgepick.geometry import Intrinsics, check_depth_scale
 from edgepick.schema import Where, as_dict, as_names, as_number, field, member, read_json
 
 IGNORE = 255  # mask value of pixels that are neither trained on nor scored (e.g. Cityscapes' void)
@@ -117,7 +117,7 @@ def read_meta(root: str | Path) -> DatasetMeta:
     intr = meta.get("intrinsics")
     intr = Intrinsics.from_dict(intr, where.at("intrinsics")) if intr is not None else None
     if "depth_scale" in meta:
-        as_number(meta["depth_scale"], where.at("depth_scale"), above=0)
+        check_depth_scale(as_number(meta["depth_scale"], where.at("depth_scale"), above=0), where.at("depth_scale"))
     return DatasetMeta(classes, intr)
 
 

@@ -83,6 +83,12 @@ META = {  # data set meta.json variants -> a word the error must hold
     "meta-str-height": (lambda s: _intrinsics(s, height="240"), "intrinsics.height must be a number"),
     "meta-neg-fy": (lambda s: _intrinsics(s, fy=-615.0), "intrinsics.fy must be above 0"),
     "meta-zero-scale": (lambda s: _intrinsics(s, depth_scale=0), "intrinsics.depth_scale must be above 0"),
+    # values no camera has (docs/contracts.md#intrinsics-and-calibration; the set's images are 320x240)
+    "meta-tiny-fx": (lambda s: _intrinsics(s, fx=1e-9), "intrinsics.fx must be in [16, 32000] px"),
+    "meta-far-cy": (lambda s: _intrinsics(s, cy=1e9), "intrinsics.cy must lie within one image height"),
+    "meta-metre-scale": (lambda s: _intrinsics(s, depth_scale=1000),
+                         "intrinsics.depth_scale must be in [1e-06, 0.01] metres per depth unit"),
+    "meta-top-scale": (lambda s: _meta(s, depth_scale=1000), "depth_scale must be in [1e-06, 0.01] metres per"),
 }
 GRASPS = {  # a test split's grasps.json variants
     "grasps-corrupt": (lambda s: b'{"000000": [{"class": "box", "pix', "not valid JSON"),
@@ -207,7 +213,8 @@ def bw(tmp_path_factory, small_data, trained_run):
                          "m-str-classes": {"edgepick.classes": '"abc"'},
                          "m-int-classes": {"edgepick.classes": "[1, 2, 3]"},
                          "m-str-size": {"edgepick.input_size": '"big"'},
-                         "m-one-class": {"edgepick.classes": '["background"]'}}.items():
+                         "m-one-class": {"edgepick.classes": '["background"]'},
+                         "m-two-classes": {"edgepick.classes": '["background", "bearing"]'}}.items():
         ws[name] = _onnx_meta(ws["MODEL"], w / f"{name}.onnx", **change)
     _pairs(w / "pairs.csv", *_good_pairs())
     kabsch(*_good_pairs()).save(w / "calib.json")
@@ -332,6 +339,10 @@ for name, (_, message) in TRAIN_CONFIGS.items():
                            "{W}/h.onnx"], message))
 CONTENT_CASES += [
     (["train", "{D}", "--out", "{run-shape}", "--resume"], f"{FIRST_CONV} has shape [17, 3, 3, 3] in the file"),
+    # a model whose labels go beyond its classes (its regions would be dropped without a word)
+    (["grasp", "--model", "{m-two-classes}", "--rgb", "{W}/rgb.png", "--depth", "{W}/depth.png", "--intrinsics",
+      "{W}/intr.json"], "gave class id 4, but its edgepick.classes names 2 classes"),
+    (["pick", "--model", "{m-two-classes}", "--log", "{W}/p.jsonl"], "but its edgepick.classes names 2 classes"),
     (["train", "{D}", "--out", "{W}/r", "--size", "64x48", "--backbone-weights", "{W}/bb-list.pt"], "not a state dict"),
     (["train", "{D}", "--out", "{W}/r", "--size", "64x48", "--backbone-weights", "{W}/bb-str.pt"], "backbone weights"),
     (["train", "{D}", "--out", "{W}/r", "--size", "64x48", "--backbone-weights", "{W}/bb-text.pt"], "backbone weights"),
