@@ -90,6 +90,23 @@ def new_model(cfg: TrainConfig, start: Checkpoint | None = None) -> nn.Module:
     return model
 
 
+def check_run(cfg: TrainConfig, resuming: bool = False) -> tuple[NativeDataset, NativeDataset]:
+    """What a run of CFG stands on, checked before its first progress line (a QaT pass calls this before
+    it prepares its graph): the torchrun environment, the device, a RUN folder that holds no run (unless
+    RESUMING it), and the data's train and val splits, every image of them a PNG of one size (read from
+    the files' headers: a broken data set is refused now, not in the middle of the first epoch).
+    Returns the two splits."""
+    _, world, local_rank = dist_env()
+    device_for(cfg.device, local_rank)
+    if not resuming:
+        Run(cfg.out).check_new()
+    splits = NativeDataset.open(cfg.data, "train"), NativeDataset.open(cfg.data, "val")
+    for ds in splits:
+        ds.check_files()
+    check_world(cfg, world)
+    return splits
+
+
 def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> TrainResult:
     """Train a float segmentation model on a native data set (resume: continue cfg.out from its last.pt, see
     resume_run); returns the final summary."""
@@ -188,14 +205,11 @@ def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, st
     this run's own last.pt. Returns the final summary. One function on purpose (nanoGPT's
     train.py): the epoch, the step and the checkpoint read in one sitting."""
     hooks = hooks or Hooks()
+    train_ds, val_ds = check_run(cfg, resuming=resume is not None)
     rank, world, local_rank = dist_env()
     device = device_for(cfg.device, local_rank)
     run = Run(cfg.out)
-    if resume is None:
-        run.check_new()
-    train_ds, val_ds = NativeDataset.open(cfg.data, "train"), NativeDataset.open(cfg.data, "val")
     classes = train_ds.classes
-    check_world(cfg, world)
     cuda = device.type == "cuda"
     amp = cuda and hooks.bf16  # bf16 autocast on GPU; CPU fp32
     if world > 1 and not dist.is_initialized():

@@ -163,6 +163,10 @@ CASES = [
      "--qat-fraction"),
     (["bench", "{MODEL}", "--data", "{D}", "--out", "{F}/b"], "is a file, not a folder"),
     (["bench", "{MODEL}", "--data", "{D}", "--runs", "0", "--out", "{W}/b"], "--runs"),
+    (["bench", "{MODEL}", "--data", "{D}", "--gpu-checkpoint", "{W}/nosuch.pt", "--out", "{W}/b"],
+     "--gpu-checkpoint {W}/nosuch.pt: no checkpoint there"),
+    (["bench", "{MODEL}", "--cell", "1", "--gpu-checkpoint", "{W}/nosuch.pt", "--out", "{W}/b"],
+     "--gpu-checkpoint is for the table of --data"),
 ]
 
 
