@@ -249,6 +249,7 @@ def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_frac
         raise ParameterError("{qat_run}: already exists and is not empty; choose a new folder", qat_run=qat_run)
     # load the epoch checkpoint -> prepare -> calibrate -> fit (train_qat) -> convert -> export (_finish_qat)
     start, cfg = _switch_point(Path(run), data, qat_fraction)
+    start.build_model()  # weights that do not fit are refused now, not after the stage lines below
     cfg = replace(cfg, data=str(data), out=str(qat_run), keep_epochs=(), device=device)
     check_run(cfg)  # the stages below say what they do only once nothing is left to refuse
     drawn = calib is None or isinstance(calib, int)  # drawn from DATA's train split, else given

@@ -129,6 +129,7 @@ def resume_run(out: str | Path, data: str | Path, epochs: int | None = None, pro
         raise CheckpointError(f"{out} is a QaT run; run its quantize command again to start it anew")
     if last.train_config is None:
         raise CheckpointError(f"{last.path} has no train_config to resume with")
+    last.build_model()  # its weights fit the architecture it names, or one line says which tensor does not
     budget = last.train_config.epochs if epochs is None else epochs
     cfg = replace(last.train_config, epochs=max(budget, last.epoch), data=str(data))
     check_same_data(last, cfg.data)

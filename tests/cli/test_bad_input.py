@@ -22,6 +22,7 @@ pytest.importorskip("onnx")
 from edgepick.cli import run  # noqa: E402
 from edgepick.geometry import Intrinsics  # noqa: E402
 from tests.runtime.test_pipeline import red_model  # noqa: E402
+from tests.runtime.test_session import red_channel_model  # noqa: E402
 
 HEADER = "cam_x,cam_y,cam_z,robot_x,robot_y,robot_z"
 
@@ -67,6 +68,10 @@ def ws(tmp_path_factory, small_data):
     labels = np.zeros((240, 320), np.uint8)
     cv2.rectangle(labels, (100, 80), (160, 120), 4, -1)
     cv2.imwrite(str(w / "mask.png"), labels)
+    cv2.imwrite(str(w / "rgb.png"), np.dstack([labels] * 3))  # red_model's labels: the mask's
+    two = {"edgepick.classes": json.dumps(["background", "bearing"]), "edgepick.input_size": json.dumps([240, 320]),
+           "edgepick.colorspace": "rgb", "edgepick.precision": "fp32"}
+    red_channel_model(w / "two.onnx", 240, 320, meta=two)  # labels up to 255, metadata for 2 classes
     cv2.imwrite(str(w / "depth.png"), np.full((240, 320), 600, np.uint16))
     cv2.imwrite(str(w / "depth8.png"), np.full((240, 320), 60, np.uint8))
     return {"W": w, "D": small_data, "MIXED": mixed, "MODEL": w / "model.onnx", "F": w / "afile"}
@@ -126,6 +131,10 @@ CASES = [
     ([*G[:5], "--intrinsics", "{W}/intr-fine.json"], "depth_scale must be in [1e-06, 0.01]"),
     ([*G, "--calib", "{W}/far.json"], "t puts the camera 1e+09 m from the robot's base"),
     ([*G, "--classes", "background,box,box"], "names 'box' twice"),
+    # a model whose labels go beyond its classes (the grasp step would drop their regions without a word)
+    (["grasp", "--model", "{W}/two.onnx", "--rgb", "{W}/rgb.png", *G[3:]],
+     "two.onnx gave class id 4, but its edgepick.classes names 2 classes (ids 0 to 1)"),
+    (["pick", "--model", "{W}/two.onnx", "--log", "{W}/p.jsonl"], "but its edgepick.classes names 2 classes"),
     ([*G[:3], "--depth", "{W}/depth8.png", *G[5:]], "uint16"),
     ([*G, "--overlay", "{W}/o"], "must end in .png"),
     ([*G, "--classes", ""], "--classes ''"),
