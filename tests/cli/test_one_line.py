@@ -1,10 +1,12 @@
 """One line means one line: a refusal that a command can find before its work prints its error line
-alone, with no progress line, stage line or warning before it. Each case here is a mistake that used
-to be found only after such a line (a stage of a quantization pass, a bench row's progress line, a
-dropped environment variable's warning, calibrate's outlier line).
+alone, with no progress line, stage line or warning before it. Each case here is a mistake that the
+command's work would meet only after such a line (a stage of a quantization pass, a bench row's
+progress line, a dropped environment variable's warning, calibrate's outlier line, the demo's first
+step), had the command not checked it first.
 
 In-process through `edgepick.cli.run` with the file descriptors captured, as tests/cli/test_bad_input.py
-runs its cases; the thread variable's case also in a subprocess, where libgomp reads it.
+runs its cases; tests/cli/test_bad_files.py runs the thread variable's case in a subprocess too, where
+libgomp reads it.
 """
 
 from __future__ import annotations
@@ -58,7 +60,7 @@ def ws(tmp_path_factory, small_data):
 Q = ["quantize", "qat", "--out", "{W}/q.onnx", "--size", "64x48", "--epochs", "1", "--data"]
 H = ["quantize", "hybrid", "{RUN}", "--out", "{W}/h.onnx", "--qat-fraction", "0.25", "--data"]
 NO_CUDA = pytest.mark.skipif(torch.cuda.is_available(), reason="refused only where there is no CUDA device")
-CASES = [  # (environment, args, message); each printed a line before its error
+CASES = [  # (environment, args, message); each met, unchecked, after a line on stderr
     # a stage line of a QaT pass ("prepare the fake-quant graph ..."), then what its training found
     ({}, [*Q, "{MIXED}"], "all images of a data set must have one size"),
     ({}, [*Q, "{UNREADABLE}"], "cannot read image"),
