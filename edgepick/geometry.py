@@ -68,6 +68,17 @@ def check_size(value: object, what: str) -> Size:
 # A RealSense D415 colour stream at 640x480 has fx ~ fy ~ 615 px.
 D415_FOCAL_640 = 615.0
 
+# What a file's intrinsics may say (docs/contracts.md#intrinsics-and-calibration): every real camera a
+# picking cell uses lies well inside, and a value outside is a wrong unit or a field written into another.
+FOCAL_MIN_PER_PX = 0.05  # fx >= width / 20 (fy: height): a view wider than 2 atan(10) = 169 degrees is a
+#                          fisheye's, which a pinhole model without distortion cannot describe
+FOCAL_MAX_PER_PX = 100.0  # fx <= 100 x width: a view narrower than 0.6 degrees is a telescope's
+PRINCIPAL_MARGIN = 1.0  # cx within one image width outside the image (cy: height): an image cropped from a
+#                         larger sensor's can have its principal point outside, never far outside
+DEPTH_SCALE_MIN_M = 1e-6  # metres per depth unit; finer, and uint16's 65535 units end at 6.6 cm, nearer
+#                           than any depth camera measures
+DEPTH_SCALE_MAX_M = 0.01  # coarser than 1 cm per unit cannot place a grasp within the 10 mm it is judged by
+
 
 @dataclass(frozen=True)
 class Intrinsics:
@@ -96,7 +107,11 @@ class Intrinsics:
                 for k in ("width", "height")}
         focal = {k: as_number(field(d, k, where), where.at(k), above=0) for k in ("fx", "fy")}
         centre = {k: as_number(field(d, k, where), where.at(k)) for k in ("cx", "cy")}
-        scale = as_number(field(d, "depth_scale", where, 0.001), where.at("depth_scale"), above=0)
+        scale = check_depth_scale(as_number(field(d, "depth_scale", where, 0.001), where.at("depth_scale"), above=0),
+                                  where.at("depth_scale"))
+        for focal_key, centre_key, side in (("fx", "cx", "width"), ("fy", "cy", "height")):
+            check_axis(focal[focal_key], centre[centre_key], size[side], side, where.at(focal_key),
+                       where.at(centre_key))
         return cls(size["width"], size["height"], float(focal["fx"]), float(focal["fy"]), float(centre["cx"]),
                    float(centre["cy"]), float(scale))
 
@@ -125,6 +140,27 @@ class Intrinsics:
         rays[..., 1] = v[:, None]
         rays[..., 2] = 1.0
         return rays
+
+
+def check_axis(focal: float, centre: float, pixels: int, side: str, at_focal: Where, at_centre: Where) -> None:
+    """One image axis of a camera's intrinsics: its focal length and principal point in pixels, within
+    FOCAL_*_PER_PX and PRINCIPAL_MARGIN of the image's PIXELS along it (SIDE: width or height)."""
+    low, high = FOCAL_MIN_PER_PX * pixels, FOCAL_MAX_PER_PX * pixels
+    if not low <= focal <= high:
+        at_focal.fail(f"must be in [{low:g}, {high:g}] px for an image {pixels} px in {side} (a field of view of 169 "
+                      f"to 0.6 degrees), got {focal!r}")
+    margin = PRINCIPAL_MARGIN * pixels
+    if not -margin <= centre <= pixels + margin:
+        at_centre.fail(f"must lie within one image {side} of the {pixels} px image, in [{-margin:g}, "
+                       f"{pixels + margin:g}] px, got {centre!r}")
+
+
+def check_depth_scale(scale: float, where: Where) -> float:
+    """A depth scale (metres per depth unit) within DEPTH_SCALE_MIN_M and DEPTH_SCALE_MAX_M."""
+    if not DEPTH_SCALE_MIN_M <= scale <= DEPTH_SCALE_MAX_M:
+        where.fail(f"must be in [{DEPTH_SCALE_MIN_M:g}, {DEPTH_SCALE_MAX_M:g}] metres per depth unit (0.001: "
+                   f"millimetres), got {scale!r}")
+    return scale
 
 
 def deproject(intr: Intrinsics, u: float, v: float, depth_m: float) -> np.ndarray:

@@ -68,3 +68,23 @@ def test_check_size_refuses_a_tuple_in_one_line():
     with pytest.raises(ConfigError, match=r"^TrainConfig size must be a Size\(width, height\)") as exc:
         check_size((480, 640), "TrainConfig size")
     assert "\n" not in str(exc.value)
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"fx": 1e-9}, "x.json: fx must be in [32, 64000] px for an image 640 px in width (a field of view of 169 to 0.6"),
+    ({"fx": 31.9}, "fx must be in [32, 64000] px"),
+    ({"fy": 48001.0}, "fy must be in [24, 48000] px for an image 480 px in height"),
+    ({"cx": 1e9}, "cx must lie within one image width of the 640 px image, in [-640, 1280] px, got 1000000000.0"),
+    ({"cy": -481.0}, "cy must lie within one image height of the 480 px image, in [-480, 960] px"),
+    ({"depth_scale": 1000}, "depth_scale must be in [1e-06, 0.01] metres per depth unit (0.001: millimetres), got 1000"),
+    ({"depth_scale": 1e-7}, "depth_scale must be in [1e-06, 0.01]"),
+])
+def test_intrinsics_no_camera_has_are_refused_naming_the_file_and_field(change, message):
+    from edgepick.geometry import Intrinsics
+    from edgepick.schema import FileContentError, Where
+
+    good = Intrinsics.d415(640, 480).to_dict()
+    Intrinsics.from_dict({**good, "fx": 32.0, "cy": 960.0, "depth_scale": 0.01}, Where("x.json"))  # the bounds hold
+    with pytest.raises(FileContentError) as err:
+        Intrinsics.from_dict({**good, **change}, Where("x.json"))
+    assert message in str(err.value)

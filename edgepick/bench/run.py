@@ -11,7 +11,7 @@ import onnxruntime as ort
 from edgepick.bench.measure import BenchConfig, Row, bench_model, order_key
 from edgepick.bench.report import write_reports
 from edgepick.data.native import NativeDataset
-from edgepick.errors import ConfigError
+from edgepick.errors import CheckpointError, ConfigError, ParameterError
 from edgepick.machine import machine_line
 from edgepick.runtime.session import check_model
 
@@ -52,6 +52,27 @@ def gpu_row(checkpoint: str | Path, data: str | Path, images: list[np.ndarray], 
                device=torch.cuda.get_device_name())
 
 
+def check_gpu_checkpoint(checkpoint: str | Path, classes: list[str]) -> None:
+    """The float checkpoint of the fp32 GPU row, checked before anything is measured: there, and (where
+    torch is installed) an edgepick checkpoint of the data's classes. A machine without a GPU still
+    checks it: the same command line then fails alike on the machine that has one."""
+    from edgepick.train.run import checkpoint_path
+
+    path = checkpoint_path(checkpoint)
+    if not path.is_file():
+        raise ParameterError("{gpu_checkpoint}: no checkpoint there (a float RUN folder or its .pt file)",
+                             gpu_checkpoint=checkpoint)
+    try:
+        from edgepick.train.checkpoint import Checkpoint
+    except ImportError:  # the base install: no GPU row without torch, and nothing to read the file with
+        return
+    ckpt = Checkpoint.load(path)
+    ckpt.build_model()  # a QaT checkpoint, or weights that do not fit, are refused here
+    if list(ckpt.classes) != classes:
+        raise CheckpointError(f"{path}: the checkpoint's classes {list(ckpt.classes)} differ from the data set's "
+                              f"{classes}")
+
+
 def run_bench(models: list[str | Path], data: str | Path, out_dir: str | Path, cfg: BenchConfig | None = None,
               gpu_checkpoint: str | Path | None = None, with_pipeline: bool = True, title: str = "edgepick bench",
               progress=print) -> dict:
@@ -62,9 +83,14 @@ def run_bench(models: list[str | Path], data: str | Path, out_dir: str | Path, c
     for m in models:
         if Path(m).suffix != ".onnx":
             raise ConfigError(f"{m} is not an .onnx file (bench runs ONNX models through the runtime)")
-    for m in models:  # every model's contract before the first is measured
-        check_model(m)
     ds = NativeDataset.open(data, cfg.split)
+    for m in models:  # every model's contract, and its classes, before the first is measured
+        classes = check_model(m).classes
+        if classes != ds.classes:
+            raise CheckpointError(f"{m}: the model's classes {classes} differ from the data set's {ds.classes}")
+    if gpu_checkpoint:
+        check_gpu_checkpoint(gpu_checkpoint, ds.classes)
+    ds.check_files()
     images = [ds.rgb(sid) for sid in ds.ids[:cfg.latency_images]]
     rows = []
     notes = []
@@ -72,6 +98,7 @@ def run_bench(models: list[str | Path], data: str | Path, out_dir: str | Path, c
         row = gpu_row(gpu_checkpoint, data, images, cfg)
         if row is None:
             notes.append("no CUDA GPU here: the fp32 GPU row is left out")
+            progress(f"edgepick: warning: {notes[-1]}")
         else:
             rows.append(row)
     for m in models:

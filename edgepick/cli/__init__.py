@@ -158,16 +158,19 @@ def quiet_dependencies() -> None:
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
-def sanitize_thread_variables() -> None:
+def sanitize_thread_variables() -> list[str]:
     """Drop a thread-count variable that is not one or more positive whole numbers ("4" or
-    OpenMP's nested "4,2"), with edgepick's own one-line warning instead of libgomp's."""
+    OpenMP's nested "4,2"); returns edgepick's one-line warning for each (instead of libgomp's),
+    for `run` to print once the command is over."""
+    said = []
     for name in THREAD_VARIABLES:
         value = os.environ.get(name)
         if value is None or re.fullmatch(r"\s*[1-9]\d*(\s*,\s*[1-9]\d*)*\s*", value):
             continue
         del os.environ[name]
-        click.echo(f"edgepick: warning: {name}={value!r} is not a positive whole number; ignored (the "
-                   "libraries choose their thread counts)", err=True)
+        said.append(f"edgepick: warning: {name}={value!r} is not a positive whole number; ignored (the libraries "
+                    "chose their thread counts)")
+    return said
 
 
 @contextlib.contextmanager
@@ -210,10 +213,19 @@ def _click_message(exc: click.ClickException) -> str:
 def run(args: list[str] | None = None) -> int:
     """Run one edgepick command line (None: sys.argv) and return its exit status, having said
     any failure a user can cause in one line on stderr. A bug still raises, with its traceback."""
-    sanitize_thread_variables()
+    held = sanitize_thread_variables()
     quiet_dependencies()
-    with signals_as_interrupts():
-        return _run(args)
+    code = None
+    try:
+        with signals_as_interrupts():
+            code = _run(args)
+        return code
+    finally:
+        # the environment's warnings come after the command: a refusal stays its one line (exit 2 says
+        # nothing else; the warning comes with the run that follows once the mistake is mended)
+        if code != EXIT_USER_ERROR:
+            for line in held:
+                click.echo(line, err=True)
 
 
 def _run(args: list[str] | None) -> int:

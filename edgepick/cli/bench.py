@@ -63,6 +63,8 @@ def bench(models: tuple[str, ...], data: str | None, split: str, threads: int, r
 
         if cell < 1:
             raise ConfigError(f"--cell {cell}: the number of executions must be at least 1")
+        if gpu_checkpoint is not None:
+            raise ConfigError("--gpu-checkpoint is for the table of --data; --cell times the ONNX models' pick loop")
         if verdict != VerdictRule.GEOMETRIC:
             from edgepick.sim.physics import require_mujoco
 

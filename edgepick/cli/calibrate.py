@@ -99,12 +99,13 @@ def fit(pairs: str, out: str, max_rmse: float, drop_outliers: bool, subsets: str
     flagged_set = set(flagged)
     if drop_outliers and flagged:
         keep = [i for i in range(len(camera)) if i not in flagged_set]
-        click.echo(f"dropping {len(flagged)} outlier pair(s): {', '.join(str(i + 1) for i in flagged)}", err=True)
         cal = kabsch(camera[keep], robot[keep])
         camera_fit, robot_fit = camera[keep], robot[keep]
     else:
         camera_fit, robot_fit = camera, robot
-    diagnose(cal, camera_fit, robot_fit, max_rmse / 1000)
+    diagnose(cal, camera_fit, robot_fit, max_rmse / 1000)  # a refusal comes before the first line below
+    if drop_outliers and flagged:
+        click.echo(f"dropped {len(flagged)} outlier pair(s): {', '.join(str(i + 1) for i in flagged)}", err=True)
     for i, err in enumerate(residuals(cal, camera, robot)):
         held = f"   leave-one-out {_mm(loo[i]):>7} mm" if loo is not None else ""
         flag = "   outlier" + (" (dropped)" if drop_outliers else "") if i in flagged_set else ""

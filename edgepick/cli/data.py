@@ -23,7 +23,8 @@ def data() -> None:
 @click.option("--splits", default=None, metavar="TRAIN,VAL,TEST", help="Explicit scene counts per split (overrides --scenes).")
 @click.option("--size", default="640x480", show_default=True, help="Image size, WIDTHxHEIGHT.")
 @click.option("--seed", default=0, show_default=True, help="Same seed -> identical files.")
-@click.option("--workers", default=0, show_default=True, help="Parallel processes; 0 = one per core.")
+@click.option("--workers", default=0, show_default=True,
+              help="Parallel processes; 0 = one per core. Never more than the scenes or the cores.")
 def data_synth(out: str, scenes: int, splits: str | None, size: str, seed: int, workers: int) -> None:
     """Render synthetic RGB-D tabletop scenes of the thesis's four objects into OUT.
 

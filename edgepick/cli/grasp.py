@@ -69,6 +69,9 @@ def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, d
     if len(names) < 2 or not all(names):
         raise ConfigError(f"--classes {classes!r}: give every class id a name, background first, e.g. "
                           f"{','.join(DEFAULT_CLASSES)}")
+    twice = next((n for n in names if names.count(n) > 1), None)
+    if twice is not None:  # two ids of one name: which object a record names would be a guess
+        raise ConfigError(f"--classes {classes!r}: names {twice!r} twice; each class id needs its own name")
     depth = read_depth(depth_path)
     intr = Intrinsics.load(intrinsics)
     cal = Calibration.load(calib) if calib else None

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import signal
 from dataclasses import replace
 from pathlib import Path
 
@@ -183,40 +184,61 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     grip = make_gripper(gripper_spec, robot) if robot is not None else None
     log = CommandLog(log_path)
     echo = lambda line: click.echo(line, err=True)  # noqa: E731
-    results, halted, unreachable = [], None, False
+    results: list[dict] = []  # filled cycle by cycle: still there when an interrupt ends the loop
+    halted, unreachable, interrupt = None, False, None
     overlays = output_dir(overlay_dir, "pick") if overlay_dir is not None else contextlib.nullcontext()
     recorder = _recorder(record_path, model, segmenter.info.classes, source, cfg, pipeline,
                          robot.envelope if robot is not None else None)
     try:
         with overlays, source:
             if robot is None:
-                results = run_cycles(source, pipeline, None, None, cfg=cfg, cycles=cycles, log=log,
-                                     overlay_dir=overlay_dir, echo=echo, truth_cal=truth_cal, recorder=recorder,
-                                     physics=physics)
+                run_cycles(source, pipeline, None, None, cfg=cfg, cycles=cycles, log=log, overlay_dir=overlay_dir,
+                           echo=echo, truth_cal=truth_cal, recorder=recorder, physics=physics, done=results)
             else:
                 try:
                     grip.probe()  # a gripper that cannot be reached is found before the arm is sent anything
                     with robot:
-                        results = run_cycles(source, pipeline, robot, grip, cfg=cfg, cycles=cycles, log=log,
-                                             overlay_dir=overlay_dir, echo=echo, truth_cal=truth_cal, overlap=overlap,
-                                             recorder=recorder, physics=physics)
+                        run_cycles(source, pipeline, robot, grip, cfg=cfg, cycles=cycles, log=log,
+                                   overlay_dir=overlay_dir, echo=echo, truth_cal=truth_cal, overlap=overlap,
+                                   recorder=recorder, physics=physics, done=results)
                 except RobotError as exc:
                     if getattr(exc, "exit_code", 2) != 3:
                         raise
                     halted, unreachable = str(exc), isinstance(exc, RobotUnreachable)
                 halted = halted or robot.halted
+    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM or SIGHUP (Terminated): the summary of what was done
+        interrupt = exc
     finally:
         log.close()
         if recorder is not None:  # also on Ctrl-C or a halt: what was recorded becomes a readable file
             recorder.close()
-    summary = {"model": model, **cycles_summary(results), "halted": halted,
+    summary = {"model": model, **cycles_summary(results), "halted": halted, "interrupted": _signal_name(interrupt),
                "log": log_path if log.path and log.path.exists() else None,
                "record": record_path if record_path and Path(record_path).exists() else None, "results": results}
-    click.echo(json.dumps(summary, indent=1))  # the summary first, even when the run ends in a halt
+    _print_summary(summary, interrupted=interrupt is not None)
+    if interrupt is not None:  # the command line says so in one line and exits 128 + the signal
+        raise interrupt
     if halted:  # the command line prints the one error line and exits 3
         if unreachable:
             raise RobotUnreachable(halted)
         raise RobotHalted(f"robot halted: {halted} ({summary['done']} of {cycles} cycles done)")
+
+
+def _signal_name(interrupt: KeyboardInterrupt | None) -> str | None:
+    """The signal that ended the run: SIGINT for Ctrl-C, SIGTERM or SIGHUP (edgepick.errors.Terminated)."""
+    if interrupt is None:
+        return None
+    return signal.Signals(getattr(interrupt, "signum", signal.SIGINT)).name
+
+
+def _print_summary(summary: dict, interrupted: bool) -> None:
+    """The run's JSON summary on stdout: first, even when the run ends in a halt or an interrupt. A
+    hung-up terminal may have taken stdout with it; an interrupted run then ends without it."""
+    try:
+        click.echo(json.dumps(summary, indent=1))
+    except OSError:
+        if not interrupted:
+            raise
 
 
 def _recorder(path: str | None, model: str, classes, source, cfg: PickConfig, pipeline, envelope: Envelope | None):

@@ -128,5 +128,8 @@ def demo(workdir: str, scenes: int, epochs: int) -> None:
     if scenes < 30:
         raise ConfigError(f"--scenes {scenes}: the demo needs at least 30 (train, val and test splits)")
     check_output(workdir, "--workdir", kind="dir", reuse="demo")
+    from edgepick.data.synth import SynthConfig, check_room
+
+    check_room(SynthConfig(scenes=scenes), Path(workdir) / "data")  # before the demo's first step line
     run_demo(Path(workdir), scenes=scenes, epochs=epochs)
 

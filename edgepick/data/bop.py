@@ -11,6 +11,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from edgepick.geometry import DEPTH_SCALE_MAX_M, DEPTH_SCALE_MIN_M
 from edgepick.schema import Where, as_dict, as_list, as_number, as_numbers, field, read_json
 
 # LineMOD's object names by object id (1-based); other data sets' objects are named obj_<id>.
@@ -57,6 +58,9 @@ def _camera(cams: dict, key: str, cam_file: Path) -> tuple[list[float], float]:
         where.at("cam_K").fail(f"must be the 3x3 matrix row by row, [fx, 0, cx, 0, fy, cy, 0, 0, 1]; its last "
                                f"row is {K[6:]}")
     scale = float(as_number(field(cam, "depth_scale", where, 1.0), where.at("depth_scale"), above=0))
+    low, high = DEPTH_SCALE_MIN_M * 1000, DEPTH_SCALE_MAX_M * 1000  # any depth scale's bounds, in BOP's millimetres
+    if not low <= scale <= high:
+        where.at("depth_scale").fail(f"must be in [{low:g}, {high:g}] millimetres per depth unit, got {scale!r}")
     return K, scale
 
 

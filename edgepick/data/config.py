@@ -56,6 +56,11 @@ class ImportConfig:
         if not (math.isfinite(self.depth_scale_m) and self.depth_scale_m > 0):
             raise ParameterError("{depth_scale_m}: must be positive (metres per unit, e.g. 0.001)",
                                  depth_scale_m=self.depth_scale_m)
+        from edgepick.geometry import DEPTH_SCALE_MAX_M, DEPTH_SCALE_MIN_M  # imports numpy: not at this module's import
+
+        if not DEPTH_SCALE_MIN_M <= self.depth_scale_m <= DEPTH_SCALE_MAX_M:
+            raise ParameterError(f"{{depth_scale_m}}: must be in [{DEPTH_SCALE_MIN_M:g}, {DEPTH_SCALE_MAX_M:g}] metres "
+                                 "per depth unit (0.001: millimetres)", depth_scale_m=self.depth_scale_m)
         if self.depth and not self.intrinsics:
             raise ParameterError("{depth:name} needs {intrinsics:name} (intrinsics.json of the depth camera)",
                                  depth=self.depth, intrinsics=self.intrinsics)

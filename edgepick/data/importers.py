@@ -24,8 +24,8 @@ from edgepick.data.bop import BopImage, bop_scenes, object_name, read_scene
 from edgepick.data.config import CityscapesClasses, ImportConfig, ImportFormat, Split
 from edgepick.data.native import IGNORE, atomic_folder
 from edgepick.errors import DatasetError, ParameterError
-from edgepick.geometry import Intrinsics
-from edgepick.schema import member, read_text
+from edgepick.geometry import Intrinsics, check_axis
+from edgepick.schema import Where, member, read_text
 
 # Cityscapes label ids (cityscapesScripts' labels.py): name, id, train id (255 = not trained).
 CITYSCAPES = [
@@ -201,7 +201,10 @@ def import_bop(src: Path, writer: NativeWriter, cfg: ImportConfig) -> tuple[list
         rgb = _rgb(rgb_path)
         h, w = rgb.shape[:2]
         this = Intrinsics(w, h, K[0], K[4], K[2], K[5], 0.001)
-        if intr is None:
+        if intr is None:  # the intrinsics the data set records: as any intrinsics file's are checked
+            at = Where(str(scene / "scene_camera.json"), f"image {im}").at("cam_K")
+            check_axis(K[0], K[2], w, "width", at.at(0), at.at(2))
+            check_axis(K[4], K[5], h, "height", at.at(4), at.at(5))
             intr = this
         elif (intr.width, intr.height) != (w, h) or max(abs(a - b) for a, b in zip(
                 (intr.fx, intr.fy, intr.cx, intr.cy), (this.fx, this.fy, this.cx, this.cy))) > 0.5:
@@ -346,7 +349,13 @@ def import_cvat(src: Path, writer: NativeWriter, cfg: ImportConfig) -> tuple[lis
                 raise DatasetError(f"{dpath} must be a single-channel uint16 depth image")
             if (raw.shape[1], raw.shape[0]) != (intr.width, intr.height):
                 raise DatasetError(f"{dpath} is {_size(raw)}, the intrinsics {intr.width}x{intr.height}")
-            depth_mm = np.clip(np.round(raw * (cfg.depth_scale_m * 1000.0)), 0, 65535).astype(np.uint16)
+            depth_mm = np.round(raw * (cfg.depth_scale_m * 1000.0))
+            if depth_mm.max() > 65535:  # a wrong --depth-scale, not a depth any camera of a cell reads
+                raise ParameterError(f"{{depth_scale_m}}: {dpath} holds {int(raw.max())} units, "
+                                     f"{raw.max() * cfg.depth_scale_m:g} m at this scale, beyond the 65.535 m a "
+                                     "millimetre depth image holds; is it metres per unit?",
+                                     depth_scale_m=cfg.depth_scale_m)
+            depth_mm = depth_mm.astype(np.uint16)
         writer.add(splits[stem], rgb, mask, depth_mm, mpath.name)
     if intr is not None:
         intr = Intrinsics(intr.width, intr.height, intr.fx, intr.fy, intr.cx, intr.cy, 0.001)  # written in mm

@@ -14,7 +14,7 @@ from edgepick.data.config import Split
 from edgepick.errors import ConfigError, DatasetError
 from edgepick.files import atomic_dir
 from edgepick.frames import read_grasps
-from edgepick.geometry import Intrinsics
+from edgepick.geometry import Intrinsics, check_depth_scale
 from edgepick.schema import Where, as_dict, as_names, as_number, field, member, read_json
 
 IGNORE = 255  # mask value of pixels that are neither trained on nor scored (e.g. Cityscapes' void)
@@ -68,6 +68,24 @@ class NativeDataset:
                                f"(like {self.ids[0]}.png); all images of a data set must have one size")
         return image
 
+    def check_files(self) -> None:
+        """Every colour image and mask of the split a PNG of the split's one size, read from the files'
+        headers alone (no decoding: milliseconds for thousands of scenes), so that a command refuses a
+        broken data set before its work starts. A PNG whose data is damaged behind a sound header
+        is found when it is decoded."""
+        first = None
+        for sid in self.ids:
+            for kind in ("rgb", "mask"):
+                path = self._path(kind, sid)
+                size = _png_size(path)
+                if size is None:
+                    raise DatasetError(f"cannot read {'image' if kind == 'rgb' else 'mask'} {path} (not a PNG file)")
+                first = first or size
+                if size != first:
+                    raise DatasetError(f"{path} is {size[0]}x{size[1]} but the data set's images are "
+                                       f"{first[0]}x{first[1]} (like {self.ids[0]}.png); all images of a data set "
+                                       "must have one size")
+
     def rgb(self, sid: str) -> np.ndarray:
         img = cv2.imread(str(self._path("rgb", sid)), cv2.IMREAD_COLOR)
         if img is None:
@@ -97,6 +115,21 @@ class NativeDataset:
         return read_grasps(path) if path.is_file() else {}
 
 
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _png_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) from a PNG file's IHDR chunk, or None when the file is not a PNG."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(24)
+    except OSError:
+        return None
+    if len(head) < 24 or not head.startswith(PNG_SIGNATURE) or head[12:16] != b"IHDR":
+        return None
+    return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+
+
 @dataclass(frozen=True)
 class DatasetMeta:
     """What DATA/meta.json says (docs/contracts.md#data-set-layout)."""
@@ -117,7 +150,7 @@ def read_meta(root: str | Path) -> DatasetMeta:
     intr = meta.get("intrinsics")
     intr = Intrinsics.from_dict(intr, where.at("intrinsics")) if intr is not None else None
     if "depth_scale" in meta:
-        as_number(meta["depth_scale"], where.at("depth_scale"), above=0)
+        check_depth_scale(as_number(meta["depth_scale"], where.at("depth_scale"), above=0), where.at("depth_scale"))
     return DatasetMeta(classes, intr)
 
 

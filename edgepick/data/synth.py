@@ -44,7 +44,7 @@ class SynthConfig:
     height: int = 480
     seed: int = 0
     splits: tuple[int, int, int] | None = None  # explicit train/val/test counts
-    workers: int = 0  # 0 = one per core
+    workers: int = 0  # 0 = one per core; never more than the scenes or the cores (worker_count)
 
     def __post_init__(self) -> None:
         if self.seed < 0:
@@ -194,6 +194,22 @@ def check_room(config: SynthConfig, out: str | Path) -> None:
                              f"{need / 1e9:.3g} GB, but {parent} has {free / 1e9:.3g} GB free", **given)
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity: a container's or taskset's share)."""
+    try:
+        return len(os.sched_getaffinity(0)) or 1
+    except (AttributeError, OSError):  # not on Linux
+        return os.cpu_count() or 1
+
+
+def worker_count(asked: int, jobs: int) -> int:
+    """The processes that render JOBS scenes: ASKED (0: one per core), never more than the scenes nor
+    the cores. One more process than cores renders nothing faster, and each costs seconds to start
+    and its own memory: --workers 1000 on 3 scenes would spend minutes starting processes that
+    have nothing to do."""
+    return max(1, min(asked or usable_cores(), jobs, usable_cores()))
+
+
 def synthesize(out: str | Path, config: SynthConfig, progress: bool = True) -> dict:
     """Generate the data set at OUT; returns a summary with scenes/s."""
     out = Path(out)
@@ -205,7 +221,7 @@ def synthesize(out: str | Path, config: SynthConfig, progress: bool = True) -> d
                 (tmp / split / sub).mkdir(parents=True)
         jobs = [(split, i, config.seed, config.width, config.height, si, str(tmp))
                 for si, (split, cnt) in enumerate(zip(Split, counts)) for i in range(cnt)]
-        workers = config.workers or min(len(jobs), os.cpu_count() or 1)
+        workers = worker_count(config.workers, len(jobs))
         grasps: dict[str, dict] = {s: {} for s in Split}
         scenes: dict[str, dict] = {s: {} for s in Split}
         t0 = time.perf_counter()

@@ -31,7 +31,7 @@ from edgepick.export.onnx_export import check_onnx_out
 from edgepick.geometry import Size
 from edgepick.models.deeplabv3 import LogitsNet, trim_dilated_convs
 from edgepick.quant.config import BIAS_CORRECTION_IMAGES, MAX_FLOAT_LAYERS, BiasCorrection, CalibMethod, QuantConfig
-from edgepick.quant.graph import PREFIX, as_input, at_input_size, calibrate, first_of, prepare
+from edgepick.quant.graph import PREFIX, as_input, at_input_size, calibrate, check_keep_float, first_of, prepare
 from edgepick.quant.ptq import convert_static, measures
 from edgepick.quant.quantizer import module_path
 from edgepick.quant.ranges import RangeRule
@@ -206,13 +206,14 @@ def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str |
     check_onnx_out(out)
     check_image_count(data, "train", calib_images)
     n_val = len(NativeDataset.open(data, "val"))
-    if n_val < COMPARED_IMAGES:
-        print(f"edgepick: warning: {data}/val has {n_val} images; the val mIoU that the accuracy-aware search "
-              "compares moves in coarse steps on so few", file=sys.stderr, flush=True)
     ckpt = Checkpoint.load(checkpoint)
     check_classes(ckpt, data)
+    check_keep_float(ckpt.build_model(), config.keep_float)
     calib = folder_images(data, "train", calib_images)  # drawn once, for every step
     compared, check = folder_images(data, "val", min(COMPARED_IMAGES, n_val), what="val images"), agreement_images(data)
+    if n_val < COMPARED_IMAGES:  # said once every input has passed its checks: a refusal stays one line
+        print(f"edgepick: warning: {data}/val has {n_val} images; the val mIoU that the accuracy-aware search "
+              "compares moves in coarse steps on so few", file=sys.stderr, flush=True)
     work = Path(tempfile.mkdtemp(prefix="accuracy-aware-"))
     try:
         fp32 = export_checkpoint(checkpoint, work / "fp32.onnx").out

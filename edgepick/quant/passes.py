@@ -51,6 +51,7 @@ from edgepick.quant.quantizer import count_quant_nodes
 from edgepick.quant.results import Int8File, PassResult
 from edgepick.train.checkpoint import Checkpoint
 from edgepick.train.config import Device, TrainConfig
+from edgepick.train.loop import check_run
 from edgepick.train.run import Run
 
 if TYPE_CHECKING:
@@ -219,6 +220,7 @@ def quantize_qat(train_config: TrainConfig, out: str | Path, config: QuantConfig
     epoch, then an int8 ONNX at OUT."""
     config = config or QuantConfig()
     check_onnx_out(out)
+    check_run(train_config)  # the stages below say what they do only once nothing is left to refuse
     _stage("prepare the fake-quant graph (torch.export: up to a minute on a CPU), then train every epoch with it",
            progress)
     trained = train_qat(train_config, config, progress=progress)
@@ -257,16 +259,19 @@ def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_frac
         raise ParameterError("{qat_run}: already exists and is not empty; choose a new folder", qat_run=qat_run)
     # load the epoch checkpoint -> prepare -> calibrate -> fit (train_qat) -> convert -> export (_finish_qat)
     start, cfg = _switch_point(Path(run), data, qat_fraction)
+    start.build_model()  # weights that do not fit are refused now, not after the stage lines below
     cfg = replace(cfg, data=str(data), out=str(qat_run), keep_epochs=(), device=device)
-    if calib is None or isinstance(calib, int):
-        _stage(f"continue {run} from epoch {start.epoch} of {cfg.epochs}; draw the calibration images", progress)
-        images = folder_images(data, "train", calib, cfg.seed) if calib != 0 else []
-    else:
-        images = list(calib)
-    images = [at_input_size(rgb, cfg.size) for rgb in images]
-    if hold_ranges and not images:
+    check_run(cfg)  # the stages below say what they do only once nothing is left to refuse
+    drawn = calib is None or isinstance(calib, int)  # drawn from DATA's train split, else given
+    count = calib if isinstance(calib, int) else None
+    images = [] if calib is None or isinstance(calib, int) else list(calib)
+    if hold_ranges and (count == 0 or not (drawn or images)):
         raise ParameterError("{hold_ranges} needs calibration images ({calib:name})", hold_ranges=hold_ranges,
                              calib=calib)
+    if drawn and count != 0:
+        _stage(f"continue {run} from epoch {start.epoch} of {cfg.epochs}; draw the calibration images", progress)
+        images = folder_images(data, "train", count, cfg.seed)
+    images = [at_input_size(rgb, cfg.size) for rgb in images]
     hold_ranges = bool(images) if hold_ranges is None else hold_ranges
     _stage("prepare the fake-quant graph (torch.export: up to a minute on a CPU), then train the QaT epochs", progress)
     trained = train_qat(cfg, config, start=start, carry_optimizer=carry_optimizer, freeze_at=freeze_at,

@@ -28,7 +28,7 @@ from edgepick.quant.graph import PREFIX, calibrate, prepare
 from edgepick.quant.quantizer import RuleObserver
 from edgepick.quant.ranges import RangeRule
 from edgepick.quant.torchao_compat import set_mode
-from edgepick.train.checkpoint import Checkpoint
+from edgepick.train.checkpoint import Checkpoint, load_weights
 from edgepick.train.config import TrainConfig
 from edgepick.train.loop import Hooks, fit, new_model
 from edgepick.train.run import TrainResult
@@ -38,11 +38,6 @@ def to_eval(prepared: torch.fx.GraphModule) -> torch.fx.GraphModule:
     """BN on running statistics, dropout off (torchao's eval rewrite), BN literals kept; also on a
     deep copy, which loses the graph's own train/eval methods."""
     return set_mode(prepared, training=False)
-
-
-def load_qat_state(prepared: torch.fx.GraphModule, state: dict) -> None:
-    """Load a QaT run's state dict into a freshly prepared graph (strict: every entry must match)."""
-    prepared.load_state_dict(state)
 
 
 def activation_fake_quants(prepared: torch.nn.Module) -> dict[str, torch.nn.Module]:
@@ -192,5 +187,5 @@ def load_qat(checkpoint: Checkpoint, graph: torch.fx.GraphModule | None = None) 
         graph = prepare(build_model(checkpoint.model_config), qat_config(checkpoint), checkpoint.input_size, qat=True)
     else:
         graph.to("cpu", memory_format=torch.contiguous_format)  # trained on a GPU: channels-last there
-    load_qat_state(graph, checkpoint.model)
+    load_weights(graph, checkpoint.model, checkpoint)  # strict: every entry must match
     return graph

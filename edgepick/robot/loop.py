@@ -103,7 +103,8 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None,
                gripper: DigitalGripper | RG2Gripper | None, *, cfg: PickConfig, cycles: int, log: CommandLog,
                overlay_dir: str | Path | None = None, echo: Callable[[str], object] = print,
                truth_cal: Calibration | None = None, overlap: bool = False,
-               recorder: Recorder | None = None, physics: Callable[[dict, Frame], dict] | None = None) -> list[dict]:
+               recorder: Recorder | None = None, physics: Callable[[dict, Frame], dict] | None = None,
+               done: list[dict] | None = None) -> list[dict]:
     """Run up to `cycles` pick cycles (robot None = plan only). Stops early when the robot halts
     (a failed gripper halts it too). Each plan passes the envelope and, with a robot, the
     controller's own safety limits before its first command. TRUTH_CAL (the synthetic cell's true
@@ -112,11 +113,13 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None,
     and returns (Lookahead), so the arm waits only for the plan; the cell's camera must then not
     see the arm, nor the part it holds, from the place approach pose on. RECORDER gets each cycle
     once its commands are sent (robot/recording.py). PHYSICS (the synthetic cell: sim/physics.py's
-    judge) gives each judged cycle a second verdict, "physics", after its commands."""
+    judge) gives each judged cycle a second verdict, "physics", after its commands. DONE, when given, is
+    the list each finished cycle's result is appended to (and returned): the caller's own, which still
+    holds the cycles run when Ctrl-C or SIGTERM ends the loop half-way."""
     ahead = Lookahead(camera, pipeline) if overlap and robot is not None else None
     try:
         return _cycles(camera, pipeline, robot, gripper, cfg, cycles, log, overlay_dir, echo, truth_cal, ahead,
-                       recorder, physics)
+                       recorder, physics, [] if done is None else done)
     finally:
         if ahead is not None:
             ahead.close()
@@ -125,11 +128,11 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None,
 def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper: DigitalGripper | RG2Gripper | None,
             cfg: PickConfig, cycles: int, log: CommandLog, overlay_dir: str | Path | None, echo: Callable[[str], object],
             truth_cal: Calibration | None, ahead: Lookahead | None, recorder: Recorder | None,
-            physics: Callable[[dict, Frame], dict] | None) -> list[dict]:
-    """run_cycles' loop. Per cycle, besides the outcome: plan_ms (frame read -> checked plan),
-    frame_to_command_ms (-> the first command sent), frame_to_frame_ms (since the previous frame was
-    read) and arm_wait_ms (the previous cycle's last command done -> this one's first sent)."""
-    results: list[dict] = []
+            physics: Callable[[dict, Frame], dict] | None, results: list[dict]) -> list[dict]:
+    """run_cycles' loop, appending to RESULTS. Per cycle, besides the outcome: plan_ms (frame read ->
+    checked plan), frame_to_command_ms (-> the first command sent), frame_to_frame_ms (since the
+    previous frame was read) and arm_wait_ms (the previous cycle's last command done -> this one's
+    first sent)."""
     envelope = robot.envelope if robot is not None else Envelope()
     limits = robot.limits_reason if robot is not None else None  # plan only: no controller to ask
     if overlay_dir:

@@ -62,6 +62,9 @@ class Calibration:
         n_pairs = int(as_number(d["n_pairs"], where.at("n_pairs"), integer=True, minimum=0)) if "n_pairs" in d else 0
         if np.abs(R @ R.T - np.eye(3)).max() > 1e-4 or abs(np.linalg.det(R) - 1) > 1e-4:
             raise CalibrationError(f"calibration {path}: R is not a proper rotation (R R^T != I or det != +1)")
+        if np.linalg.norm(t) > MAX_COORD_M:  # t is where the camera stands in the robot's frame
+            where.at("t").fail(f"puts the camera {np.linalg.norm(t):.4g} m from the robot's base, beyond the "
+                               f"{MAX_COORD_M:g} m of a picking cell; t is in metres (millimetres given?)")
         return cls(R, t, rmse, n_pairs)
 
 

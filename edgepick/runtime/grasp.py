@@ -252,6 +252,10 @@ def grasp_records(labels: np.ndarray, depth: np.ndarray, intr: Intrinsics, class
     """One record per object region (docs/contracts.md#grasp-record), largest first. LAPS, when
     given, adds up the time of each sub-step."""
     cfg = cfg or GraspConfig()
+    if len(set(classes)) != len(classes):  # two ids of one name: which object a record names would be a guess
+        twice = next(n for n in classes if list(classes).count(n) > 1)
+        raise ParameterError(f"{{classes}}: names {twice!r} twice; each class id needs its own name",
+                             classes=list(classes))
     lap: Callable[[str], None] = _no_lap
     if laps is not None:
         laps.start()

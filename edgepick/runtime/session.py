@@ -212,6 +212,14 @@ class Segmenter:
         return self._run(image)[0]
 
     def restore(self, labels: np.ndarray, frame_hw: tuple[int, int]) -> np.ndarray:
+        """The model's labels at the frame's size; a class id beyond the model's classes is refused (its
+        regions would have no name, and the grasp step would drop them without a word): the model's
+        edgepick.classes do not fit its output."""
+        top = int(labels.max()) if labels.size else 0
+        if top >= len(self.info.classes):
+            n = len(self.info.classes)
+            raise ModelError(f"{self.path} gave class id {top}, but its edgepick.classes names {n} classes (ids 0 to "
+                             f"{n - 1}): the metadata does not fit the model's output")
         if labels.shape != tuple(frame_hw):
             labels = cv2.resize(labels, (frame_hw[1], frame_hw[0]), interpolation=cv2.INTER_NEAREST)
         return labels

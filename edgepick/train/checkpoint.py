@@ -3,6 +3,7 @@ atomically and read back checked, so that every later stage reads typed fields, 
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
@@ -101,11 +102,43 @@ class Checkpoint:
         if self.is_qat:
             raise CheckpointError(f"{self.path} is a QaT checkpoint; use the int8 ONNX its quantize command wrote")
         model = build_model(self.model_config)
-        missing, unexpected = model.load_state_dict(self.model, strict=False)
-        if missing or unexpected:
-            raise CheckpointError(f"checkpoint {self.path} does not fit a {self.model_config.arch} model "
-                                  f"({len(missing)} missing, {len(unexpected)} unexpected tensors)")
+        load_weights(model, self.model, self)
         return model.eval()
+
+
+_SIZE_MISMATCH = re.compile(r"size mismatch for (\S+?):")
+
+
+def load_weights(module: nn.Module, state: dict, ckpt: Checkpoint) -> None:
+    """Load STATE (CKPT's weights, or a subset of them) into MODULE, every tensor matching by name and
+    shape; a checkpoint that does not fit is a CheckpointError naming the file, the architecture it
+    records and the first tensor that does not fit, never torch's RuntimeError and its list of every
+    tensor. Shapes are compared by load_state_dict itself: a fake-quant graph resizes its own scale
+    and zero-point buffers to the state it is given, which a comparison beforehand would refuse."""
+    try:
+        module.load_state_dict(state)
+    except RuntimeError as exc:
+        raise CheckpointError(f"checkpoint {ckpt.path} does not fit a {ckpt.model_config.arch} model with "
+                              f"{ckpt.model_config.num_classes} classes: {_first_misfit(module, state, str(exc))}") \
+            from None
+
+
+def _first_misfit(module: nn.Module, state: dict, message: str) -> str:
+    """The first tensor of STATE that MODULE cannot take, in words, from load_state_dict's MESSAGE."""
+    own = module.state_dict()
+    size = _SIZE_MISMATCH.search(message)
+    if size and size.group(1) in own and size.group(1) in state:
+        name, more = size.group(1), message.count("size mismatch for") - 1
+        return (f"{name} has shape {list(state[name].shape)} in the file, {list(own[name].shape)} in the model"
+                + (f" ({more} more of another shape)" if more else ""))
+    missing, unexpected = [k for k in own if k not in state], [k for k in state if k not in own]
+    counts = f" ({len(missing)} missing, {len(unexpected)} unexpected tensors)"
+    if missing:
+        return f"the file has no tensor {missing[0]}{counts}"
+    if unexpected:
+        return f"the model has no tensor {unexpected[0]}{counts}"
+    lines = [line.strip() for line in message.splitlines() if line.strip()]
+    return lines[-1] if lines else "load_state_dict refused its tensors"
 
 
 def load_model(path: str | Path) -> tuple[nn.Module, Checkpoint]:

@@ -34,7 +34,7 @@ from edgepick.metrics import segmentation_metrics
 from edgepick.models.config import ModelConfig
 from edgepick.models.zoo import build_model, load_backbone_weights
 from edgepick.progress import progress as progress_bar
-from edgepick.train.checkpoint import Checkpoint
+from edgepick.train.checkpoint import Checkpoint, load_weights
 from edgepick.train.config import Augment, TrainConfig, check_world
 from edgepick.train.data import IGNORE, augment, class_weights
 from edgepick.train.run import EpochRecord, Run, TrainResult
@@ -85,9 +85,26 @@ def new_model(cfg: TrainConfig, start: Checkpoint | None = None) -> nn.Module:
             raise ConfigError(f"{start.path} was trained on classes {list(start.classes)}, the data has {classes}")
         if start.epoch >= cfg.epochs:
             raise ConfigError(f"{start.path} is at epoch {start.epoch}, the budget is {cfg.epochs} epochs")
-        model.load_state_dict({k: v for k, v in start.model.items()
-                               if cfg.aux_loss or not k.startswith("aux_classifier.")})
+        load_weights(model, {k: v for k, v in start.model.items() if cfg.aux_loss or not k.startswith("aux_classifier.")},
+                     start)
     return model
+
+
+def check_run(cfg: TrainConfig, resuming: bool = False) -> tuple[NativeDataset, NativeDataset]:
+    """What a run of CFG stands on, checked before its first progress line (a QaT pass calls this before
+    it prepares its graph): the torchrun environment, the device, a RUN folder that holds no run (unless
+    RESUMING it), and the data's train and val splits, every image of them a PNG of one size (read from
+    the files' headers: a broken data set is refused now, not in the middle of the first epoch).
+    Returns the two splits."""
+    _, world, local_rank = dist_env()
+    device_for(cfg.device, local_rank)
+    if not resuming:
+        Run(cfg.out).check_new()
+    splits = NativeDataset.open(cfg.data, "train"), NativeDataset.open(cfg.data, "val")
+    for ds in splits:
+        ds.check_files()
+    check_world(cfg, world)
+    return splits
 
 
 def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> TrainResult:
@@ -112,6 +129,7 @@ def resume_run(out: str | Path, data: str | Path, epochs: int | None = None, pro
         raise CheckpointError(f"{out} is a QaT run; run its quantize command again to start it anew")
     if last.train_config is None:
         raise CheckpointError(f"{last.path} has no train_config to resume with")
+    last.build_model()  # its weights fit the architecture it names, or one line says which tensor does not
     budget = last.train_config.epochs if epochs is None else epochs
     cfg = replace(last.train_config, epochs=max(budget, last.epoch), data=str(data))
     check_same_data(last, cfg.data)
@@ -172,7 +190,7 @@ def _starting_state(model: torch.nn.Module, opt: torch.optim.Optimizer, sched: t
     if resume is not None:
         if resume.optimizer is None or resume.scheduler is None:
             raise CheckpointError(f"{resume.path} holds no optimizer state to resume from (a best.pt?)")
-        model.load_state_dict(resume.model)
+        load_weights(model, resume.model, resume)
         opt.load_state_dict(resume.optimizer)
         sched.load_state_dict(resume.scheduler)
         state = {k: getattr(resume, k) for k in state}
@@ -188,14 +206,11 @@ def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, st
     this run's own last.pt. Returns the final summary. One function on purpose (nanoGPT's
     train.py): the epoch, the step and the checkpoint read in one sitting."""
     hooks = hooks or Hooks()
+    train_ds, val_ds = check_run(cfg, resuming=resume is not None)
     rank, world, local_rank = dist_env()
     device = device_for(cfg.device, local_rank)
     run = Run(cfg.out)
-    if resume is None:
-        run.check_new()
-    train_ds, val_ds = NativeDataset.open(cfg.data, "train"), NativeDataset.open(cfg.data, "val")
     classes = train_ds.classes
-    check_world(cfg, world)
     cuda = device.type == "cuda"
     amp = cuda and hooks.bf16  # bf16 autocast on GPU; CPU fp32
     if world > 1 and not dist.is_initialized():

@@ -14,7 +14,7 @@ from tests.runtime.test_pipeline import red_model
 
 
 def test_cell_rows_and_files(tmp_path, capfd):
-    model, copy = red_model(tmp_path / "red.onnx"), tmp_path / "copy.onnx"
+    model, copy = red_model(tmp_path / "red.onnx", divide=64), tmp_path / "copy.onnx"
     copy.write_bytes(model.read_bytes())
     assert run(["bench", str(model), str(copy), "--cell", "6", "--out", str(tmp_path / "out")]) == 0
     out, err = capfd.readouterr()
@@ -76,7 +76,7 @@ def test_cell_physics_verdict_beside_the_geometric_one(tmp_path, capfd):
     pytest.importorskip("mujoco")
     from edgepick.sim.physics import PHYSICS_FAILURES
 
-    model = red_model(tmp_path / "red.onnx")
+    model = red_model(tmp_path / "red.onnx", divide=64)
     assert run(["bench", str(model), "--cell", "6", "--verdict", "both", "--out", str(tmp_path / "out")]) == 0
     out, err = capfd.readouterr()
     rows = json.loads(out)["rows"]
@@ -101,7 +101,7 @@ def test_cell_physics_verdict_beside_the_geometric_one(tmp_path, capfd):
 
 
 def test_cell_reports_success_per_light_condition_without_physics(tmp_path, capfd):
-    model = red_model(tmp_path / "red.onnx")
+    model = red_model(tmp_path / "red.onnx", divide=64)
     assert run(["bench", str(model), "--cell", "4", "--out", str(tmp_path / "out")]) == 0
     rows = json.loads(capfd.readouterr().out)["rows"]
     for r in rows:

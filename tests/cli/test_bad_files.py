@@ -83,6 +83,12 @@ META = {  # data set meta.json variants -> a word the error must hold
     "meta-str-height": (lambda s: _intrinsics(s, height="240"), "intrinsics.height must be a number"),
     "meta-neg-fy": (lambda s: _intrinsics(s, fy=-615.0), "intrinsics.fy must be above 0"),
     "meta-zero-scale": (lambda s: _intrinsics(s, depth_scale=0), "intrinsics.depth_scale must be above 0"),
+    # values no camera has (docs/contracts.md#intrinsics-and-calibration; the set's images are 320x240)
+    "meta-tiny-fx": (lambda s: _intrinsics(s, fx=1e-9), "intrinsics.fx must be in [16, 32000] px"),
+    "meta-far-cy": (lambda s: _intrinsics(s, cy=1e9), "intrinsics.cy must lie within one image height"),
+    "meta-metre-scale": (lambda s: _intrinsics(s, depth_scale=1000),
+                         "intrinsics.depth_scale must be in [1e-06, 0.01] metres per depth unit"),
+    "meta-top-scale": (lambda s: _meta(s, depth_scale=1000), "depth_scale must be in [1e-06, 0.01] metres per"),
 }
 GRASPS = {  # a test split's grasps.json variants
     "grasps-corrupt": (lambda s: b'{"000000": [{"class": "box", "pix', "not valid JSON"),
@@ -385,14 +391,14 @@ def test_the_device_the_issue_found_is_not_replaced(bw, capfd):
     capfd.readouterr()
 
 
-def test_a_bad_thread_variable_is_one_warning_not_libgomps_line(tmp_path):
+def test_a_bad_thread_variable_is_neither_libgomps_line_nor_a_second_line_of_a_refusal(tmp_path):
+    """Dropped before libgomp reads it, and said with edgepick's own warning once a command has run: a
+    refusal is its error line alone (tests/cli/test_one_line.py has the command that runs)."""
     from tests.conftest import run_cli
 
     proc = run_cli("export", str(tmp_path / "none"), "--out", str(tmp_path / "m.onnx"), env={"OMP_NUM_THREADS": "0"})
-    lines = proc.stderr.splitlines()
     assert proc.returncode == 2 and "libgomp" not in proc.stderr, proc.stderr
-    assert lines[0].startswith("edgepick: warning: OMP_NUM_THREADS='0'") and lines[1].startswith("edgepick: error:")
-    assert len(lines) == 2
+    assert proc.stderr.splitlines() == [f"edgepick: error: no checkpoint at {tmp_path / 'none'}"], proc.stderr
 
 
 def test_an_existing_folder_holding_the_users_files_is_never_removed(tmp_path, capfd, monkeypatch):

@@ -22,6 +22,7 @@ pytest.importorskip("onnx")
 from edgepick.cli import run  # noqa: E402
 from edgepick.geometry import Intrinsics  # noqa: E402
 from tests.runtime.test_pipeline import red_model  # noqa: E402
+from tests.runtime.test_session import red_channel_model  # noqa: E402
 
 HEADER = "cam_x,cam_y,cam_z,robot_x,robot_y,robot_z"
 
@@ -57,9 +58,20 @@ def ws(tmp_path_factory, small_data):
     intr = Intrinsics.d415(320, 240).to_dict()
     (w / "intr.json").write_text(json.dumps(intr))
     (w / "intr0.json").write_text(json.dumps({**intr, "depth_scale": 0}))
+    # values no camera has (docs/contracts.md#intrinsics-and-calibration)
+    for name, change in {"fx": {"fx": 1e-9}, "fy": {"fy": 1e7}, "cx": {"cx": 1e9}, "cy": {"cy": -400},
+                         "scale": {"depth_scale": 1000}, "fine": {"depth_scale": 1e-9}}.items():
+        (w / f"intr-{name}.json").write_text(json.dumps({**intr, **change}))
+    far = {"R": np.eye(3).tolist(), "t": [1e9, 0, 0.5], "rmse_m": 0.001, "n_pairs": 8}
+    (w / "far.json").write_text(json.dumps(far))
+    (w / "mm.json").write_text(json.dumps({**far, "t": [300.0, 100.0, 700.0]}))  # millimetres
     labels = np.zeros((240, 320), np.uint8)
     cv2.rectangle(labels, (100, 80), (160, 120), 4, -1)
     cv2.imwrite(str(w / "mask.png"), labels)
+    cv2.imwrite(str(w / "rgb.png"), np.dstack([labels] * 3))  # red_model's labels: the mask's
+    two = {"edgepick.classes": json.dumps(["background", "bearing"]), "edgepick.input_size": json.dumps([240, 320]),
+           "edgepick.colorspace": "rgb", "edgepick.precision": "fp32"}
+    red_channel_model(w / "two.onnx", 240, 320, meta=two)  # labels up to 255, metadata for 2 classes
     cv2.imwrite(str(w / "depth.png"), np.full((240, 320), 600, np.uint16))
     cv2.imwrite(str(w / "depth8.png"), np.full((240, 320), 60, np.uint8))
     return {"W": w, "D": small_data, "MIXED": mixed, "MODEL": w / "model.onnx", "F": w / "afile"}
@@ -86,6 +98,8 @@ CASES = [
     (["data", "preview", "{MIXED}", "--out", "{W}/p.png"], "all images of a data set must have one size"),
     (["data", "preview", "{W}/nothing", "--out", "{W}/p.png"], "not an edgepick data set"),
     (["data", "import", "cvat", "{W}/nothing", "{W}/imp", "--depth-scale", "0"], "--depth-scale"),
+    (["data", "import", "cvat", "{W}/nothing", "{W}/imp", "--depth-scale", "1000"],
+     "--depth-scale 1000.0: must be in [1e-06, 0.01] metres per depth unit"),
     (["data", "import", "bop", "{W}/nothing", "{W}/imp", "--splits", "a,b"], "--splits"),
     (["data", "import", "bop", "{W}/nothing", "{F}/imp"], "is a file, not a folder"),
     (["data", "capture", "{W}/cap", "--camera", "synth", "--count", "0"], "--count"),
@@ -109,6 +123,18 @@ CASES = [
     (["calibrate", "{W}/pairs.csv", "--out", "{W}/c.json", "--max-rmse", "0"], "--max-rmse"),
     # grasp
     ([*G[:5], "--intrinsics", "{W}/intr0.json"], "depth_scale must be above 0"),
+    ([*G[:5], "--intrinsics", "{W}/intr-fx.json"], "fx must be in [16, 32000] px for an image 320 px in width"),
+    ([*G[:5], "--intrinsics", "{W}/intr-fy.json"], "fy must be in [12, 24000] px for an image 240 px in height"),
+    ([*G[:5], "--intrinsics", "{W}/intr-cx.json"], "cx must lie within one image width of the 320 px image"),
+    ([*G[:5], "--intrinsics", "{W}/intr-cy.json"], "cy must lie within one image height of the 240 px image"),
+    ([*G[:5], "--intrinsics", "{W}/intr-scale.json"], "depth_scale must be in [1e-06, 0.01] metres per depth unit"),
+    ([*G[:5], "--intrinsics", "{W}/intr-fine.json"], "depth_scale must be in [1e-06, 0.01]"),
+    ([*G, "--calib", "{W}/far.json"], "t puts the camera 1e+09 m from the robot's base"),
+    ([*G, "--classes", "background,box,box"], "names 'box' twice"),
+    # a model whose labels go beyond its classes (the grasp step would drop their regions without a word)
+    (["grasp", "--model", "{W}/two.onnx", "--rgb", "{W}/rgb.png", *G[3:]],
+     "two.onnx gave class id 4, but its edgepick.classes names 2 classes (ids 0 to 1)"),
+    (["pick", "--model", "{W}/two.onnx", "--log", "{W}/p.jsonl"], "but its edgepick.classes names 2 classes"),
     ([*G[:3], "--depth", "{W}/depth8.png", *G[5:]], "uint16"),
     ([*G, "--overlay", "{W}/o"], "must end in .png"),
     ([*G, "--classes", ""], "--classes ''"),
@@ -125,6 +151,7 @@ CASES = [
     ([*M, "--overlay-dir", "{F}"], "is a file"),
     ([*M, "--camera", "dir:{W}/nothing", "--log", "{W}/l.jsonl"], "has no intrinsics.json"),
     ([*M, "--camera", "synth", "--calib", "{W}/none.json"], "none.json"),
+    ([*M, "--camera", "synth", "--calib", "{W}/mm.json"], "t puts the camera 768.1 m from the robot's base"),
     # export, quantize, bench
     (["export", "{W}/none", "--out", "{W}/m.txt"], "must end in .onnx"),
     (["export", "{W}/none", "--out", "{W}/m.onnx"], "no checkpoint"),
@@ -145,6 +172,10 @@ CASES = [
      "--qat-fraction"),
     (["bench", "{MODEL}", "--data", "{D}", "--out", "{F}/b"], "is a file, not a folder"),
     (["bench", "{MODEL}", "--data", "{D}", "--runs", "0", "--out", "{W}/b"], "--runs"),
+    (["bench", "{MODEL}", "--data", "{D}", "--gpu-checkpoint", "{W}/nosuch.pt", "--out", "{W}/b"],
+     "--gpu-checkpoint {W}/nosuch.pt: no checkpoint there"),
+    (["bench", "{MODEL}", "--cell", "1", "--gpu-checkpoint", "{W}/nosuch.pt", "--out", "{W}/b"],
+     "--gpu-checkpoint is for the table of --data"),
 ]
 
 
@@ -163,7 +194,7 @@ def test_a_mistake_is_one_line_exit_2_and_nothing_written(ws, capfd, monkeypatch
     monkeypatch.chdir(ws["W"])  # a default output (picks.jsonl) would land here
     before = _tree(ws["W"]), _tree(ws["D"])
     code = run([_fill(a, ws) for a in args])
-    assert_refused(code, *capfd.readouterr(), message)
+    assert_refused(code, *capfd.readouterr(), _fill(message, ws))
     assert (_tree(ws["W"]), _tree(ws["D"])) == before, "something was written"
 
 

@@ -8,6 +8,7 @@ the signal goes out once the command is visibly at work (its temporary output ha
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -147,3 +148,39 @@ def test_demo_terminated_removes_the_folder_it_made(tmp_path):
     status, err, _ = _stop(proc, signal.SIGTERM)
     assert status == 143, err
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("sig, group, code, name", [(signal.SIGTERM, False, 143, "SIGTERM"),
+                                                     (signal.SIGINT, True, 130, "SIGINT")],
+                         ids=["SIGTERM", "Ctrl-C to the group"])
+def test_pick_stopped_prints_the_summary_of_the_cycles_it_ran(tmp_path, sig, group, code, name):
+    """An interrupted pick still says what it did: its JSON summary of every finished cycle on stdout,
+    with the signal that ended it, then the exit status of that signal."""
+    proc = subprocess.Popen([sys.executable, "-m", "edgepick", "pick", "--cycles", "1000", "--size", "320x240"],
+                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    seen: list[str] = []
+    _wait_for(proc, lambda: sum(line.startswith("cycle ") for line in seen) >= 2 or
+              bool(seen.append(proc.stderr.readline())), "two cycles done")
+    if group:
+        os.killpg(proc.pid, sig)
+    else:
+        proc.send_signal(sig)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == code, err
+    summary = json.loads(out)
+    assert summary["interrupted"] == name and summary["halted"] is None
+    assert summary["cycles"] == len(summary["results"]) >= 2
+    assert [r["cycle"] for r in summary["results"]] == list(range(1, summary["cycles"] + 1))
+    assert "Traceback" not in err and err.strip().splitlines()[-1].startswith("edgepick: ")
+
+
+def test_data_synth_caps_its_workers_at_the_scenes_and_the_cores(tmp_path):
+    """--workers 1000 on 3 scenes starts no more processes than there are scenes and cores."""
+    from edgepick.data.synth import usable_cores
+
+    proc = subprocess.run([sys.executable, "-m", "edgepick", "data", "synth", str(tmp_path / "d"), "--scenes", "3",
+                           "--size", "64x48", "--workers", "1000"], capture_output=True, text=True, timeout=START_S,
+                          cwd=REPO)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["workers"] == min(3, usable_cores())

@@ -241,6 +241,14 @@ BAD = [
     ("bop", lambda s: _set(s / CAM, ["3", "cam_K"], [572.4, 0, 0, 0, 573.6, 0, 15.5, 11.5, 1]),
      ["scene_camera.json", "image 3.cam_K", "row by row"]),
     ("bop", lambda s: _set(s / CAM, ["3"], {"depth_scale": 0.1}), ["scene_camera.json", "image 3", "'cam_K'"]),
+    # values no camera has: a depth unit of a metre, a focal length of a nanopixel, a principal point a
+    # billion pixels off the image
+    ("bop", lambda s: _set(s / CAM, ["1", "depth_scale"], 1000), ["scene_camera.json", "image 1.depth_scale",
+                                                                  "[0.001, 10] millimetres per depth unit"]),
+    ("bop", lambda s: [_set(s / CAM, [str(i), "cam_K", 0], 1e-9) for i in range(4)],
+     ["scene_camera.json", "cam_K[0]", f"must be in [{W / 20:g}, {W * 100:g}] px"]),
+    ("bop", lambda s: [_set(s / CAM, [str(i), "cam_K", 5], 1e9) for i in range(4)],
+     ["scene_camera.json", "cam_K[5]", "must lie within one image height"]),
     # BOP images
     ("bop", lambda s: _cut_jpeg(s / "test/000002/rgb/000001.png"), ["000001.jpg", "Premature end of JPEG file"]),
     ("bop", lambda s: (s / "test/000002/mask_visib/000001_000000.png").write_bytes(b"\x89PNG\r\n"),
@@ -277,6 +285,9 @@ BAD = [
                                                              '"cx": 15.5, "cy": 11.5}'), ["intr.json"]),
     ("cvat", lambda s: _set(s.parent / "intr.json", ["fx"], float("inf")), ["intr.json"]),
     ("cvat", lambda s: (s.parent / "intr.json").write_bytes(b'{"width": "\xff"}'), ["intr.json"]),
+    ("cvat", lambda s: _set(s.parent / "intr.json", ["fx"], 1e-9), ["intr.json", "fx must be in [1.6, 3200] px"]),
+    ("cvat", lambda s: _set(s.parent / "intr.json", ["cy"], -1e9), ["intr.json", "cy must lie within one image"]),
+    ("cvat", lambda s: _set(s.parent / "intr.json", ["depth_scale"], 1000), ["intr.json", "depth_scale must be in"]),
     # Cityscapes
     ("cityscapes", lambda s: cv2.imwrite(str(_first(s / "gtFine", "*.png")), np.zeros((H, W), np.uint16)),
      ["_gtFine_labelIds.png", "16-bit"]),
@@ -309,6 +320,21 @@ def test_malformed_content_is_one_line_exit_2_and_nothing_left(tmp_path, capfd, 
     assert len(lines) == 1 and lines[0].startswith("edgepick: error: "), err
     for needle in needles:
         assert needle in lines[0], lines[0]
+    assert not (tmp_path / "out").exists() and not list(tmp_path.glob(".out.partial-*"))
+
+
+@pytest.mark.parametrize("scale, needle", [("1000", "--depth-scale 1000.0: must be in [1e-06, 0.01] metres per depth"),
+                                           ("0.002", "depth/c.png holds 40000 units, 80 m at this scale")])
+def test_a_cvat_depth_scale_no_camera_has_is_one_line_and_nothing_left(tmp_path, capfd, scale, needle):
+    """A depth scale that would clip every depth pixel at the 65.535 m a millimetre PNG holds: refused
+    by its range, or by the depth it makes of an image, never written clipped."""
+    src = cvat_tree(tmp_path / "cvat")
+    cv2.imwrite(str(tmp_path / "depth" / "c.png"), np.full((H, W), 40000, np.uint16))
+    capfd.readouterr()
+    code = run(["data", "import", "cvat", str(src), str(tmp_path / "out"), "--depth", str(tmp_path / "depth"),
+                "--intrinsics", str(tmp_path / "intr.json"), "--depth-scale", scale])
+    lines = [line for line in capfd.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1 and needle in lines[0], lines
     assert not (tmp_path / "out").exists() and not list(tmp_path.glob(".out.partial-*"))
 
 

@@ -222,17 +222,20 @@ def test_no_fake_quant_learns_from_training_dropout(fresh_qat):
 
 def test_qat_state_loads_only_into_the_graph_it_came_from(fresh_qat):
     """A QaT checkpoint loads into a freshly prepared graph; an entry the graph does not have (a fake-quant
-    more, or a foreign weight) is an error, not silently dropped."""
+    more, or a foreign weight) is a one-line CheckpointError naming it, not silently dropped."""
     import copy
 
-    from edgepick.quant.qat import load_qat_state
+    from edgepick.errors import CheckpointError
+    from edgepick.models import ModelConfig
+    from edgepick.train.checkpoint import load_weights
 
     prepared = copy.deepcopy(fresh_qat)
-    load_qat_state(prepared, prepared.state_dict())
-    extra_fake_quant = {**prepared.state_dict(), "activation_post_process_999.scale": torch.ones(1)}
-    for state in (extra_fake_quant, {**prepared.state_dict(), "model.extra.weight": torch.ones(1)}):
-        with pytest.raises(RuntimeError):
-            load_qat_state(prepared, state)
+    classes = ("background", "bearing", "disk", "adapter", "box")
+    ckpt = Checkpoint(model_config=ModelConfig(), classes=classes, input_size=Size(96, 64), model={})
+    load_weights(prepared, prepared.state_dict(), ckpt)
+    for extra in ("activation_post_process_999.scale", "model.extra.weight"):
+        with pytest.raises(CheckpointError, match=f"the model has no tensor {extra}"):
+            load_weights(prepared, {**prepared.state_dict(), extra: torch.ones(1)}, ckpt)
 
 
 def test_eval_copy_is_an_exact_eval_graph(fresh_qat):

@@ -58,7 +58,7 @@ def test_collect_calibrate_pick_in_the_synthetic_cell(tmp_path, capfd):
     got, true = json.loads(calib.read_text()), SynthCamera(mount_height_m=0.7).calibration()
     assert np.linalg.norm(np.array(got["t"]) - true.t) <= 0.005
     assert _angle_deg(np.array(got["R"]).T @ true.R) <= 0.5
-    red_model(tmp_path / "m.onnx")
+    red_model(tmp_path / "m.onnx", divide=64)
     assert run(["pick", "--model", str(tmp_path / "m.onnx"), "--camera", "synth-cell", "--calib", str(calib),
                 "--cycles", "2", "--size", "320x240", "--log", str(tmp_path / "picks.jsonl")]) == 0
     assert json.loads(capfd.readouterr().out)["cycles"] == 2

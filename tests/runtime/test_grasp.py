@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from edgepick.errors import EdgepickError
+from edgepick.errors import EdgepickError, ParameterError
 from edgepick.geometry import Intrinsics, deproject
 from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.grasp import grasp_records, object_depth
@@ -87,6 +87,13 @@ def test_empty_mask_and_size_mismatch():
     assert grasp_records(np.zeros((480, 640), np.uint8), flat_depth(), INTR) == []
     with pytest.raises(EdgepickError, match="intrinsics"):
         grasp_records(np.zeros((240, 320), np.uint8), np.zeros((240, 320), np.uint16), INTR)
+
+
+def test_two_class_ids_of_one_name_are_refused_naming_the_parameter():
+    labels = np.zeros((480, 640), np.uint8)
+    rect(labels, BOX, (300.0, 250.0), (160, 70), 0.0)
+    with pytest.raises(ParameterError, match=r"classes=\['background', 'box', 'disk', 'box', 'box'\]: names 'box' twice"):
+        grasp_records(labels, flat_depth(), INTR, ["background", "box", "disk", "box", "box"])
 
 
 @pytest.mark.parametrize("yaw_deg", [0.0, 35.0, 90.0, -120.0])

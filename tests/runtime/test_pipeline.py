@@ -21,11 +21,13 @@ from tests.runtime.test_session import red_channel_model  # noqa: E402
 INTR = Intrinsics.d415(320, 240)
 
 
-def red_model(path, h=240, w=320):
-    """Labels = the image's red channel, with the synthetic set's class names."""
+def red_model(path, h=240, w=320, divide=1):
+    """Labels = the image's red channel integer-divided by DIVIDE, with the synthetic set's class names:
+    a frame whose red channel is a label image gives its labels back (DIVIDE 1), and any frame gives
+    ids 0 to 3, within the five classes (DIVIDE 64: a stand-in model for a camera's frames)."""
     meta = {"edgepick.classes": json.dumps(list(DEFAULT_CLASSES)), "edgepick.input_size": json.dumps([h, w]),
             "edgepick.colorspace": "rgb", "edgepick.precision": "fp32"}
-    return red_channel_model(path, h, w, meta=meta)
+    return red_channel_model(path, h, w, meta=meta, divide=divide)
 
 
 def scene():

@@ -52,6 +52,18 @@ def test_labels_come_back_at_the_frame_size(tmp_path):
     assert (labels[:8, :12] == 2).all() and (labels[8:, :] == 0).all() and (labels[:, 12:] == 0).all()
 
 
+def test_a_class_id_beyond_the_models_classes_is_refused_not_dropped(tmp_path):
+    """A model whose metadata names fewer classes than its output gives: one line naming the id, never
+    labels whose extra regions the grasp step would skip without a word."""
+    seg = Segmenter(red_channel_model(tmp_path / "m.onnx"), threads=1)  # three classes: ids 0 to 2
+    frame = np.zeros((8, 12, 3), np.uint8)
+    frame[2:4, 2:4, 0] = 2
+    assert seg.labels(frame).max() == 2
+    frame[5, 5, 0] = 255
+    with pytest.raises(ModelError, match=r"gave class id 255, but its edgepick.classes names 3 classes \(ids 0 to 2\)"):
+        seg.labels(frame)
+
+
 @pytest.mark.parametrize("case", ["no_meta", "float_input", "missing_file", "not_onnx"])
 def test_models_outside_the_contract_are_refused(tmp_path, case):
     path = tmp_path / "m.onnx"
