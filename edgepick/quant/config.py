@@ -27,6 +27,16 @@ SATURATION_CHECK_INPUTS = 8  # calibration inputs on which first-7 measures wher
 HEADROOM = 0.8
 
 
+# an .onnx model's check inputs (its fidelity, the held-out inputs of calib_method auto): fp32's outputs on them are
+# held in memory, so their pixels are bounded: 8 inputs up to 640x480, fewer above, never under 2
+CHECK_PIXELS = 8 * 640 * 480
+
+
+def check_inputs(height: int, width: int) -> int:
+    """How many HEIGHT x WIDTH inputs an .onnx model's fidelity is checked on (and auto holds out)."""
+    return min(HELD_OUT_INPUTS, max(2, CHECK_PIXELS // max(height * width, 1)))
+
+
 def lockstep_images(height: int, width: int) -> int:
     """How many HEIGHT x WIDTH calibration images bias correction and AdaRound measure on."""
     return min(BIAS_CORRECTION_IMAGES, max(MIN_LOCKSTEP_IMAGES, LOCKSTEP_PIXELS // max(height * width, 1)))

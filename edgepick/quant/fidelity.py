@@ -190,19 +190,34 @@ def channel_axis(shape: tuple[int, ...], nhwc: bool = False) -> int | None:
     return None
 
 
+@dataclass
+class BalancedError:
+    """Relative squared error of an output against fp32's, summed input by input, each channel
+    (`channel_axis`) weighted alike, so that a small-valued score channel counts as much as a box
+    coordinate in pixels."""
+
+    nhwc: bool = False
+    signal: Any = 0.0  # per channel (or one sum where the output has no channel axis)
+    noise: Any = 0.0
+
+    def add(self, ref: np.ndarray, test: np.ndarray) -> None:
+        axis = channel_axis(ref.shape, self.nhwc)
+        others = tuple(a for a in range(ref.ndim) if a != axis) if axis is not None else None
+        ref64 = ref.astype(np.float64)
+        self.signal = self.signal + (ref64 ** 2).sum(axis=others)
+        self.noise = self.noise + ((ref64 - test) ** 2).sum(axis=others)
+
+    @property
+    def value(self) -> float:
+        return float(np.mean(np.asarray(self.noise) / np.maximum(self.signal, 1e-30)))
+
+
 def balanced_error(ref: list[np.ndarray], test: list[np.ndarray], nhwc: bool = False) -> float:
-    """Relative squared error of TEST against REF (one output over several inputs), each channel
-    (`channel_axis`) weighted alike, so that a small-valued score channel counts as much as a
-    box coordinate in pixels."""
-    axis = channel_axis(ref[0].shape, nhwc)
-    if axis is None:
-        signal = sum(float((r.astype(np.float64) ** 2).sum()) for r in ref)
-        noise = sum(float(((r.astype(np.float64) - t) ** 2).sum()) for r, t in zip(ref, test))
-        return noise / max(signal, 1e-30)
-    others = tuple(a for a in range(ref[0].ndim) if a != axis)
-    signal = sum((r.astype(np.float64) ** 2).sum(axis=others) for r in ref)
-    noise = sum(((r.astype(np.float64) - t) ** 2).sum(axis=others) for r, t in zip(ref, test))
-    return float(np.mean(noise / np.maximum(signal, 1e-30)))
+    """BalancedError of TEST against REF (one output over several inputs)."""
+    error = BalancedError(nhwc)
+    for r, t in zip(ref, test):
+        error.add(r, t)
+    return error.value
 
 
 @dataclass(frozen=True)

@@ -20,11 +20,11 @@ from edgepick.errors import ParameterError, QuantizationError
 from edgepick.export.checks import check_onnx_out, conv_weight_report
 from edgepick.export.onnx_export import export_module_onnx
 from edgepick.geometry import Size
-from edgepick.quant.config import BIAS_CORRECTION_IMAGES, HELD_OUT_INPUTS, CalibMethod, QuantConfig
+from edgepick.quant.config import BIAS_CORRECTION_IMAGES, HELD_OUT_INPUTS, CalibMethod, QuantConfig, check_inputs
 from edgepick.quant.fidelity import compare_outputs, guess_task
 from edgepick.quant.graph import choose_rule, expected_int8_convs, prepare
 from edgepick.quant.onnx_inputs import check_tensor
-from edgepick.quant.onnx_static import CHECK_TENSORS, OnnxPassResult
+from edgepick.quant.onnx_static import OnnxPassResult
 from edgepick.quant.ptq import convert_static, measures
 from edgepick.quant.rewrites import GatedHardswish
 
@@ -70,7 +70,8 @@ def quantize_module_static(module: torch.nn.Module, calib: Iterable[Any], out: s
     prepared = prepare(model, config, Size(shape[3], shape[2]), qat=False, input_shape=shape)
     gated = sum(isinstance(m, GatedHardswish) for m in model.modules())
     measuring = measures(config)
-    keep = max(CHECK_TENSORS, BIAS_CORRECTION_IMAGES if measuring else 0)
+    check = check_inputs(shape[2], shape[3])
+    keep = max(check, BIAS_CORRECTION_IMAGES if measuring else 0)
     kept, held, seen = [first], [], 0
     hold = HELD_OUT_INPUTS if config.calib_method == CalibMethod.AUTO else 0
     total = len(calib) if isinstance(calib, Sized) else None
@@ -87,7 +88,7 @@ def quantize_module_static(module: torch.nn.Module, calib: Iterable[Any], out: s
                 kept.append(x)
     ranges = choose_rule(prepared, held, config, seen - len(held))
     converted, measured = convert_static(prepared, lambda: kept[:BIAS_CORRECTION_IMAGES], config)
-    kept = kept[:CHECK_TENSORS]
+    kept = kept[:check]
     calib_s = time.perf_counter() - t0
     quant = {"mode": "static", "source": "module", "calib_method": config.calib_method.value, "calib_images": seen,
              "percentile": config.percentile, "weight_bits": config.weight_bits.value,

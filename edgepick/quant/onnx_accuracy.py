@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from edgepick.errors import ParameterError
-from edgepick.quant.fidelity import OutputFidelity, Task, balanced_error, compare_outputs
+from edgepick.quant.fidelity import BalancedError, OutputFidelity, Task
 
 SCAN_BLOCKS = 16  # blocks of activations measured float first
 SCAN_KEEP = 4  # the best blocks (then sub-blocks) split again
@@ -171,25 +171,38 @@ class Evaluator:
     tasks: dict[str, Task]
     nhwc: bool = False
     graphs: int = 0  # how many graphs were measured
+    input_name: str = ""
 
-    def outputs(self, model: Any, count: int | None = None) -> list[list[np.ndarray]]:
+    def _session(self, model: Any) -> Any:
         import onnxruntime as ort
 
         opts = ort.SessionOptions()
         opts.log_severity_level = 3
+        opts.enable_cpu_mem_arena = False  # many graphs are made one after another: none keeps its peak
         session = ort.InferenceSession(model.SerializeToString(), opts, providers=["CPUExecutionProvider"])
-        name = session.get_inputs()[0].name
+        self.input_name = session.get_inputs()[0].name
         self.graphs += 1
-        return [session.run(self.names, {name: x}) for x in self.inputs[:count]]
-
-    def error(self, model: Any, count: int | None = SCAN_TENSORS) -> float:
-        """The worst output's balanced relative error (quant/fidelity.py) of MODEL on the first COUNT tensors."""
-        got = self.outputs(model, count)
-        ref = self.reference[:len(got)]
-        return max(balanced_error([r[k] for r in ref], [g[k] for g in got], self.nhwc) for k in range(len(self.names)))
+        return session
 
     def fidelity(self, model: Any) -> dict[str, OutputFidelity]:
-        return compare_outputs(self.names, self.tasks, zip(self.reference, self.outputs(model)), self.nhwc)
+        """Each output's fidelity (quant/fidelity.py) of MODEL on every check tensor."""
+        session = self._session(model)
+        found = {name: OutputFidelity(self.tasks[name]) for name in self.names}
+        for x, ref in zip(self.inputs, self.reference):
+            for name, r, t in zip(self.names, ref, session.run(self.names, {self.input_name: x})):
+                found[name].add(r, t, self.nhwc)
+        return found
+
+    def error(self, model: Any, count: int | None = SCAN_TENSORS) -> float:
+        """The worst output's balanced relative error (quant/fidelity.py) of MODEL on the first COUNT
+        tensors, summed one input at a time."""
+        session = self._session(model)
+        errors = [BalancedError(self.nhwc) for _ in self.names]
+        for x, ref in zip(self.inputs[:count], self.reference):
+            for error, r, t in zip(errors, ref, session.run(self.names, {self.input_name: x})):
+                error.add(r, t)
+        return max(e.value for e in errors)
+
 
 
 def _db(error: float) -> float:

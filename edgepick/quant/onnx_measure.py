@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from edgepick.export.crop_convs import graph_links
+from edgepick.quant.onnx_calibrate import insert_after_producers
 
 SEVEN_BIT = 64  # onnxruntime's reduce-range int8 weight grid: -64..64, scale = max |w| / 64
 
@@ -109,6 +110,41 @@ def _runner(model: Any, outputs: list[str]) -> Callable[[np.ndarray, list[str]],
         return session.run(names, {image: x})
 
     return run
+
+
+def _channel_means(model: Any, outputs: list[str]) -> Callable[[np.ndarray], list[np.ndarray]]:
+    """A function running a copy of MODEL on one input tensor, returning per tensor of OUTPUTS its
+    [images, channels] means: a ReduceMean in the graph, so that no whole feature map is held (a
+    graph output lives until the run ends, fetched or not)."""
+    import onnx
+    import onnxruntime as ort
+
+    copy = onnx.ModelProto()
+    copy.CopyFrom(model)
+    ranks = {v.name: len(v.type.tensor_type.shape.dim) for v in [*copy.graph.value_info, *copy.graph.output]}
+    version = next((o.version for o in copy.opset_import if o.domain in ("", "ai.onnx")), 13)
+    del copy.graph.output[:]
+    means: list[str] = []
+    after: dict[str, list[Any]] = {}
+    for k, name in enumerate(outputs):
+        axes = list(range(2, ranks.get(name, 4)))
+        mean = f"{name}_channel_means"
+        if version >= 18:
+            copy.graph.initializer.append(onnx.numpy_helper.from_array(np.array(axes, np.int64), f"{mean}_axes"))
+            node = onnx.helper.make_node("ReduceMean", [name, f"{mean}_axes"], [mean], keepdims=0, name=f"mean_{k}")
+        else:
+            node = onnx.helper.make_node("ReduceMean", [name], [mean], axes=axes, keepdims=0, name=f"mean_{k}")
+        after.setdefault(name, []).append(node)
+        copy.graph.output.append(onnx.ValueInfoProto(name=mean))
+        means.append(mean)
+    insert_after_producers(copy, after)
+    opts = ort.SessionOptions()
+    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
+    opts.log_severity_level, opts.enable_cpu_mem_arena = 3, False
+    opts.execution_order = ort.ExecutionOrder.PRIORITY_BASED  # each mean as soon as its map is made
+    session = ort.InferenceSession(copy.SerializeToString(), opts, providers=["CPUExecutionProvider"])
+    image = session.get_inputs()[0].name
+    return lambda x: [m.astype(np.float64) for m in session.run(means, {image: x})]
 
 
 def _attr(node: Any, name: str, default: Any) -> Any:
@@ -238,7 +274,7 @@ def _segment_session(model: Any, segment: _Segment, examples: dict[str, np.ndarr
         [i for i in model.graph.initializer if i.name in used])
     part = onnx.helper.make_model(graph, opset_imports=model.opset_import, ir_version=model.ir_version)
     opts = ort.SessionOptions()
-    opts.log_severity_level = 3
+    opts.log_severity_level, opts.enable_cpu_mem_arena = 3, False  # one segment after another: none keeps its peak
     return ort.InferenceSession(part.SerializeToString(), opts, providers=["CPUExecutionProvider"])
 
 
@@ -259,12 +295,11 @@ def correct_onnx_biases(float_model: Any, model: Any, tensors: list[np.ndarray],
     if not bias:
         return 0
     names = list(bias)
-    wanted = [by_name[name].output[0] for name in names]
-    fp32 = _runner(float_model, wanted)
+    fp32 = _channel_means(float_model, [by_name[name].output[0] for name in names])
     rows: dict[str, list[np.ndarray]] = {name: [] for name in names}
     for x in tensors:
-        for name, y in zip(names, fp32(x, wanted), strict=True):
-            rows[name].append(_image_means(y))
+        for name, means in zip(names, fp32(x), strict=True):
+            rows[name].append(means)
     target = {name: np.concatenate(r) for name, r in rows.items()}
     values = _Values(model)
     image = model.graph.input[0].name

@@ -15,7 +15,7 @@ itself.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +24,8 @@ import numpy as np
 from edgepick.export.crop_convs import graph_links
 from edgepick.export.onnx_io import CONV_OPS
 from edgepick.quant.config import QuantConfig
-from edgepick.quant.fidelity import RuleScore, balanced_error
+from edgepick.quant.fidelity import RuleScore
+from edgepick.quant.onnx_accuracy import evaluator_for
 from edgepick.quant.onnx_calibrate import Collector
 from edgepick.quant.ranges import RangeRule, candidate_rules
 
@@ -69,25 +70,6 @@ def exact_tensors(model: Any) -> set[str]:
         if node is not None and node.op_type not in COMPUTE_OPS:
             todo.extend(i for i in node.input if i)
     return found
-
-
-def score_rules(rules: Iterable[RangeRule], build: Callable[[RangeRule], Any], held: list[np.ndarray],
-                reference: list[list[np.ndarray]], nhwc: bool = False) -> list[RuleScore]:
-    """Each rule's int8 graph (BUILD(rule), a ModelProto) run on HELD against fp32's REFERENCE outputs."""
-    import onnxruntime as ort
-
-    scores = []
-    for rule in rules:
-        model = build(rule)
-        opts = ort.SessionOptions()
-        opts.log_severity_level = 3
-        session = ort.InferenceSession(model.SerializeToString(), opts, providers=["CPUExecutionProvider"])
-        name = session.get_inputs()[0].name
-        outputs = [session.run(None, {name: x}) for x in held]
-        worst = max(balanced_error([r[k] for r in reference], [o[k] for o in outputs], nhwc)
-                    for k in range(len(reference[0])))
-        scores.append(RuleScore(rule, worst))
-    return scores
 
 
 def float_tail(model: Any) -> list[str]:
@@ -148,8 +130,8 @@ def float_outputs(model: Any, tail: list[str]) -> int:
     return freed
 
 
-def choose_rule(collector: Collector, pre: Path, held: list[np.ndarray], ops: list[str], exclude: list[str],
-                 config: QuantConfig, nhwc: bool, progress: bool) -> tuple[RangeRule, dict]:
+def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np.ndarray], ops: list[str],
+                exclude: list[str], config: QuantConfig, nhwc: bool, progress: bool) -> tuple[RangeRule, dict]:
     """The range rule: config's own, or with auto the candidate whose int8 outputs on the HELD tensors
     (held out of COLLECTOR until now, unless fewer others were counted) stay closest to fp32's. HELD
     is counted into COLLECTOR on the way. Returns the rule and what was measured."""
@@ -160,23 +142,15 @@ def choose_rule(collector: Collector, pre: Path, held: list[np.ndarray], ops: li
             collector.add(x)
     if len(rules) == 1:
         return rules[0], {"rule": str(rules[0])}
-    import onnx
-
     from edgepick.progress import progress as progress_bar
-    from edgepick.runtime.session import plain_session
 
-    fp32 = plain_session(pre)
-    reference = [fp32.run(None, {fp32.get_inputs()[0].name: x}) for x in held]
-    float_model = onnx.load(str(pre))
+    evaluator = evaluator_for(pre, float_model, held, {}, nhwc)
     tail, exact = float_tail(float_model), exact_tensors(float_model)
-
-    def build(rule: RangeRule) -> Any:
+    scores = []
+    for rule in progress_bar(rules, desc="choose ranges", unit="rule", enabled=progress):
         int8 = qdq_model(pre, collector.ranges(rule, exact), ops, exclude, config.reduce_range)
         float_outputs(int8, tail)
-        return int8
-
-    scores = score_rules(progress_bar(rules, desc="choose ranges", unit="rule", enabled=progress), build, held,
-                         reference, nhwc)
+        scores.append(RuleScore(rule, evaluator.error(int8, None)))
     best = min(scores, key=lambda s: s.error)
     if held_out:
         for x in held:

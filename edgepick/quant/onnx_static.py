@@ -59,7 +59,6 @@ from edgepick.export.onnx_io import (
 from edgepick.files import atomic_path
 from edgepick.quant.config import (
     HEADROOM,
-    HELD_OUT_INPUTS,
     SATURATION_CHECK_INPUTS,
     BiasCorrection,
     CalibMethod,
@@ -67,6 +66,7 @@ from edgepick.quant.config import (
     Placement,
     QuantConfig,
     WeightBits,
+    check_inputs,
     lockstep_images,
 )
 from edgepick.quant.fidelity import Task, check_task_names, output_tasks
@@ -86,7 +86,7 @@ from edgepick.quant.onnx_inputs import check_tensor
 from edgepick.quant.onnx_measure import correct_onnx_biases, qdq_convs, saturating_onnx_convs, to_seven_bit_onnx
 from edgepick.quant.onnx_qdq import choose_rule, exact_tensors, float_outputs, float_tail, qdq_model, writes_float_output
 
-CHECK_TENSORS = 8  # calibration tensors on which int8 outputs are compared with fp32's
+
 @dataclass(frozen=True)
 class OnnxPassResult:
     """The int8 file of a model edgepick did not make (an ONNX file or an nn.Module), what was done
@@ -170,25 +170,27 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
         tasks = output_tasks(prepared, shapes, task, nhwc)
         hw = input_shape[1:3] if nhwc else input_shape[-2:]
         measured = lockstep_images(*hw) if config.bias_correction != BiasCorrection.NONE or config.adaround else 0
-        keep = max(CHECK_TENSORS, measured, SATURATION_CHECK_INPUTS if config.weight_bits == WeightBits.FIRST_SEVEN
-                   else 0)
+        check = check_inputs(*hw)
+        keep = max(check, measured, SATURATION_CHECK_INPUTS if config.weight_bits == WeightBits.FIRST_SEVEN else 0)
         ops = sorted({*QDQRegistry, *QLinearOpsRegistry, "HardSigmoid"} - {"ArgMax"}) if every_op else sorted(CONV_OPS)
         exclude = [*config.keep_float, *float_tail(prepared)]
         sizes = calibrated_tensors(prepared, ops)
         check_memory(prepared, sizes, int(np.prod(input_shape)) * 4 * keep)
         collector = Collector(prepared, sizes, minmax_only=config.calib_method == CalibMethod.MINMAX)
-        hold = HELD_OUT_INPUTS if config.calib_method == CalibMethod.AUTO else 0
+        hold = check if config.calib_method == CalibMethod.AUTO else 0
         kept, seen = _calibrate(collector, first, tensors, tuple(input_shape), keep, hold, total, progress)
-        rule, ranges_record = choose_rule(collector, pre, kept[:hold], ops, exclude, config, nhwc, progress)
+        rule, ranges_record = choose_rule(collector, pre, prepared, kept[:hold], ops, exclude, config, nhwc, progress)
         exact = exact_tensors(prepared)
-        int8 = qdq_model(pre, collector.ranges(rule, exact), ops, exclude, config.reduce_range)
+        ranges = collector.ranges(rule, exact)
+        del collector  # its sessions, before the int8 graphs' are made
+        int8 = qdq_model(pre, ranges, ops, exclude, config.reduce_range)
         if config.gelu == GeluForm.SIGMOID:  # before the bias correction, which then measures it
             rewrites["sigmoid_gelu"] = sigmoid_gelu(int8)
         done = _measure(prepared, int8, kept, measured, config)
         steps = {**rewrites, "float_outputs": float_outputs(int8, float_tail(prepared))}
         if config.keep_float:
             steps["kept_float_tensors"] = float_tensors(int8, node_tensors(int8, config.keep_float), prepared)
-        evaluator = evaluator_for(pre, prepared, kept[:CHECK_TENSORS], tasks, nhwc)
+        evaluator = evaluator_for(pre, prepared, kept[:check], tasks, nhwc)
         int8, accuracy = fidelity_first(int8, evaluator, budget, progress)
         steps.update(**integer_activations(int8), cropped_convs=crop_padded_convs(int8))
         steps["unused_initializers"] = drop_unused_initializers(int8)

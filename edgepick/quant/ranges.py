@@ -80,7 +80,7 @@ class Histogram:
                 kept = _finite(flat)
                 mn, mx = (float(kept.min()), float(kept.max())) if kept.size else (mn, mx)
             if np.isfinite([mn, mx]).all():
-                self._extend(mn, mx)
+                self.extend(mn, mx)
             if not counts:
                 return
             flat = flat[::-(-flat.size // SAMPLED)]
@@ -89,7 +89,7 @@ class Histogram:
             if chunk.size:
                 self._add(chunk)
 
-    def _extend(self, mn: float, mx: float) -> None:
+    def extend(self, mn: float, mx: float) -> None:
         """Widen the bins to hold [MN, MX] and take them as seen extremes."""
         if self.width == 0.0:
             span = mx - mn
@@ -99,7 +99,7 @@ class Histogram:
         self.min, self.max = min(self.min, mn), max(self.max, mx)
 
     def _add(self, x: np.ndarray) -> None:
-        self._extend(float(x.min()), float(x.max()))
+        self.extend(float(x.min()), float(x.max()))
         index = x.astype(np.float64)  # in float32 a value near a bin edge may land in the bin beside it
         index -= self.lo
         index /= self.width

@@ -43,8 +43,8 @@ def test_every_method_uses_every_tensor_whatever_their_number(tmp_path, method, 
     model = onnx.shape_inference.infer_shapes(onnx.load(str(path)))
     sizes = calibrated_tensors(model, ["Conv", "Relu"])
     assert list(sizes) == ["input", "conv_out", "output"] and sizes["input"] == 2 * 1024 * 4
-    collector = Collector(model, sizes, budget=sizes["input"])  # one tensor per run: three runs per input
-    assert len(collector.groups) == 3
+    collector = Collector(model, sizes, budget=sizes["input"])  # one tensor per run: two runs per input
+    assert collector.groups == [["conv_out"], ["output"]] and collector.inputs == ["input"]
     xs = _inputs(count)
     for x in xs:
         collector.add(x)
@@ -106,3 +106,19 @@ def test_a_calibration_that_cannot_fit_is_refused_in_one_line(tmp_path, monkeypa
         check_memory(model, sizes, input_bytes=512)
     monkeypatch.setattr("edgepick.quant.onnx_calibrate.available_memory", lambda: None)  # unknown: no refusal
     assert check_memory(model, sizes, input_bytes=512) > 0
+
+
+def test_a_large_feature_map_is_fetched_as_a_strided_sample_with_its_exact_extremes(tmp_path):
+    path, w, b = conv_relu_model(tmp_path / "big.onnx", shape=(1, 2, 1024, 1024))
+    model = onnx.shape_inference.infer_shapes(onnx.load(str(path)))
+    sizes = calibrated_tensors(model, ["Conv", "Relu"])
+    collector = Collector(model, sizes)
+    assert collector.steps == {"conv_out": 2, "output": 2}  # 3 x 1024 x 1024 values: every 2nd row and column
+    x = np.random.default_rng(0).normal(0, 1, (1, 2, 1024, 1024)).astype(np.float32)
+    x[0, 0, 511, 511] = 40.0  # on a row and column the sample skips: only the extremes see it
+    collector.add(x)
+    acts = _activations([x], w, b)
+    for name in ("conv_out", "output"):
+        hist = collector.histograms[name]
+        assert hist.total == 3 * 512 * 512
+        assert hist.min == pytest.approx(acts[name].min(), abs=1e-4) and hist.max == pytest.approx(acts[name].max(), abs=1e-4)
