@@ -57,6 +57,19 @@ def calibrated_tensors(model: Any, op_types: Iterable[str]) -> dict[str, int]:
     return found
 
 
+def release_memory() -> None:
+    """Hand the memory freed by a large step back to the system: glibc's allocator keeps freed blocks
+    for the process, so the next step's peak would stand on the last one's (no-op elsewhere)."""
+    import ctypes
+    import gc
+
+    gc.collect()
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+
+
 def available_memory() -> int | None:
     """Bytes this machine can still give a process (Linux's MemAvailable), None where unknown."""
     try:

@@ -78,7 +78,7 @@ from edgepick.quant.onnx_accuracy import (
     float_tensors,
     node_tensors,
 )
-from edgepick.quant.onnx_calibrate import Collector, calibrated_tensors, check_memory
+from edgepick.quant.onnx_calibrate import Collector, calibrated_tensors, check_memory, release_memory
 from edgepick.quant.onnx_equalize import equalize_onnx
 from edgepick.quant.onnx_gelu import sigmoid_gelu
 from edgepick.quant.onnx_graph import fold_affine_into_convs, rewrite_activations
@@ -183,10 +183,12 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
         exact = exact_tensors(prepared)
         ranges = collector.ranges(rule, exact)
         del collector  # its sessions, before the int8 graphs' are made
+        release_memory()
         int8 = qdq_model(pre, ranges, ops, exclude, config.reduce_range)
         if config.gelu == GeluForm.SIGMOID:  # before the bias correction, which then measures it
             rewrites["sigmoid_gelu"] = sigmoid_gelu(int8)
         done = _measure(prepared, int8, kept, measured, config)
+        release_memory()
         steps = {**rewrites, "float_outputs": float_outputs(int8, float_tail(prepared))}
         if config.keep_float:
             steps["kept_float_tensors"] = float_tensors(int8, node_tensors(int8, config.keep_float), prepared)
