@@ -12,8 +12,8 @@ can raise mIoU by chance, while agreeing with fp32 can only be earned.
         [--out FILE.md | --save]
 
 A case is WEIGHT_BITS/BIAS_CORRECTION, optionally /METHODS: cle (cross-layer equalization), ada
-(AdaRound) and pPERCENTILE (the activation ranges' percentile, default quantize static's) joined by
-+, e.g. /cle+ada or /p99.999.
+(AdaRound) and pPERCENTILE (the activation ranges at that fixed percentile, instead of quantize
+static's default, auto) joined by +, e.g. /cle+ada or /p99.999.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from _common import add_output, emit, interleaved_times, machine_line, object_ag
 from edgepick.data.native import NativeDataset  # noqa: E402
 from edgepick.export.onnx_export import export_checkpoint  # noqa: E402
 from edgepick.metrics import confusion_matrix, segmentation_metrics  # noqa: E402
-from edgepick.quant.config import BiasCorrection, QuantConfig, WeightBits  # noqa: E402
+from edgepick.quant.config import BiasCorrection, CalibMethod, QuantConfig, WeightBits  # noqa: E402
 from edgepick.quant.passes import agreement_images, folder_images, quantize_static  # noqa: E402
 from edgepick.runtime.engine import Engine  # noqa: E402
 from edgepick.runtime.session import Segmenter  # noqa: E402
@@ -96,9 +96,10 @@ def start_case(seed: int, key: tuple[WeightBits, BiasCorrection, str], work: Pat
     bits, method, extra = key
     print(f"-- seed {seed}, weight bits {bits}, bias correction {method} {extra}", file=sys.stderr, flush=True)
     tokens = extra.split("+")
-    percentile = next((float(t[1:]) for t in tokens if t.startswith("p")), QuantConfig.percentile)
+    percentile = next((float(t[1:]) for t in tokens if t.startswith("p")), None)
     config = QuantConfig(weight_bits=bits, bias_correction=method, equalize="cle" in tokens, adaround="ada" in tokens,
-                         adaround_budget_s=adaround_budget_s, percentile=percentile)
+                         adaround_budget_s=adaround_budget_s,
+                         **({"calib_method": CalibMethod.PERCENTILE, "percentile": percentile} if percentile else {}))
     return work / f"{bits}-{method}-{extra}-{seed}.onnx", config
 
 
