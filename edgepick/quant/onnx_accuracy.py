@@ -173,7 +173,7 @@ class Evaluator:
     graphs: int = 0  # how many graphs were measured
     input_name: str = ""
 
-    def _session(self, model: Any) -> Any:
+    def session(self, model: Any) -> Any:
         import onnxruntime as ort
 
         opts = ort.SessionOptions()
@@ -186,7 +186,7 @@ class Evaluator:
 
     def fidelity(self, model: Any) -> dict[str, OutputFidelity]:
         """Each output's fidelity (quant/fidelity.py) of MODEL on every check tensor."""
-        session = self._session(model)
+        session = self.session(model)
         found = {name: OutputFidelity(self.tasks[name]) for name in self.names}
         for x, ref in zip(self.inputs, self.reference):
             for name, r, t in zip(self.names, ref, session.run(self.names, {self.input_name: x})):
@@ -196,7 +196,7 @@ class Evaluator:
     def error(self, model: Any, count: int | None = SCAN_TENSORS) -> float:
         """The worst output's balanced relative error (quant/fidelity.py) of MODEL on the first COUNT
         tensors, summed one input at a time."""
-        session = self._session(model)
+        session = self.session(model)
         errors = [BalancedError(self.nhwc) for _ in self.names]
         for x, ref in zip(self.inputs[:count], self.reference):
             for error, r, t in zip(errors, ref, session.run(self.names, {self.input_name: x})):
@@ -326,12 +326,11 @@ def speed_cost(int8: Any, kept_float: Any, x: np.ndarray, threads: int = 2) -> d
 def evaluator_for(pre: Path, float_model: Any, check: list[np.ndarray], tasks: dict[str, Task],
                   nhwc: bool) -> Evaluator:
     """What int8 graphs are measured against: fp32's (the file PRE, FLOAT_MODEL) outputs on the CHECK tensors."""
-    from edgepick.runtime.session import plain_session
-
-    fp32 = plain_session(pre)
-    names = [o.name for o in fp32.get_outputs()]
-    reference = [fp32.run(names, {fp32.get_inputs()[0].name: x}) for x in check]
-    return Evaluator(float_model, reference, check, names, tasks, nhwc)
+    evaluator = Evaluator(float_model, [], check, [o.name for o in float_model.graph.output], tasks, nhwc)
+    fp32 = evaluator.session(float_model)
+    evaluator.reference = [fp32.run(evaluator.names, {evaluator.input_name: x}) for x in check]
+    evaluator.graphs = 0  # int8 graphs measured
+    return evaluator
 
 
 def fidelity_first(int8: Any, evaluator: Evaluator, budget: FidelityBudget | None,
