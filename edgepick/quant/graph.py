@@ -155,12 +155,11 @@ def convert(prepared: torch.fx.GraphModule, snap_biases: bool = True) -> torch.f
 
 def choose_rule(prepared: torch.fx.GraphModule, held: list[torch.Tensor], config: QuantConfig, fitted: int) -> dict:
     """Set the range rule of PREPARED's activation observers (calibrated on FITTED other inputs than
-    HELD) and count HELD in. With calib_method auto, each candidate rule is converted and run on
-    HELD, and the one whose logits stay closest to fp32's is kept (each class weighted alike: the
-    ONNX path's measure). With fewer FITTED inputs than HELD, HELD are counted in first and the
-    choice is made on them. Returns what was chosen and measured."""
-    import copy
-
+    HELD) and count HELD in. With calib_method auto, PREPARED runs HELD with its activations on each
+    candidate rule's uint8 grid (the weights float: they are the same for every rule), and the rule
+    whose logits stay closest to fp32's is kept (each class weighted alike: the ONNX path's
+    measure). With fewer FITTED inputs than HELD, HELD are counted in first and the choice is made
+    on them. Returns what was chosen and measured."""
     observers = [m for m in prepared.modules() if isinstance(m, RuleObserver)]
     rules = candidate_rules(config)
     held_out = bool(held) and fitted >= len(held)
@@ -177,14 +176,14 @@ def choose_rule(prepared: torch.fx.GraphModule, held: list[torch.Tensor], config
         scores = []
         for rule in rules:
             for o in observers:
-                o.rule = rule
-            converted = convert(copy.deepcopy(prepared))
-            outputs = [_arrays(converted(x.to(device))) for x in held]
+                o.simulate(rule)
+            outputs = [_arrays(prepared(x.to(device))) for x in held]
             worst = max(balanced_error([r[k] for r in reference], [o[k] for o in outputs])
                         for k in range(len(reference[0])))
             scores.append(RuleScore(rule, worst))
     best = min(scores, key=lambda s: s.error)
     for o in observers:
+        o.simulate(None)
         o.rule, o.observing = best.rule, True
     if held_out:
         _count_in(prepared, held, device)

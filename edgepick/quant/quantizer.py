@@ -49,16 +49,31 @@ SHARED_OPS = {aten.upsample_bilinear2d.vec, aten.upsample_nearest2d.vec, aten.ma
 class RuleObserver(HistogramObserver):
     """Activation range read off the observer's histogram by a `RangeRule` (quant/ranges.py, the rules
     the ONNX path uses too). The rule can change after calibration: with calib_method auto each
-    candidate is converted and measured (quant/graph.py `choose_rule`). While `observing` is off the
-    observer passes values through without counting them (held-out inputs)."""
+    candidate is measured (quant/graph.py `choose_rule`). While `observing` is off the observer
+    passes values through without counting them (held-out inputs), or, given `simulated` qparams,
+    puts them on that uint8 grid: the graph then computes its activations as the int8 model will."""
 
     def __init__(self, rule: RangeRule | None = None, **kwargs):
         super().__init__(**kwargs)
         self.rule = rule or RangeRule(CalibMethod.PERCENTILE)
         self.observing = True
+        self.simulated: tuple[float, int] | None = None  # (scale, zero point) to fake-quantize with
 
     def forward(self, x_orig: torch.Tensor) -> torch.Tensor:
-        return super().forward(x_orig) if self.observing else x_orig
+        if self.observing:
+            return super().forward(x_orig)
+        if self.simulated is not None:
+            scale, zero = self.simulated
+            return torch.fake_quantize_per_tensor_affine(x_orig, scale, zero, self.quant_min, self.quant_max)
+        return x_orig
+
+    def simulate(self, rule: RangeRule | None) -> None:
+        """Fake-quantize with RULE's qparams from now on (None: pass values through)."""
+        self.simulated = None
+        if rule is not None:
+            self.rule = rule
+            scale, zero = self.calculate_qparams()
+            self.simulated = (float(scale.reshape(-1)[0]), int(zero.reshape(-1)[0]))
 
     def _non_linear_param_search(self) -> tuple[torch.Tensor, torch.Tensor]:
         hist = Histogram.of(self.histogram.double().cpu().numpy(), float(self.min_val), float(self.max_val))
