@@ -37,6 +37,7 @@ from edgepick.sim.physics import PhysicsConfig, physics_run, require_mujoco
 from edgepick.sim.physics_scene import OVERLAP_M, Solid, scene_xml, settle
 
 ROUND_ENDS = ("cleared", "two failures in a row", "cycle cap", "robot stopped")
+STAYS_M, STAYS_DEG = 0.01, 10.0  # a laid-out part that settles farther or tips more did not stay where it was put
 TRAY_MARGIN_M = 0.05  # a part whose base centre ends farther than this outside the pick area has left the tray
 
 
@@ -113,9 +114,11 @@ class ClutterRound(SynthCamera):
                  cfg: RoundConfig | None = None, mount_height_m: float = 0.7, physics: PhysicsConfig | None = None):
         super().__init__(width, height, seed=seed, mount_height_m=mount_height_m)
         self.mujoco = require_mujoco()
-        physics = physics or PhysicsConfig()  # its contacts as stiff as a step allows: parts rest on parts, not in them
+        # stiff contacts (three steps: stiffer ones fling a resting part now and then) so that parts rest on parts,
+        # not in them; a magnet that holds steel alone, since every part's fate counts here
+        physics = physics or PhysicsConfig()
         self.cfg, self.round = cfg or RoundConfig(), index
-        self.physics_cfg = dataclasses.replace(physics, contact_s=2 * physics.timestep_s)
+        self.physics_cfg = dataclasses.replace(physics, contact_s=3 * physics.timestep_s, magnet_steel_only=True)
         self.layout, self.parts = self._lay_out(np.random.default_rng([seed, 17, index]))
         self.laid_out, self.picks, self.failures, self.ended = len(self.parts), 0, 0, None
         self.removed: list[int] = []  # the parts picks took off the table
@@ -126,13 +129,18 @@ class ClutterRound(SynthCamera):
     # -- the table --------------------------------------------------------------------------------
     def _lay_out(self, rng: np.random.Generator) -> tuple[Layout, list[Part]]:
         """The round's layout and its parts at rest: drawn until cfg.objects[0] or more stand, those
-        placed into others (which no simulation can separate) left out."""
+        placed into others (which no simulation can separate) left out, and again when a part does not
+        stay where it was laid out (more than STAYS_M off, or tipped more than STAYS_DEG), as every
+        scene of the cell stands as rendered (data/stacking.py)."""
         while True:
             layout = self.renderer.lay_out(rng, self.mount, self.in_pick_area, self.cfg.objects, tries=50)
             parts = [self._part(k, p, layout.n) for k, p in enumerate(layout.placed)]
             parts = self._apart(parts)
             rested = settle(self.mujoco, [p.solid() for p in parts], self.physics_cfg)
-            if rested is not None and len(parts) >= self.cfg.objects[0]:
+            stays = rested is not None and all(
+                np.linalg.norm(base - p.base) <= STAYS_M and rotation[:, 2] @ p.rotation[:, 2] >= np.cos(np.radians(STAYS_DEG))
+                for p, (base, rotation) in zip(parts, rested))
+            if stays and len(parts) >= self.cfg.objects[0]:
                 for part, pose in zip(parts, rested):
                     part.rest(*pose)
                 return layout, parts

@@ -289,6 +289,8 @@ class _Sim:
             return {"success": False, "failure": "blocked", "note": f"the hand lands on {what}", "lifted_m": 0.0}
         if self.magnet:
             self.magnet_on = True
+            if cfg.magnet_steel_only:
+                self._steel_only()
             self.step(reached, 0.2)
         else:
             self.step(reached, 0.5, -1.0)  # close
@@ -309,6 +311,18 @@ class _Sim:
         rise = float(self.data.xpos[self.body][2]) - start_z
         held = bool(self._touching()) and rise > cfg.lift_m - 0.03
         return {"success": held, "failure": None if held else "dropped", "lifted_m": round(rise, 4)}
+
+    def _steel_only(self) -> None:
+        """From now on the hand (its pole face and palm) touches only the steel parts (cfg.magnet_steel_only):
+        MuJoCo's adhesion, which pulls at every contact of the hand, then pulls no plastic or cardboard."""
+        model, steel = self.model, 2  # a collision bit the hand shares with steel alone
+        for g in self.hand_geoms:
+            model.geom_contype[g] = model.geom_conaffinity[g] = steel
+        for g in range(model.ngeom):
+            name = model.body(model.geom_bodyid[g]).name
+            if name.startswith("obj") and self.world[int(name[3:])].cls in MAGNETIC:
+                model.geom_contype[g] |= steel
+                model.geom_conaffinity[g] |= steel
 
     def _across(self) -> float:
         """The target's extent along the jaw's closing axis."""

@@ -40,9 +40,15 @@ class PhysicsConfig:
     # contact's stiffness by the lighter body's mass: a heavy disk on a light adapter sinks it millimetres into the
     # table); a clutter-removal round (sim/clutter.py) takes two steps, the stiffest MuJoCo allows
     contact_s: float = 0.02
+    # MuJoCo's adhesion holds whatever touches the pole face, steel or not (a plastic adapter under its rim goes
+    # along): the verdict of a single scene only asks what the target did; a clutter-removal round, which goes on
+    # from where every part ended, has the switched-on face touch the steel parts alone
+    magnet_steel_only: bool = False
 
     def __post_init__(self) -> None:
         for name, value in vars(self).items():
+            if isinstance(value, bool):
+                continue
             if not (math.isfinite(value) and value > 0):
                 raise ParameterError(f"{{{name}}}: must be a positive number", **{name: value})
 
