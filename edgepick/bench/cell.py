@@ -161,11 +161,13 @@ def by_lighting(results: list[dict]) -> dict[str, dict]:
 
 def run_cell(models: list[str | Path], cycles: int, out_dir: str | Path, threads: int = 2, seed: int = 0,
              engine: Engine = Engine.ONNXRUNTIME, progress=print, verdict: VerdictRule = VerdictRule.GEOMETRIC,
-             physics_config=None, rounds: int | None = None, round_config=None, margin_pp: float = 1.0) -> dict:
+             physics_config=None, rounds: int | None = None, round_config=None, margin_pp: float = 1.0,
+             measured: list[Measured] | None = None) -> dict:
     """The true-label row, then each model's, over the same CYCLES scenes (with ROUNDS: that many
     clutter-removal rounds, sim/clutter.py, laid out alike for every row); each int8 row against the
     fp32 row on those scenes, with its paired interval read against +-MARGIN_PP percentage points
-    (bench/compare.py, "equivalence"); writes cell.md/.csv/.json and success-latency.png in OUT_DIR."""
+    (bench/compare.py, "equivalence"); writes cell.md/.csv/.json and success-latency.png in OUT_DIR.
+    MEASURED, when given, gets each row's cycles as they ran (to compare over several runs)."""
     if not (math.isfinite(margin_pp) and 0 < margin_pp < 100):
         raise ParameterError("{margin_pp}: must be a number of percentage points in (0, 100)", margin_pp=margin_pp)
     if rounds is not None and rounds < 1:
@@ -177,7 +179,9 @@ def run_cell(models: list[str | Path], cycles: int, out_dir: str | Path, threads
     progress(f"cell: true labels, {what} ...")
     row, results, described = measure_row("true labels", "-", TruthPipeline(list(CLASSES), camera.calibration()),
                                           cycles, seed, None, verdict, physics_config, rounds, round_config)
-    rows, measured = [row], [Measured(row.mode, "-", results, described)]
+    measured = [] if measured is None else measured
+    rows = [row]
+    measured.append(Measured(row.mode, "-", results, described))
     for m in models:
         seg = Segmenter(m, threads=threads, engine=engine)
         progress(f"cell: {Path(m).name}, {what} ...")
@@ -187,7 +191,7 @@ def run_cell(models: list[str | Path], cycles: int, out_dir: str | Path, threads
         rows.append(row)
         measured.append(Measured(row.mode, seg.info.metadata.get("edgepick.precision", "fp32"), results, described))
     modes = [r.mode for r in rows]
-    for r, m in zip(rows, measured):  # two models of one mode (the demo's hybrid and the reference one): name the files
+    for r, m in zip(rows, measured[-len(rows):]):  # two models of one mode (the demo's hybrid, the reference): name the files
         if modes.count(r.mode) > 1:
             r.mode = m.mode = f"{r.mode} ({Path(r.model).stem})"
     title = f"{cycles} executions per model" if rounds is None else f"{rounds} clutter-removal rounds per model"
@@ -197,7 +201,7 @@ def run_cell(models: list[str | Path], cycles: int, out_dir: str | Path, threads
                "criterion": "docs/contracts.md#grasp-success", "verdict": str(verdict)}
     if rounds is not None:
         context["rounds"] = "docs/contracts.md#clutter-removal-rounds"
-    compared = compare(measured, margin_pp / 100)
+    compared = compare(measured[-len(rows):], margin_pp / 100)
     return {"rows": [asdict(r) for r in rows], "equivalence": compared,
             "reports": write_cell_reports(rows, out_dir, context, compared)}
 
