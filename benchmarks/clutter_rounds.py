@@ -50,6 +50,13 @@ def models_of(args: argparse.Namespace) -> list[str]:
     return found + [str(shipped)] + ([str(run / "hybrid.onnx")] if (run / "hybrid.onnx").is_file() else [])
 
 
+def shown(path: str) -> str:
+    """A model's path as the report names it: from the repository's root when it lies inside it."""
+    repo = Path(__file__).resolve().parents[1]
+    full = Path(path).resolve()
+    return str(full.relative_to(repo)) if full.is_relative_to(repo) else path
+
+
 def targets(rows: list[dict], equivalence: list[dict], margin: float) -> list[list[str]]:
     """Each target the rounds are held to, what was measured, and whether it holds."""
     out = []
@@ -120,7 +127,7 @@ def main() -> None:
     report = (f"# Clutter removal in the physics cell: {args.rounds} rounds per model\n\n"
               f"Command: `python benchmarks/clutter_rounds.py {' '.join(sys.argv[1:])}`  \n"
               f"{machine_line()}; onnxruntime {ort.__version__}, opencv {cv2.__version__}, numpy {np.__version__}, "
-              f"mujoco {mujoco.__version__}\n\nModels: {', '.join(f'`{m}`' for m in models)}\n"
+              f"mujoco {mujoco.__version__}\n\nModels: {', '.join(f'`{shown(m)}`' for m in models)}\n"
               f"{body}\n## Targets\n\n{held}\n\n## Time\n\nWall time of each row on this machine (rendering, "
               f"inference, the physics check and the settling):\n\n{timing}\n")
     emit(report, args)
