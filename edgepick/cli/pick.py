@@ -133,13 +133,12 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     """
     from edgepick.cli.cameras import open_camera
     from edgepick.robot.base import RobotError, RobotHalted, RobotUnreachable
-    from edgepick.robot.loop import cycles_summary, run_cycles
+    from edgepick.robot.loop import run_cycles
     from edgepick.robot.pick import CommandLog
     from edgepick.runtime.calibration import Calibration
     from edgepick.runtime.pipeline import Pipeline
     from edgepick.runtime.session import Segmenter
     from edgepick.sim.camera import SynthCamera
-    from edgepick.sim.robot import SimRobot
 
     round_cfg = _check_rounds(rounds, max_cycles, cycles, camera, robot_spec, overlap)
     cycles = 1 if cycles is None else cycles
@@ -189,15 +188,7 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
         from edgepick.sim.physics import physics_judge
 
         physics = physics_judge(truth_cal, cfg)
-    if kind == "sim":
-        robot = SimRobot()
-    elif execute:
-        from edgepick.robot.ur import URRobot
-
-        robot = URRobot(host, debug_log=robot_log)
-    else:
-        robot = None
-        click.echo(f"plan only: nothing is sent to {host} (add --execute to move the arm)", err=True)
+    robot = _open_robot(kind, execute, host, robot_log)
     grip = make_gripper(gripper_spec, robot) if robot is not None else None
     log = CommandLog(log_path)
     echo = lambda line: click.echo(line, err=True)  # noqa: E731
@@ -212,17 +203,9 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
         if round_cfg is None:
             run_cycles(source, pipeline, arm, hand, cfg=cfg, cycles=cycles, log=log, overlay_dir=overlay_dir, echo=echo,
                        truth_cal=truth_cal, overlap=overlap, recorder=recorder, physics=physics, done=results)
-            return
-        from edgepick.sim.clutter import run_rounds
-
-        def round_recorder(cell):
-            return _recorder(round_records(record_path, rounds)[cell.round - 1], model, segmenter.info.classes, source,
-                             cfg, pipeline, arm.envelope, {"round": cell.describe()})
-
-        run_rounds(pipeline, arm, hand, rounds=rounds, pick=cfg, log=log, seed=source.seed, cfg=round_cfg,
-                   judge=physics is not None, echo=echo, overlay_dir=overlay_dir,
-                   recorder=round_recorder if record_path else None, done=results, described=described,
-                   size=(frame_size.width, frame_size.height))
+        else:
+            _run_rounds(arm, hand, rounds, round_cfg, cfg, log, source, pipeline, physics is not None, echo, overlay_dir,
+                        record_path, model, segmenter.info.classes, results, described)
 
     try:
         with overlays, source:
@@ -244,15 +227,7 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
         log.close()
         if recorder is not None:  # also on Ctrl-C or a halt: what was recorded becomes a readable file
             recorder.close()
-    records = [f for f in round_records(record_path, rounds) if Path(f).exists()] if record_path else []
-    summary = {"model": model, **cycles_summary(results), "halted": halted, "interrupted": _signal_name(interrupt),
-               "log": log_path if log.path and log.path.exists() else None,
-               "record": records if round_cfg is not None else (records or [None])[0]}
-    if round_cfg is not None:
-        from edgepick.sim.clutter import round_summary
-
-        summary["rounds"] = round_summary(described, results)
-    summary["results"] = results
+    summary = _summary(model, results, described, rounds, halted, interrupt, log, log_path, record_path)
     _print_summary(summary, interrupted=interrupt is not None)
     if interrupt is not None:  # the command line says so in one line and exits 128 + the signal
         raise interrupt
@@ -261,6 +236,52 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
             raise RobotUnreachable(halted)
         raise RobotHalted(f"robot halted: {halted} ({summary['done']} of {summary['cycles'] if rounds else cycles} "
                           "cycles done)")
+
+
+def _open_robot(kind: str, execute: bool, host: str, robot_log: str | None):
+    """The arm of --robot: a SimRobot, a UR3 with --execute, or None (plan only, said on stderr)."""
+    if kind == "sim":
+        from edgepick.sim.robot import SimRobot
+
+        return SimRobot()
+    if execute:
+        from edgepick.robot.ur import URRobot
+
+        return URRobot(host, debug_log=robot_log)
+    click.echo(f"plan only: nothing is sent to {host} (add --execute to move the arm)", err=True)
+    return None
+
+
+def _run_rounds(arm, hand, rounds: int, round_cfg, cfg: PickConfig, log, source, pipeline, judge: bool, echo,
+                overlay_dir: str | None, record_path: str | None, model: str, classes, results: list[dict],
+                described: list[dict]) -> None:
+    """`pick --rounds`: sim/clutter.py's run_rounds on SOURCE's seed and frame size, a recording per round."""
+    from edgepick.sim.clutter import run_rounds
+
+    def round_recorder(cell):
+        return _recorder(round_records(record_path, rounds)[cell.round - 1], model, classes, source, cfg, pipeline,
+                         arm.envelope, {"round": cell.describe()})
+
+    run_rounds(pipeline, arm, hand, rounds=rounds, pick=cfg, log=log, seed=source.seed, cfg=round_cfg, judge=judge,
+               echo=echo, overlay_dir=overlay_dir, recorder=round_recorder if record_path else None, done=results,
+               described=described, size=(source.intrinsics.width, source.intrinsics.height))
+
+
+def _summary(model: str, results: list[dict], described: list[dict], rounds: int | None, halted, interrupt,
+             log, log_path: str, record_path: str | None) -> dict:
+    """`pick`'s JSON summary: the cycles summed (robot/loop.py), how the run ended, its files, with --rounds
+    the rounds summed ("rounds", sim/clutter.py), and every cycle's result."""
+    from edgepick.robot.loop import cycles_summary
+
+    records = [f for f in round_records(record_path, rounds) if Path(f).exists()] if record_path else []
+    summary = {"model": model, **cycles_summary(results), "halted": halted, "interrupted": _signal_name(interrupt),
+               "log": log_path if log.path and log.path.exists() else None,
+               "record": records if rounds is not None else (records or [None])[0]}
+    if rounds is not None:
+        from edgepick.sim.clutter import round_summary
+
+        summary["rounds"] = round_summary(described, results)
+    return {**summary, "results": results}
 
 
 def _signal_name(interrupt: KeyboardInterrupt | None) -> str | None:
