@@ -74,7 +74,7 @@ def make_gripper(spec: tuple[str, int | str], robot):
                    "own calibration].")
 @click.option("--gripper", default="digital:0", show_default=True, help="digital:N, tool:N or rg2[:HOST].")
 @click.option("--execute", is_flag=True, help="Move a real arm (--robot ur:HOST). Without it the plan is only printed.")
-@click.option("--cycles", default=None, type=int, show_default="1", help="Pick cycles to run, each on a fresh scene.")
+@click.option("--cycles", default=1, show_default=True, help="Pick cycles to run, each on a fresh scene.")
 @click.option("--rounds", default=None, type=int,
               help="Instead: clutter removal in the synthetic cell (the [sim] extra), N rounds. A round lays out 4-10 "
                    "parts (piles allowed) once and picks from that table until it is empty, two cycles in a row "
@@ -117,7 +117,7 @@ def make_gripper(spec: tuple[str, int | str], robot):
               help="Read and segment the next frame while the arm places the object and returns home, so the arm "
                    "waits only for the plan (each cycle reports frame_to_frame_ms and arm_wait_ms). Only where the "
                    "camera sees neither the arm nor the part it holds once the arm is above the place pose.")
-def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: str, execute: bool, cycles: int | None,
+def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: str, execute: bool, cycles: int,
          rounds: int | None, max_cycles: int | None, classes: tuple[str, ...], choose: str, speed: float, acc: float,
          log_path: str, robot_log: str | None, overlay_dir: str | None, record_path: str | None, verdict: str,
          threads: int, engine: str, size: str, overlap: bool) -> None:
@@ -140,8 +140,8 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     from edgepick.runtime.session import Segmenter
     from edgepick.sim.camera import SynthCamera
 
-    round_cfg = _check_rounds(rounds, max_cycles, cycles, camera, robot_spec, overlap)
-    cycles = 1 if cycles is None else cycles
+    given = click.get_current_context().get_parameter_source("cycles") == click.core.ParameterSource.COMMANDLINE
+    round_cfg = _check_rounds(rounds, max_cycles, cycles if given else None, camera, robot_spec, overlap)
     kind, host = _check_motion(cycles, speed, acc, robot_spec)
     gripper_spec = check_gripper(gripper, host or None)
     check_output(log_path, "--log", inputs=(model, calib))
