@@ -18,9 +18,12 @@ import cv2
 import numpy as np
 import onnxruntime as ort
 
+from edgepick.bench.compare import Measured, compare, compare_section, rounds_section
 from edgepick.bench.measure import mode_label
 from edgepick.bench.report import draw_axes, markdown
 from edgepick.data.render import CLASSES, LIGHTINGS
+from edgepick.errors import ParameterError
+from edgepick.intervals import rounded, wilson
 from edgepick.machine import machine_line
 from edgepick.robot.clearance import HandShape
 from edgepick.robot.grippers import DigitalGripper
@@ -56,12 +59,23 @@ class CellRow:
     physics: dict | None = None  # the physics check: success, executions, success_rate, failures, ms_p50
     disagreements: dict[str, dict[str, int]] = field(default_factory=dict)  # class -> which rule alone passed it
     by_lighting: dict[str, dict] = field(default_factory=dict)  # light condition -> executions, success, ...
+    success_ci95: list[float] | None = None  # the 95% Wilson intervals of success_rate and success_rate_reachable
+    success_reachable_ci95: list[float] | None = None
+    rounds: dict | None = None  # bench --cell --rounds: sim/clutter.py's round_summary of the row's rounds
 
 
 def cell_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: int, size_mb: float | None,
              verdict: VerdictRule = VerdictRule.GEOMETRIC, physics_config=None) -> CellRow:
     """CYCLES executions of the pick loop with PIPELINE on the cell's scenes of SEED (PHYSICS_CONFIG:
     the simulated grippers, sim/physics.py's PhysicsConfig)."""
+    return measure_row(mode, model, pipeline, cycles, seed, size_mb, verdict, physics_config)[0]
+
+
+def measure_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: int, size_mb: float | None,
+                verdict: VerdictRule = VerdictRule.GEOMETRIC, physics_config=None, rounds: int | None = None,
+                round_config=None) -> tuple[CellRow, list[dict], list[dict] | None]:
+    """cell_row, with the cycles' results; with ROUNDS, that many clutter-removal rounds (sim/clutter.py,
+    ROUND_CONFIG) in place of CYCLES single scenes, and the rounds' `describe()`."""
     camera = SynthCamera(640, 480, seed=seed, mount_height_m=MOUNT_M)
     truth = camera.calibration()
     robot = SimRobot()
@@ -75,16 +89,30 @@ def cell_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: int, 
         physics_config = physics_config or PhysicsConfig()
         physics = physics_judge(truth, pick, physics_config)
         pick = PickConfig(hand=HandShape(jaw_opening_m=physics_config.jaw_stroke_m))
+    described = None
     with camera, robot:
-        results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=pick, cycles=cycles,
-                             log=CommandLog(None), echo=lambda line: None, truth_cal=truth, physics=physics)
+        if rounds is None:
+            results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=pick, cycles=cycles,
+                                 log=CommandLog(None), echo=lambda line: None, truth_cal=truth, physics=physics)
+        else:
+            from edgepick.sim.clutter import run_rounds
+
+            results = []
+            described = run_rounds(pipeline, robot, DigitalGripper(robot, 0), rounds=rounds, pick=pick,
+                                   log=CommandLog(None), seed=seed, cfg=round_config, physics=physics_config,
+                                   judge=physics is not None, echo=lambda line: None, done=results)
     times = np.array([r["plan_ms"] for r in results])  # frame -> labels -> records -> the checked plan
     summary = summarize(results)
-    return CellRow(mode, model, len(results), round(float(times.mean()), 2), round(float(times.std()), 2),
-                   round(float(np.median(times)), 2), round(float(np.percentile(times, 95)), 2), size_mb,
-                   summary["success"], summary["success_rate"], summary["success_rate_reachable"], summary["failures"],
-                   physics_summary(results) if physics else None, disagreements(results) if physics else {},
-                   by_lighting(results))
+    row = CellRow(mode, model, len(results), round(float(times.mean()), 2), round(float(times.std()), 2),
+                  round(float(np.median(times)), 2), round(float(np.percentile(times, 95)), 2), size_mb,
+                  summary["success"], summary["success_rate"], summary["success_rate_reachable"], summary["failures"],
+                  physics_summary(results) if physics else None, disagreements(results) if physics else {},
+                  by_lighting(results), summary["success_ci95"], summary["success_reachable_ci95"])
+    if described is not None:
+        from edgepick.sim.clutter import round_summary
+
+        row.rounds = round_summary(described, results)
+    return row, results, described
 
 
 def physics_summary(results: list[dict]) -> dict:
@@ -94,7 +122,9 @@ def physics_summary(results: list[dict]) -> dict:
     s = summarize(results, "physics")
     standing = len(judged) - s["failures"].get("unsettled", 0)  # the scenes that stand as rendered
     return {"success": s["success"], "executions": len(judged), "success_rate": s["success_rate"],
+            "success_ci95": s["success_ci95"],
             "success_rate_standing": round(s["success"] / standing, 4) if standing else None,
+            "success_standing_ci95": rounded(wilson(s["success"], standing)),
             "failures": s["failures"], "ms_p50": round(float(np.median(times)), 1) if times else None}
 
 
@@ -120,38 +150,60 @@ def by_lighting(results: list[dict]) -> dict[str, dict]:
         these = [r for r in results if "verdict" in r and r.get("scene", {}).get("lighting") == light]
         s = summarize(these)
         out[light] = {"executions": len(these), "success": s["success"], "success_rate": s["success_rate"],
-                      "failures": s["failures"], "undetected": sum(r.get("undetected", 0) for r in these)}
+                      "success_ci95": s["success_ci95"], "failures": s["failures"],
+                      "undetected": sum(r.get("undetected", 0) for r in these)}
         if any("physics" in r for r in these):
             p = summarize(these, "physics")
-            out[light].update(physics_success=p["success"], physics_success_rate=p["success_rate"])
+            out[light].update(physics_success=p["success"], physics_success_rate=p["success_rate"],
+                              physics_success_ci95=p["success_ci95"])
     return out
 
 
 def run_cell(models: list[str | Path], cycles: int, out_dir: str | Path, threads: int = 2, seed: int = 0,
              engine: Engine = Engine.ONNXRUNTIME, progress=print, verdict: VerdictRule = VerdictRule.GEOMETRIC,
-             physics_config=None) -> dict:
-    """The true-label row, then each model's, over the same CYCLES scenes; writes cell.md/.csv/.json
-    and success-latency.png in OUT_DIR."""
+             physics_config=None, rounds: int | None = None, round_config=None, margin_pp: float = 1.0,
+             measured: list[Measured] | None = None) -> dict:
+    """The true-label row, then each model's, over the same CYCLES scenes (with ROUNDS: that many
+    clutter-removal rounds, sim/clutter.py, laid out alike for every row); each int8 row against the
+    fp32 row on those scenes, with its paired interval read against +-MARGIN_PP percentage points
+    (bench/compare.py, "equivalence"); writes cell.md/.csv/.json and success-latency.png in OUT_DIR.
+    MEASURED, when given, gets each row's cycles as they ran (to compare over several runs)."""
+    if not (math.isfinite(margin_pp) and 0 < margin_pp < 100):
+        raise ParameterError("{margin_pp}: must be a number of percentage points in (0, 100)", margin_pp=margin_pp)
+    if rounds is not None and rounds < 1:
+        raise ParameterError("{rounds}: must be at least 1", rounds=rounds)
     for m in models:  # every model's contract before the first cycle
         check_model(m)
     camera = SynthCamera(640, 480, seed=seed, mount_height_m=MOUNT_M)
-    progress(f"cell: true labels, {cycles} cycles ...")
-    rows = [cell_row("true labels", "-", TruthPipeline(list(CLASSES), camera.calibration()), cycles, seed, None,
-                     verdict, physics_config)]
+    what = f"{cycles} cycles" if rounds is None else f"{rounds} rounds"
+    progress(f"cell: true labels, {what} ...")
+    row, results, described = measure_row("true labels", "-", TruthPipeline(list(CLASSES), camera.calibration()),
+                                          cycles, seed, None, verdict, physics_config, rounds, round_config)
+    measured = [] if measured is None else measured
+    rows = [row]
+    measured.append(Measured(row.mode, "-", results, described))
     for m in models:
         seg = Segmenter(m, threads=threads, engine=engine)
-        progress(f"cell: {Path(m).name}, {cycles} cycles ...")
-        rows.append(cell_row(mode_label(seg.info.metadata), str(m), Pipeline(seg, camera.calibration()), cycles, seed,
-                             round(Path(m).stat().st_size / 1e6, 3), verdict, physics_config))
+        progress(f"cell: {Path(m).name}, {what} ...")
+        row, results, described = measure_row(mode_label(seg.info.metadata), str(m), Pipeline(seg, camera.calibration()),
+                                              cycles, seed, round(Path(m).stat().st_size / 1e6, 3), verdict,
+                                              physics_config, rounds, round_config)
+        rows.append(row)
+        measured.append(Measured(row.mode, seg.info.metadata.get("edgepick.precision", "fp32"), results, described))
     modes = [r.mode for r in rows]
-    for r in rows:  # two models of one mode (the demo's hybrid and the reference one): name the files
+    for r, m in zip(rows, measured[-len(rows):]):  # two models of one mode (the demo's hybrid, the reference): name the files
         if modes.count(r.mode) > 1:
-            r.mode = f"{r.mode} ({Path(r.model).stem})"
-    context = {"title": f"Table 5.6 in the synthetic cell: {cycles} executions per model",
+            r.mode = m.mode = f"{r.mode} ({Path(r.model).stem})"
+    title = f"{cycles} executions per model" if rounds is None else f"{rounds} clutter-removal rounds per model"
+    context = {"title": f"Table 5.6 in the synthetic cell: {title}",
                "machine": machine_line().removeprefix("Machine: "), "onnxruntime": ort.__version__, "opencv": cv2.__version__,
                "threads": threads, "engine": engine, "scenes": f"SynthCamera seed {seed}, 640x480, {MOUNT_M} m above the table",
                "criterion": "docs/contracts.md#grasp-success", "verdict": str(verdict)}
-    return {"rows": [asdict(r) for r in rows], "reports": write_cell_reports(rows, out_dir, context)}
+    if rounds is not None:
+        context["rounds"] = "docs/contracts.md#clutter-removal-rounds"
+    compared = compare(measured[-len(rows):], margin_pp / 100)
+    return {"rows": [asdict(r) for r in rows], "equivalence": compared,
+            "reports": write_cell_reports(rows, out_dir, context, compared)}
 
 
 PHYSICS_HEADER = ["Physics success (%)", "of standing scenes (%)", "Physics failures", "Check p50 (ms)"]
@@ -159,6 +211,11 @@ PHYSICS_HEADER = ["Physics success (%)", "of standing scenes (%)", "Physics fail
 
 def _pct(v: float | None) -> str:
     return "-" if v is None else f"{100 * v:.0f}"
+
+
+def _ci(ci: list[float] | None) -> str:
+    """A 95% interval as the tables show it beside its rate: " [lo, hi]" in percent."""
+    return "" if ci is None else f" [{100 * ci[0]:.1f}, {100 * ci[1]:.1f}]"
 
 
 def _kinds(failures: dict[str, int]) -> str:
@@ -175,20 +232,24 @@ def table(rows: list[CellRow]) -> list[list[str]]:
     out = []
     for r in rows:
         line = [r.mode, f"{r.mean_ms:.1f} [{r.std_ms:.1f}]", f"{r.p50_ms:.1f}", f"{r.p95_ms:.1f}",
-                "-" if r.size_mb is None else f"{r.size_mb:.2f}", f"{_pct(r.success_rate)} ({r.success}/{r.cycles})",
-                _pct(r.success_rate_reachable), _kinds(r.failures)]
+                "-" if r.size_mb is None else f"{r.size_mb:.2f}",
+                f"{_pct(r.success_rate)} ({r.success}/{r.cycles}){_ci(r.success_ci95)}",
+                _pct(r.success_rate_reachable) + _ci(r.success_reachable_ci95), _kinds(r.failures)]
         if physics:
             p = r.physics or {}
-            line += [f"{_pct(p.get('success_rate'))} ({p.get('success', 0)}/{p.get('executions', 0)})",
-                     _pct(p.get("success_rate_standing")), _kinds(p.get("failures", {})),
+            line += [f"{_pct(p.get('success_rate'))} ({p.get('success', 0)}/{p.get('executions', 0)})"
+                     f"{_ci(p.get('success_ci95'))}",
+                     _pct(p.get("success_rate_standing")) + _ci(p.get("success_standing_ci95")),
+                     _kinds(p.get("failures", {})),
                      "-" if p.get("ms_p50") is None else f"{p['ms_p50']:.0f}"]
         out.append(line)
     return out
 
 
-def sections(rows: list[CellRow]) -> list[str]:
-    """Markdown below the table: success per light condition (thesis Table 5.3) and, with the
-    physics check, the cycles where the two verdicts disagree, by class."""
+def sections(rows: list[CellRow], compared: list[dict] | tuple = ()) -> list[str]:
+    """Markdown below the table: success per light condition (thesis Table 5.3), with the physics check
+    the cycles where the two verdicts disagree, by class, with rounds the clutter removal summed and per
+    light condition, and each int8 row against fp32 (COMPARED: bench/compare.py's entries)."""
     seen = {light for r in rows for light in r.by_lighting}
     lights = [light for light in LIGHTINGS if light in seen] + sorted(seen - set(LIGHTINGS))
     physics = any(r.physics for r in rows)
@@ -199,8 +260,9 @@ def sections(rows: list[CellRow]) -> list[str]:
     def cell(d: dict | None) -> str:
         if not d:
             return "-"
-        text = f"{_pct(d['success_rate'])} ({d['success']}/{d['executions']})"
-        text += f" / {_pct(d['physics_success_rate'])}" if "physics_success_rate" in d else ""
+        text = f"{_pct(d['success_rate'])} ({d['success']}/{d['executions']}){_ci(d.get('success_ci95'))}"
+        if "physics_success_rate" in d:
+            text += f" / {_pct(d['physics_success_rate'])}{_ci(d.get('physics_success_ci95'))}"
         return text + f"; {d['undetected']} not found"
 
     out.append(markdown(["Mode", *lights], [[r.mode, *(cell(r.by_lighting.get(light)) for light in lights)]
@@ -213,20 +275,27 @@ def sections(rows: list[CellRow]) -> list[str]:
         out.append(markdown(["Mode", *classes], [[r.mode, *(
             f"{r.disagreements[c]['geometric only']} / {r.disagreements[c]['physics only']}" if c in r.disagreements
             else "0 / 0" for c in classes)] for r in rows]) if classes else "None.")
-    return out
+    with_rounds = [r for r in rows if r.rounds]
+    if with_rounds:
+        light_seen = {light for r in with_rounds for light in r.rounds["by_lighting"]}
+        out += rounds_section([r.mode for r in with_rounds], [r.rounds for r in with_rounds],
+                              [light for light in LIGHTINGS if light in light_seen])
+    return out + compare_section(list(compared))
 
 
-def write_cell_reports(rows: list[CellRow], out_dir: str | Path, context: dict) -> dict[str, str]:
+def write_cell_reports(rows: list[CellRow], out_dir: str | Path, context: dict,
+                       compared: list[dict] | tuple = ()) -> dict[str, str]:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"md": out / "cell.md", "csv": out / "cell.csv", "json": out / "cell.json", "png": out / "success-latency.png"}
     md = [f"# {context['title']}", ""] + [f"- {k}: {v}" for k, v in context.items() if k != "title"]
-    paths["md"].write_text("\n".join(md + ["", markdown(header(rows), table(rows)), *sections(rows)]) + "\n")
+    paths["md"].write_text("\n".join(md + ["", markdown(header(rows), table(rows)), *sections(rows, compared)]) + "\n")
     with open(paths["csv"], "w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(header(rows))
         writer.writerows(table(rows))
-    paths["json"].write_text(json.dumps({"context": context, "rows": [asdict(r) for r in rows]}, indent=1))
+    paths["json"].write_text(json.dumps({"context": context, "rows": [asdict(r) for r in rows],
+                                         "equivalence": list(compared)}, indent=1))
     _plot(rows, paths["png"])
     return {k: str(v) for k, v in paths.items()}
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import click
@@ -32,6 +33,15 @@ from edgepick.runtime.engine import Engine
                    "seeded scenes for every model; --cell alone: 50, the thesis's count): pipeline time, size and grasp "
                    "success (docs/contracts.md#grasp-success), with a first row on the scenes' true labels.")
 @click.option("--seed", default=0, show_default=True, help="--cell: the scenes' seed.")
+@click.option("--rounds", default=None, type=int,
+              help="--cell in clutter-removal rounds (the [sim] extra): N rounds per model, each laying out 4-10 parts "
+                   "once (alike for every model) and picking until the table is empty, two failures in a row or "
+                   "--max-cycles; grasp success, clearance, picks per part, failures and time per pick, per light "
+                   "condition, with 95% intervals (docs/contracts.md#clutter-removal-rounds). --cell's N is not used.")
+@click.option("--max-cycles", default=None, type=int, help="--rounds: cycles per round at most [default: none].")
+@click.option("--margin", "margin_pp", default=1.0, show_default=True,
+              help="--cell: each int8 model against the fp32 one on the same scenes: equivalent when the paired 95% "
+                   "interval of their success rates' difference lies within +-this many percentage points.")
 @click.option("--verdict", default=VerdictRule.GEOMETRIC.value, show_default=True, type=choice(VerdictRule),
               help="--cell: the verdict on each cycle: the geometric rule (docs/contracts.md#grasp-success), or "
                    "also the physics check (the grasp carried out in MuJoCo: the [sim] extra; physics and both "
@@ -40,8 +50,8 @@ from edgepick.runtime.engine import Engine
               help="Inference engine for every row (openvino: the [peers] extra; auto: the faster one here, measured "
                    "once per model and cached).")
 def bench(models: tuple[str, ...], data: str | None, split: str, threads: int, runs: int, out_dir: str,
-          gpu_checkpoint: str | None, no_pipeline: bool, cell: int | None, seed: int, verdict: str,
-          engine: str) -> None:
+          gpu_checkpoint: str | None, no_pipeline: bool, cell: int | None, seed: int, rounds: int | None,
+          max_cycles: int | None, margin_pp: float, verdict: str, engine: str) -> None:
     """Thesis Tables 5.5 and 5.6 for MODEL... (ONNX): pixel accuracy, mIoU, inference p50/p95 at
     fixed threads, training time (from the model's metadata), size, and the whole pipeline per
     frame (folder frame -> labels -> grasp records). Same images for every row, one process.
@@ -58,6 +68,9 @@ def bench(models: tuple[str, ...], data: str | None, split: str, threads: int, r
     for m in models:
         if Path(m).suffix.lower() != ".onnx":
             raise ConfigError(f"{m} is not an .onnx file (bench runs ONNX models through the runtime)")
+    round_cfg = _check_rounds(rounds, max_cycles, margin_pp)
+    if rounds is not None and cell is None:
+        cell = 50  # rounds run in the cell: --rounds alone means --cell --rounds
     if cell is not None:
         from edgepick.bench.cell import CellRow, header, run_cell, sections, table
 
@@ -65,15 +78,16 @@ def bench(models: tuple[str, ...], data: str | None, split: str, threads: int, r
             raise ConfigError(f"--cell {cell}: the number of executions must be at least 1")
         if gpu_checkpoint is not None:
             raise ConfigError("--gpu-checkpoint is for the table of --data; --cell times the ONNX models' pick loop")
-        if verdict != VerdictRule.GEOMETRIC:
+        if verdict != VerdictRule.GEOMETRIC or round_cfg is not None:
             from edgepick.sim.physics import require_mujoco
 
             require_mujoco()  # the [sim] extra, before the first cycle
         with output_dir(out_dir, "bench"):
             result = run_cell(list(models), cell, out_dir, threads=cfg.threads, seed=seed, engine=cfg.engine,
-                              progress=lambda line: click.echo(line, err=True), verdict=verdict)
+                              progress=lambda line: click.echo(line, err=True), verdict=verdict, rounds=rounds,
+                              round_config=round_cfg, margin_pp=margin_pp)
         rows = [CellRow(**r) for r in result["rows"]]
-        click.echo("\n".join([markdown(header(rows), table(rows)), *sections(rows)]), err=True)
+        click.echo("\n".join([markdown(header(rows), table(rows)), *sections(rows, result["equivalence"])]), err=True)
         click.echo(json.dumps(result, indent=1))
         return
     if data is None:
@@ -86,3 +100,19 @@ def bench(models: tuple[str, ...], data: str | None, split: str, threads: int, r
     rows = [Row(**r) for r in result["rows"]]
     click.echo(markdown(HEADER_55, table55_rows(rows)), err=True)
     click.echo(json.dumps(result, indent=1))
+
+
+def _check_rounds(rounds: int | None, max_cycles: int | None, margin_pp: float):
+    """--rounds, --max-cycles and --margin checked before anything starts: the RoundConfig of --rounds
+    (None without it)."""
+    if not (math.isfinite(margin_pp) and 0 < margin_pp < 100):
+        raise ConfigError(f"--margin {margin_pp}: must be a number of percentage points in (0, 100)")
+    if rounds is None:
+        if max_cycles is not None:
+            raise ConfigError(f"--max-cycles {max_cycles}: caps the cycles of a round; it needs --rounds")
+        return None
+    if rounds < 1:
+        raise ConfigError(f"--rounds {rounds}: must be at least 1")
+    from edgepick.sim.clutter import RoundConfig
+
+    return RoundConfig(max_cycles=max_cycles)

@@ -74,7 +74,17 @@ def make_gripper(spec: tuple[str, int | str], robot):
                    "own calibration].")
 @click.option("--gripper", default="digital:0", show_default=True, help="digital:N, tool:N or rg2[:HOST].")
 @click.option("--execute", is_flag=True, help="Move a real arm (--robot ur:HOST). Without it the plan is only printed.")
-@click.option("--cycles", default=1, show_default=True, help="Pick cycles to run.")
+@click.option("--cycles", default=1, show_default=True, help="Pick cycles to run, each on a fresh scene.")
+@click.option("--rounds", default=None, type=int,
+              help="Instead: clutter removal in the synthetic cell (the [sim] extra), N rounds. A round lays out 4-10 "
+                   "parts (piles allowed) once and picks from that table until it is empty, two cycles in a row "
+                   "fail, or --max-cycles: a part leaves the table when its grasp succeeded (the physics check's "
+                   "verdict with --verdict physics|both), the rest settle in MuJoCo and the next frame shows where "
+                   "they came to rest. The summary gains \"rounds\": grasp success, clearance, picks per part, "
+                   "failures and time per pick, per round and per light condition, with 95% intervals "
+                   "(docs/contracts.md#clutter-removal-rounds). --record writes one file per round.")
+@click.option("--max-cycles", default=None, type=int,
+              help="--rounds: cycles per round at most [default: none; the two-failures rule ends a round].")
 @click.option("--class", "classes", multiple=True, help="Only pick these classes (repeatable).")
 @click.option("--choose", default=default_of(PickConfig, "choose"), show_default=True, type=choice(Choose))
 @click.option("--speed", default=default_of(PickConfig, "speed"), show_default=True,
@@ -108,9 +118,9 @@ def make_gripper(spec: tuple[str, int | str], robot):
                    "waits only for the plan (each cycle reports frame_to_frame_ms and arm_wait_ms). Only where the "
                    "camera sees neither the arm nor the part it holds once the arm is above the place pose.")
 def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: str, execute: bool, cycles: int,
-         classes: tuple[str, ...], choose: str, speed: float, acc: float, log_path: str, robot_log: str | None,
-         overlay_dir: str | None, record_path: str | None, verdict: str, threads: int, engine: str, size: str,
-         overlap: bool) -> None:
+         rounds: int | None, max_cycles: int | None, classes: tuple[str, ...], choose: str, speed: float, acc: float,
+         log_path: str, robot_log: str | None, overlay_dir: str | None, record_path: str | None, verdict: str,
+         threads: int, engine: str, size: str, overlap: bool) -> None:
     """Pick and place: camera -> segmentation -> grasp records -> target -> robot.
 
     Each cycle chooses the largest (or closest) object whose whole plan passes the safety
@@ -123,14 +133,15 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     """
     from edgepick.cli.cameras import open_camera
     from edgepick.robot.base import RobotError, RobotHalted, RobotUnreachable
-    from edgepick.robot.loop import cycles_summary, run_cycles
+    from edgepick.robot.loop import run_cycles
     from edgepick.robot.pick import CommandLog
     from edgepick.runtime.calibration import Calibration
     from edgepick.runtime.pipeline import Pipeline
     from edgepick.runtime.session import Segmenter
     from edgepick.sim.camera import SynthCamera
-    from edgepick.sim.robot import SimRobot
 
+    given = click.get_current_context().get_parameter_source("cycles") == click.core.ParameterSource.COMMANDLINE
+    round_cfg = _check_rounds(rounds, max_cycles, cycles if given else None, camera, robot_spec, overlap)
     kind, host = _check_motion(cycles, speed, acc, robot_spec)
     gripper_spec = check_gripper(gripper, host or None)
     check_output(log_path, "--log", inputs=(model, calib))
@@ -139,10 +150,15 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     if robot_log is not None:
         check_output(robot_log, "--robot-log", inputs=(model, calib, log_path))
     if record_path is not None:
-        check_output(record_path, "--record", inputs=(model, calib, log_path, robot_log))
+        for path in round_records(record_path, rounds):
+            check_output(path, "--record", inputs=(model, calib, log_path, robot_log))
         from edgepick.robot.messages import schemas
 
         schemas()  # the [record] extra, before anything starts
+    if round_cfg is not None:
+        from edgepick.sim.physics import require_mujoco
+
+        require_mujoco()  # the [sim] extra settles the rounds' parts, before anything starts
     if verdict != VerdictRule.GEOMETRIC:
         if not camera.startswith("synth-cell"):
             raise ConfigError(f"--verdict {verdict}: needs the synthetic cell (--camera synth-cell), whose scenes "
@@ -172,35 +188,34 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
         from edgepick.sim.physics import physics_judge
 
         physics = physics_judge(truth_cal, cfg)
-    if kind == "sim":
-        robot = SimRobot()
-    elif execute:
-        from edgepick.robot.ur import URRobot
-
-        robot = URRobot(host, debug_log=robot_log)
-    else:
-        robot = None
-        click.echo(f"plan only: nothing is sent to {host} (add --execute to move the arm)", err=True)
+    robot = _open_robot(kind, execute, host, robot_log)
     grip = make_gripper(gripper_spec, robot) if robot is not None else None
     log = CommandLog(log_path)
     echo = lambda line: click.echo(line, err=True)  # noqa: E731
     results: list[dict] = []  # filled cycle by cycle: still there when an interrupt ends the loop
+    described: list[dict] = []  # --rounds: each round as it ends
     halted, unreachable, interrupt = None, False, None
     overlays = output_dir(overlay_dir, "pick") if overlay_dir is not None else contextlib.nullcontext()
-    recorder = _recorder(record_path, model, segmenter.info.classes, source, cfg, pipeline,
-                         robot.envelope if robot is not None else None)
+    recorder = None if round_cfg is not None else _recorder(
+        record_path, model, segmenter.info.classes, source, cfg, pipeline, robot.envelope if robot is not None else None)
+
+    def run(arm, hand) -> None:
+        if round_cfg is None:
+            run_cycles(source, pipeline, arm, hand, cfg=cfg, cycles=cycles, log=log, overlay_dir=overlay_dir, echo=echo,
+                       truth_cal=truth_cal, overlap=overlap, recorder=recorder, physics=physics, done=results)
+        else:
+            _run_rounds(arm, hand, rounds, round_cfg, cfg, log, source, pipeline, physics is not None, echo, overlay_dir,
+                        record_path, model, segmenter.info.classes, results, described)
+
     try:
         with overlays, source:
             if robot is None:
-                run_cycles(source, pipeline, None, None, cfg=cfg, cycles=cycles, log=log, overlay_dir=overlay_dir,
-                           echo=echo, truth_cal=truth_cal, recorder=recorder, physics=physics, done=results)
+                run(None, None)
             else:
                 try:
                     grip.probe()  # a gripper that cannot be reached is found before the arm is sent anything
                     with robot:
-                        run_cycles(source, pipeline, robot, grip, cfg=cfg, cycles=cycles, log=log,
-                                   overlay_dir=overlay_dir, echo=echo, truth_cal=truth_cal, overlap=overlap,
-                                   recorder=recorder, physics=physics, done=results)
+                        run(robot, grip)
                 except RobotError as exc:
                     if getattr(exc, "exit_code", 2) != 3:
                         raise
@@ -212,16 +227,61 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
         log.close()
         if recorder is not None:  # also on Ctrl-C or a halt: what was recorded becomes a readable file
             recorder.close()
-    summary = {"model": model, **cycles_summary(results), "halted": halted, "interrupted": _signal_name(interrupt),
-               "log": log_path if log.path and log.path.exists() else None,
-               "record": record_path if record_path and Path(record_path).exists() else None, "results": results}
+    summary = _summary(model, results, described, rounds, halted, interrupt, log, log_path, record_path)
     _print_summary(summary, interrupted=interrupt is not None)
     if interrupt is not None:  # the command line says so in one line and exits 128 + the signal
         raise interrupt
     if halted:  # the command line prints the one error line and exits 3
         if unreachable:
             raise RobotUnreachable(halted)
-        raise RobotHalted(f"robot halted: {halted} ({summary['done']} of {cycles} cycles done)")
+        raise RobotHalted(f"robot halted: {halted} ({summary['done']} of {summary['cycles'] if rounds else cycles} "
+                          "cycles done)")
+
+
+def _open_robot(kind: str, execute: bool, host: str, robot_log: str | None):
+    """The arm of --robot: a SimRobot, a UR3 with --execute, or None (plan only, said on stderr)."""
+    if kind == "sim":
+        from edgepick.sim.robot import SimRobot
+
+        return SimRobot()
+    if execute:
+        from edgepick.robot.ur import URRobot
+
+        return URRobot(host, debug_log=robot_log)
+    click.echo(f"plan only: nothing is sent to {host} (add --execute to move the arm)", err=True)
+    return None
+
+
+def _run_rounds(arm, hand, rounds: int, round_cfg, cfg: PickConfig, log, source, pipeline, judge: bool, echo,
+                overlay_dir: str | None, record_path: str | None, model: str, classes, results: list[dict],
+                described: list[dict]) -> None:
+    """`pick --rounds`: sim/clutter.py's run_rounds on SOURCE's seed and frame size, a recording per round."""
+    from edgepick.sim.clutter import run_rounds
+
+    def round_recorder(cell):
+        return _recorder(round_records(record_path, rounds)[cell.round - 1], model, classes, source, cfg, pipeline,
+                         arm.envelope, {"round": cell.describe()})
+
+    run_rounds(pipeline, arm, hand, rounds=rounds, pick=cfg, log=log, seed=source.seed, cfg=round_cfg, judge=judge,
+               echo=echo, overlay_dir=overlay_dir, recorder=round_recorder if record_path else None, done=results,
+               described=described, size=(source.intrinsics.width, source.intrinsics.height))
+
+
+def _summary(model: str, results: list[dict], described: list[dict], rounds: int | None, halted, interrupt,
+             log, log_path: str, record_path: str | None) -> dict:
+    """`pick`'s JSON summary: the cycles summed (robot/loop.py), how the run ended, its files, with --rounds
+    the rounds summed ("rounds", sim/clutter.py), and every cycle's result."""
+    from edgepick.robot.loop import cycles_summary
+
+    records = [f for f in round_records(record_path, rounds) if Path(f).exists()] if record_path else []
+    summary = {"model": model, **cycles_summary(results), "halted": halted, "interrupted": _signal_name(interrupt),
+               "log": log_path if log.path and log.path.exists() else None,
+               "record": records if rounds is not None else (records or [None])[0]}
+    if rounds is not None:
+        from edgepick.sim.clutter import round_summary
+
+        summary["rounds"] = round_summary(described, results)
+    return {**summary, "results": results}
 
 
 def _signal_name(interrupt: KeyboardInterrupt | None) -> str | None:
@@ -241,14 +301,50 @@ def _print_summary(summary: dict, interrupted: bool) -> None:
             raise
 
 
-def _recorder(path: str | None, model: str, classes, source, cfg: PickConfig, pipeline, envelope: Envelope | None):
-    """The Recorder of `pick --record PATH` (None without it), opened before the first frame."""
+def _recorder(path: str | None, model: str, classes, source, cfg: PickConfig, pipeline, envelope: Envelope | None,
+              extra: dict | None = None):
+    """The Recorder of `pick --record PATH` (None without it), opened before the first frame; EXTRA joins
+    its metadata (a round's: its table)."""
     if path is None:
         return None
     from edgepick.robot.recording import Recorder, pick_metadata
 
     metadata = pick_metadata(model, classes, cfg, pipeline.cfg, envelope or Envelope())
-    return Recorder(path, metadata, pipeline.calib)
+    return Recorder(path, {**metadata, **(extra or {})}, pipeline.calib)
+
+
+def round_records(path: str, rounds: int | None) -> list[str]:
+    """The files `--record PATH` writes: PATH itself, or with --rounds N one per round, PATH's stem
+    then -round001 ... -roundNNN (a round is one recording)."""
+    if rounds is None:
+        return [path]
+    p = Path(path)
+    return [str(p.with_name(f"{p.stem}-round{k:03d}{p.suffix}")) for k in range(1, rounds + 1)]
+
+
+def _check_rounds(rounds: int | None, max_cycles: int | None, cycles: int | None, camera: str, robot_spec: str,
+                  overlap: bool):
+    """--rounds and --max-cycles checked before anything starts: the RoundConfig of --rounds (None without it)."""
+    if rounds is None:
+        if max_cycles is not None:
+            raise ConfigError(f"--max-cycles {max_cycles}: caps the cycles of a round; it needs --rounds")
+        return None
+    if rounds < 1:
+        raise ConfigError(f"--rounds {rounds}: must be at least 1")
+    if cycles is not None:
+        raise ConfigError(f"--cycles {cycles} with --rounds {rounds}: a round runs until its table is empty or its "
+                          "picks fail; cap it with --max-cycles")
+    if not camera.partition(":")[0] == "synth-cell":
+        raise ConfigError(f"--rounds {rounds}: needs the synthetic cell (--camera synth-cell[:SEED]), whose table "
+                          f"edgepick lays out and settles; --camera {camera} cannot be cleared")
+    if robot_spec != "sim":
+        raise ConfigError(f"--rounds {rounds}: needs --robot sim (the round's parts are simulated, and so is the arm)")
+    if overlap:
+        raise ConfigError("--overlap with --rounds: the next frame shows the table a cycle leaves behind, so it cannot "
+                          "be read while the cycle goes on")
+    from edgepick.sim.clutter import RoundConfig
+
+    return RoundConfig(max_cycles=max_cycles)
 
 
 def _check_motion(cycles: int, speed: float, acc: float, robot_spec: str) -> tuple[str, str]:

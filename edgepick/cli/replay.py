@@ -40,8 +40,12 @@ def replay(recording: str, model: str | None, threads: int, engine: str) -> None
         then = f"{was['target']} at {was['pixel']}" if was["target"] else "nothing"
         chosen = f"{now['target']} at {now['pixel']}" if now["target"] else f"nothing ({now['reason']})"
         shift = f" ({r['shift_px']:.2f} px apart)" if r["shift_px"] else ""
-        click.echo(f"cycle {r['cycle']}: recorded {then}; replay {chosen}{shift}{'' if r['same'] else '  <- differs'}",
-                   err=True)
+        where = ""
+        if "round" in r:  # a clutter-removal round: the table it picked from and what the pick left
+            w = r["round"]
+            where = f" (round {w['round']}, pick {w['pick']}: {w['parts_before']} parts, {w['parts_after']} after)"
+        click.echo(f"cycle {r['cycle']}{where}: recorded {then}; replay {chosen}{shift}"
+                   f"{'' if r['same'] else '  <- differs'}", err=True)
         results.append(r)
     click.echo(json.dumps({"recording": recording, "model": model or rec.metadata.get("model"),
                            "labels": "model" if model else "recorded", "cycles": len(results),

@@ -4,6 +4,10 @@ A scene is a tilted table plane seen by a D415-like camera, 1-4 objects from `sh
 (touching, sometimes resting on each other where they would stay: `stacking.py`), one of the
 thesis's lighting conditions (Table 5.3), and a depth map with the D415's failure modes (noise
 growing with distance, holes on shiny metal, at depth edges and in the left invalid band).
+
+A scene is its layout (camera, light, table, objects: `lay_out`) and a frame of it (`draw`): a
+clutter-removal round (sim/clutter.py) lays out 4-10 objects once and draws a frame after each
+pick with the objects posed where they settled, each with its id in the truth.
 """
 
 from __future__ import annotations
@@ -14,7 +18,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from edgepick.data.shading import lights_for, shade, table_albedo
+from edgepick.data.posed import draw_marched, paint
+from edgepick.data.shading import footprints_small, lights_for, shade, shadow, table_albedo
 from edgepick.data.shapes import MAKERS, ObjectModel
 from edgepick.data.stacking import rest_height
 from edgepick.geometry import Intrinsics
@@ -22,6 +27,7 @@ from edgepick.geometry import Intrinsics
 CLASSES = ("background", "bearing", "disk", "adapter", "box")
 LIGHTINGS = ("ceiling", "ceiling+white", "single", "hazard")
 TABLES = ("wood", "laminate", "mat", "steel")
+MARCH_TILT_DEG = 30.0  # a posed object tilted farther than this is marched ray by ray (data/posed.py)
 OBJECT_WEIGHTS = {"bearing": 0.28, "disk": 0.16, "adapter": 0.28, "box": 0.28}
 
 
@@ -32,6 +38,14 @@ class Placed:
     base_elev: float  # elevation of the object's base above the table (stacked objects)
     a1: np.ndarray  # local x axis (major axis) in the table plane
     a2: np.ndarray
+    # an object posed anywhere (where it settled: sim/clutter.py): its own down axis (its base's normal, away
+    # from its top), with GROUND its base centre, BASE_ELEV 0 and A1, A2 across DOWN; None: upright on the table
+    down: np.ndarray | None = None
+    key: int | None = None  # the object's id in its grasp truth ("id"), when it has one (a clutter-removal round)
+
+    def axis(self, n: np.ndarray) -> np.ndarray:
+        """The object's down axis: its own when posed, else the table's normal N."""
+        return n if self.down is None else self.down
 
 
 @dataclass
@@ -42,6 +56,27 @@ class Scene:
     grasps: list[dict]
     info: dict
     hidden: list[dict]  # the placed objects no pixel shows, as grasp truth (e.g. under a box): physics needs them
+
+
+@dataclass
+class Layout:
+    """What every frame of one scene shares: the table plane (n . X = d, camera frame; d is the
+    camera's height over it), its tilt, the light condition and its lights, the table's material,
+    and the objects. `SceneRenderer.draw` renders a frame of it; a clutter-removal round
+    (sim/clutter.py) draws one after each pick, with the objects where they settled."""
+
+    n: np.ndarray
+    d: float
+    tilt: float
+    lighting: str
+    table: str
+    albedo: np.ndarray  # the table's linear-RGB albedo, full size
+    t_ks: float
+    t_shin: float
+    placed: list[Placed]
+    ambient: np.ndarray
+    lights: list[dict]
+    ndotr: np.ndarray  # each pixel's ray . n
 
 
 def _plane_frame(n: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
@@ -55,10 +90,10 @@ def _plane_frame(n: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
 def solid_truth(p: Placed, n: np.ndarray) -> dict:
     """The placed object as a solid (docs/contracts.md#data-set-layout, "solid"): its base centre,
     up and major axes in the camera frame, and its dimensions in metres."""
-    m = p.model
+    m, down = p.model, p.axis(n)
     dims = {"length": m.length, "width": m.width} if m.major_axis else dict(m.extra)
-    return {"base_camera_m": [round(float(c), 6) for c in p.ground - n * p.base_elev],
-            "up_camera": [round(float(c), 6) for c in -n], "axis_camera": [round(float(c), 6) for c in p.a1],
+    return {"base_camera_m": [round(float(c), 6) for c in p.ground - down * p.base_elev],
+            "up_camera": [round(float(c), 6) for c in -down], "axis_camera": [round(float(c), 6) for c in p.a1],
             "height": round(m.height, 6), **{k: round(float(v), 6) for k, v in dims.items()}}
 
 
@@ -82,21 +117,23 @@ class SceneRenderer:
 
     # ------------------------------------------------------------------ sampling
     def sample_objects(self, rng: np.random.Generator, n: np.ndarray, d: float,
-                       area: Callable[[np.ndarray], bool] | None = None) -> list[Placed]:
-        """1-4 objects on the table plane n . X = d, in view, each resting on the table or on those
-        under it where it would stay (data/stacking.py); with AREA, only where AREA(ground point,
-        camera frame) holds (a robot cell's pick area)."""
+                       area: Callable[[np.ndarray], bool] | None = None, count: tuple[int, int] = (1, 4),
+                       tries: int = 20) -> list[Placed]:
+        """COUNT (a range: 1-4 by default) objects on the table plane n . X = d, in view, each resting
+        on the table or on those under it where it would stay (data/stacking.py); with AREA, only where
+        AREA(ground point, camera frame) holds (a robot cell's pick area). An object with no such
+        place in TRIES draws is left out."""
         intr = self.intr
         classes = list(OBJECT_WEIGHTS)
         probs = np.array(list(OBJECT_WEIGHTS.values()))
         placed: list[Placed] = []
-        for _ in range(int(rng.integers(1, 5))):
+        for _ in range(int(rng.integers(count[0], count[1] + 1))):
             cls = str(rng.choice(classes, p=probs / probs.sum()))
             if cls == "disk" and any(p.model.cls == "disk" for p in placed):
                 cls = "bearing"
             model = MAKERS[cls](rng)
             rest = None
-            for _try in range(20):
+            for _try in range(tries):
                 if placed and rng.random() < 0.45:  # touch or lean on a neighbour
                     other = placed[int(rng.integers(len(placed)))]
                     a = rng.uniform(0, 2 * np.pi)
@@ -125,8 +162,8 @@ class SceneRenderer:
     def _bbox(self, p: Placed, n: np.ndarray) -> tuple[int, int, int, int] | None:
         intr = self.intr
         pts = []
-        for elev in (p.base_elev, p.base_elev + p.model.height):
-            c = p.ground - n * elev
+        for elev in (p.base_elev, p.base_elev + p.model.height):  # any point lies within radius of this axis
+            c = p.ground - p.axis(n) * elev
             r = p.model.radius * intr.fx / c[2] * 1.05 + 3
             u, v = c[0] / c[2] * intr.fx + intr.cx, c[1] / c[2] * intr.fy + intr.cy
             pts += [(u - r, v - r), (u + r, v + r)]
@@ -140,6 +177,13 @@ class SceneRenderer:
                area: Callable[[np.ndarray], bool] | None = None) -> Scene:
         """One scene. `camera_height_m` fixes the camera straight above the table at that height
         (a calibrated robot cell); by default height and tilt are random. AREA: see sample_objects."""
+        return self.draw(self.lay_out(rng, camera_height_m, area), rng)
+
+    def lay_out(self, rng: np.random.Generator, camera_height_m: float | None = None,
+                area: Callable[[np.ndarray], bool] | None = None, count: tuple[int, int] = (1, 4),
+                tries: int = 20) -> Layout:
+        """A scene's layout: the camera over the table, the light condition, the table and COUNT objects
+        (see sample_objects), drawn from RNG in the order `render` has always drawn them."""
         intr = self.intr
         h, w = intr.height, intr.width
         cam_h = rng.uniform(0.55, 0.8)
@@ -151,11 +195,24 @@ class SceneRenderer:
         d = cam_h  # table plane: n . X = d
         lighting = LIGHTINGS[int(rng.integers(len(LIGHTINGS)))]
         table = TABLES[int(rng.integers(len(TABLES)))]
-
         ndotr = (self.rays @ n.astype(np.float32)).astype(np.float32)
-        zbuf = (d / ndotr).astype(np.float32)
         albedo, t_ks, t_shin = table_albedo(rng, table, h // 2, w // 2)  # sensor blur hides the upsampling
         albedo = cv2.resize(albedo.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
+        placed = self.sample_objects(rng, n, d, area, count, tries)
+        centre = (d / ndotr[h // 2, w // 2]) * self.rays[h // 2, w // 2]
+        ambient, lights = lights_for(rng, lighting, centre, n)
+        return Layout(n, d, tilt, lighting, table, albedo, t_ks, t_shin, placed, ambient, lights, ndotr)
+
+    def draw(self, layout: Layout, rng: np.random.Generator) -> Scene:
+        """A frame of LAYOUT: its objects z-buffered, shaded and shadowed under its lights, and the
+        sensor's exposure, blur, noise and depth failures drawn from RNG."""
+        intr = self.intr
+        h, w = intr.height, intr.width
+        n, d, ndotr, placed = layout.n, layout.d, layout.ndotr, layout.placed
+        lighting, table, t_ks, t_shin = layout.lighting, layout.table, layout.t_ks, layout.t_shin
+        ambient, lights = layout.ambient, layout.lights
+        zbuf = (d / ndotr).astype(np.float32)
+        albedo = layout.albedo.copy()  # the objects are painted into it
         normal = np.zeros((h, w, 3), np.float32)  # per-pixel materials: read on object pixels only
         ks = np.zeros((h, w), np.float32)
         shin = np.zeros((h, w), np.float32)
@@ -163,12 +220,10 @@ class SceneRenderer:
         label = np.zeros((h, w), np.uint8)
         inst = np.zeros((h, w), np.uint8)
 
-        placed = self.sample_objects(rng, n, d, area)
         buffers = dict(zbuf=zbuf, albedo=albedo, normal=normal, ks=ks, shin=shin, metal=metal, label=label, inst=inst)
         footprints = [self._rasterize(p, k, n, d, ndotr, buffers) for k, p in enumerate(placed, start=1)]
 
         centre = (d / ndotr[h // 2, w // 2]) * self.rays[h // 2, w // 2]
-        ambient, lights = lights_for(rng, lighting, centre, n)
         colours = np.stack([light["colour"] for light in lights]).astype(np.float32)  # [n_lights, 3]
         on_table = label == 0
         # The table is flat and its shadows are soft: light it at 1/4 resolution, then upsample.
@@ -180,8 +235,8 @@ class SceneRenderer:
         dif_t, spc_t = shade(pts_t, nrm_t, t_ks, t_shin, lights, centre)
         objects_q = cv2.resize((~on_table).astype(np.float32), (gw, gh), interpolation=cv2.INTER_AREA)
         amb_q = 1 - 0.5 * cv2.GaussianBlur(objects_q, (0, 0), 1.5)  # contact shadow around bases
-        masks_q = self._footprints_small(footprints, (gw, gh))  # once per object, not per light
-        vis = np.stack([self._shadow(light, placed, footprints, masks_q, n, d, (gw, gh)) for light in lights], 1)
+        masks_q = footprints_small(intr, footprints, (gw, gh))  # once per object, not per light
+        vis = np.stack([shadow(intr, light, placed, footprints, masks_q, n, d, (gw, gh)) for light in lights], 1)
         light_q = amb_q[..., None] * ambient.astype(np.float32) + ((dif_t * vis) @ colours).reshape(gh, gw, 3)
         spec_q = ((spc_t * vis) @ colours).reshape(gh, gw, 3)
         light = cv2.resize(light_q, (w, h), interpolation=cv2.INTER_LINEAR)
@@ -210,33 +265,42 @@ class SceneRenderer:
         dark[ys, xs] = albedo[ys, xs].mean(1) < 0.01
         depth = self._depth(rng, zbuf, metal, spec_lum * gain, dark)
         grasps, hidden = self._grasps(placed, footprints, inst, n)
-        info = {"lighting": lighting, "table": table, "camera_height_m": round(cam_h, 4),
-                "tilt_deg": round(float(np.rad2deg(tilt)), 2), "exposure_gain": round(gain, 3),
+        info = {"lighting": lighting, "table": table, "camera_height_m": round(d, 4),
+                "tilt_deg": round(float(np.rad2deg(layout.tilt)), 2), "exposure_gain": round(gain, 3),
                 "objects": [f"{p.model.cls}:{p.model.variant}" for p in placed]}
         return Scene(rgb, depth, label, grasps, info, hidden)
 
     def _rasterize(self, p: Placed, k: int, n: np.ndarray, d: float, ndotr: np.ndarray, buf: dict) -> tuple | None:
-        """Z-buffer object K (its parts as extruded footprints at four levels, top face first) into
-        the per-pixel buffers; returns its bounding box and footprint, or None when out of view."""
-        zbuf, albedo, normal, ks, shin = buf["zbuf"], buf["albedo"], buf["normal"], buf["ks"], buf["shin"]
-        metal, label, inst = buf["metal"], buf["label"], buf["inst"]
+        """Z-buffer object K (its parts as extruded footprints at four levels, top face first; more for
+        a posed object tilted off the table's normal, whose side faces the camera) into the per-pixel
+        buffers; returns its bounding box and footprint, or None when out of view."""
+        zbuf = buf["zbuf"]
         box = self._bbox(p, n)
         if box is None:
             return None
         x0, y0, x1, y1 = box
         rays = self.rays[y0:y1, x0:x1]
-        inv_nr = 1.0 / ndotr[y0:y1, x0:x1]
+        m = p.axis(n)
+        count = 4
+        if p.down is None:
+            inv_nr = 1.0 / ndotr[y0:y1, x0:x1]
+        elif m @ n < np.cos(np.deg2rad(MARCH_TILT_DEG)):  # tipped far over: its sides face the camera
+            return draw_marched(self.rays[y0:y1, x0:x1], p, CLASSES.index(p.model.cls), k, box, buf)
+        else:  # a level's plane m . X = m . c, at most MARCH_TILT_DEG off the table's
+            inv_nr = (1.0 / (rays @ m.astype(np.float32))).astype(np.float32)
+            slope = float(np.sqrt(max(0.0, 1 - (m @ n) ** 2)) / (m @ n))  # tan of its tilt
+            count = min(32, max(4, int(np.ceil(p.model.height * slope / 0.002)) + 1))
         # A point on the ray at depth z has object-frame coordinates (ray.a1) z - c.a1:
         # project the rays once per object, then each level is two multiply-adds.
         ray_a1, ray_a2 = rays @ p.a1.astype(np.float32), rays @ p.a2.astype(np.float32)
         full = np.zeros((y1 - y0, x1 - x0), bool)
         for part in p.model.parts:
             done = np.zeros_like(full)
-            levels = np.linspace(1.0, 0.0, 4)
+            levels = np.linspace(1.0, 0.0, count)
             for li, t in enumerate(levels):
                 elev = p.base_elev + part.z0 + t * (part.z1 - part.z0)
-                z = np.float32(d - elev) * inv_nr
-                c = p.ground - n * elev
+                c = p.ground - m * elev
+                z = np.float32(d - elev) * inv_nr if p.down is None else np.float32(m @ c) * inv_nr
                 lx = ray_a1 * z - np.float32(c @ p.a1)
                 ly = ray_a2 * z - np.float32(c @ p.a2)
                 inside = (part.sdf(lx, ly) < 0) & ~done
@@ -252,61 +316,17 @@ class SceneRenderer:
                 col = part.albedo(ax, ay)
                 if li == 0:  # top face: up, with the part's curvature tilt
                     tx, ty = part.tilt(ax, ay) if part.tilt else (0.0 * ax, 0.0 * ay)
-                    nn = -n[None, :] + tx[:, None] * p.a1[None, :] + ty[:, None] * p.a2[None, :]
+                    nn = -m[None, :] + tx[:, None] * p.a1[None, :] + ty[:, None] * p.a2[None, :]
                 else:  # side wall: outward gradient of the footprint
                     eps = 5e-4
                     gx = part.sdf(ax + eps, ay) - part.sdf(ax - eps, ay)
                     gy = part.sdf(ax, ay + eps) - part.sdf(ax, ay - eps)
-                    nn = gx[:, None] * p.a1[None, :] + gy[:, None] * p.a2[None, :] - 0.15 * n[None, :]
+                    nn = gx[:, None] * p.a1[None, :] + gy[:, None] * p.a2[None, :] - 0.15 * m[None, :]
                     col = col * 0.85
                 nn /= np.linalg.norm(nn, axis=1, keepdims=True) + 1e-9
-                albedo[y0:y1, x0:x1][win] = col
-                normal[y0:y1, x0:x1][win] = nn
-                ks[y0:y1, x0:x1][win] = part.ks
-                shin[y0:y1, x0:x1][win] = part.shininess
-                metal[y0:y1, x0:x1][win] = part.metal
-                label[y0:y1, x0:x1][win] = CLASSES.index(p.model.cls)
-                inst[y0:y1, x0:x1][win] = k
+                paint(buf, box, win, col, nn, part, CLASSES.index(p.model.cls), k)
             full |= done
         return box, full
-
-
-    def _footprints_small(self, footprints: list, grid: tuple[int, int]) -> list[np.ndarray | None]:
-        """Each object's footprint on the (width, height) shading grid."""
-        h, w = self.intr.height, self.intr.width
-        out = []
-        for fp in footprints:
-            if fp is None:
-                out.append(None)
-                continue
-            (x0, y0, x1, y1), full = fp
-            m = np.zeros((h, w), np.float32)
-            m[y0:y1, x0:x1] = full
-            out.append(cv2.resize(m, grid, interpolation=cv2.INTER_AREA))
-        return out
-
-    def _shadow(self, light: dict, placed: list[Placed], footprints: list, masks_q: list, n: np.ndarray, d: float,
-                grid: tuple[int, int]) -> np.ndarray:
-        """Light visibility on the table, flattened on the (width, height) grid: each object's
-        footprint (MASKS_Q, on the grid) pushed away from the light."""
-        wq, hq = grid
-        q = self.intr.width / wq
-        occl = np.zeros((hq, wq), np.float32)
-        for p, fp, m in zip(placed, footprints, masks_q):
-            if fp is None:
-                continue
-            top = p.ground - n * (p.base_elev + p.model.height)
-            lvec = top - light["pos"]
-            t = (d - top @ n) / (lvec @ n)  # where the light ray through the top hits the table
-            hit = top + t * lvec
-            du = (hit[0] / hit[2] - top[0] / top[2]) * self.intr.fx / q
-            dv = (hit[1] / hit[2] - top[1] / top[2]) * self.intr.fy / q
-            steps = 4
-            for s in range(1, steps + 1):
-                shift = np.float32([[1, 0, du * s / steps], [0, 1, dv * s / steps]])
-                occl = np.maximum(occl, cv2.warpAffine(m, shift, (wq, hq)))
-        occl = cv2.GaussianBlur(occl, (0, 0), max(0.7, light["soft"] / q))
-        return 1.0 - 0.85 * occl.ravel()
 
     def _depth(self, rng: np.random.Generator, z: np.ndarray, metal: np.ndarray, spec: np.ndarray,
                dark: np.ndarray) -> np.ndarray:
@@ -338,11 +358,12 @@ class SceneRenderer:
         intr = self.intr
         out, hidden = [], []
         for k, (p, fp) in enumerate(zip(placed, footprints), start=1):
-            top = p.ground - n * (p.base_elev + p.model.height)
+            top = p.ground - p.axis(n) * (p.base_elev + p.model.height)
             visible = 0 if fp is None else int((inst == k).sum())
+            key = {} if p.key is None else {"id": p.key}
             if visible == 0:
                 hidden.append({"class": p.model.cls, "point_camera_m": [round(float(c), 5) for c in top],
-                               "solid": solid_truth(p, n)})
+                               "solid": solid_truth(p, n), **key})
                 continue
             uv = top[:2] / top[2] * [intr.fx, intr.fy] + [intr.cx, intr.cy]
             angle = 0.0
@@ -358,6 +379,6 @@ class SceneRenderer:
                 "angle_deg": round(angle, 2), "orientation_defined": bool(p.model.major_axis),
                 "point_camera_m": [round(float(c), 5) for c in top],
                 "visible_fraction": round(visible / max(1, int(full.sum())), 3),
-                "solid": solid_truth(p, n),
+                "solid": solid_truth(p, n), **key,
             })
         return out, hidden

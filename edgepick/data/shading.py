@@ -1,10 +1,18 @@
 """Materials and light for the synthetic scenes: table surfaces (wood, laminate, mat, steel), the
-thesis's lighting conditions as point lights (Table 5.3), and Lambert + Blinn-Phong shading."""
+thesis's lighting conditions as point lights (Table 5.3), Lambert + Blinn-Phong shading, and the
+shadows objects cast on the table."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import cv2
 import numpy as np
+
+from edgepick.geometry import Intrinsics
+
+if TYPE_CHECKING:
+    from edgepick.data.render import Placed
 
 
 def table_albedo(rng: np.random.Generator, kind: str, h: int, w: int) -> tuple[np.ndarray, float, float]:
@@ -101,3 +109,41 @@ def shade(points: np.ndarray, normals: np.ndarray, ks, shin, lights: list[dict],
         nh = np.clip(np.einsum("ij,ij->i", normals, half), 1e-6, None)
         spec[:, i] = np.exp(np.log(nh) * shin) * ks * fall * 2.5
     return diff, spec
+
+
+def footprints_small(intr: Intrinsics, footprints: list, grid: tuple[int, int]) -> list[np.ndarray | None]:
+    """Each object's footprint (the renderer's bounding box and mask) on the (width, height) shading grid."""
+    h, w = intr.height, intr.width
+    out = []
+    for fp in footprints:
+        if fp is None:
+            out.append(None)
+            continue
+        (x0, y0, x1, y1), full = fp
+        m = np.zeros((h, w), np.float32)
+        m[y0:y1, x0:x1] = full
+        out.append(cv2.resize(m, grid, interpolation=cv2.INTER_AREA))
+    return out
+
+def shadow(intr: Intrinsics, light: dict, placed: list[Placed], footprints: list, masks_q: list, n: np.ndarray,
+           d: float, grid: tuple[int, int]) -> np.ndarray:
+    """Light visibility on the table, flattened on the (width, height) grid: each object's
+    footprint (MASKS_Q, on the grid) pushed away from the light."""
+    wq, hq = grid
+    q = intr.width / wq
+    occl = np.zeros((hq, wq), np.float32)
+    for p, fp, m in zip(placed, footprints, masks_q):
+        if fp is None:
+            continue
+        top = p.ground - p.axis(n) * (p.base_elev + p.model.height)
+        lvec = top - light["pos"]
+        t = (d - top @ n) / (lvec @ n)  # where the light ray through the top hits the table
+        hit = top + t * lvec
+        du = (hit[0] / hit[2] - top[0] / top[2]) * intr.fx / q
+        dv = (hit[1] / hit[2] - top[1] / top[2]) * intr.fy / q
+        steps = 4
+        for s in range(1, steps + 1):
+            shift = np.float32([[1, 0, du * s / steps], [0, 1, dv * s / steps]])
+            occl = np.maximum(occl, cv2.warpAffine(m, shift, (wq, hq)))
+    occl = cv2.GaussianBlur(occl, (0, 0), max(0.7, light["soft"] / q))
+    return 1.0 - 0.85 * occl.ravel()

@@ -17,13 +17,14 @@ from pathlib import Path
 
 import cv2
 
+from edgepick.errors import ParameterError
 from edgepick.frames import Camera, Frame
 from edgepick.robot.base import RobotBase
 from edgepick.robot.clearance import hand_clearance
 from edgepick.robot.envelope import Envelope
 from edgepick.robot.grippers import DigitalGripper, RG2Gripper
 from edgepick.robot.pick import CommandLog, PickConfig, Step, choose_target, execute
-from edgepick.robot.recording import PickCycle, Recorder, StepDone
+from edgepick.robot.recording import PickCycle, Recorder, SceneChange, StepDone
 from edgepick.robot.verdict import judge, summarize, undetected
 from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.grasp import draw_overlay
@@ -104,7 +105,8 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None,
                overlay_dir: str | Path | None = None, echo: Callable[[str], object] = print,
                truth_cal: Calibration | None = None, overlap: bool = False,
                recorder: Recorder | None = None, physics: Callable[[dict, Frame], dict] | None = None,
-               done: list[dict] | None = None) -> list[dict]:
+               done: list[dict] | None = None, after: Callable[[dict, dict | None, Frame], SceneChange] | None = None,
+               first: int = 1) -> list[dict]:
     """Run up to `cycles` pick cycles (robot None = plan only). Stops early when the robot halts
     (a failed gripper halts it too). Each plan passes the envelope and, with a robot, the
     controller's own safety limits before its first command. TRUTH_CAL (the synthetic cell's true
@@ -115,20 +117,28 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None,
     once its commands are sent (robot/recording.py). PHYSICS (the synthetic cell: sim/physics.py's
     judge) gives each judged cycle a second verdict, "physics", after its commands. DONE, when given, is
     the list each finished cycle's result is appended to (and returned): the caller's own, which still
-    holds the cycles run when Ctrl-C or SIGTERM ends the loop half-way."""
+    holds the cycles run when Ctrl-C or SIGTERM ends the loop half-way. AFTER (a clutter-removal round,
+    sim/clutter.py) is called with each cycle's result, chosen record and frame once it is judged: the
+    scene changes for the next frame, and the run ends where its SceneChange says the round ended (a
+    scene that changes after a cycle cannot be read ahead: not with OVERLAP). FIRST: the first cycle's
+    number (rounds number their cycles on from the round before)."""
+    if after is not None and overlap:
+        raise ParameterError("{overlap}: the next frame shows the scene the cycle leaves behind, so it cannot be "
+                             "read while the cycle goes on", overlap=overlap)
     ahead = Lookahead(camera, pipeline) if overlap and robot is not None else None
     try:
-        return _cycles(camera, pipeline, robot, gripper, cfg, cycles, log, overlay_dir, echo, truth_cal, ahead,
-                       recorder, physics, [] if done is None else done)
+        return _cycles(camera, pipeline, robot, gripper, cfg, range(first, first + cycles), log, overlay_dir, echo,
+                       truth_cal, ahead, recorder, physics, [] if done is None else done, after)
     finally:
         if ahead is not None:
             ahead.close()
 
 
 def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper: DigitalGripper | RG2Gripper | None,
-            cfg: PickConfig, cycles: int, log: CommandLog, overlay_dir: str | Path | None, echo: Callable[[str], object],
+            cfg: PickConfig, cycles: range, log: CommandLog, overlay_dir: str | Path | None, echo: Callable[[str], object],
             truth_cal: Calibration | None, ahead: Lookahead | None, recorder: Recorder | None,
-            physics: Callable[[dict, Frame], dict] | None, results: list[dict]) -> list[dict]:
+            physics: Callable[[dict, Frame], dict] | None, results: list[dict],
+            after: Callable[[dict, dict | None, Frame], SceneChange] | None) -> list[dict]:
     """run_cycles' loop, appending to RESULTS. Per cycle, besides the outcome: plan_ms (frame read ->
     checked plan), frame_to_command_ms (-> the first command sent), frame_to_frame_ms (since the
     previous frame was read) and arm_wait_ms (the previous cycle's last command done -> this one's
@@ -138,7 +148,7 @@ def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper
     if overlay_dir:
         Path(overlay_dir).mkdir(parents=True, exist_ok=True)
     previous_frame = arm_free = None
-    for cycle in range(1, cycles + 1):
+    for cycle in cycles:
         try:
             early = ahead.take() if ahead is not None else None
             if early is None:
@@ -180,7 +190,7 @@ def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper
                     first.setdefault("t", time.perf_counter())
 
                 robot.on_send = mark
-                next_frame = ahead.start if ahead is not None and cycle < cycles else None
+                next_frame = ahead.start if ahead is not None and cycle < cycles[-1] else None
                 on_step = _step_recorder(robot, steps) if recorder is not None else None
                 stopped = execute(plan, robot, gripper, log, cycle, cfg, on_clear=next_frame, on_step=on_step)
                 robot.on_send = None
@@ -195,6 +205,7 @@ def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper
                     result["verdict"] = stopped_verdict(result["verdict"])
         if physics is not None and "verdict" in result:  # after the commands, as the overlay
             result["physics"] = physics_verdict(result, record, frame, physics)
+        change = after(result, record, frame) if after is not None else None
         if overlay_dir:  # after the robot's commands: not part of the frame -> command latency
             cv2.imwrite(str(Path(overlay_dir) / f"cycle_{cycle:03d}.png"),
                         draw_overlay(frame.rgb, [record] if record else seen.records))
@@ -203,10 +214,12 @@ def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper
         if recorder is not None:  # after the robot's commands, written on the recorder's thread
             frame_ns = time.time_ns() - int(1e9 * (time.perf_counter() - t0))
             recorder.add(PickCycle(cycle, frame, frame_ns, seen.labels, seen.records, record, plan, start, result,
-                                   steps, line))
+                                   steps, line, change))
         echo(line)
         if robot is not None and robot.halted:
             break  # the caller reports it once
+        if change is not None and change.ended:
+            break
     return results
 
 

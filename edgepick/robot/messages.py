@@ -1,6 +1,6 @@
 """The messages of a recording (docs/contracts.md#recordings): Foxglove's Protobuf schemas where one
-fits, so that Foxglove and Rerun both show them, and two edgepick messages for what no schema
-covers (a pick cycle's outcome and timings, the gripper's state).
+fits, so that Foxglove and Rerun both show them, and edgepick's own messages for what no schema
+covers (a pick cycle's outcome and timings, the gripper's state, a clutter-removal round's table).
 
 Foxglove's schemas come from `foxglove-schemas-protobuf`; edgepick's own are built here from a
 descriptor, so that no generated code or `protoc` is needed. A reader decodes every message
@@ -38,6 +38,8 @@ EDGEPICK_MESSAGES = {
                      ("result", "string")],
     "CalibrationPosition": [("timestamp", "Timestamp"), ("position", "uint32"), ("seen", "bool"),
                             ("reason", "string"), ("camera_point", "double*"), ("robot_point", "double*")],
+    "RoundScene": [("timestamp", "Timestamp"), ("round", "uint32"), ("cycle", "uint32"), ("pick", "uint32"),
+                   ("stage", "string"), ("removed", "int32"), ("ended", "string"), ("objects_json", "string")],
 }
 
 
@@ -45,7 +47,7 @@ def _field_type(kind: str):
     from google.protobuf import descriptor_pb2
 
     fdp = descriptor_pb2.FieldDescriptorProto
-    return {"uint32": fdp.TYPE_UINT32, "double": fdp.TYPE_DOUBLE, "bool": fdp.TYPE_BOOL, "string": fdp.TYPE_STRING,
+    return {"uint32": fdp.TYPE_UINT32, "int32": fdp.TYPE_INT32, "double": fdp.TYPE_DOUBLE, "bool": fdp.TYPE_BOOL, "string": fdp.TYPE_STRING,
             "Timestamp": fdp.TYPE_MESSAGE}[kind.rstrip("*")]
 
 

@@ -28,7 +28,18 @@ import numpy as np
 from edgepick.errors import ConfigError
 from edgepick.files import public_mode
 from edgepick.frames import Frame
-from edgepick.geometry import Intrinsics
+from edgepick.robot.markers import (
+    BASE,
+    BLUE,
+    CAMERA,
+    GREEN,
+    GREY,
+    camera_calibration,
+    grasp_markers,
+    image_annotations,
+    point_cloud,
+    scene_objects,
+)
 from edgepick.robot.messages import quaternion, schemas, set_pose
 from edgepick.robot.pick import Step
 from edgepick.runtime.calibration import Calibration
@@ -36,8 +47,7 @@ from edgepick.runtime.grasp import draw_overlay
 
 JPEG_QUALITY = 90
 WORKER_NICE = 10  # the writer thread yields the CPU to the loop's inference when both want it
-BASE, CAMERA, TCP = "base", "camera", "tcp"  # the frames (docs/contracts.md#recordings)
-GREEN, GREY, BLUE = (0.1, 0.85, 0.2, 1.0), (0.7, 0.7, 0.7, 0.8), (0.2, 0.5, 1.0, 1.0)
+TCP = "tcp"  # the tool's frame, beside markers.py's base and camera (docs/contracts.md#recordings)
 
 
 @dataclass
@@ -49,6 +59,22 @@ class StepDone:
     step: Step
     reported: list[float] | None
     result: str  # "ok" or "error: ..."
+
+
+@dataclass
+class SceneChange:
+    """How a clutter-removal round's table changed over one cycle (sim/clutter.py): its parts as the
+    frame showed them and once the rest had settled after the pick, each {"id", "class", "pose"
+    [x, y, z, qx, qy, qz, qw] in the base frame, "size"}; the id of the part the pick took off
+    (None: none), when the rest had settled (wall ns), and why the round ends here (None: it goes on)."""
+
+    round: int
+    pick: int
+    before: list[dict]
+    after: list[dict]
+    removed: int | None
+    settled_ns: int
+    ended: str | None
 
 
 @dataclass
@@ -66,6 +92,7 @@ class PickCycle:
     result: dict  # the cycle's result, as `pick` prints it
     steps: list[StepDone]
     line: str  # the line `pick` printed for it
+    scene: SceneChange | None = None  # a clutter-removal round's table before the pick and after it settled
 
 
 @dataclass
@@ -233,6 +260,21 @@ class Recorder:
         end_ns = max([plan_ns, *(d.time_ns for d in c.steps)])
         self.write("/pick/cycle", pick_cycle_message(m, c), end_ns)
         self.log(c.line, end_ns, level=2 if c.result["outcome"] in ("done", "planned") else 3)
+        if c.scene is not None:
+            self._round_scene(c, t)
+
+    def _round_scene(self, c: PickCycle, frame_ns: int) -> None:
+        """A round's table: as the frame showed it (at the frame's time) and where the rest settled after
+        the pick (at the time they came to rest), as /round/scene and as solids on /scene/objects."""
+        change = c.scene
+        for stage, objects, time_ns in (("before", change.before, frame_ns),
+                                        ("settled", change.after, max(change.settled_ns, frame_ns + 1))):
+            settled = stage == "settled"
+            self.write("/round/scene", self.msgs.RoundScene(
+                round=change.round, cycle=c.cycle, pick=change.pick, stage=stage,
+                removed=-1 if change.removed is None or not settled else change.removed,
+                ended=str(change.ended or "") if settled else "", objects_json=json.dumps(objects)), time_ns)
+            self.write("/scene/objects", scene_objects(self.msgs, objects, time_ns), time_ns)
 
     # -- calibrate collect ----------------------------------------------------------------
     def _sighting(self, s: CalibrationSighting) -> None:
@@ -273,91 +315,6 @@ def _add_transform(m, child: str, translation, rotation: np.ndarray, time_ns: in
     entry.timestamp.FromNanoseconds(time_ns)
     entry.translation.x, entry.translation.y, entry.translation.z = (float(v) for v in translation)
     entry.rotation.x, entry.rotation.y, entry.rotation.z, entry.rotation.w = quaternion(rotation)
-
-
-def camera_calibration(m, intr: Intrinsics):
-    """foxglove.CameraCalibration of pinhole intrinsics (no distortion: the frames are rectified)."""
-    return m.CameraCalibration(frame_id=CAMERA, width=intr.width, height=intr.height, distortion_model="plumb_bob",
-                               D=[0.0] * 5, K=[intr.fx, 0, intr.cx, 0, intr.fy, intr.cy, 0, 0, 1],
-                               R=[1, 0, 0, 0, 1, 0, 0, 0, 1], P=[intr.fx, 0, intr.cx, 0, 0, intr.fy, intr.cy, 0, 0, 0, 1, 0])
-
-
-def _colour(target, rgba) -> None:
-    target.r, target.g, target.b, target.a = rgba
-
-
-def image_annotations(m, records: list[dict], chosen: dict | None, time_ns: int):
-    """Each record's grasp point (a circle) and finger axis (a line) on the colour image; the chosen
-    one green. Each carries the frame's time: a viewer matches annotations to an image by it."""
-    out = m.ImageAnnotations()
-    for r in records:
-        colour = GREEN if r is chosen else GREY
-        cx, cy = r["pixel"]
-        circle = out.circles.add(diameter=10, thickness=2)
-        circle.position.x, circle.position.y = cx, cy
-        _colour(circle.outline_color, colour)
-        a = np.radians(r["angle_deg"])
-        dx, dy = -np.sin(a) * 30, np.cos(a) * 30  # fingers close along the minor axis
-        line = out.points.add(type=3, thickness=2)  # LINE_STRIP
-        for s in (-1, 1):
-            p = line.points.add()
-            p.x, p.y = float(cx + s * dx), float(cy + s * dy)
-        _colour(line.outline_color, colour)
-        text = out.texts.add(text=r["class"], font_size=12)
-        text.position.x, text.position.y = cx + 8, cy - 8
-        _colour(text.text_color, colour)
-    for annotation in (*out.circles, *out.points, *out.texts):
-        annotation.timestamp.FromNanoseconds(time_ns)
-    return out
-
-
-def grasp_markers(m, records: list[dict], chosen: dict | None, plan: list[Step], time_ns: int):
-    """/grasp/markers: per record with a robot pose, an arrow along its finger axis (tool x) at the
-    grasp point; the plan's targets as spheres joined by a line, in the base frame. Each entity
-    replaces the one of the same id from the cycle before."""
-    update = m.SceneUpdate()
-    grasps = update.entities.add(id="grasps", frame_id=BASE)
-    grasps.timestamp.FromNanoseconds(time_ns)
-    for r in records:
-        if r.get("pose_robot") is None:
-            continue
-        arrow = grasps.arrows.add(shaft_length=0.04, shaft_diameter=0.004, head_length=0.012, head_diameter=0.01)
-        set_pose(arrow.pose, r["pose_robot"])
-        _colour(arrow.color, GREEN if r is chosen else GREY)
-        text = grasps.texts.add(text=r["class"], font_size=14, billboard=True, scale_invariant=True)
-        set_pose(text.pose, [*r["pose_robot"][:2], r["pose_robot"][2] + 0.02, 0, 0, 0])
-        _colour(text.color, GREEN if r is chosen else GREY)
-    targets = [s.target for s in plan if s.target is not None]
-    if targets:
-        path = update.entities.add(id="plan", frame_id=BASE)
-        path.timestamp.FromNanoseconds(time_ns)
-        line = path.lines.add(type=0, thickness=0.003)  # LINE_STRIP
-        line.pose.orientation.w = 1.0
-        _colour(line.color, BLUE)
-        for target in targets:
-            p = line.points.add()
-            p.x, p.y, p.z = (float(v) for v in target[:3])
-            sphere = path.spheres.add()
-            set_pose(sphere.pose, target)
-            sphere.size.x = sphere.size.y = sphere.size.z = 0.012
-            _colour(sphere.color, BLUE)
-    return update
-
-
-def point_cloud(m, points: list, colours: list):
-    """foxglove.PointCloud in the base frame: x, y, z (float32) and red, green, blue, alpha (uint8)
-    per point. The 3D views of both viewers draw it (Rerun draws no SceneUpdate)."""
-    layout = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
-                       ("alpha", "u1")])
-    rows = np.zeros(len(points), layout)
-    for i, (point, colour) in enumerate(zip(points, colours, strict=True)):
-        rows[i] = (*point[:3], *(round(255 * c) for c in colour))
-    cloud = m.PointCloud(frame_id=BASE, point_stride=layout.itemsize, data=rows.tobytes())
-    cloud.pose.orientation.w = 1.0
-    for name in layout.names:
-        kind = 7 if layout[name] == np.dtype("<f4") else 1  # FLOAT32, UINT8
-        cloud.fields.add(name=name, offset=layout.fields[name][1], type=kind)
-    return cloud
 
 
 def pick_cycle_message(m, c: PickCycle):

@@ -48,6 +48,9 @@ class RecordedCycle:
     labels: np.ndarray  # HxW class ids, as the run's model gave them
     start_pose: list[float] | None  # the arm's pose the run planned from (None: from home)
     result: dict  # the cycle's result as `pick` printed it
+    # a clutter-removal round's table (/round/scene): round, pick, the parts before the pick and once the rest
+    # settled ("before", "settled": each id, class, pose, size), the part removed and why the round ended there
+    scene: dict | None = None
 
 
 @dataclass
@@ -105,9 +108,24 @@ def open_recording(path: str | Path) -> Recording:
     return Recording(path, settings, Intrinsics.from_dict(meta["camera"]), calibration)
 
 
+def round_scenes(recording: Recording) -> dict[int, dict]:
+    """A round's recording (`pick --rounds --record`): per cycle, its round and pick, the parts as its frame
+    showed them ("before") and where the rest settled after the pick ("settled"), the part removed
+    (None: none) and why the round ended there ("": it went on). Empty for a run of single scenes."""
+    scenes: dict[int, dict] = {}
+    with open(recording.path, "rb") as file:
+        for _, _, _, m in _reader(file).iter_decoded_messages(topics=["/round/scene"], log_time_order=True):
+            scene = scenes.setdefault(m.cycle, {"round": m.round, "pick": m.pick})
+            scene[m.stage] = json.loads(m.objects_json)
+            if m.stage == "settled":
+                scene.update(removed=None if m.removed < 0 else m.removed, ended=m.ended or None)
+    return scenes
+
+
 def recorded_cycles(recording: Recording) -> Iterator[RecordedCycle]:
-    """Each recorded cycle with its frame, in the order of the run."""
+    """Each recorded cycle with its frame, in the order of the run (and, in a round, its table)."""
     frames: dict[int, dict] = {}
+    scenes = round_scenes(recording)
     with open(recording.path, "rb") as file:
         for _, channel, mcap_message, message in _reader(file).iter_decoded_messages(
                 topics=[*FRAME_TOPICS, "/pick/cycle"], log_time_order=True):
@@ -119,7 +137,8 @@ def recorded_cycles(recording: Recording) -> Iterator[RecordedCycle]:
                 raise RecordingError(f"{recording.path}: cycle {message.cycle} lacks {sorted(set(FRAME_TOPICS) - set(shown))}")
             yield RecordedCycle(message.cycle, message.frame, _colour(shown["/camera/color"]),
                                 _raw(shown["/camera/depth"], np.uint16), _raw(shown["/segmentation/labels"], np.uint8),
-                                list(message.start_pose) or None, json.loads(message.result_json))
+                                list(message.start_pose) or None, json.loads(message.result_json),
+                                scenes.get(message.cycle))
 
 
 def _colour(message) -> np.ndarray:
@@ -159,5 +178,10 @@ def replay(recording: Recording, segmenter: Segmenter | None = None) -> Iterator
             if chosen else {"target": None, "pixel": None, "reason": note}
         shift = math.dist(recorded["pixel"], now["pixel"]) if recorded["pixel"] and now["pixel"] else None
         same = recorded["target"] == now["target"] and (shift is None or shift <= SAME_OBJECT_PX)
-        yield {"cycle": rc.cycle, "frame": rc.frame, "objects": len(records), "recorded": recorded, "replayed": now,
+        out = {"cycle": rc.cycle, "frame": rc.frame, "objects": len(records), "recorded": recorded, "replayed": now,
                "same": same, "shift_px": None if shift is None else round(shift, 3)}
+        if rc.scene is not None:
+            out["round"] = {"round": rc.scene["round"], "pick": rc.scene["pick"],
+                            "parts_before": len(rc.scene.get("before", [])), "parts_after": len(rc.scene.get("settled", [])),
+                            "removed": rc.scene.get("removed"), "ended": rc.scene.get("ended")}
+        yield out

@@ -17,6 +17,7 @@ import math
 import numpy as np
 
 from edgepick.frames import Frame
+from edgepick.intervals import rounded, wilson
 from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.grasp import top_down_pose
 
@@ -86,8 +87,9 @@ def undetected(records: list[dict], truth: list[dict]) -> int:
 
 
 def summarize(results: list[dict], key: str = "verdict") -> dict:
-    """Grasp success over the judged cycles (the synthetic cell): count, rate and failures by kind,
-    of the verdict under KEY ("verdict": the geometric rule; "physics": the physics check)."""
+    """Grasp success over the judged cycles (the synthetic cell): count, rate (over all of them and over
+    the reachable ones, each with its 95% Wilson interval) and failures by kind, of the verdict under
+    KEY ("verdict": the geometric rule; "physics": the physics check)."""
     judged = [r[key] for r in results if key in r]
     if not judged:
         return {}
@@ -96,5 +98,6 @@ def summarize(results: list[dict], key: str = "verdict") -> dict:
     failures = {f: n for f, n in counts.items() if n}  # in FAILURES' order, then the physics check's own
     ok = sum(v["success"] for v in judged)
     reachable = len(judged) - failures.get("unreachable", 0)
-    return {"success": ok, "success_rate": round(ok / len(judged), 4),
-            "success_rate_reachable": round(ok / reachable, 4) if reachable else None, "failures": failures}
+    return {"success": ok, "success_rate": round(ok / len(judged), 4), "success_ci95": rounded(wilson(ok, len(judged))),
+            "success_rate_reachable": round(ok / reachable, 4) if reachable else None,
+            "success_reachable_ci95": rounded(wilson(ok, reachable)), "failures": failures}

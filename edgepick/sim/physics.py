@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -35,8 +36,8 @@ from edgepick.robot.pick import PickConfig
 from edgepick.runtime.calibration import Calibration
 from edgepick.sim.physics_scene import FINGER_DAMPING, PhysicsConfig, Solid, solids, without_overlaps
 
-__all__ = ["PHYSICS_FAILURES", "PhysicsConfig", "Solid", "physics_judge", "physics_verdict", "require_mujoco", "solids",
-           "steel_share"]
+__all__ = ["PHYSICS_FAILURES", "PhysicsConfig", "PhysicsRun", "Solid", "physics_judge", "physics_run", "physics_verdict",
+           "require_mujoco", "solids", "steel_share"]
 
 SIM_EXTRA = "the physics verdict needs the sim extra: pip install 'edgepick[sim]'"
 MAGNETIC = ("bearing", "disk")  # steel and cast iron; the box (cardboard) and adapter (plastic) are not
@@ -125,6 +126,26 @@ def physics_verdict(record: dict, truth: list[dict], cal: Calibration, place_pos
     calibration CAL puts it in the robot frame): {"success", "failure" (PHYSICS_FAILURES),
     "lifted_m", "ms"}. The gripper is the class's (robot/verdict.py GRIPPER). HIDDEN: the truth of
     objects the camera does not see, in the scene too (what rests on them) but never the target."""
+    return physics_run(record, truth, cal, place_pose, grasp_offset_m, cfg, hidden).verdict
+
+
+@dataclass
+class PhysicsRun:
+    """A check's verdict, and where it left the objects it simulated: by their truth's "id" (those
+    without one are not listed), each one's base centre and rotation (robot frame, the columns its
+    major axis, the axis across and up); `target`, the id of the object the hand went for."""
+
+    verdict: dict
+    poses: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    target: int | None = None
+
+
+def physics_run(record: dict, truth: list[dict], cal: Calibration, place_pose: list[float],
+                grasp_offset_m: float = 0.0, cfg: PhysicsConfig | None = None, hidden: Sequence[dict] = ()
+                ) -> PhysicsRun:
+    """physics_verdict, with the poses the check left its objects in: what a clutter-removal round
+    (sim/clutter.py) goes on from. The poses are read once the check ends (the part carried, or the
+    hand where it stopped)."""
     mujoco = require_mujoco()
     from edgepick.robot.verdict import GRIPPER, closing_yaw_deg
 
@@ -133,7 +154,7 @@ def physics_verdict(record: dict, truth: list[dict], cal: Calibration, place_pos
     world = solids(truth, cal)
     k = _target(record, world)
     if k is None:
-        return {"success": False, "failure": "false detection", "lifted_m": 0.0, "ms": 0.0}
+        return PhysicsRun({"success": False, "failure": "false detection", "lifted_m": 0.0, "ms": 0.0})
     world += solids(list(hidden), cal)
     # what the hand can meet on its way down, up and off: objects within NEAR_M of the target
     target = world[k]
@@ -154,7 +175,9 @@ def physics_verdict(record: dict, truth: list[dict], cal: Calibration, place_pos
                    "note": "the simulation diverged; this check says nothing"}
     if left_out:
         verdict["left_out"] = len(left_out)
-    return {**verdict, "ms": round(1000 * (time.perf_counter() - start), 1)}
+    poses = {s.key: (data.xpos[model.body(f"obj{i}").id].copy(), data.xmat[model.body(f"obj{i}").id].reshape(3, 3).copy())
+             for i, s in enumerate(world) if s.key is not None}
+    return PhysicsRun({**verdict, "ms": round(1000 * (time.perf_counter() - start), 1)}, poses, target.key)
 
 
 class _Sim:
@@ -266,6 +289,8 @@ class _Sim:
             return {"success": False, "failure": "blocked", "note": f"the hand lands on {what}", "lifted_m": 0.0}
         if self.magnet:
             self.magnet_on = True
+            if cfg.magnet_steel_only:
+                self._steel_only()
             self.step(reached, 0.2)
         else:
             self.step(reached, 0.5, -1.0)  # close
@@ -286,6 +311,18 @@ class _Sim:
         rise = float(self.data.xpos[self.body][2]) - start_z
         held = bool(self._touching()) and rise > cfg.lift_m - 0.03
         return {"success": held, "failure": None if held else "dropped", "lifted_m": round(rise, 4)}
+
+    def _steel_only(self) -> None:
+        """From now on the hand (its pole face and palm) touches only the steel parts (cfg.magnet_steel_only):
+        MuJoCo's adhesion, which pulls at every contact of the hand, then pulls no plastic or cardboard."""
+        model, steel = self.model, 2  # a collision bit the hand shares with steel alone
+        for g in self.hand_geoms:
+            model.geom_contype[g] = model.geom_conaffinity[g] = steel
+        for g in range(model.ngeom):
+            name = model.body(model.geom_bodyid[g]).name
+            if name.startswith("obj") and self.world[int(name[3:])].cls in MAGNETIC:
+                model.geom_contype[g] |= steel
+                model.geom_conaffinity[g] |= steel
 
     def _across(self) -> float:
         """The target's extent along the jaw's closing axis."""

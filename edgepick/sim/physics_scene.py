@@ -36,9 +36,19 @@ class PhysicsConfig:
     carry_speed_m_s: float = 0.25  # the envelope's cap on moveL speed
     acc_m_s2: float = 1.2  # every move speeds up and slows down at this (the envelope's cap)
     timestep_s: float = 0.004
+    # the time constant of the contacts between the objects and with the table (MuJoCo's default, which scales a
+    # contact's stiffness by the lighter body's mass: a heavy disk on a light adapter sinks it millimetres into the
+    # table); a clutter-removal round (sim/clutter.py) takes two steps, the stiffest MuJoCo allows
+    contact_s: float = 0.02
+    # MuJoCo's adhesion holds whatever touches the pole face, steel or not (a plastic adapter under its rim goes
+    # along): the verdict of a single scene only asks what the target did; a clutter-removal round, which goes on
+    # from where every part ended, has the switched-on face touch the steel parts alone
+    magnet_steel_only: bool = False
 
     def __post_init__(self) -> None:
         for name, value in vars(self).items():
+            if isinstance(value, bool):
+                continue
             if not (math.isfinite(value) and value > 0):
                 raise ParameterError(f"{{{name}}}: must be a positive number", **{name: value})
 
@@ -52,6 +62,7 @@ class Solid:
     rotation: np.ndarray  # 3x3: columns = its major axis, the axis across, up
     dims: dict  # solid truth's dimensions
     top: np.ndarray  # its grasp point (top centre)
+    key: int | None = None  # the object's id in the truth, when it has one (a clutter-removal round)
 
 
 def solids(truth: list[dict], cal: Calibration) -> list[Solid]:
@@ -68,7 +79,8 @@ def solids(truth: list[dict], cal: Calibration) -> list[Solid]:
         rotation = np.stack([axis, np.cross(up, axis), up], axis=1)
         base = cal.apply(np.asarray(s["base_camera_m"], np.float64))
         dims = {k: v for k, v in s.items() if k not in ("base_camera_m", "up_camera", "axis_camera")}
-        out.append(Solid(t["class"], base, rotation, dims, cal.apply(np.asarray(t["point_camera_m"], np.float64))))
+        out.append(Solid(t["class"], base, rotation, dims, cal.apply(np.asarray(t["point_camera_m"], np.float64)),
+                         t.get("id")))
     return out
 
 
@@ -130,14 +142,20 @@ def _hand_xml(magnet: bool, cfg: PhysicsConfig) -> str:
     return f'{target}<body name="hand"><freejoint/>{"".join(fingers)}{palm.format(z=z + pad_h + 0.03)}</body>'
 
 
-def scene_xml(world: list[Solid], magnet: bool, cfg: PhysicsConfig) -> str:
+def scene_xml(world: list[Solid], magnet: bool, cfg: PhysicsConfig, hand: bool = True) -> str:
+    """The MuJoCo model of WORLD on the table with the hand (a magnet or a jaw); HAND False: the objects alone."""
+    if not hand:
+        return (f'<mujoco><option timestep="{cfg.timestep_s}" cone="elliptic" impratio="10" noslip_iterations="3"/>'
+                f'<default><geom condim="4" solref="{cfg.contact_s} 1"/></default><worldbody>'
+                '<geom name="table" type="plane" size="2 2 0.01" friction="0.5 0.005 0.0001"/>'
+                f'{"".join(_solid_xml(k, s) for k, s in enumerate(world))}</worldbody></mujoco>')
     # the jaw: a force on each finger (the RG2 closes until it holds its set force), the magnet: adhesion
     actuators = f'<adhesion body="hand" ctrlrange="0 1" gain="{cfg.magnet_force_n}"/>' if magnet else \
         f'<motor joint="jr" ctrlrange="-1 1" gear="{2 * cfg.jaw_force_n}"/>'
     # the RG2's fingers are linked: they move together, so the grip stays centred on the hand
     coupled = "" if magnet else '<joint joint1="jr" joint2="jl"/>'
     return (f'<mujoco><option timestep="{cfg.timestep_s}" cone="elliptic" impratio="10" noslip_iterations="3"/>'
-            '<default><geom condim="4"/></default><worldbody>'
+            f'<default><geom condim="4" solref="{cfg.contact_s} 1"/></default><worldbody>'
             '<geom name="table" type="plane" size="2 2 0.01" friction="0.5 0.005 0.0001"/>'
             f'{"".join(_solid_xml(k, s) for k, s in enumerate(world))}{_hand_xml(magnet, cfg)}</worldbody>'
             f'<equality><weld body1="target" body2="hand" solref="0.01 1"/>{coupled}</equality>'
@@ -203,3 +221,31 @@ def _touch_hops(mujoco, model, data, names: list[str], count: int) -> list[float
                     nearer.append(j)
         front = nearer
     return hops
+
+
+REST_M_S = 0.003  # an object moving slower than this (and turning slower than REST_RAD_S) is at rest
+REST_RAD_S = 0.05
+
+
+def settle(mujoco, world: list[Solid], cfg: PhysicsConfig, max_s: float = 3.0
+           ) -> list[tuple[np.ndarray, np.ndarray]] | None:
+    """WORLD's objects (robot frame, the table at z = 0) left alone until they rest: each one's base
+    centre and rotation once every object moves slower than REST_M_S and turns slower than
+    REST_RAD_S (looked at every 0.1 s, from 0.2 s on), or after MAX_S. None when the simulation
+    diverged (MuJoCo reset a state): the poses would mean nothing."""
+    if not world:
+        return []
+    model = mujoco.MjModel.from_xml_string(scene_xml(world, False, cfg, hand=False))
+    data = mujoco.MjData(model)
+    bodies = [model.body(f"obj{k}").id for k in range(len(world))]
+    speeds = np.array([model.jnt_dofadr[model.body_jntadr[b]] for b in bodies])
+    per_look = max(1, round(0.1 / cfg.timestep_s))
+    for look in range(max(1, math.ceil(max_s / 0.1))):
+        mujoco.mj_step(model, data, nstep=per_look)
+        if data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number:
+            return None
+        linear = np.linalg.norm(np.stack([data.qvel[a:a + 3] for a in speeds]), axis=1)
+        angular = np.linalg.norm(np.stack([data.qvel[a + 3:a + 6] for a in speeds]), axis=1)
+        if look >= 1 and linear.max() < REST_M_S and angular.max() < REST_RAD_S:
+            break
+    return [(data.xpos[b].copy(), data.xmat[b].reshape(3, 3).copy()) for b in bodies]

@@ -7,6 +7,7 @@ import csv
 import json
 
 import cv2
+import pytest
 
 from edgepick.bench import cell
 from edgepick.cli import run
@@ -41,6 +42,44 @@ def test_cell_bad_input(tmp_path, capfd):
     err = capfd.readouterr().err
     assert "--cell 0" in err and "--data is needed" in err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("args, message", [(["--rounds", "0"], "--rounds 0: must be at least 1"),
+                                           (["--rounds", "2", "--max-cycles", "-2"], "--max-cycles -2: must be at least 1"),
+                                           (["--cell", "--max-cycles", "3"], "--max-cycles 3: caps the cycles of a round"),
+                                           (["--cell", "--margin", "0"], "--margin 0.0: must be a number of percentage")])
+def test_cell_rounds_bad_input_is_one_line_and_nothing_written(tmp_path, capfd, args, message):
+    model = red_model(tmp_path / "red.onnx")
+    assert run(["bench", str(model), *args, "--out", str(tmp_path / "o")]) == 2
+    out, err = capfd.readouterr()
+    assert out == "" and err.count("\n") == 1 and message in err and not (tmp_path / "o").exists()
+
+
+def test_cell_rounds_rows_and_int8_against_fp32(tmp_path, capfd):
+    """--rounds: every row clears the same tables laid out alike, each with its rounds summed; the int8
+    row against the fp32 one, paired by round, in cell.json and cell.md."""
+    pytest.importorskip("mujoco")
+    from edgepick.reference import reference_model
+
+    fp32 = red_model(tmp_path / "red.onnx", divide=64)
+    assert run(["bench", str(fp32), str(reference_model()), "--cell", "--rounds", "2", "--max-cycles", "3",
+                "--verdict", "physics", "--out", str(tmp_path / "out")]) == 0
+    out, err = capfd.readouterr()
+    result = json.loads(out)
+    rows = result["rows"]
+    assert [r["mode"] for r in rows] == ["true labels", "fp32 CPU", "static"]
+    for r in rows:
+        s = r["rounds"]
+        assert s["rounds"] == 2 and s["picks"] == r["cycles"] <= 6 and s["verdict"] == "physics"
+        assert [d["parts"] for d in s["per_round"]] == [d["parts"] for d in rows[0]["rounds"]["per_round"]]  # alike
+        assert r["success_ci95"] is not None and s["clearance_ci95"] is not None
+    rates = {(e["rate"], e["verdict"]) for e in result["equivalence"]}
+    assert rates == {("grasp success", "geometric"), ("grasp success", "physics"), ("clearance", "physics")}
+    assert all(e["mode"] == "static" and e["against"] == "fp32 CPU" and e["paired_by"] == "round" and e["pairs"] == 2
+               for e in result["equivalence"])
+    md = (tmp_path / "out" / "cell.md").read_text()
+    assert "## Clutter removal" in md and "## int8 against fp32 on the same scenes" in md and "rounds per model" in md
+    assert json.loads((tmp_path / "out" / "cell.json").read_text())["equivalence"] == result["equivalence"]
 
 
 def test_success_latency_is_a_scatter_with_every_label_in_full(tmp_path):

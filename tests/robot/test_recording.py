@@ -168,6 +168,42 @@ def test_replay_with_a_model_segments_the_recorded_frames(picked):
     assert all(r["shift_px"] < 0.5 for r in out["results"])
 
 
+def test_a_clutter_removal_round_is_one_recording_that_replay_steps_through(tmp_path):
+    """`pick --rounds 1 --record`: one file for the round; per cycle the table before the pick (at the frame's
+    time) and where the rest settled (after the cycle's commands), as /round/scene and as solids on
+    /scene/objects; replay steps through the round's picks and chooses what the run chose."""
+    pytest.importorskip("mujoco")
+    proc = run_cli("pick", "--rounds", "1", "--max-cycles", "4", "--verdict", "physics", "--record",
+                   str(tmp_path / "run.mcap"), "--log", str(tmp_path / "log.jsonl"))
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    path = tmp_path / "run-round001.mcap"
+    assert summary["record"] == [str(path)] and not (tmp_path / "run.mcap").exists()
+    counts, meta, messages = read(path)
+    cycles = summary["cycles"]
+    assert counts["/round/scene"] == counts["/scene/objects"] == 2 * cycles and counts["/pick/cycle"] == cycles
+    assert json.loads(meta["edgepick"]["round"])["round"] == 1
+    assert_in_time_order(messages)
+    scenes = on(messages, "/round/scene")
+    assert [m.stage for m in scenes] == ["before", "settled"] * cycles
+    for (before, settled), result in zip(zip(scenes[::2], scenes[1::2]), summary["results"], strict=True):
+        parts, rest = json.loads(before.objects_json), json.loads(settled.objects_json)
+        removed = result["round"]["removed"]
+        assert (settled.removed if settled.removed >= 0 else None) == removed
+        assert len(rest) == len(parts) - (removed is not None) - len(result["round"]["fell"])
+        assert removed not in [o["id"] for o in rest]
+    assert len(on(messages, "/camera/color")) == cycles
+    solids = on(messages, "/scene/objects")[0].entities[0]
+    assert len(solids.cubes) + len(solids.cylinders) == len(json.loads(scenes[0].objects_json))
+    replayed = run_cli("replay", str(path))
+    assert replayed.returncode == 0, replayed.stderr
+    out = json.loads(replayed.stdout)
+    assert out["cycles"] == cycles and out["same"] == cycles
+    assert [r["round"]["pick"] for r in out["results"]] == list(range(1, cycles + 1))
+    assert out["results"][0]["round"]["parts_before"] == summary["rounds"]["parts"]
+    assert "(round 1, pick 1: " in replayed.stderr
+
+
 @pytest.mark.parametrize("target", ["proc", "under-a-file", "a-folder"])
 def test_an_unwritable_record_path_fails_before_the_first_frame(tmp_path, target):
     (tmp_path / "file").write_text("")

@@ -170,6 +170,57 @@ def test_the_same_inputs_give_the_same_verdict():
     assert {k: v for k, v in first.items() if k != "ms"} == {k: v for k, v in second.items() if k != "ms"}
 
 
+def test_a_check_says_where_it_left_the_objects_it_simulated():
+    """physics_run (what a clutter-removal round goes on from): the part carried to the place pose, a
+    neighbour where it stood, both by their truth's id; an object without an id is not listed."""
+    from edgepick.sim.physics import physics_run
+
+    scene = [{**block("adapter", 0.25, 0.0, 0.0, 0.062, 0.044, 0.036), "id": 3}, {**bearing(0.25, 0.12), "id": 8},
+             bearing(0.1, -0.15)]
+    run = physics_run(grasp("adapter", 0.25, 0.0, 0.036, math.pi / 2), scene, IDENTITY, PLACE)
+    assert run.verdict["success"] and run.target == 3 and set(run.poses) == {3, 8}
+    carried, rotation = run.poses[3]
+    assert np.linalg.norm(carried[:2] - np.array(PLACE[:2])) < 0.02 and carried[2] > 0.08
+    assert np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-6)
+    stood, _ = run.poses[8]
+    assert np.linalg.norm(stood - [0.25, 0.12, 0.0]) < 0.002
+
+
+def test_settle_brings_objects_to_rest_and_stiff_contacts_hold_a_heavy_disk_on_light_parts():
+    """MuJoCo's default contacts scale with the lighter body: a brake disk resting on two adapters pushes
+    them millimetres into the table; contacts as stiff as a step allows (a round's) keep them on it."""
+    import mujoco
+
+    from edgepick.sim.physics_scene import settle
+
+    under = [block("adapter", 0.25 + dx, 0.0, math.pi / 2, 0.062, 0.044, 0.036) for dx in (-0.05, 0.05)]
+    scene = solids([*under, on(disk(0.25, 0.0), 0.036)], IDENTITY)
+    sunk = {}
+    for name, cfg in (("default", PhysicsConfig()), ("stiff", PhysicsConfig(contact_s=0.012))):
+        rested = settle(mujoco, scene, cfg)
+        sunk[name] = -min(base[2] for base, _ in rested[:2])  # the adapters' bases below the table
+        disk_base, disk_rotation = rested[2]
+        assert disk_rotation[2, 2] > 0.99  # the disk still lies flat on them
+    assert sunk["default"] > 0.003 > 0.002 > sunk["stiff"], sunk
+    falling = solids([on(bearing(0.25, 0.0), 0.02)], IDENTITY)  # 2 cm above the table: it falls and rests
+    ((base, rotation),) = settle(mujoco, falling, PhysicsConfig(contact_s=0.012))
+    assert abs(base[2]) < 0.001 and rotation[2, 2] > 0.999
+
+
+def test_a_magnet_that_holds_steel_only_leaves_a_plastic_neighbour_under_its_rim():
+    """MuJoCo's adhesion pulls at every contact of the pole face: an adapter under its rim goes along with
+    the bearing, unless the face touches steel alone once switched on (a round's check)."""
+    from edgepick.sim.physics import physics_run
+
+    scene = [{**bearing(0.25, 0.0), "id": 1}, {**block("adapter", 0.31, 0.0, math.pi / 2, 0.062, 0.044, 0.036), "id": 2}]
+    for steel_only, stays in ((False, False), (True, True)):
+        run = physics_run(grasp("bearing", 0.25, 0.0, 0.035), scene, IDENTITY, PLACE,
+                          cfg=PhysicsConfig(magnet_steel_only=steel_only))
+        assert run.verdict["success"], run.verdict
+        moved = float(np.linalg.norm(run.poses[2][0] - [0.31, 0.0, 0.0]))
+        assert (moved < 0.01) == stays, moved
+
+
 def test_physics_config_refuses_what_is_not_a_positive_number():
     with pytest.raises(ParameterError, match="jaw_force_n=-1"):
         PhysicsConfig(jaw_force_n=-1)
