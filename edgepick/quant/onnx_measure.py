@@ -153,6 +153,57 @@ def _attr(node: Any, name: str, default: Any) -> Any:
     return next((onnx.helper.get_attribute_value(a) for a in node.attribute if a.name == name), default)
 
 
+def adjusted_ranges(float_model: Any, ranges: dict[str, tuple[float, float]]) -> dict[str, tuple[float, float]]:
+    """RANGES as onnxruntime's QDQ writer adjusts them before it computes the qparams: a Relu's or
+    Clip's input (read by it alone) takes its output's range, a Softmax's output is [0, 1]."""
+    consumers: dict[str, int] = {}
+    for n in float_model.graph.node:
+        for i in n.input:
+            consumers[i] = consumers.get(i, 0) + 1
+    adjusted = dict(ranges)
+    for n in float_model.graph.node:
+        if n.op_type in ("Relu", "Clip") and consumers.get(n.input[0]) == 1 and n.output[0] in adjusted:
+            if n.input[0] in adjusted:
+                adjusted[n.input[0]] = adjusted[n.output[0]]
+        elif n.op_type == "Softmax" and n.output[0] in adjusted:
+            adjusted[n.output[0]] = (0.0, 1.0)
+    return adjusted
+
+
+def requantize_activations(model: Any, float_model: Any, ranges: dict[str, tuple[float, float]]) -> None:
+    """Set the uint8 qparams of MODEL's activations (QDQ, as onnxruntime wrote it from FLOAT_MODEL) to
+    those of RANGES, as its writer computes them, and the conv biases' int32 codes to the new input
+    scales: the graph calib_method auto measures each candidate rule with, without writing it again.
+    (onnxruntime's writer may also widen a weight's scale where a bias would overflow int32; here
+    such a bias clips, so a candidate's measure can differ from its written file's in that case.)"""
+    from onnxruntime.quantization.quant_utils import compute_scale_zp
+
+    values = _Values(model)
+    weights = {i.name for i in float_model.graph.initializer}
+    for q in model.graph.node:
+        if q.op_type != "QuantizeLinear" or q.input[0] in weights or q.input[0] not in ranges:
+            continue
+        if len(q.input) < 3 or q.input[1] not in values.inits or q.input[2] not in values.inits:
+            continue
+        zero_point = values[q.input[2]]
+        if zero_point.dtype != np.uint8:
+            continue
+        low, high = ranges[q.input[0]]
+        zero, scale = compute_scale_zp(np.array(low, np.float32), np.array(high, np.float32), np.array(0, np.uint8),
+                                       np.array(255, np.uint8))
+        values[q.input[1]] = np.asarray(scale, np.float32).reshape(values[q.input[1]].shape)
+        values[q.input[2]] = np.asarray(zero, np.uint8).reshape(zero_point.shape)
+    floats, by_name = _Values(float_model), {n.name: n for n in float_model.graph.node}
+    for name, c in qdq_convs(model).items():
+        source = by_name.get(name)
+        if c.bias_codes is None or c.bias_scale is None or source is None or len(source.input) < 3:
+            continue
+        scale = (values[c.input_scale].astype(np.float64) * values[c.weight_scale]).astype(np.float32)
+        bias = floats[source.input[2]].astype(np.float64)
+        values[c.bias_codes] = np.clip(np.round(bias / scale), -2 ** 31, 2 ** 31 - 1).astype(np.int32)
+        values[c.bias_scale] = scale.reshape(values[c.bias_scale].shape)
+
+
 def saturating_onnx_convs(model: Any, tensors: list[np.ndarray], limit: float) -> dict[str, float]:
     """For each conv of MODEL (QDQ, 8-bit weights), the largest share of its outputs over TENSORS
     that an AVX2 U8S8 kernel would compute with a pair sum beyond +-LIMIT."""

@@ -27,6 +27,7 @@ from edgepick.quant.config import QuantConfig
 from edgepick.quant.fidelity import RuleScore
 from edgepick.quant.onnx_accuracy import evaluator_for
 from edgepick.quant.onnx_calibrate import Collector
+from edgepick.quant.onnx_measure import adjusted_ranges, requantize_activations
 from edgepick.quant.ranges import RangeRule, candidate_rules
 
 # ops that may stand between a model's last conv and its outputs; they stay float with the outputs
@@ -146,11 +147,13 @@ def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np
 
     evaluator = evaluator_for(pre, float_model, held, {}, nhwc)
     tail, exact = float_tail(float_model), exact_tensors(float_model)
+    # one graph written, its qparams set for each rule in turn: the graph does not depend on the ranges
+    written = qdq_model(pre, collector.ranges(rules[0], exact), ops, exclude, config.reduce_range)
+    float_outputs(written, tail)
     scores = []
     for rule in progress_bar(rules, desc="choose ranges", unit="rule", enabled=progress):
-        int8 = qdq_model(pre, collector.ranges(rule, exact), ops, exclude, config.reduce_range)
-        float_outputs(int8, tail)
-        scores.append(RuleScore(rule, evaluator.error(int8, None)))
+        requantize_activations(written, float_model, adjusted_ranges(float_model, collector.ranges(rule, exact)))
+        scores.append(RuleScore(rule, evaluator.error(written, None)))
     best = min(scores, key=lambda s: s.error)
     if held_out:
         for x in held:

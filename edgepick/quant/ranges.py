@@ -16,7 +16,8 @@ BINS = 2048  # per histogram; a range that grows merges bins pairwise, so 1024-2
 CHUNK = 1 << 22  # values binned at once: bounds numpy's temporaries for a large tensor
 # values of one tensor counted per input: a larger tensor (a feature map of a megapixel input) is counted at evenly
 # spaced places, a million of its values, which still resolves a 99.9999th percentile over a few inputs; its min and
-# max stay exact
+# max stay exact. (Sparser samples miss thin structures: on a text detector, a quarter million per map moved the
+# 99.99th and 99.999th percentiles' output SQNR by 2 dB.)
 SAMPLED = 1 << 20
 UINT8_LEVELS = 255
 AUTO_PERCENTILES = (99.99, 99.999, 99.9999)  # with calib_method auto, beside minmax, entropy and mse
@@ -29,7 +30,7 @@ def _finite(values: np.ndarray) -> np.ndarray:
 class Histogram:
     """Min, max and counts of one tensor's values over all calibration tensors. The bins have one
     width; when new values fall outside, the width doubles (neighbouring bins merge exactly)
-    until the span holds them, so no value is ever counted in the wrong bin."""
+    until the span holds them, so a widening never moves a value to another bin."""
 
     __slots__ = ("counts", "lo", "max", "min", "width")
 
@@ -85,9 +86,14 @@ class Histogram:
                 return
             flat = flat[::-(-flat.size // SAMPLED)]
         for start in range(0, flat.size, CHUNK):
-            chunk = _finite(flat[start:start + CHUNK])
-            if chunk.size:
-                self._add(chunk)
+            chunk = flat[start:start + CHUNK]
+            mn, mx = float(chunk.min()), float(chunk.max())  # NaN or an infinity shows in them
+            if not (math.isfinite(mn) and math.isfinite(mx)):
+                chunk = _finite(chunk)
+                if not chunk.size:
+                    continue
+                mn, mx = float(chunk.min()), float(chunk.max())
+            self._add(chunk, mn, mx)
 
     def extend(self, mn: float, mx: float) -> None:
         """Widen the bins to hold [MN, MX] and take them as seen extremes."""
@@ -98,11 +104,12 @@ class Histogram:
         self._cover(mn, mx)
         self.min, self.max = min(self.min, mn), max(self.max, mx)
 
-    def _add(self, x: np.ndarray) -> None:
-        self.extend(float(x.min()), float(x.max()))
-        index = x.astype(np.float64)  # in float32 a value near a bin edge may land in the bin beside it
-        index -= self.lo
-        index /= self.width
+    def _add(self, x: np.ndarray, mn: float, mx: float) -> None:
+        """Count the finite values X (whose extremes are MN and MX) into their bins; in float32, as
+        they come, a value within its rounding of a bin edge may count in the bin beside it."""
+        self.extend(mn, mx)
+        index = x - np.float32(self.lo)
+        index *= np.float32(1.0 / self.width)
         np.clip(index, 0, BINS - 1, out=index)
         self.counts += np.bincount(index.astype(np.int32), minlength=BINS)
 

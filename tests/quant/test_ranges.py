@@ -99,4 +99,5 @@ def test_a_large_tensor_is_counted_at_evenly_spaced_places_with_its_exact_extrem
     assert RangeRule(CalibMethod.MINMAX).range(hist) == (float(values.min()), 500.0)
     low, high = RangeRule(CalibMethod.PERCENTILE, 99.9).range(hist)
     ref = np.percentile(values, [0.1, 99.9])
-    assert abs(low - ref[0]) < 0.05 * abs(ref[0]) and abs(high - ref[1]) < 0.05 * ref[1]
+    slack = 2 * hist.width  # the bins span the one extreme value: each is wide
+    assert abs(low - ref[0]) < 0.05 * abs(ref[0]) + slack and abs(high - ref[1]) < 0.05 * ref[1] + slack
