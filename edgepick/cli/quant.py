@@ -138,8 +138,9 @@ def quantize() -> None:
 @click.option("--placement", default=default_of(QuantConfig, "placement"), show_default=True, type=choice(Placement),
               help="For an .onnx MODEL: all (every op onnxruntime runs in int8, with edgepick's activation "
                    "rewrites: for onnxruntime), convs (only the convs and the tensors they read and write; the "
-                   "model's own activations stay float as written, which OpenVINO fuses into its int8 convs) or "
-                   "auto (both made and timed on --target on this machine; the faster that keeps the outputs as "
+                   "model's own activations stay float as written, which OpenVINO fuses into its int8 convs), joins "
+                   "(convs, matmuls, and the adds, concats and pools that join branches, as NNCF places them) or "
+                   "auto (each made and timed on --target on this machine; the fastest that keeps the outputs as "
                    "close to fp32 is written, the times in its metadata).")
 @click.option("--target", default=default_of(QuantConfig, "target"), show_default=True, type=choice(Target),
               help="For an .onnx MODEL with --placement auto: the engine the file is timed on (openvino needs the "

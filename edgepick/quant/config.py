@@ -71,6 +71,9 @@ class Placement(enum.StrEnum):
     # only the convs (inputs, weights, outputs) and what a conv reads; the model's own activation ops stay float, as
     # written: OpenVINO fuses them into its int8 convs where it recognises them
     CONVS = "convs"
+    # the convs, matmuls and the ops that join branches (Add, Concat) and pool, the model's own activations float as
+    # written: where NNCF places its fake-quants for OpenVINO
+    JOINS = "joins"
     # each of the above made, timed on the target engine on this machine, and the fastest whose outputs stay as close
     # to fp32 as the closest's (quant/onnx_placement.py)
     AUTO = "auto"
@@ -135,7 +138,7 @@ class QuantConfig:
         object.__setattr__(self, "gelu", member(GeluForm, "gelu", self.gelu))
         object.__setattr__(self, "keep_float", tuple(self.keep_float))
         object.__setattr__(self, "skip", tuple(self.skip))
-        if self.gelu != GeluForm.FLOAT and self.placement == Placement.CONVS:
+        if self.gelu != GeluForm.FLOAT and self.placement in (Placement.CONVS, Placement.JOINS):
             raise ParameterError("{gelu}: with {placement} the GELU's own ops stay float; it needs placement all",
                                  gelu=self.gelu, placement=self.placement)
         if self.target != Target.ONNXRUNTIME and self.placement != Placement.AUTO:

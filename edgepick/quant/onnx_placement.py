@@ -4,7 +4,7 @@ engine on this machine.
 Which placement runs faster depends on the engine and the model: onnxruntime runs a quantized
 activation on an integer kernel and a float one between a DequantizeLinear and a
 QuantizeLinear, while OpenVINO fuses the float activations it recognises into its int8 convs
-(docs/quantization.md). So each candidate (`Placement.ALL`, `Placement.CONVS`) is made, each file
+(docs/quantization.md). So each candidate (`Placement.ALL`, `CONVS`, `JOINS`) is made, each file
 is timed on the target engine in alternating blocks (p50, the engine's own threads), and the
 fastest whose worst output stays within PLACEMENT_FIDELITY_DB of the closest candidate's SQNR is
 kept. The choice, every candidate's time and fidelity and the machine go into the file's
@@ -30,7 +30,7 @@ from edgepick.machine import cpu_flags, cpu_model
 from edgepick.quant.config import GeluForm, Placement, QuantConfig, Target
 from edgepick.quant.onnx_inputs import check_tensor
 
-PLACEMENT_CANDIDATES = (Placement.ALL, Placement.CONVS)
+PLACEMENT_CANDIDATES = (Placement.ALL, Placement.CONVS, Placement.JOINS)
 # a candidate whose worst output SQNR is this much under the closest candidate's is not taken for its speed
 PLACEMENT_FIDELITY_DB = 1.0
 TIMING_THREADS = 2  # as the runtime and the benchmarks run a model on a laptop

@@ -172,7 +172,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
         measured = lockstep_images(*hw) if config.bias_correction != BiasCorrection.NONE or config.adaround else 0
         check = check_inputs(*hw)
         keep = max(check, measured, SATURATION_CHECK_INPUTS if config.weight_bits == WeightBits.FIRST_SEVEN else 0)
-        ops = sorted({*QDQRegistry, *QLinearOpsRegistry, "HardSigmoid"} - {"ArgMax"}) if every_op else sorted(CONV_OPS)
+        ops = placement_ops(config.placement, {*QDQRegistry, *QLinearOpsRegistry})
         exclude = [*config.keep_float, *float_tail(prepared)]
         sizes = calibrated_tensors(prepared, ops)
         check_memory(prepared, sizes, int(np.prod(input_shape)) * 4 * keep)
@@ -302,6 +302,19 @@ def _measure(prepared: Any, int8: Any, kept: list[np.ndarray], images: int, conf
     if config.bias_correction == BiasCorrection.EMPIRICAL:
         correct_onnx_biases(prepared, int8, kept[:images], writes_float_output(prepared))
     return done
+
+
+# Placement.JOINS: what NNCF puts on the int8 grid for OpenVINO besides the convs
+JOIN_OPS = ("MatMul", "Gemm", "Add", "Concat", "MaxPool", "AveragePool", "GlobalAveragePool")
+
+
+def placement_ops(placement: Placement, registry: set[str]) -> list[str]:
+    """The op types PLACEMENT quantizes, of onnxruntime's quantizer's REGISTRY."""
+    if placement == Placement.ALL:
+        return sorted({*registry, "HardSigmoid"} - {"ArgMax"})
+    if placement == Placement.JOINS:
+        return sorted({*CONV_OPS, *JOIN_OPS})
+    return sorted(CONV_OPS)
 
 
 def _pre_process(proto: Any, out: Path) -> None:

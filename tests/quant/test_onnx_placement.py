@@ -23,7 +23,7 @@ def test_placement_auto_times_each_candidate_on_the_target_and_records_the_choic
     assert choice["target"] == target and choice["threads"] == 2 and choice["machine"]
     times = {c["placement"]: c["p50_ms"] for c in choice["candidates"]}
     sqnr = {c["placement"]: c["worst_sqnr_db"] for c in choice["candidates"]}
-    assert set(times) == {"all", "convs"} and min(times.values()) > 0
+    assert set(times) == {"all", "convs", "joins"} and min(times.values()) > 0
     close = [p for p in times if sqnr[p] >= max(sqnr.values()) - PLACEMENT_FIDELITY_DB]
     assert choice["chosen"] == min(close, key=times.get) == result.quant["placement"]
     assert result.out == str(tmp_path / "auto.onnx") and sorted(p.name for p in tmp_path.iterdir()) == ["auto.onnx",
