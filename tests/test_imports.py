@@ -11,7 +11,7 @@ import pytest
 
 from tests.conftest import REPO
 
-GROUND = {"errors", "files", "progress", "geometry", "frames", "metrics", "schema", "lazy"}
+GROUND = {"errors", "files", "progress", "geometry", "frames", "metrics", "schema", "lazy", "onnx_graph"}
 
 
 def _imports() -> dict[str, set[str]]:

@@ -24,6 +24,7 @@ from edgepick.export.int8_activations import integer_activations
 from edgepick.files import atomic_path, sha256_of
 from edgepick.geometry import Size
 from edgepick.models.deeplabv3 import LogitsNet
+from edgepick.onnx_graph import Graph
 from edgepick.train.checkpoint import Checkpoint, load_model
 from edgepick.train.run import Run
 
@@ -87,15 +88,6 @@ def strip_debug_info(model) -> None:
         del node.metadata_props[:]
         node.doc_string = ""
     del model.graph.value_info[:]
-
-
-def drop_unused_initializers(model) -> None:
-    """Initializers no node reads any more (left by the passes above); onnxruntime warns about each."""
-    used = {i for n in model.graph.node for i in n.input} | {o.name for o in model.graph.output}
-    keep = [i for i in model.graph.initializer if i.name in used]
-    if len(keep) != len(model.graph.initializer):
-        del model.graph.initializer[:]
-        model.graph.initializer.extend(keep)
 
 
 # ONNX graph passes run after the export, by name; both change only int8 graphs and keep the labels.
@@ -163,7 +155,7 @@ def _write(net: nn.Module, example: tuple, path: str | Path, metadata: dict, pas
         strip_debug_info(model)
         for name in passes:
             EXPORT_PASSES[name](model)
-        drop_unused_initializers(model)
+        Graph(model).drop_unused_initializers()  # left by the passes; onnxruntime warns about each
         for key, value in metadata.items():
             entry = model.metadata_props.add()
             entry.key, entry.value = key, str(value)

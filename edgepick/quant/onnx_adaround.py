@@ -17,15 +17,16 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from edgepick.onnx_graph import attr
 from edgepick.quant.adaround import _STEP_OVERHEAD, COLUMNS, _round_conv
-from edgepick.quant.onnx_measure import SEVEN_BIT, _attr, _runner, _segment_session, _segments, _Values, qdq_convs
+from edgepick.quant.onnx_measure import SEVEN_BIT, Values, _runner, _segment_session, _segments, qdq_convs
 
 
 def _geometry(node: Any) -> tuple[tuple[int, int, int, int], tuple[int, int], tuple[int, int], int]:
     """(pads as F.pad takes them: left, right, top, bottom), strides, dilations, groups of a Conv."""
-    top, left, bottom, right = _attr(node, "pads", [0, 0, 0, 0])
-    return ((left, right, top, bottom), tuple(_attr(node, "strides", [1, 1])), tuple(_attr(node, "dilations", [1, 1])),
-            int(_attr(node, "group", 1)))
+    top, left, bottom, right = attr(node, "pads", [0, 0, 0, 0])
+    return ((left, right, top, bottom), tuple(attr(node, "strides", [1, 1])), tuple(attr(node, "dilations", [1, 1])),
+            int(attr(node, "group", 1)))
 
 
 def adaround_onnx(float_model: Any, model: Any, tensors: list[np.ndarray], seconds: float, seven_bit: set[str],
@@ -40,8 +41,8 @@ def adaround_onnx(float_model: Any, model: Any, tensors: list[np.ndarray], secon
         raise ValueError("adaround needs at least one calibration input")
     by_name = {n.name: n for n in float_model.graph.node}
     convs = {name: c for name, c in qdq_convs(model).items()
-             if name in by_name and _attr(c.node, "auto_pad", b"NOTSET") in (b"NOTSET", "NOTSET")}
-    values, floats = _Values(model), _Values(float_model)
+             if name in by_name and attr(c.node, "auto_pad", b"NOTSET") in (b"NOTSET", "NOTSET")}
+    values, floats = Values(model), Values(float_model)
     generator = torch.Generator().manual_seed(seed)
     per_image = max(1, COLUMNS // len(tensors))
     names = list(convs)

@@ -25,146 +25,132 @@ from typing import Any
 
 import numpy as np
 
-from edgepick.export.crop_convs import graph_links
+from edgepick.onnx_graph import Graph, attrs
+
+# a constant passed through these ops is still the constant (exporters write Cast(Constant))
+THROUGH = ("Cast", "Identity")
 
 
-class _Graph:
-    """Producers, consumers and constant values of a graph, for small pattern matches."""
-
-    def __init__(self, model: Any):
-        from onnx import numpy_helper
-
-        self.model, self.graph = model, model.graph
-        self.consts = {i.name: numpy_helper.to_array(i) for i in self.graph.initializer}
-        for n in self.graph.node:  # constants, and constants passed through Cast or Identity
-            if n.op_type == "Constant" and n.attribute and n.attribute[0].name == "value":
-                self.consts[n.output[0]] = numpy_helper.to_array(n.attribute[0].t)
-            elif n.op_type in ("Cast", "Identity") and n.input[0] in self.consts:
-                self.consts[n.output[0]] = self.consts[n.input[0]]
-        self.producer, self.consumers, self.outputs = graph_links(self.graph)
-
-    def scalar(self, name: str) -> float | None:
-        value = self.consts.get(name)
-        return float(value.ravel()[0]) if value is not None and value.size == 1 else None
-
-    def only_consumer(self, name: str, op_type: str) -> Any | None:
-        users = self.consumers.get(name, [])
-        if name in self.outputs or len(users) != 1 or users[0].op_type != op_type:
-            return None
-        return users[0]
-
-    def other_input(self, node: Any, name: str) -> str | None:
-        rest = [i for i in node.input if i != name]
-        return rest[0] if len(rest) == 1 else None
+def _scalar(g: Graph, name: str | None) -> float | None:
+    return g.scalar(name, THROUGH) if name else None
 
 
-def _hardsigmoid_of(g: _Graph, add: Any) -> tuple[str, list, Any] | None:
+def _other_input(node: Any, name: str) -> str | None:
+    """NODE's one input other than NAME, or None."""
+    rest = [i for i in node.input if i != name]
+    return rest[0] if len(rest) == 1 else None
+
+
+def _hardsigmoid_of(g: Graph, add: Any) -> tuple[str, list, Any] | None:
     """Add(x, 3) -> Clip(0, 6) -> Div(6) | Mul(1/6): (x, the matched nodes, the last one), or, when
     the Clip's output goes to Mul(x, .) first and then / 6, that hardswish's nodes."""
-    x = next((i for i in add.input if g.scalar(i) != 3.0), None)
-    if x is None or g.scalar(g.other_input(add, x) or "") != 3.0:
+    x = next((i for i in add.input if _scalar(g, i) != 3.0), None)
+    if x is None or _scalar(g, _other_input(add, x) or "") != 3.0:
         return None
     clip = g.only_consumer(add.output[0], "Clip")
-    if clip is None or len(clip.input) < 3 or g.scalar(clip.input[1]) != 0.0 or g.scalar(clip.input[2]) != 6.0:
+    if clip is None or len(clip.input) < 3 or _scalar(g, clip.input[1]) != 0.0 or _scalar(g, clip.input[2]) != 6.0:
         return None
-    users = g.consumers.get(clip.output[0], [])
-    if len(users) != 1 or clip.output[0] in g.outputs:
+    nxt = g.only_consumer(clip.output[0])
+    if nxt is None:
         return None
-    nxt = users[0]
     if _is_sixth(g, nxt, clip.output[0]):
         return x, [add, clip, nxt], nxt
-    if nxt.op_type == "Mul" and g.other_input(nxt, clip.output[0]) == x:  # x * clip(...) / 6
-        last = g.consumers.get(nxt.output[0], [])
-        if len(last) == 1 and nxt.output[0] not in g.outputs and _is_sixth(g, last[0], nxt.output[0]):
-            return x, [add, clip, nxt, last[0]], last[0]
+    if nxt.op_type == "Mul" and _other_input(nxt, clip.output[0]) == x:  # x * clip(...) / 6
+        last = g.only_consumer(nxt.output[0])
+        if last is not None and _is_sixth(g, last, nxt.output[0]):
+            return x, [add, clip, nxt, last], last
     return None
 
 
-def _is_sixth(g: _Graph, node: Any, name: str) -> bool:
+def _is_sixth(g: Graph, node: Any, name: str) -> bool:
     """NODE divides NAME by 6 (Div by 6 or Mul by 1/6)."""
     if node.op_type == "Div" and node.input[0] == name:
-        return g.scalar(node.input[1]) == 6.0
+        return _scalar(g, node.input[1]) == 6.0
     if node.op_type == "Mul":
-        value = g.scalar(g.other_input(node, name) or "")
+        value = _scalar(g, _other_input(node, name) or "")
         return value is not None and abs(value - 1 / 6) < 1e-6
     return False
 
 
-def rewrite_activations(model: Any) -> dict[str, int]:
-    """Rewrite MODEL in place as the module docstring says; returns how many of each were made."""
+def _hardsigmoid(x: str, out: str, tag: str) -> Any:
     from onnx import helper
 
+    return helper.make_node("HardSigmoid", [x], [out], name=f"{tag}_hsig", alpha=1 / 6, beta=0.5)
+
+
+def _gated(x: str, out: str, tag: str) -> list:
+    """x * HardSigmoid(x) into OUT: hardswish, both halves on integer kernels once quantized."""
+    from onnx import helper
+
+    return [_hardsigmoid(x, f"{tag}_hsig", tag), helper.make_node("Mul", [x, f"{tag}_hsig"], [out], name=f"{tag}_mul")]
+
+
+def _rewrite(g: Graph, node: Any, ranks: dict[str, int], dead: list) -> tuple[str, Any, list, list] | None:
+    """What NODE is rewritten into: (the kind, the node to put the new nodes before, the new nodes,
+    the nodes they replace), or None."""
+    from onnx import helper
+
+    tag = (node.name or node.output[0]) + "_edgepick"
+    if node.op_type == "HardSwish":
+        return "hardswish", node, _gated(node.input[0], node.output[0], tag), [node]
+    if node.op_type == "Add":
+        found = _hardsigmoid_of(g, node)
+        if found is None or any(n in dead for n in found[1]):
+            return None
+        x, matched, last = found
+        if len(matched) == 3:
+            return "hardsigmoid", last, [_hardsigmoid(x, last.output[0], tag)], matched
+        return "hardswish", last, _gated(x, last.output[0], tag), matched
+    if node.op_type == "ReduceMean" and ranks.get(node.input[0]) == 4:
+        given = attrs(node)
+        axes = g.array(node.input[1], THROUGH) if len(node.input) > 1 and node.input[1] else given.get("axes")
+        if axes is None or sorted(int(a) % 4 for a in np.ravel(axes)) != [2, 3] or given.get("keepdims", 1) != 1:
+            return None
+        pool = helper.make_node("GlobalAveragePool", [node.input[0]], [node.output[0]], name=f"{tag}_gap")
+        return "global_average_pool", node, [pool], [node]
+    if node.op_type == "BatchNormalization" and ranks.get(node.input[0]) == 4 and len(node.output) == 1:
+        source = g.producer(node.input[0])
+        if source is not None and source.op_type == "Conv" and len(g.consumers(node.input[0])) == 1:
+            return None
+        affine = _batchnorm_affine(g, node, tag)
+        return ("batchnorm_affine", node, affine, [node]) if affine is not None else None
+    return None
+
+
+def rewrite_activations(model: Any) -> dict[str, int]:
+    """Rewrite MODEL in place as the module docstring says; returns how many of each were made."""
     done = {"hardswish": 0, "hardsigmoid": 0, "global_average_pool": 0, "batchnorm_affine": 0}
     ranks = _ranks(model)
-    g = _Graph(model)
+    g = Graph(model)
     new_nodes: list[tuple[Any, list]] = []  # (node to put them before, nodes)
     dead: list = []
-    for node in list(g.graph.node):
-        tag = (node.name or node.output[0]) + "_edgepick"
-        if node.op_type == "HardSwish":
-            hs = helper.make_node("HardSigmoid", [node.input[0]], [f"{tag}_hsig"], name=f"{tag}_hsig",
-                                  alpha=1 / 6, beta=0.5)
-            new_nodes.append((node, [hs, helper.make_node("Mul", [node.input[0], f"{tag}_hsig"], [node.output[0]],
-                                                          name=f"{tag}_mul")]))
-            dead.append(node)
-            done["hardswish"] += 1
-        elif node.op_type == "Add":
-            found = _hardsigmoid_of(g, node)
-            if found is None or any(n in dead for n in found[1]):
-                continue
-            x, matched, last = found
-            if len(matched) == 3:
-                new_nodes.append((last, [helper.make_node("HardSigmoid", [x], [last.output[0]], name=f"{tag}_hsig",
-                                                          alpha=1 / 6, beta=0.5)]))
-                done["hardsigmoid"] += 1
-            else:
-                new_nodes.append((last, [helper.make_node("HardSigmoid", [x], [f"{tag}_hsig"], name=f"{tag}_hsig",
-                                                          alpha=1 / 6, beta=0.5),
-                                         helper.make_node("Mul", [x, f"{tag}_hsig"], [last.output[0]],
-                                                          name=f"{tag}_mul")]))
-                done["hardswish"] += 1
-            dead.extend(matched)
-        elif node.op_type == "ReduceMean" and ranks.get(node.input[0]) == 4:
-            attrs = {a.name: helper.get_attribute_value(a) for a in node.attribute}
-            axes = g.consts.get(node.input[1]) if len(node.input) > 1 and node.input[1] else attrs.get("axes")
-            if axes is None or sorted(int(a) % 4 for a in np.ravel(axes)) != [2, 3] or attrs.get("keepdims", 1) != 1:
-                continue
-            new_nodes.append((node, [helper.make_node("GlobalAveragePool", [node.input[0]], [node.output[0]],
-                                                      name=f"{tag}_gap")]))
-            dead.append(node)
-            done["global_average_pool"] += 1
-        elif node.op_type == "BatchNormalization" and ranks.get(node.input[0]) == 4 and len(node.output) == 1:
-            source = g.producer.get(node.input[0])
-            if source is not None and source.op_type == "Conv" and len(g.consumers.get(node.input[0], [])) == 1:
-                continue
-            affine = _batchnorm_affine(g, node, tag)
-            if affine is None:
-                continue
-            new_nodes.append((node, affine))
-            dead.append(node)
-            done["batchnorm_affine"] += 1
+    for node in g.nodes:
+        found = _rewrite(g, node, ranks, dead)
+        if found is None:
+            continue
+        kind, anchor, nodes, replaced = found
+        new_nodes.append((anchor, nodes))
+        dead.extend(replaced)
+        done[kind] += 1
     for anchor, nodes in new_nodes:
-        at = list(g.graph.node).index(anchor)
-        for k, n in enumerate(nodes):
-            g.graph.node.insert(at + k, n)
-    for node in dead:
-        g.graph.node.remove(node)
+        g.insert_before(anchor, nodes)
+    g.remove(*dead)
     return done
 
 
-def _batchnorm_affine(g: _Graph, node: Any, tag: str) -> list | None:
+def _batchnorm_affine(g: Graph, node: Any, tag: str) -> list | None:
     """Inference BatchNormalization as x * a + b, with a = gamma / sqrt(var + eps) and
     b = beta - mean * a as [1, C, 1, 1] initializers; None when its parameters are not constants."""
-    from onnx import helper, numpy_helper
+    from onnx import helper
 
-    gamma, beta, mean, var = (g.consts.get(i) for i in node.input[1:5])
+    gamma, beta, mean, var = (g.array(i, THROUGH) for i in node.input[1:5])
     if gamma is None or beta is None or mean is None or var is None:
         return None
-    eps = next((helper.get_attribute_value(a) for a in node.attribute if a.name == "epsilon"), 1e-5)
+    eps = attrs(node).get("epsilon", 1e-5)
     a = (gamma / np.sqrt(var + eps)).astype(np.float32)
     b = (beta - mean * a).astype(np.float32)
-    g.graph.initializer.extend([numpy_helper.from_array(a.reshape(1, -1, 1, 1), f"{tag}_bn_scale"),
-                                numpy_helper.from_array(b.reshape(1, -1, 1, 1), f"{tag}_bn_shift")])
+    g.add_initializer(f"{tag}_bn_scale", a.reshape(1, -1, 1, 1))
+    g.add_initializer(f"{tag}_bn_shift", b.reshape(1, -1, 1, 1))
     return [helper.make_node("Mul", [node.input[0], f"{tag}_bn_scale"], [f"{tag}_bn_scaled"], name=f"{tag}_bn_mul"),
             helper.make_node("Add", [f"{tag}_bn_scaled", f"{tag}_bn_shift"], [node.output[0]], name=f"{tag}_bn_add")]
 
@@ -181,23 +167,20 @@ def _ranks(model: Any) -> dict[str, int]:
     return {v.name: len(v.type.tensor_type.shape.dim) for v in values if v.type.tensor_type.HasField("shape")}
 
 
-def _conv_params(g: _Graph, conv: Any) -> tuple[np.ndarray, np.ndarray] | None:
+def conv_params(g: Graph, conv: Any) -> tuple[np.ndarray, np.ndarray] | None:
     """A Conv's constant weight and bias (zeros when it has none), or None."""
-    w = g.consts.get(conv.input[1])
+    w = g.array(conv.input[1], THROUGH)
     if w is None or w.ndim != 4:
         return None
-    b = g.consts.get(conv.input[2]) if len(conv.input) > 2 and conv.input[2] else np.zeros(w.shape[0], w.dtype)
+    b = g.array(conv.input[2], THROUGH) if len(conv.input) > 2 and conv.input[2] else np.zeros(w.shape[0], w.dtype)
     return (w, b) if b is not None else None
 
 
-def _set_conv_params(g: _Graph, conv: Any, w: np.ndarray, b: np.ndarray, tag: str) -> None:
+def set_conv_params(g: Graph, conv: Any, w: np.ndarray, b: np.ndarray, tag: str) -> None:
     """Give CONV new weight and bias initializers (its old ones may be shared with other nodes)."""
-    from onnx import numpy_helper
-
-    g.graph.initializer.extend([numpy_helper.from_array(w.astype(np.float32), f"{tag}_w"),
-                                numpy_helper.from_array(b.astype(np.float32), f"{tag}_b")])
-    del conv.input[1:]
-    conv.input.extend([f"{tag}_w", f"{tag}_b"])
+    g.add_initializer(f"{tag}_w", w.astype(np.float32))
+    g.add_initializer(f"{tag}_b", b.astype(np.float32))
+    g.set_inputs(conv, [conv.input[0], f"{tag}_w", f"{tag}_b"])
 
 
 def _channel_const(value: np.ndarray | None, channels: int) -> np.ndarray | None:
@@ -211,79 +194,88 @@ def _channel_const(value: np.ndarray | None, channels: int) -> np.ndarray | None
     return np.broadcast_to(value.astype(np.float64).reshape(-1), (channels,)).copy()
 
 
+def _fold_after(g: Graph, node: Any, const: str, src: Any, folded: int) -> bool:
+    """Fold NODE (Mul or Add by the constant CONST) into the Conv SRC that makes its other input."""
+    params = conv_params(g, src)
+    if params is None:
+        return False
+    w, b = params
+    value = _channel_const(g.array(const, THROUGH), w.shape[0])
+    if value is None:
+        return False
+    if node.op_type == "Mul":
+        w, b = w * value.reshape(-1, 1, 1, 1), b * value
+    else:
+        b = b + value
+    set_conv_params(g, src, w, b, f"{src.name or src.output[0]}_fold{folded}")
+    return True
+
+
+def _fold_before(g: Graph, node: Any, const: str, folded: int) -> bool:
+    """Fold NODE (Mul or Add by the constant CONST) into the Conv that is its only reader, where exact."""
+    conv = g.only_consumer(node.output[0], "Conv")
+    if conv is None or conv.input[0] != node.output[0]:
+        return False
+    params = conv_params(g, conv)
+    given = attrs(conv)
+    group = given.get("group", 1)
+    if params is None:
+        return False
+    w, b = params
+    value = _channel_const(g.array(const, THROUGH), w.shape[1] * group)
+    if value is None:
+        return False
+    per_in = value.reshape(group, w.shape[1])  # input channel c of group k: value[k * Cin_g + c]
+    per_in = np.repeat(per_in, w.shape[0] // group, axis=0)  # [Cout, Cin_g]
+    if node.op_type == "Mul":
+        w = w * per_in[:, :, None, None]
+    else:
+        if any(given.get("pads", [0])) or given.get("auto_pad", b"NOTSET") not in (b"NOTSET", b"VALID"):
+            return False
+        b = b + (w * per_in[:, :, None, None]).sum(axis=(1, 2, 3))
+    set_conv_params(g, conv, w, b, f"{conv.name or conv.output[0]}_fold{folded}")
+    return True
+
+
+def _fold_one(g: Graph, folded: int) -> bool:
+    """Fold the first Mul/Add by a constant that can go into a conv next to it; whether one went."""
+    for node in g.nodes:
+        if node.op_type not in ("Mul", "Add") or len(node.input) != 2:
+            continue
+        const_in = [i for i in node.input if g.is_constant(i, THROUGH)]
+        if len(const_in) != 1:
+            continue
+        x = _other_input(node, const_in[0]) or node.input[0]
+        src = g.producer(x)
+        if src is not None and src.op_type == "Conv" and len(g.consumers(x)) == 1 and x not in g.outputs:
+            if not _fold_after(g, node, const_in[0], src, folded):
+                continue
+        elif not _fold_before(g, node, const_in[0], folded):
+            continue
+        _bypass(g, node, x)
+        return True
+    return False
+
+
 def fold_affine_into_convs(model: Any) -> int:
     """Fold, in place, Mul/Add by constants into an adjacent Conv where that is exact: after a
     conv (its only reader), x * a and x + b go into its weight and bias; before a conv (its only
     reader), x * a goes into the weights (zero padding stays zero) and x + b into the bias when
     the conv pads nothing. Returns how many Mul/Add nodes it removed."""
-    from onnx import helper
-
+    g = Graph(model)
     folded = 0
-    changed = True
-    while changed:
-        changed = False
-        g = _Graph(model)
-        for node in g.graph.node:
-            if node.op_type not in ("Mul", "Add") or len(node.input) != 2:
-                continue
-            const_in = [i for i in node.input if i in g.consts]
-            if len(const_in) != 1:
-                continue
-            x = g.other_input(node, const_in[0]) or node.input[0]
-            src = g.producer.get(x)
-            if src is not None and src.op_type == "Conv" and len(g.consumers.get(x, [])) == 1 and x not in g.outputs:
-                params = _conv_params(g, src)
-                if params is None:
-                    continue
-                w, b = params
-                value = _channel_const(g.consts[const_in[0]], w.shape[0])
-                if value is None:
-                    continue
-                if node.op_type == "Mul":
-                    w, b = w * value.reshape(-1, 1, 1, 1), b * value
-                else:
-                    b = b + value
-                _set_conv_params(g, src, w, b, f"{src.name or src.output[0]}_fold{folded}")
-            else:
-                users = g.consumers.get(node.output[0], [])
-                if len(users) != 1 or users[0].op_type != "Conv" or users[0].input[0] != node.output[0] \
-                        or node.output[0] in g.outputs:
-                    continue
-                conv = users[0]
-                params = _conv_params(g, conv)
-                attrs = {a.name: helper.get_attribute_value(a) for a in conv.attribute}
-                group = attrs.get("group", 1)
-                if params is None:
-                    continue
-                w, b = params
-                value = _channel_const(g.consts[const_in[0]], w.shape[1] * group)
-                if value is None:
-                    continue
-                per_in = value.reshape(group, w.shape[1])  # input channel c of group k: value[k * Cin_g + c]
-                per_in = np.repeat(per_in, w.shape[0] // group, axis=0)  # [Cout, Cin_g]
-                if node.op_type == "Mul":
-                    w = w * per_in[:, :, None, None]
-                else:
-                    if any(attrs.get("pads", [0])) or attrs.get("auto_pad", b"NOTSET") not in (b"NOTSET", b"VALID"):
-                        continue
-                    b = b + (w * per_in[:, :, None, None]).sum(axis=(1, 2, 3))
-                _set_conv_params(g, conv, w, b, f"{conv.name or conv.output[0]}_fold{folded}")
-            _bypass(g, node, x)
-            folded += 1
-            changed = True
-            break
+    while _fold_one(g, folded):
+        folded += 1
     return folded
 
 
-def _bypass(g: _Graph, node: Any, x: str) -> None:
+def _bypass(g: Graph, node: Any, x: str) -> None:
     """Remove NODE, its readers reading X instead (or, at a graph output, X's producer writing it)."""
     out = node.output[0]
     if out in g.outputs:
-        src = g.producer[x]
-        src.output[list(src.output).index(x)] = out
+        src = g.producer(x)
+        assert src is not None, "a conv made X"
+        g.set_output(src, x, out)
     else:
-        for user in g.consumers.get(out, []):
-            for k, name in enumerate(user.input):
-                if name == out:
-                    user.input[k] = x
-    g.graph.node.remove(node)
+        g.redirect(out, x)
+    g.remove(node)

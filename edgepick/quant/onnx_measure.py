@@ -27,8 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from edgepick.export.crop_convs import graph_links
-from edgepick.quant.onnx_calibrate import insert_after_producers
+from edgepick.onnx_graph import Graph, attr, copy_model
 
 SEVEN_BIT = 64  # onnxruntime's reduce-range int8 weight grid: -64..64, scale = max |w| / 64
 
@@ -51,21 +50,24 @@ class QdqConv:
 def qdq_convs(model: Any) -> dict[str, QdqConv]:
     """The Convs of MODEL (QDQ) with a DequantizeLinear on their input and on their own, unshared
     int8 weights, by node name; the bias, when it is a DequantizeLinear of its own int32 codes."""
-    producer, consumers, _ = graph_links(model.graph)
-    inits = {i.name: i for i in model.graph.initializer}
+    from onnx import TensorProto
+
+    g = Graph(model)
 
     def own_dq(name: str) -> Any | None:
-        dq = producer.get(name)
-        if dq is None or dq.op_type != "DequantizeLinear" or len(consumers.get(name, [])) != 1:
+        dq = g.producer(name)
+        if dq is None or dq.op_type != "DequantizeLinear" or len(g.consumers(name)) != 1:
             return None
-        return dq if dq.input[0] in inits and len(consumers.get(dq.input[0], [])) == 1 else None
+        return dq if g.is_initializer(dq.input[0]) and len(g.consumers(dq.input[0])) == 1 else None
 
     found = {}
-    for n in model.graph.node:
+    for n in g.nodes:
         if n.op_type != "Conv" or len(n.input) < 2:
             continue
-        x, w = producer.get(n.input[0]), own_dq(n.input[1])
-        if x is None or x.op_type != "DequantizeLinear" or w is None or inits[w.input[0]].data_type != 3:  # int8
+        x, w = g.producer(n.input[0]), own_dq(n.input[1])
+        codes = g.initializer(w.input[0]) if w is not None else None
+        if x is None or x.op_type != "DequantizeLinear" or w is None or codes is None or \
+                codes.data_type != TensorProto.INT8:
             continue
         b = own_dq(n.input[2]) if len(n.input) > 2 and n.input[2] else None
         found[n.name] = QdqConv(n, x.input[0], x.input[1], x.input[2], w.input[0], w.input[1],
@@ -73,21 +75,20 @@ def qdq_convs(model: Any) -> dict[str, QdqConv]:
     return found
 
 
-class _Values:
-    """Initializer values of a model, read as arrays and written back."""
+class Values:
+    """A model's initializers as arrays, read and written back by name (`values[name]`)."""
 
     def __init__(self, model: Any):
-        self.inits = {i.name: i for i in model.graph.initializer}
+        self.graph = Graph(model)
 
     def __getitem__(self, name: str) -> np.ndarray:
-        from onnx import numpy_helper
-
-        return numpy_helper.to_array(self.inits[name])
+        value = self.graph.array(name)
+        if value is None:
+            raise KeyError(name)
+        return value
 
     def __setitem__(self, name: str, value: np.ndarray) -> None:
-        from onnx import numpy_helper
-
-        self.inits[name].CopyFrom(numpy_helper.from_array(value, name))
+        self.graph.set_array(name, value)
 
 
 def _runner(model: Any, outputs: list[str]) -> Callable[[np.ndarray, list[str]], list[np.ndarray]]:
@@ -96,8 +97,7 @@ def _runner(model: Any, outputs: list[str]) -> Callable[[np.ndarray, list[str]],
     import onnx
     import onnxruntime as ort
 
-    copy = onnx.ModelProto()
-    copy.CopyFrom(model)
+    copy = copy_model(model)
     known = {o.name for o in copy.graph.output}
     copy.graph.output.extend(onnx.ValueInfoProto(name=name) for name in dict.fromkeys(outputs) if name not in known)
     opts = ort.SessionOptions()
@@ -119,8 +119,8 @@ def _channel_means(model: Any, outputs: list[str]) -> Callable[[np.ndarray], lis
     import onnx
     import onnxruntime as ort
 
-    copy = onnx.ModelProto()
-    copy.CopyFrom(model)
+    copy = copy_model(model)
+    g = Graph(copy)
     ranks = {v.name: len(v.type.tensor_type.shape.dim) for v in [*copy.graph.value_info, *copy.graph.output]}
     version = next((o.version for o in copy.opset_import if o.domain in ("", "ai.onnx")), 13)
     del copy.graph.output[:]
@@ -130,14 +130,14 @@ def _channel_means(model: Any, outputs: list[str]) -> Callable[[np.ndarray], lis
         axes = list(range(2, ranks.get(name, 4)))
         mean = f"{name}_channel_means"
         if version >= 18:
-            copy.graph.initializer.append(onnx.numpy_helper.from_array(np.array(axes, np.int64), f"{mean}_axes"))
+            g.add_initializer(f"{mean}_axes", axes, np.int64)
             node = onnx.helper.make_node("ReduceMean", [name, f"{mean}_axes"], [mean], keepdims=0, name=f"mean_{k}")
         else:
             node = onnx.helper.make_node("ReduceMean", [name], [mean], axes=axes, keepdims=0, name=f"mean_{k}")
         after.setdefault(name, []).append(node)
         copy.graph.output.append(onnx.ValueInfoProto(name=mean))
         means.append(mean)
-    insert_after_producers(copy, after)
+    g.insert_after_producers(after)
     opts = ort.SessionOptions()
     opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
     opts.log_severity_level, opts.enable_cpu_mem_arena = 3, False
@@ -145,12 +145,6 @@ def _channel_means(model: Any, outputs: list[str]) -> Callable[[np.ndarray], lis
     session = ort.InferenceSession(copy.SerializeToString(), opts, providers=["CPUExecutionProvider"])
     image = session.get_inputs()[0].name
     return lambda x: [m.astype(np.float64) for m in session.run(means, {image: x})]
-
-
-def _attr(node: Any, name: str, default: Any) -> Any:
-    import onnx
-
-    return next((onnx.helper.get_attribute_value(a) for a in node.attribute if a.name == name), default)
 
 
 def saturating_onnx_convs(model: Any, tensors: list[np.ndarray], limit: float) -> dict[str, float]:
@@ -161,23 +155,23 @@ def saturating_onnx_convs(model: Any, tensors: list[np.ndarray], limit: float) -
     from edgepick.quant.overflow import saturated_share
 
     convs = qdq_convs(model)
-    values = _Values(model)
+    values = Values(model)
     names = sorted({c.codes for c in convs.values()})
     run = _runner(model, names)
     share = dict.fromkeys(convs, 0.0)
     for x in tensors:
         codes = dict(zip(names, run(x, names), strict=True))
         for name, c in convs.items():
-            if codes[c.codes].dtype != np.uint8 or _attr(c.node, "auto_pad", b"NOTSET") not in (b"NOTSET", "NOTSET"):
+            if codes[c.codes].dtype != np.uint8 or attr(c.node, "auto_pad", b"NOTSET") not in (b"NOTSET", "NOTSET"):
                 share[name] = 1.0 if codes[c.codes].dtype == np.uint8 else 0.0  # unknown padding: count it as saturating
                 continue
-            top, left, bottom, right = _attr(c.node, "pads", [0, 0, 0, 0])
+            top, left, bottom, right = attr(c.node, "pads", [0, 0, 0, 0])
             zero = int(values[c.input_zero])
             padded = torch.nn.functional.pad(torch.from_numpy(codes[c.codes]).float(), (left, right, top, bottom),
                                              value=float(zero))
             s = saturated_share(padded, torch.tensor(values[c.weight_codes]), zero,
-                                tuple(_attr(c.node, "strides", [1, 1])), (0, 0),
-                                tuple(_attr(c.node, "dilations", [1, 1])), int(_attr(c.node, "group", 1)), limit)
+                                tuple(attr(c.node, "strides", [1, 1])), (0, 0),
+                                tuple(attr(c.node, "dilations", [1, 1])), int(attr(c.node, "group", 1)), limit)
             share[name] = max(share[name], s)
     return share
 
@@ -185,7 +179,7 @@ def saturating_onnx_convs(model: Any, tensors: list[np.ndarray], limit: float) -
 def to_seven_bit_onnx(float_model: Any, model: Any, names: list[str]) -> None:
     """Requantize the weights of the convs NAMES of MODEL (QDQ) to 7 bits from the float weights
     and biases of the same convs in FLOAT_MODEL (the graph that was quantized), in place."""
-    convs, values, floats = qdq_convs(model), _Values(model), _Values(float_model)
+    convs, values, floats = qdq_convs(model), Values(model), Values(float_model)
     by_name = {n.name: n for n in float_model.graph.node}
     for name in names:
         c, source = convs[name], by_name[name]
@@ -301,7 +295,7 @@ def correct_onnx_biases(float_model: Any, model: Any, tensors: list[np.ndarray],
         for name, means in zip(names, fp32(x), strict=True):
             rows[name].append(means)
     target = {name: np.concatenate(r) for name, r in rows.items()}
-    values = _Values(model)
+    values = Values(model)
     image = model.graph.input[0].name
     env = [{image: x} for x in tensors]  # per tensor, what later segments read
     for segment in _segments(model, bias):

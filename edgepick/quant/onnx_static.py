@@ -57,6 +57,7 @@ from edgepick.export.onnx_io import (
     opset,
 )
 from edgepick.files import atomic_path
+from edgepick.onnx_graph import Graph
 from edgepick.quant.config import (
     HEADROOM,
     SATURATION_CHECK_INPUTS,
@@ -139,7 +140,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
         raise ParameterError("{bias_correction}: fast is not available for ONNX models; use empirical",
                              bias_correction=config.bias_correction)
     proto = load_float_onnx(model)
-    name_nodes(proto)
+    Graph(proto).name_nodes()  # the quantizer and keep_float know nodes by name
     constants = constants_to_initializers(proto)
     known = {n.name for n in proto.graph.node}
     unknown = [k for k in config.keep_float if k not in known]
@@ -328,22 +329,6 @@ def _pre_process(proto: Any, out: Path) -> None:
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
         raise ParameterError(f"{{model:name}}: onnxruntime's pre-processing (shape inference, optimisation) fails "
                              f"on this graph: {first}", model=None) from None
-
-
-def name_nodes(model: Any) -> int:
-    """Give every node of MODEL without a name a unique one (its op type and place): the quantizer
-    and keep_float know nodes by name. Returns how many were named."""
-    taken = {n.name for n in model.graph.node}
-    named = 0
-    for k, node in enumerate(model.graph.node):
-        if not node.name:
-            name = f"{node.op_type}_{k}"
-            while name in taken:
-                name += "_"
-            node.name = name
-            taken.add(name)
-            named += 1
-    return named
 
 
 @contextlib.contextmanager

@@ -10,7 +10,7 @@ import numpy as np
 import onnx
 
 from edgepick.quant import QuantConfig, onnx_adaround, quantize_static
-from edgepick.quant.onnx_measure import _Values, qdq_convs
+from edgepick.quant.onnx_measure import Values, qdq_convs
 from tests.quant.onnx_models import export_module, image_tensors, run
 from tests.quant.test_adaround import Small
 
@@ -29,11 +29,11 @@ def test_adaround_lowers_each_convs_error_and_rounds_each_weight_down_or_up(tmp_
 
     def spy(float_model, model, tensors, seconds, seven_bit):
         convs = qdq_convs(model)
-        values, nodes = _Values(model), {n.name: n for n in float_model.graph.node}
+        values, nodes = Values(model), {n.name: n for n in float_model.graph.node}
         seen["nearest"] = {name: values[c.weight_codes] for name, c in convs.items()}
         seen["report"] = report = original(float_model, model, tensors, seconds, seven_bit, steps=300)
-        seen["learnt"] = {name: _Values(model)[c.weight_codes] for name, c in convs.items()}
-        seen["w"] = {name: _Values(float_model)[nodes[name].input[1]] / values[c.weight_scale].reshape(-1, 1, 1, 1)
+        seen["learnt"] = {name: Values(model)[c.weight_codes] for name, c in convs.items()}
+        seen["w"] = {name: Values(float_model)[nodes[name].input[1]] / values[c.weight_scale].reshape(-1, 1, 1, 1)
                      for name, c in convs.items()}
         return report
 

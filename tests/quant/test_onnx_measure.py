@@ -11,7 +11,7 @@ import pytest
 
 from edgepick.errors import ParameterError
 from edgepick.quant import QuantConfig, quantize_static
-from edgepick.quant.onnx_measure import _runner, _segments, _Values, qdq_convs, saturating_onnx_convs
+from edgepick.quant.onnx_measure import Values, _runner, _segments, qdq_convs, saturating_onnx_convs
 from tests.quant.onnx_models import export_module, image_tensors
 from tests.quant.test_bias_correction import Planted, SummedLogits
 from tests.quant.test_overflow import Bright
@@ -53,7 +53,7 @@ def test_empirical_correction_removes_a_planted_mean_shift(tmp_path):
     quant = _quant(tmp_path / "empirical.onnx")
     assert quant["bias_correction"] == "empirical" and quant["measured_images"] == len(tensors)
     logits = {m: qdq_convs(onnx.load(str(tmp_path / f"{m}.onnx")))["/logits/Conv"] for m in ("none", "empirical")}
-    codes = {m: _Values(onnx.load(str(tmp_path / f"{m}.onnx")))[c.bias_codes] for m, c in logits.items()}
+    codes = {m: Values(onnx.load(str(tmp_path / f"{m}.onnx")))[c.bias_codes] for m, c in logits.items()}
     np.testing.assert_array_equal(codes["none"], codes["empirical"])  # the conv writing the float logits is left alone
 
 
@@ -93,7 +93,7 @@ def test_the_convs_summed_into_the_logits_are_left_alone(tmp_path):
         quantize_static(path, _tensors(60), tmp_path / f"{method}.onnx", QuantConfig(bias_correction=method),
                         progress=False)
         model = onnx.load(str(tmp_path / f"{method}.onnx"))
-        codes[method] = {name: _Values(model)[c.bias_codes] for name, c in qdq_convs(model).items()}
+        codes[method] = {name: Values(model)[c.bias_codes] for name, c in qdq_convs(model).items()}
     assert sorted(codes["none"]) == ["/a/Conv", "/b/Conv", "/logits/Conv", "/low/Conv"]
     changed = {name for name in codes["none"] if not np.array_equal(codes["none"][name], codes["empirical"][name])}
     assert changed == {"/a/Conv", "/b/Conv"}, changed
@@ -130,12 +130,12 @@ def test_first_7_gives_7_bit_weights_only_where_8_bit_ones_saturate(tmp_path):
     first = onnx.load(str(files["first-7"]))
     assert _quant(files["first-7"])["seven_bit_convs"] == ["/a/Conv"]
     assert all(v == 0.0 for v in saturating_onnx_convs(first, bright, 32767).values())
-    codes = {name: _Values(first)[c.weight_codes] for name, c in qdq_convs(first).items()}
+    codes = {name: Values(first)[c.weight_codes] for name, c in qdq_convs(first).items()}
     assert {name: int(np.abs(c).max()) for name, c in codes.items()} == {"/a/Conv": 64, "/b/Conv": 127}
     seven = onnx.load(str(files["7"]))
     a = qdq_convs(seven)["/a/Conv"]
-    np.testing.assert_array_equal(codes["/a/Conv"], _Values(seven)[a.weight_codes])  # onnxruntime's own 7-bit grid
-    np.testing.assert_allclose(_Values(first)[qdq_convs(first)["/a/Conv"].weight_scale], _Values(seven)[a.weight_scale])
+    np.testing.assert_array_equal(codes["/a/Conv"], Values(seven)[a.weight_codes])  # onnxruntime's own 7-bit grid
+    np.testing.assert_allclose(Values(first)[qdq_convs(first)["/a/Conv"].weight_scale], Values(seven)[a.weight_scale])
 
 
 def test_what_the_onnx_path_cannot_do_is_refused_in_one_line(tmp_path):
