@@ -15,10 +15,10 @@ from torch import nn
 from edgepick.errors import ParameterError
 from edgepick.geometry import Size
 from edgepick.quant import QuantConfig, convert, prepare, quantize_static
-from edgepick.quant.adaround import adaround
-from edgepick.quant.bias_correction import int8_convs
-from edgepick.quant.graph import as_input
-from edgepick.quant.overflow import _float_weight
+from edgepick.quant.pt2e.adaround import adaround
+from edgepick.quant.pt2e.bias_correction import int8_convs
+from edgepick.quant.pt2e.graph import as_input
+from edgepick.quant.pt2e.overflow import _float_weight
 
 SIZE = Size(32, 24)
 

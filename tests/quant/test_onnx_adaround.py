@@ -9,8 +9,9 @@ import json
 import numpy as np
 import onnx
 
-from edgepick.quant import QuantConfig, onnx_adaround, quantize_static
-from edgepick.quant.onnx_measure import Values, qdq_convs
+from edgepick.quant import QuantConfig, quantize_static
+from edgepick.quant.onnx import adaround as onnx_adaround
+from edgepick.quant.onnx.measure import Values, qdq_convs
 from tests.quant.onnx_models import export_module, image_tensors, run
 from tests.quant.test_adaround import Small
 

@@ -11,8 +11,8 @@ import onnx
 
 from edgepick.onnx_graph import Graph
 from edgepick.quant import QuantConfig, quantize_static
-from edgepick.quant.onnx_equalize import equalize_onnx
-from edgepick.quant.onnx_graph import conv_params
+from edgepick.quant.onnx.equalize import equalize_onnx
+from edgepick.quant.onnx.rewrite import conv_params
 from tests.quant.onnx_models import export_module, image_tensors, run
 from tests.quant.test_equalize import Imbalanced
 

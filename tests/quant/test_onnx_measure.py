@@ -11,7 +11,7 @@ import pytest
 
 from edgepick.errors import ParameterError
 from edgepick.quant import QuantConfig, quantize_static
-from edgepick.quant.onnx_measure import Values, _runner, _segments, qdq_convs, saturating_onnx_convs
+from edgepick.quant.onnx.measure import Values, _runner, _segments, qdq_convs, saturating_onnx_convs
 from tests.quant.onnx_models import export_module, image_tensors
 from tests.quant.test_bias_correction import Planted, SummedLogits
 from tests.quant.test_overflow import Bright
@@ -60,7 +60,7 @@ def test_empirical_correction_removes_a_planted_mean_shift(tmp_path):
 def test_one_tensor_clipped_hard_does_not_set_the_bias_of_the_others(tmp_path):
     """As on torch graphs (test_bias_correction): calibrated on dark tensors, a white one is clipped
     and its conv outputs fall far below fp32's; the tensors in range keep their planted shift removed."""
-    from edgepick.quant.onnx_measure import correct_onnx_biases
+    from edgepick.quant.onnx.measure import correct_onnx_biases
 
     path = _export(Planted(), tmp_path / "f.onnx")
     dark = [t // 2 for t in _tensors(60)]

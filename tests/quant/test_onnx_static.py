@@ -15,7 +15,7 @@ import pytest
 from edgepick.errors import ParameterError
 from edgepick.export.checks import conv_weight_report
 from edgepick.quant.config import QuantConfig
-from edgepick.quant.onnx_static import quantize_onnx_static
+from edgepick.quant.onnx.static import quantize_onnx_static
 from tests.conftest import run_cli, without_torch
 from tests.quant.onnx_models import calib_tensors, export_torch, optimized_ops, run, unused_initializers
 

@@ -14,10 +14,10 @@ from torch import nn
 from edgepick.errors import ParameterError
 from edgepick.geometry import Size
 from edgepick.quant import QuantConfig, WeightBits, calibrate, prepare, quantize_static
-from edgepick.quant.bias_correction import int8_convs
-from edgepick.quant.graph import as_input
-from edgepick.quant.overflow import saturated_share, saturating_convs
-from edgepick.quant.ptq import convert_static
+from edgepick.quant.pt2e.bias_correction import int8_convs
+from edgepick.quant.pt2e.graph import as_input
+from edgepick.quant.pt2e.overflow import saturated_share, saturating_convs
+from edgepick.quant.pt2e.ptq import convert_static
 
 SIZE = Size(16, 12)
 ONE = ((1, 1), (0, 0), (1, 1), 1)  # stride, padding, dilation, groups

@@ -20,7 +20,7 @@ import torch
 import torch.nn.functional as F
 from torch.fx import GraphModule, Interpreter, Node
 
-from edgepick.quant.bias_correction import conv_geometry, int8_convs
+from edgepick.quant.pt2e.bias_correction import conv_geometry, int8_convs
 
 INT16 = 32767
 _PAIRS_AT_ONCE = 32  # K pairs multiplied per step: memory is pairs x positions x output channels

@@ -1,4 +1,4 @@
-"""AdaRound on an int8 QDQ ONNX graph written by onnxruntime's quantizer, as quant/adaround.py
+"""AdaRound on an int8 QDQ ONNX graph written by onnxruntime's quantizer, as quant/pt2e/adaround.py
 does it on a torch graph: the float model gives each conv's output at sampled positions of the
 calibration images; the int8 model runs on all of them together, segment by segment
 (`onnx_measure._segments`), and each conv learns its up/down rounding (`adaround._round_conv`) on
@@ -18,8 +18,8 @@ import torch
 import torch.nn.functional as F
 
 from edgepick.onnx_graph import attr
-from edgepick.quant.adaround import _STEP_OVERHEAD, COLUMNS, _round_conv
-from edgepick.quant.onnx_measure import SEVEN_BIT, Values, _runner, _segment_session, _segments, qdq_convs
+from edgepick.quant.onnx.measure import SEVEN_BIT, Values, _runner, _segment_session, _segments, qdq_convs
+from edgepick.quant.pt2e.adaround import _STEP_OVERHEAD, COLUMNS, _round_conv
 
 
 def _geometry(node: Any) -> tuple[tuple[int, int, int, int], tuple[int, int], tuple[int, int], int]:

@@ -2,7 +2,7 @@
 rule those ranges come from.
 
 onnxruntime's QDQ quantizer places the Q/DQ pairs and quantizes the weights; the ranges are
-edgepick's own (quant/onnx_calibrate.py), handed to it as a calibrator would. Which rule reads the
+edgepick's own (quant/onnx/calibrate.py), handed to it as a calibrator would. Which rule reads the
 ranges best off the histograms depends on the model: a percentile that suits a segmentation
 backbone clips a detector's rare high objectness logits, min/max wastes levels on a tensor with
 one outlier. With `CalibMethod.AUTO`, every candidate rule gives a QDQ graph, each graph runs on
@@ -25,8 +25,8 @@ from edgepick.export.onnx_io import CONV_OPS
 from edgepick.onnx_graph import Graph
 from edgepick.quant.config import QuantConfig
 from edgepick.quant.fidelity import RuleScore
-from edgepick.quant.onnx_accuracy import evaluator_for
-from edgepick.quant.onnx_calibrate import Collector
+from edgepick.quant.onnx.accuracy import evaluator_for
+from edgepick.quant.onnx.calibrate import Collector
 from edgepick.quant.ranges import RangeRule, candidate_rules
 
 # ops that may stand between a model's last conv and its outputs; they stay float with the outputs
@@ -88,7 +88,7 @@ def float_tail(model: Any) -> list[str]:
 def writes_float_output(model: Any) -> set[str]:
     """The convs that write the logits: their output reaches a graph output through nothing but
     FLOAT_TAIL_OPS and additions (LR-ASPP sums two convs' logits). Bias correction leaves them
-    alone, as quant/bias_correction.py does."""
+    alone, as quant/pt2e/bias_correction.py does."""
     g = Graph(model)
     todo, seen, convs = [o.name for o in model.graph.output], set(), set()
     while todo:

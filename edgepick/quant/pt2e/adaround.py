@@ -28,8 +28,8 @@ import torch
 import torch.nn.functional as F
 from torch.fx import GraphModule, Interpreter, Node
 
-from edgepick.quant.bias_correction import _constant, _Means, conv_geometry, int8_convs
-from edgepick.quant.overflow import _float_weight
+from edgepick.quant.pt2e.bias_correction import _constant, _Means, conv_geometry, int8_convs
+from edgepick.quant.pt2e.overflow import _float_weight
 
 COLUMNS = 4096  # input columns (positions) kept per conv, spread over the calibration images
 BATCH = 512  # columns per optimisation step

@@ -1,14 +1,14 @@
 """What static PTQ measures on the calibration images, for an int8 QDQ ONNX graph written by
-onnxruntime's quantizer (quant/onnx_static.py), as quant/ptq.py does it for a torch graph:
+onnxruntime's quantizer (quant/onnx/static.py), as quant/pt2e/ptq.py does it for a torch graph:
 
 - first-7: each conv's uint8 input codes, from the int8 model run on sample inputs, are paired
-  with its 8-bit weights as an AVX2 U8S8 kernel pairs them (quant/overflow.py); the convs whose
+  with its 8-bit weights as an AVX2 U8S8 kernel pairs them (quant/pt2e/overflow.py); the convs whose
   pair sums come near the int16 limit are requantized to 7-bit weights from the float weights,
   on the grid onnxruntime's own 7-bit weights use (-64..64, symmetric), their int32 biases with them;
 - empirical bias correction (AIMET's form): each conv's int32 bias is shifted by the median over
   the images of the gap between the float model's and its own per-channel output mean (the median,
   so that one image whose activations are clipped hard does not set every image's bias, as in
-  quant/bias_correction.py). Convs are corrected in
+  quant/pt2e/bias_correction.py). Convs are corrected in
   waves: a wave holds the convs whose inputs depend only on convs of earlier waves, which are
   already corrected, so what a conv compensates includes the errors from upstream, once. The graph
   is cut after each wave and the images run through it together, segment by segment (as the torch
@@ -152,7 +152,7 @@ def saturating_onnx_convs(model: Any, tensors: list[np.ndarray], limit: float) -
     that an AVX2 U8S8 kernel would compute with a pair sum beyond +-LIMIT."""
     import torch
 
-    from edgepick.quant.overflow import saturated_share
+    from edgepick.quant.pt2e.overflow import saturated_share
 
     convs = qdq_convs(model)
     values = Values(model)

@@ -1,5 +1,5 @@
 """Cross-layer equalization on a float ONNX graph (BatchNorm already folded by onnxruntime's
-`quant_pre_process`): the same rescaling as `edgepick.quant.equalize` does on a torch graph (see
+`quant_pre_process`): the same rescaling as `edgepick.quant.pt2e.equalize` does on a torch graph (see
 there why), with the weights as initializers. Each equalized conv gets initializers of its own, as
 `onnx_graph.fold_affine_into_convs` gives them; the float function is unchanged."""
 
@@ -10,8 +10,8 @@ from typing import Any
 import numpy as np
 
 from edgepick.onnx_graph import Graph, attr
-from edgepick.quant.cle_scales import ROUNDS, TOLERANCE, equalizing_scales
-from edgepick.quant.onnx_graph import conv_params, set_conv_params
+from edgepick.quant.methods import ROUNDS, TOLERANCE, equalizing_scales
+from edgepick.quant.onnx.rewrite import conv_params, set_conv_params
 
 # one data input, commutes with a positive per-channel scale of it
 _HOMOGENEOUS = {"Relu", "MaxPool", "AveragePool", "GlobalAveragePool", "Resize", "Upsample", "Dropout", "Identity"}

@@ -49,7 +49,7 @@ SHARED_OPS = {aten.upsample_bilinear2d.vec, aten.upsample_nearest2d.vec, aten.ma
 class RuleObserver(HistogramObserver):
     """Activation range read off the observer's histogram by a `RangeRule` (quant/ranges.py, the rules
     the ONNX path uses too). The rule can change after calibration: with calib_method auto each
-    candidate is converted and measured (quant/graph.py `choose_rule`). While `observing` is off the
+    candidate is converted and measured (quant/pt2e/graph.py `choose_rule`). While `observing` is off the
     observer passes values through without counting them (held-out inputs)."""
 
     def __init__(self, rule: RangeRule | None = None, **kwargs):

@@ -1,8 +1,8 @@
 """Static PTQ of a float ONNX model edgepick did not make: edgepick's int8 recipe on any graph.
 
-edgepick calibrates (quant/onnx_calibrate.py: every calibration tensor streamed once through the
+edgepick calibrates (quant/onnx/calibrate.py: every calibration tensor streamed once through the
 model, a histogram per activation, memory bounded), chooses the range rule per model by measuring
-the outputs (quant/onnx_qdq.py; `CalibMethod.AUTO`, the default), has onnxruntime's QDQ quantizer
+the outputs (quant/onnx/qdq.py; `CalibMethod.AUTO`, the default), has onnxruntime's QDQ quantizer
 write the Q/DQ pairs for those ranges, and rewrites around it (docs/quantization.md, "Your own model"):
 
 - before: the input dims fixed, opset lifted to 13, hardswish/hardsigmoid/mean pooling in the
@@ -71,7 +71,7 @@ from edgepick.quant.config import (
     lockstep_images,
 )
 from edgepick.quant.fidelity import Task, check_task_names, output_tasks
-from edgepick.quant.onnx_accuracy import (
+from edgepick.quant.onnx.accuracy import (
     Evaluator,
     FidelityBudget,
     evaluator_for,
@@ -79,13 +79,13 @@ from edgepick.quant.onnx_accuracy import (
     float_tensors,
     node_tensors,
 )
-from edgepick.quant.onnx_calibrate import Collector, calibrated_tensors, check_memory, release_memory
-from edgepick.quant.onnx_equalize import equalize_onnx
-from edgepick.quant.onnx_gelu import sigmoid_gelu
-from edgepick.quant.onnx_graph import fold_affine_into_convs, rewrite_activations
-from edgepick.quant.onnx_inputs import check_tensor
-from edgepick.quant.onnx_measure import correct_onnx_biases, qdq_convs, saturating_onnx_convs, to_seven_bit_onnx
-from edgepick.quant.onnx_qdq import choose_rule, exact_tensors, float_outputs, float_tail, qdq_model, writes_float_output
+from edgepick.quant.onnx.calibrate import Collector, calibrated_tensors, check_memory, release_memory
+from edgepick.quant.onnx.equalize import equalize_onnx
+from edgepick.quant.onnx.gelu import sigmoid_gelu
+from edgepick.quant.onnx.inputs import check_tensor
+from edgepick.quant.onnx.measure import correct_onnx_biases, qdq_convs, saturating_onnx_convs, to_seven_bit_onnx
+from edgepick.quant.onnx.qdq import choose_rule, exact_tensors, float_outputs, float_tail, qdq_model, writes_float_output
+from edgepick.quant.onnx.rewrite import fold_affine_into_convs, rewrite_activations
 
 
 @dataclass(frozen=True)
@@ -121,7 +121,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
     written to OUT. INPUT_SHAPE fixes dynamic input dims [default: the first tensor's shape].
     config.keep_float names ONNX nodes to leave in float (their weights, inputs and outputs). TASK
     says what the outputs decide, for the fidelity report (one Task for all, or per output name)
-    [default: guessed per output]. BUDGET: the accuracy-aware mode (quant/onnx_accuracy.py), which
+    [default: guessed per output]. BUDGET: the accuracy-aware mode (quant/onnx/accuracy.py), which
     leaves the activations that matter most float until the outputs meet it; without one, a file
     whose worst output falls under SQNR_FLOOR_DB is written with a warning naming them."""
     import onnx
@@ -130,7 +130,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
 
     config = config or QuantConfig()
     if config.placement == Placement.AUTO:
-        from edgepick.quant.onnx_placement import choose_placement
+        from edgepick.quant.onnx.placement import choose_placement
 
         return choose_placement(quantize_onnx_static, model, calib, out, config, progress, input_shape=input_shape,
                                 task=task, budget=budget)
@@ -287,13 +287,13 @@ def _measure(prepared: Any, int8: Any, kept: list[np.ndarray], images: int, conf
     correction); returns what was done."""
     done: dict = {}
     if config.weight_bits == WeightBits.FIRST_SEVEN:
-        from edgepick.quant.overflow import INT16
+        from edgepick.quant.pt2e.overflow import INT16
 
         share = saturating_onnx_convs(int8, kept[:SATURATION_CHECK_INPUTS], HEADROOM * INT16)
         done["seven_bit_convs"] = [name for name, s in share.items() if s > 0]
         to_seven_bit_onnx(prepared, int8, done["seven_bit_convs"])
     if config.adaround:
-        from edgepick.quant.onnx_adaround import adaround_onnx
+        from edgepick.quant.onnx.adaround import adaround_onnx
 
         seven = set(qdq_convs(int8)) if config.weight_bits == WeightBits.SEVEN else set(done.get("seven_bit_convs", []))
         rounded = adaround_onnx(prepared, int8, kept[:images], config.adaround_budget_s, seven)
