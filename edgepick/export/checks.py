@@ -1,20 +1,12 @@
-"""Checks on exported files: int8 conv weights in the ONNX graph, and label agreement (parity).
-Imports without torch (the ONNX-in pass uses the weight check)."""
+"""Checks on exported files, torch-free (the ONNX pass uses them too): the output path, and which
+convs have int8 weights in the file."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable
 from pathlib import Path
-from typing import TYPE_CHECKING
-
-import numpy as np
 
 from edgepick.errors import ParameterError, QuantizationError
 from edgepick.onnx_graph import Graph
-from edgepick.runtime.session import Segmenter
-
-if TYPE_CHECKING:
-    import torch
 
 
 def check_onnx_out(out: str | Path, source: str | Path | None = None) -> None:
@@ -60,29 +52,3 @@ def require_int8_convs(path: str | Path, expected: int) -> dict:
         raise QuantizationError(f"only {report['int8']} of {expected} convs got int8 weights in the ONNX: "
                                 f"{', '.join(report['float'])} stayed float")
     return report
-
-
-def label_agreement(onnx_path: str | Path, net: torch.nn.Module, images: Iterable[np.ndarray]) -> float:
-    """Share of pixels where onnxruntime's labels equal NET's argmax, NET fed [0, 255] NCHW float.
-
-    For an int8 file NET is the converted pt2e graph (torch's simulation of the same
-    quantized model); for fp32 it is the float model. Images are already at the model size.
-    """
-    import torch
-
-    with torch.no_grad():
-        return _label_agreement(onnx_path, net, images)
-
-
-def _label_agreement(onnx_path: str | Path, net: torch.nn.Module, images: Iterable[np.ndarray]) -> float:
-    import torch
-
-    seg = Segmenter(onnx_path, threads=2)
-    same = total = 0
-    for rgb in images:
-        ours = seg.infer(seg.prepare(rgb))
-        out = net(torch.from_numpy(rgb).permute(2, 0, 1)[None].float())
-        ref = (out["out"] if isinstance(out, dict) else out).argmax(1)[0].numpy().astype(np.uint8)
-        same += int((ours == ref).sum())
-        total += ref.size
-    return same / max(total, 1)

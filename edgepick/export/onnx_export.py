@@ -9,11 +9,12 @@ from __future__ import annotations
 
 import json
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -175,3 +176,23 @@ def export_checkpoint(checkpoint: str | Path, out: str | Path) -> ExportResult:
     trim_dilated_convs(model, size)
     path = export_onnx(LogitsNet(model), out, contract_metadata(ckpt, "fp32", None), size)
     return ExportResult(out=str(path), size_bytes=path.stat().st_size, input_size=size, classes=list(ckpt.classes))
+
+
+def label_agreement(onnx_path: str | Path, net: nn.Module, images: Iterable[np.ndarray]) -> float:
+    """Share of pixels where onnxruntime's labels equal NET's argmax, NET fed [0, 255] NCHW float.
+
+    For an int8 file NET is the converted pt2e graph (torch's simulation of the same
+    quantized model); for fp32 it is the float model. Images are already at the model size.
+    """
+    from edgepick.runtime.session import Segmenter
+
+    seg = Segmenter(onnx_path, threads=2)
+    same = total = 0
+    with torch.no_grad():
+        for rgb in images:
+            ours = seg.infer(seg.prepare(rgb))
+            out = net(torch.from_numpy(rgb).permute(2, 0, 1)[None].float())
+            ref = (out["out"] if isinstance(out, dict) else out).argmax(1)[0].numpy().astype(np.uint8)
+            same += int((ours == ref).sum())
+            total += ref.size
+    return same / max(total, 1)

@@ -68,10 +68,10 @@ def _graphs(images, net=None):
 
 def _conv_means(graph, inputs):
     """Per conv node name, the per-channel mean of its output over INPUTS (not the logits conv's)."""
-    from edgepick.quant.pt2e.bias_correction import _Means
+    from edgepick.quant.pt2e.bias_correction import Means
 
     convs = [n.name for n in graph.graph.nodes if n.target == torch.ops.aten.conv2d.default]
-    means = _Means(graph, {name: name for name in convs[:-1]})
+    means = Means(graph, {name: name for name in convs[:-1]})
     with torch.no_grad():
         for x in inputs:
             means.run(x)
@@ -120,12 +120,12 @@ def test_the_convs_summed_into_the_logits_are_left_alone(images):
 def _gaps(reference, converted, inputs):
     """Per conv (not the logits conv), [images, channels]: fp32's per-image channel means minus
     the int8 graph's, over INPUTS."""
-    from edgepick.quant.pt2e.bias_correction import _ImageMeans
+    from edgepick.quant.pt2e.bias_correction import ImageMeans
 
     convs = [n.name for n in reference.graph.nodes if n.target == torch.ops.aten.conv2d.default][:-1]
     means = []
     for graph in (reference, converted):
-        runner = _ImageMeans(graph, convs)
+        runner = ImageMeans(graph, convs)
         with torch.no_grad():
             for x in inputs:
                 runner.run(x)

@@ -11,6 +11,7 @@ import onnx
 
 from edgepick.quant import QuantConfig, quantize_static
 from edgepick.quant.onnx import adaround as onnx_adaround
+from edgepick.quant.onnx import static as onnx_static
 from edgepick.quant.onnx.measure import Values, qdq_convs
 from tests.quant.onnx_models import export_module, image_tensors, run
 from tests.quant.test_adaround import Small
@@ -38,7 +39,7 @@ def test_adaround_lowers_each_convs_error_and_rounds_each_weight_down_or_up(tmp_
                      for name, c in convs.items()}
         return report
 
-    monkeypatch.setattr(onnx_adaround, "adaround_onnx", spy)
+    monkeypatch.setattr(onnx_static, "adaround_onnx", spy)
     path, tensors = _export(tmp_path / "f.onnx"), _tensors()
     quantize_static(path, tensors, tmp_path / "a.onnx", QuantConfig(adaround=True), progress=False)
     report, nearest, learnt = seen["report"], seen["nearest"], seen["learnt"]
@@ -56,7 +57,7 @@ def test_adaround_lowers_each_convs_error_and_rounds_each_weight_down_or_up(tmp_
 def test_the_int8_file_follows_fp32_more_closely_and_records_it(tmp_path, monkeypatch):
     # a fixed step count, for a result that does not depend on the machine's speed (measured: the
     # logits' squared error 4.3e-6 with nearest rounding, 2.1e-6 with AdaRound)
-    monkeypatch.setattr(onnx_adaround, "adaround_onnx", functools.partial(onnx_adaround.adaround_onnx, steps=300))
+    monkeypatch.setattr(onnx_static, "adaround_onnx", functools.partial(onnx_adaround.adaround_onnx, steps=300))
     path, tensors = _export(tmp_path / "f.onnx"), _tensors()
     error = {}
     for ada in (False, True):

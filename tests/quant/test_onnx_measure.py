@@ -11,7 +11,8 @@ import pytest
 
 from edgepick.errors import ParameterError
 from edgepick.quant import QuantConfig, quantize_static
-from edgepick.quant.onnx.measure import Values, _runner, _segments, qdq_convs, saturating_onnx_convs
+from edgepick.quant.onnx.lockstep import runner, segments
+from edgepick.quant.onnx.measure import Values, qdq_convs, saturating_onnx_convs
 from tests.quant.onnx_models import export_module, image_tensors
 from tests.quant.test_bias_correction import Planted, SummedLogits
 from tests.quant.test_overflow import Bright
@@ -35,7 +36,7 @@ def _conv_mean(path, conv, tensors):
     """Per-channel mean of the output of the node named CONV in the model at PATH over TENSORS."""
     model = onnx.load(str(path))
     out = next(n for n in model.graph.node if n.name == conv).output[0]
-    run = _runner(model, [out])
+    run = runner(model, [out])
     return np.mean([run(x, [out])[0].mean(axis=(0, 2, 3)) for x in tensors], axis=0)
 
 
@@ -72,7 +73,7 @@ def test_one_tensor_clipped_hard_does_not_set_the_bias_of_the_others(tmp_path):
         means = []
         for m in (fp32, model):
             outs = [next(n for n in m.graph.node if n.name == name).output[0] for name in ("/a/Conv", "/b/Conv")]
-            run = _runner(m, outs)
+            run = runner(m, outs)
             means.append([np.stack([y.mean(axis=(0, 2, 3)) for y in ys]) for ys in zip(*(run(x, outs) for x in tensors))])
         return {name: means[0][i] - means[1][i] for i, name in enumerate(("/a/Conv", "/b/Conv"))}
 
@@ -104,15 +105,15 @@ def test_convs_are_corrected_in_waves_after_everything_they_read(tmp_path):
 
     model = onnx.load(str(export_torch(tmp_path / "f.onnx", opset=13)))
     convs = {n.name: n for n in model.graph.node if n.op_type == "Conv"}
-    segments = _segments(model, convs)
-    waves = [s.wave for s in segments if s.wave]
+    cut = segments(model, convs)
+    waves = [s.wave for s in cut if s.wave]
     assert sorted(sum(waves, [])) == sorted(convs)
     made = {model.graph.input[0].name}
-    for s in segments:  # each segment reads only what the segments before it made
+    for s in cut:  # each segment reads only what the segments before it made
         assert set(s.inputs) <= made, set(s.inputs) - made
         made.update(s.outputs)
         made.difference_update(s.last)
-    assert not any(n.op_type == "DequantizeLinear" for s in segments for n in s.nodes)  # a float model: none
+    assert not any(n.op_type == "DequantizeLinear" for s in cut for n in s.nodes)  # a float model: none
     wave_of = {name: i for i, wave in enumerate(waves) for name in wave}
     assert wave_of["/c1/Conv"] == 0 and wave_of["/dw/Conv"] == 1
     assert wave_of["/se/fc1/Conv"] < wave_of["/se/fc2/Conv"] < wave_of["/pw/Conv"] < wave_of["/c2/Conv"]

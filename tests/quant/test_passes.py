@@ -55,7 +55,7 @@ def test_preprocessing_constants_span_the_width(onnx_files):
 
 
 def test_fp32_onnx_agrees_with_torch(onnx_files, trained_run, small_data):
-    from edgepick.export.checks import label_agreement
+    from edgepick.export.onnx_export import label_agreement
     from edgepick.models.deeplabv3 import LogitsNet
     from edgepick.quant.pt2e.passes import model_images
     from edgepick.train.checkpoint import load_model

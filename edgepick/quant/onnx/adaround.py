@@ -1,9 +1,9 @@
 """AdaRound on an int8 QDQ ONNX graph written by onnxruntime's quantizer, as quant/pt2e/adaround.py
 does it on a torch graph: the float model gives each conv's output at sampled positions of the
 calibration images; the int8 model runs on all of them together, segment by segment
-(`onnx_measure._segments`), and each conv learns its up/down rounding (`adaround._round_conv`) on
-the input the int8 model gives it there, the convs before it already rounded. Only the weight
-codes change: the scales, the activation ranges and the graph stay as onnxruntime wrote them.
+(`lockstep.segments`), and each conv learns its up/down rounding (`methods.round_conv`) on the
+input the int8 model gives it there, the convs before it already rounded. Only the weight codes
+change: the scales, the activation ranges and the graph stay as onnxruntime wrote them. numpy only.
 """
 
 from __future__ import annotations
@@ -14,19 +14,70 @@ import time
 from typing import Any
 
 import numpy as np
-import torch
-import torch.nn.functional as F
 
 from edgepick.onnx_graph import attr
-from edgepick.quant.onnx.measure import SEVEN_BIT, Values, _runner, _segment_session, _segments, qdq_convs
-from edgepick.quant.pt2e.adaround import _STEP_OVERHEAD, COLUMNS, _round_conv
+from edgepick.quant.methods import COLUMNS, STEP_OVERHEAD, conv_taps, round_conv
+from edgepick.quant.onnx.lockstep import runner, segment_session, segments
+from edgepick.quant.onnx.measure import SEVEN_BIT, QdqConv, Values, qdq_convs
 
 
-def _geometry(node: Any) -> tuple[tuple[int, int, int, int], tuple[int, int], tuple[int, int], int]:
-    """(pads as F.pad takes them: left, right, top, bottom), strides, dilations, groups of a Conv."""
-    top, left, bottom, right = attr(node, "pads", [0, 0, 0, 0])
-    return ((left, right, top, bottom), tuple(attr(node, "strides", [1, 1])), tuple(attr(node, "dilations", [1, 1])),
-            int(attr(node, "group", 1)))
+@dataclasses.dataclass(frozen=True)
+class Geometry:
+    """A Conv's pads (top, bottom, left, right), strides, dilations and groups."""
+
+    pads: tuple[int, int, int, int]
+    stride: tuple[int, int]
+    dilation: tuple[int, int]
+    groups: int
+
+    @classmethod
+    def of(cls, node: Any) -> Geometry:
+        top, left, bottom, right = attr(node, "pads", [0, 0, 0, 0])
+        return cls((top, bottom, left, right), tuple(attr(node, "strides", [1, 1])),  # type: ignore[arg-type]
+                   tuple(attr(node, "dilations", [1, 1])), int(attr(node, "group", 1)))  # type: ignore[arg-type]
+
+    def pad(self, x: np.ndarray) -> np.ndarray:
+        top, bottom, left, right = self.pads
+        return np.pad(x, ((0, 0), (0, 0), (top, bottom), (left, right)))
+
+
+def sampled_columns(x: np.ndarray, kernel: tuple[int, int], geometry: Geometry, take: np.ndarray) -> np.ndarray:
+    """The im2col columns [C*kh*kw, N*P] (rows in channel, kernel-row, kernel-column order) of the
+    padded input X [N, C, H, W] at the output positions TAKE (flat indices, P of them)."""
+    taps = {(i, j): t.reshape(*t.shape[:2], -1)[:, :, take] for i, j, t in
+            conv_taps(x, kernel, geometry.stride, geometry.dilation)}
+    cols = np.stack([taps[i, j] for i in range(kernel[0]) for j in range(kernel[1])], axis=2)  # [N, C, kh*kw, P]
+    return cols.reshape(x.shape[0], -1, take.size).transpose(1, 0, 2).reshape(-1, x.shape[0] * take.size)
+
+
+def conv2d(x: np.ndarray, w: np.ndarray, geometry: Geometry) -> np.ndarray:
+    """A Conv of the padded input X [N, C, H, W] with the weights W [M, C/groups, kh, kw], no bias."""
+    groups, (m, c_group, kh, kw) = geometry.groups, w.shape
+    wg = w.reshape(groups, m // groups, c_group, kh, kw)
+    out = None
+    for i, j, t in conv_taps(x, (kh, kw), geometry.stride, geometry.dilation):
+        tg = t.reshape(t.shape[0], groups, c_group, *t.shape[2:])
+        part = np.einsum("gmc,ngchw->ngmhw", wg[..., i, j], tg, optimize=True)
+        out = part if out is None else out + part
+    assert out is not None
+    return out.reshape(x.shape[0], m, *out.shape[3:])
+
+
+def _targets(float_model: Any, convs: dict[str, QdqConv], by_name: dict[str, Any], tensors: list[np.ndarray],
+             rng: np.random.Generator) -> tuple[dict[str, list[np.ndarray]], dict[str, np.ndarray]]:
+    """Per conv, the output positions sampled in each tensor and fp32's outputs there [M, P]."""
+    per_image = max(1, COLUMNS // len(tensors))
+    names = list(convs)
+    wanted = [by_name[name].output[0] for name in names]
+    fp32 = runner(float_model, wanted)
+    positions: dict[str, list[np.ndarray]] = {name: [] for name in names}
+    outputs: dict[str, list[np.ndarray]] = {name: [] for name in names}
+    for x in tensors:
+        for name, y in zip(names, fp32(x, wanted), strict=True):
+            take = rng.permutation(y.shape[2] * y.shape[3])[:per_image]
+            positions[name].append(take)
+            outputs[name].append(y.reshape(*y.shape[:2], -1)[:, :, take].transpose(1, 0, 2).reshape(y.shape[1], -1))
+    return positions, {name: np.concatenate(rows, axis=1) for name, rows in outputs.items()}
 
 
 def adaround_onnx(float_model: Any, model: Any, tensors: list[np.ndarray], seconds: float, seven_bit: set[str],
@@ -43,62 +94,54 @@ def adaround_onnx(float_model: Any, model: Any, tensors: list[np.ndarray], secon
     convs = {name: c for name, c in qdq_convs(model).items()
              if name in by_name and attr(c.node, "auto_pad", b"NOTSET") in (b"NOTSET", "NOTSET")}
     values, floats = Values(model), Values(float_model)
-    generator = torch.Generator().manual_seed(seed)
-    per_image = max(1, COLUMNS // len(tensors))
-    names = list(convs)
-    wanted = [by_name[name].output[0] for name in names]
-    fp32 = _runner(float_model, wanted)
-    positions: dict[str, list[torch.Tensor]] = {name: [] for name in names}
-    targets: dict[str, list[torch.Tensor]] = {name: [] for name in names}
-    for x in tensors:
-        for name, y in zip(names, fp32(x, wanted), strict=True):
-            out = torch.from_numpy(y)
-            take = torch.randperm(out.shape[2] * out.shape[3], generator=generator)[:per_image]
-            positions[name].append(take)
-            targets[name].append(out.flatten(2)[:, :, take].permute(1, 0, 2).reshape(out.shape[1], -1).clone())
-    cost = {name: math.prod(values[c.weight_codes].shape) + _STEP_OVERHEAD for name, c in convs.items()}
-    left, deadline = sum(cost.values()), time.perf_counter() + seconds
+    rng = np.random.default_rng(seed)
+    positions, targets = _targets(float_model, convs, by_name, tensors, rng)
+    cost = {name: math.prod(values[c.weight_codes].shape) + STEP_OVERHEAD for name, c in convs.items()}
+    budget = {"left": sum(cost.values()), "deadline": time.perf_counter() + seconds}
     report: dict[str, dict] = {}
     image = model.graph.input[0].name
     env = [{image: x} for x in tensors]
-    for segment in _segments(model, convs):
+    for segment in segments(model, convs):
         if not segment.outputs:
             break
         inputs = [convs[name].node.input[0] for name in segment.wave]
         outputs = list(dict.fromkeys([*segment.outputs, *inputs]))
-        session = _segment_session(model, dataclasses.replace(segment, outputs=outputs), env[0])
+        session = segment_session(model, dataclasses.replace(segment, outputs=outputs), env[0])
         for e in env:
             e.update(zip(outputs, session.run(outputs, {i: e[i] for i in segment.inputs}), strict=True))
             for name in segment.last:
                 del e[name]
         for name in segment.wave:
-            c = convs[name]
-            pads, stride, dilation, groups = _geometry(c.node)
-            codes_now = torch.from_numpy(values[c.weight_codes].astype(np.float32))
-            scale = torch.from_numpy(values[c.weight_scale].astype(np.float32))
-            xs = [F.pad(torch.from_numpy(e[c.node.input[0]]), pads) for e in env]
-            columns = torch.cat([F.unfold(x, codes_now.shape[2:], dilation=dilation, stride=stride)[:, :, take]
-                                 .permute(1, 0, 2).reshape(-1, take.numel() * x.shape[0])
-                                 for x, take in zip(xs, positions[name], strict=True)], dim=1)
-            bias = (torch.from_numpy((values[c.bias_codes] * values[c.bias_scale]).astype(np.float32))
-                    if c.bias_codes is not None and c.bias_scale is not None else torch.zeros(codes_now.shape[0]))
-            top = SEVEN_BIT if name in seven_bit else 127
-            share = max(deadline - time.perf_counter(), 0.0) * cost[name] / left
-            left -= cost[name]
-            w = torch.from_numpy(floats[by_name[name].input[1]].astype(np.float32))
-            with torch.enable_grad():
-                codes, before, after, taken = _round_conv(w, scale, -top, top, bias, columns,
-                                                          torch.cat(targets.pop(name), dim=1), groups, share,
-                                                          generator, steps)
-            report[name] = {"error_nearest": before, "error_adaround": after, "steps": taken}
-            delta = (codes - codes_now) * scale.view(-1, 1, 1, 1)
-            if delta.any():
-                values[c.weight_codes] = codes.numpy().astype(np.int8)
-                out = c.node.output[0]
-                for e, x in zip(env, xs, strict=True):  # the conv's output with its new weights, for what follows
-                    e[out] = e[out] + F.conv2d(x, delta, stride=stride, dilation=dilation, groups=groups).numpy()
+            share = max(budget["deadline"] - time.perf_counter(), 0.0) * cost[name] / budget["left"]
+            budget["left"] -= cost[name]
+            w = floats[by_name[name].input[1]].astype(np.float32)
+            report[name] = _round(convs[name], w, values, env, positions[name], targets.pop(name),
+                                  SEVEN_BIT if name in seven_bit else 127, share, rng, steps)
         for e in env:
             for name in inputs:
                 if name not in segment.outputs:
                     e.pop(name, None)
     return report
+
+
+def _round(c: QdqConv, w: np.ndarray, values: Values, env: list[dict[str, np.ndarray]], positions: list[np.ndarray],
+           target: np.ndarray, top: int, seconds: float, rng: np.random.Generator, steps: int | None) -> dict:
+    """Learn the rounding of the conv C (float weights W, codes -TOP..TOP) on the inputs the int8
+    model gives it in ENV, write its codes, and move its output in ENV by what they change."""
+    geometry = Geometry.of(c.node)
+    codes_now = values[c.weight_codes].astype(np.float32)
+    scale = values[c.weight_scale].astype(np.float32)
+    xs = [geometry.pad(e[c.node.input[0]]) for e in env]
+    columns = np.concatenate([sampled_columns(x, codes_now.shape[2:], geometry, take)
+                              for x, take in zip(xs, positions, strict=True)], axis=1)
+    bias = ((values[c.bias_codes] * values[c.bias_scale]).astype(np.float32)
+            if c.bias_codes is not None and c.bias_scale is not None else np.zeros(codes_now.shape[0], np.float32))
+    codes, before, after, taken = round_conv(w, scale, -top, top, bias, columns, target, geometry.groups, seconds,
+                                             rng, steps)
+    delta = ((codes - codes_now) * scale.reshape(-1, 1, 1, 1)).astype(np.float32)
+    if delta.any():
+        values[c.weight_codes] = codes.astype(np.int8)
+        out = c.node.output[0]
+        for e, x in zip(env, xs, strict=True):  # the conv's output with its new weights, for what follows
+            e[out] = e[out] + conv2d(x, delta, geometry)
+    return {"error_nearest": before, "error_adaround": after, "steps": taken}

@@ -1,7 +1,7 @@
 """Cross-layer equalization on a float ONNX graph (BatchNorm already folded by onnxruntime's
 `quant_pre_process`): the same rescaling as `edgepick.quant.pt2e.equalize` does on a torch graph (see
 there why), with the weights as initializers. Each equalized conv gets initializers of its own, as
-`onnx_graph.fold_affine_into_convs` gives them; the float function is unchanged."""
+`rewrite.fold_affine_into_convs` gives them; the float function is unchanged."""
 
 from __future__ import annotations
 

@@ -6,17 +6,17 @@ the outputs (quant/onnx/qdq.py; `CalibMethod.AUTO`, the default), has onnxruntim
 write the Q/DQ pairs for those ranges, and rewrites around it (docs/quantization.md, "Your own model"):
 
 - before: the input dims fixed, opset lifted to 13, hardswish/hardsigmoid/mean pooling in the
-  forms with integer kernels (`onnx_graph.rewrite_activations`), BatchNorm folded and shapes
+  forms with integer kernels (`rewrite.rewrite_activations`), BatchNorm folded and shapes
   inferred (onnxruntime's `quant_pre_process`);
 - the recipe: U8S8, weights int8 per output channel and symmetric, 7-bit unless
-  weight_bits 8 (or first-7: 7-bit only where 8-bit weights saturate, `onnx_measure`), uint8
+  weight_bits 8 (or first-7: 7-bit only where 8-bit weights saturate, `measure`), uint8
   activations per tensor, HardSigmoid quantized as well (with placement convs: only the convs
   and the tensors they read and write, the model's own activations left float as it writes them,
   for OpenVINO, which fuses them into its int8 convs); with gelu sigmoid, each GELU written as
-  c * x * sigmoid(alpha * x) on integer kernels (`onnx_gelu`); with config.equalize, conv pairs equalized
-  before calibration (`onnx_equalize`); with config.adaround, each conv's weight rounding learnt
-  on the calibration tensors (`onnx_adaround`); with empirical bias correction, the conv biases
-  shifted back to fp32's means (`onnx_measure`);
+  c * x * sigmoid(alpha * x) on integer kernels (`gelu`); with config.equalize, conv pairs equalized
+  before calibration (`equalize`); with config.adaround, each conv's weight rounding learnt
+  on the calibration tensors (`adaround`); with empirical bias correction, the conv biases
+  shifted back to fp32's means (`measure`);
 - after: the model's outputs and the ops between its last conv and them (Resize, Sigmoid,
   Softmax, ...) in float, as edgepick's own logits are (uint8 logits tie in an ArgMax or a
   threshold); the integer activations and the padding-tap crop of `edgepick.export`; initializers
@@ -71,6 +71,7 @@ from edgepick.quant.config import (
     lockstep_images,
 )
 from edgepick.quant.fidelity import Task, check_task_names, output_tasks
+from edgepick.quant.methods import INT16
 from edgepick.quant.onnx.accuracy import (
     Evaluator,
     FidelityBudget,
@@ -79,6 +80,7 @@ from edgepick.quant.onnx.accuracy import (
     float_tensors,
     node_tensors,
 )
+from edgepick.quant.onnx.adaround import adaround_onnx
 from edgepick.quant.onnx.calibrate import Collector, calibrated_tensors, check_memory, release_memory
 from edgepick.quant.onnx.equalize import equalize_onnx
 from edgepick.quant.onnx.gelu import sigmoid_gelu
@@ -287,14 +289,10 @@ def _measure(prepared: Any, int8: Any, kept: list[np.ndarray], images: int, conf
     correction); returns what was done."""
     done: dict = {}
     if config.weight_bits == WeightBits.FIRST_SEVEN:
-        from edgepick.quant.pt2e.overflow import INT16
-
         share = saturating_onnx_convs(int8, kept[:SATURATION_CHECK_INPUTS], HEADROOM * INT16)
         done["seven_bit_convs"] = [name for name, s in share.items() if s > 0]
         to_seven_bit_onnx(prepared, int8, done["seven_bit_convs"])
     if config.adaround:
-        from edgepick.quant.onnx.adaround import adaround_onnx
-
         seven = set(qdq_convs(int8)) if config.weight_bits == WeightBits.SEVEN else set(done.get("seven_bit_convs", []))
         rounded = adaround_onnx(prepared, int8, kept[:images], config.adaround_budget_s, seven)
         done["adaround_convs"] = sum(r["error_adaround"] < r["error_nearest"] for r in rounded.values())

@@ -31,7 +31,7 @@ from edgepick.quant.pt2e.rewrites import GatedHardswish
 
 def _tensor(x: Any, shape: tuple[int, ...] | None, what: str) -> torch.Tensor:
     """X (a tensor or an array) as a float32 batch of SHAPE, refused in one line naming `calib`
-    (onnx_static.check_tensor's checks)."""
+    (quant/onnx/inputs.check_tensor's checks)."""
     if isinstance(x, torch.Tensor):
         x = x.detach().cpu().numpy()
     return torch.from_numpy(check_tensor(x, shape, what))

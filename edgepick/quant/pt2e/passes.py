@@ -22,8 +22,8 @@ import torch
 
 from edgepick.data.native import NativeDataset
 from edgepick.errors import CheckpointError, ConfigError, ParameterError, QuantizationError
-from edgepick.export.checks import conv_weight_report, label_agreement
-from edgepick.export.onnx_export import EXPORT_PASSES, check_onnx_out, contract_metadata, export_onnx
+from edgepick.export.checks import conv_weight_report
+from edgepick.export.onnx_export import EXPORT_PASSES, check_onnx_out, contract_metadata, export_onnx, label_agreement
 from edgepick.geometry import Size
 from edgepick.quant.config import (
     BIAS_CORRECTION_IMAGES,
