@@ -33,10 +33,10 @@ from edgepick.data.synth import SynthConfig, synthesize  # noqa: E402
 from edgepick.geometry import Size  # noqa: E402
 from edgepick.metrics import confusion_matrix, segmentation_metrics  # noqa: E402
 from edgepick.models.deeplabv3 import LogitsNet  # noqa: E402
-from edgepick.quant.graph import as_input, convert, prepare  # noqa: E402
-from edgepick.quant.passes import model_images  # noqa: E402
-from edgepick.quant.qat import calibrate_activations, to_eval  # noqa: E402
-from edgepick.quant.quantizer import QuantConfig  # noqa: E402
+from edgepick.quant.pt2e.graph import as_input, convert, prepare  # noqa: E402
+from edgepick.quant.pt2e.passes import model_images  # noqa: E402
+from edgepick.quant.pt2e.qat import calibrate_activations, to_eval  # noqa: E402
+from edgepick.quant.pt2e.quantizer import QuantConfig  # noqa: E402
 from edgepick.train.checkpoint import load_model  # noqa: E402
 from edgepick.train.data import augment  # noqa: E402
 from edgepick.train.loop import TrainConfig, train  # noqa: E402
@@ -123,7 +123,7 @@ def hybrid_ab(run: Path, data: Path, fraction: float, tmp: Path) -> dict[str, tu
     """fp32 and hybrid-QaT from each start: first-batch ranges, calibrated, calibrated and held."""
     from edgepick.evaluation import evaluate
     from edgepick.export.onnx_export import export_checkpoint
-    from edgepick.quant.passes import quantize_hybrid
+    from edgepick.quant.pt2e.passes import quantize_hybrid
 
     def scores(path: Path) -> tuple[float, float]:
         return tuple(100 * evaluate(path, data, split, progress=False)["miou"] for split in ("val", "test"))

@@ -135,8 +135,8 @@ def main() -> None:
     from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
 
     from edgepick.export.onnx_export import export_checkpoint
-    from edgepick.quant.passes import agreement_images, folder_images, model_images
-    from edgepick.quant.passes import quantize_static as edgepick_static
+    from edgepick.quant.pt2e.passes import agreement_images, folder_images, model_images
+    from edgepick.quant.pt2e.passes import quantize_static as edgepick_static
 
     work = Path(tempfile.mkdtemp(prefix="peers-"))
     try:

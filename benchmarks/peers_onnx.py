@@ -38,8 +38,8 @@ from edgepick.errors import ParameterError  # noqa: E402
 from edgepick.geometry import Size  # noqa: E402
 from edgepick.quant.config import BiasCorrection, GeluForm, Placement, QuantConfig, WeightBits  # noqa: E402
 from edgepick.quant.fidelity import guess_task  # noqa: E402
-from edgepick.quant.onnx_inputs import folder_tensors  # noqa: E402
-from edgepick.quant.onnx_static import quantize_onnx_static  # noqa: E402
+from edgepick.quant.onnx.inputs import folder_tensors  # noqa: E402
+from edgepick.quant.onnx.static import quantize_onnx_static  # noqa: E402
 from edgepick.runtime.preprocessing import Preprocessing  # noqa: E402
 from edgepick.runtime.session import openvino_config  # noqa: E402
 

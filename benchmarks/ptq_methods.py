@@ -37,7 +37,7 @@ from edgepick.data.native import NativeDataset  # noqa: E402
 from edgepick.export.onnx_export import export_checkpoint  # noqa: E402
 from edgepick.metrics import confusion_matrix, segmentation_metrics  # noqa: E402
 from edgepick.quant.config import BiasCorrection, CalibMethod, QuantConfig, WeightBits  # noqa: E402
-from edgepick.quant.passes import agreement_images, folder_images, quantize_static  # noqa: E402
+from edgepick.quant.pt2e.passes import agreement_images, folder_images, quantize_static  # noqa: E402
 from edgepick.runtime.engine import Engine  # noqa: E402
 from edgepick.runtime.session import Segmenter  # noqa: E402
 

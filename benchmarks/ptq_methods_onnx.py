@@ -36,7 +36,7 @@ from ptq_methods import case, seven_bit_convs, spread, start_case  # noqa: E402
 
 from edgepick.quant.config import QuantConfig  # noqa: E402
 from edgepick.quant.fidelity import guess_task  # noqa: E402
-from edgepick.quant.onnx_static import quantize_onnx_static  # noqa: E402
+from edgepick.quant.onnx.static import quantize_onnx_static  # noqa: E402
 
 
 def agreement(model, reference: list[list[np.ndarray]], inputs: list[np.ndarray], nhwc: bool,

@@ -115,8 +115,8 @@ def main() -> None:
     from edgepick.evaluation import evaluate
     from edgepick.export.onnx_export import export_checkpoint
     from edgepick.geometry import Size
-    from edgepick.quant.passes import folder_images, quantize_static
-    from edgepick.quant.quantizer import QuantConfig
+    from edgepick.quant.pt2e.passes import folder_images, quantize_static
+    from edgepick.quant.pt2e.quantizer import QuantConfig
     from edgepick.train.checkpoint import load_model
 
     work = Path(tempfile.mkdtemp(prefix="quant-speed-"))

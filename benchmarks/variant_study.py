@@ -44,8 +44,8 @@ def main() -> None:
     from edgepick.evaluation import evaluate
     from edgepick.export.onnx_export import export_checkpoint
     from edgepick.geometry import Size
-    from edgepick.quant.passes import agreement_images, folder_images, quantize_static
-    from edgepick.quant.quantizer import QuantConfig
+    from edgepick.quant.pt2e.passes import agreement_images, folder_images, quantize_static
+    from edgepick.quant.pt2e.quantizer import QuantConfig
     from edgepick.train.checkpoint import load_model
     from edgepick.train.loop import TrainConfig, train
 

@@ -79,7 +79,7 @@ def quantize_demo(workdir: Path, epochs: int) -> dict:
     """fp32 export, static int8 and hybrid-QaT int8 (last epoch with QaT); runtime eval of each."""
     from edgepick.evaluation import evaluate
     from edgepick.export.onnx_export import export_checkpoint
-    from edgepick.quant.passes import agreement_images, folder_images, quantize_hybrid, quantize_static
+    from edgepick.quant import agreement_images, folder_images, quantize_hybrid, quantize_static
 
     _step("4/8 export fp32, quantize static int8 and hybrid-QaT int8 (onnxruntime QDQ)")
     models = workdir / "models"

@@ -11,7 +11,7 @@ import pytest
 
 from tests.conftest import REPO
 
-GROUND = {"errors", "files", "progress", "geometry", "frames", "metrics", "intervals", "schema", "lazy"}
+GROUND = {"errors", "files", "progress", "geometry", "frames", "metrics", "intervals", "schema", "lazy", "onnx_graph"}
 
 
 def _imports() -> dict[str, set[str]]:
@@ -69,6 +69,74 @@ def test_arrows_point_down():
                     for g in GROUND}}
     wrong = [f"{m} imports {n}" for m, v in _imports().items() for n in v["all"]
              if _stage(n) in forbidden.get(_stage(m), ())]
+    assert wrong == []
+
+
+def _is_type_checking(node: ast.AST) -> bool:
+    test = node.test if isinstance(node, ast.If) else None
+    return isinstance(test, ast.Name) and test.id == "TYPE_CHECKING" or \
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"
+
+
+def _every_import() -> dict[str, dict[str, set[str]]]:
+    """module -> every module it imports, edgepick's and others' ('all': anywhere, under TYPE_CHECKING
+    too; 'run': what importing it runs: its top level less TYPE_CHECKING blocks), with a name
+    imported from a package counted as that package's submodule where there is one."""
+    modules = {}
+    for path in (REPO / "edgepick").rglob("*.py"):
+        parts = path.relative_to(REPO).with_suffix("").parts
+        modules[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = ast.parse(path.read_text())
+
+    def names(node: ast.AST) -> set[str]:
+        if isinstance(node, ast.Import):
+            return {a.name for a in node.names}
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            return {node.module} | {f"{node.module}.{a.name}" for a in node.names if f"{node.module}.{a.name}" in modules}
+        return set()
+
+    def run(body: list) -> set[str]:
+        """The imports of the statements BODY runs: not those in functions or under TYPE_CHECKING."""
+        found: set[str] = set()
+        for node in body:
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) or _is_type_checking(node):
+                continue
+            found |= names(node)
+            for field in ("body", "orelse", "finalbody", "handlers"):
+                found |= run(getattr(node, field, None) or [])
+        return found
+
+    return {module: {"all": {n for node in ast.walk(tree) for n in names(node)}, "run": run(tree.body)}
+            for module, tree in modules.items()}
+
+
+def test_the_onnx_pass_reaches_no_torch_and_no_pt2e_module():
+    """What a module of edgepick.quant.onnx imports, anywhere in it (in functions, under TYPE_CHECKING),
+    and what those modules import in turn, with what importing each one's packages runs: never torch,
+    torchao or edgepick.quant.pt2e. The ONNX pass runs on the torch-free base install plus onnx."""
+    graph = _every_import()
+    for start in (m for m in graph if m.startswith("edgepick.quant.onnx")):
+        seen, todo = set(), [start]
+        while todo:
+            module = todo.pop()
+            if module in seen:
+                continue
+            seen.add(module)
+            parts = module.split(".")
+            packages = [".".join(parts[:k]) for k in range(1, len(parts))]
+            todo.extend(graph[module]["all"] if module in graph else ())
+            todo.extend(n for p in packages if p in graph for n in graph[p]["run"])
+        wrong = sorted(m for m in seen if m.split(".")[0] in ("torch", "torchao") or m.startswith("edgepick.quant.pt2e"))
+        assert wrong == [], f"{start} reaches {wrong}"
+
+
+def test_no_private_name_is_imported_from_another_module():
+    """A name with a leading underscore stays in its module: what two modules share is public."""
+    wrong = []
+    for path in (REPO / "edgepick").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("edgepick"):
+                wrong += [f"{path.relative_to(REPO)}: {node.module}.{a.name}" for a in node.names
+                          if a.name.startswith("_") and not a.name.startswith("__")]
     assert wrong == []
 
 

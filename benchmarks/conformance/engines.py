@@ -111,7 +111,7 @@ def edgepick_quantizer(name: str, config: QuantConfig) -> Quantizer:
     """edgepick's static PTQ of the fp32 file with CONFIG, through its public API."""
     def run(job: Job) -> Quantized:
         from edgepick.quant.fidelity import Task
-        from edgepick.quant.onnx_static import quantize_onnx_static
+        from edgepick.quant.onnx.static import quantize_onnx_static
 
         out = job.work / f"{name}.onnx"
         result = quantize_onnx_static(job.fp32, list(job.calib), out, config, input_shape=job.input_shape,

@@ -84,7 +84,7 @@ def make_table55(work: str | Path, setting: Setting, device: str = "auto", comma
 
     from edgepick.data.synth import SynthConfig, synthesize
     from edgepick.export.onnx_export import export_checkpoint
-    from edgepick.quant.passes import agreement_images, folder_images, quantize_hybrid, quantize_qat, quantize_static
+    from edgepick.quant import agreement_images, folder_images, quantize_hybrid, quantize_qat, quantize_static
     from edgepick.train.loop import TrainConfig, train
 
     s = setting

@@ -74,7 +74,7 @@ calibration = [
 ]
 
 
-# static PTQ's methods (quant/ptq.py): static and inspect
+# static PTQ's methods (quant/pt2e/ptq.py): static and inspect
 ptq_methods = [
     click.option("--equalize/--no-equalize", default=default_of(QuantConfig, "equalize"), show_default=True,
                  help="Cross-layer equalization: rescale conv pairs joined by ReLU-like ops so that each channel has "
@@ -222,11 +222,11 @@ def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None
                         bias_correction=bias_correction, equalize=equalize, adaround=adaround,
                         adaround_budget_s=adaround_budget_s)
     if max_miou_drop is not None:
-        from edgepick.quant.inspect import quantize_accuracy_aware
+        from edgepick.quant.pt2e.inspect import quantize_accuracy_aware
 
         emit(quantize_accuracy_aware(checkpoint, data_dir, out, max_miou_drop, cfg, calib_images, max_float_layers))
         return
-    from edgepick.quant.passes import agreement_images, check_classes, check_image_count, folder_images, quantize_static
+    from edgepick.quant.pt2e.passes import agreement_images, check_classes, check_image_count, folder_images, quantize_static
     from edgepick.train.checkpoint import Checkpoint
 
     check_image_count(data_dir, "train", calib_images)
@@ -240,7 +240,7 @@ def _budget(min_agreement: float | None, min_sqnr: float | None, max_float: int)
     """The accuracy-aware mode's FidelityBudget of the flags, or None when neither is given."""
     if min_agreement is None and min_sqnr is None:
         return None
-    from edgepick.quant.onnx_accuracy import FidelityBudget
+    from edgepick.quant.onnx.accuracy import FidelityBudget
 
     return FidelityBudget(min_agreement=min_agreement, min_sqnr_db=min_sqnr, max_float=max_float)
 
@@ -269,8 +269,8 @@ def _quantize_onnx(model: str, calib: str | None, input_shape: str | None, calib
                    preprocessing: dict, tasks: tuple[str, ...] = (), budget=None) -> None:
     """`quantize static MODEL.onnx --calib DIR`: edgepick's recipe on a float ONNX file."""
     from edgepick.export.onnx_io import image_size, load_float_onnx
-    from edgepick.quant.onnx_inputs import folder_tensors
-    from edgepick.quant.onnx_static import quantize_onnx_static
+    from edgepick.quant.onnx.inputs import folder_tensors
+    from edgepick.quant.onnx.static import quantize_onnx_static
 
     for flag, value in (("--data", data_dir), ("--max-miou-drop", max_miou_drop)):
         if value is not None:
@@ -316,8 +316,8 @@ def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int | Non
     --adaround or a --bias-correction other than none (empirical by default), the model is made
     again with each added in turn (in that order), and each layer says how many dB each one gained
     it. JSON on stdout."""
-    from edgepick.quant.inspect import inspect
-    from edgepick.quant.passes import check_classes, check_image_count, folder_images
+    from edgepick.quant.pt2e.inspect import inspect
+    from edgepick.quant.pt2e.passes import check_classes, check_image_count, folder_images
     from edgepick.train.checkpoint import Checkpoint
 
     if top < 0:
@@ -368,7 +368,7 @@ def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int,
     observers and BN statistics frozen for the last 30% of the steps, then export the int8 model
     of the epoch with the best val mIoU."""
     from edgepick.cli.options import check_data_orientation, model_size
-    from edgepick.quant.passes import quantize_qat
+    from edgepick.quant.pt2e.passes import quantize_qat
 
     _check_onnx_out(out, data_dir)
     input_size = model_size(size)
@@ -411,7 +411,7 @@ def quantize_hybrid_cmd(run: str, data_dir: str, qat_fraction: float, qat_run: s
     the last pE epochs with QaT (train RUN with --keep-epochs at the switch points, e.g. 90,95,99
     for p = 10%, 5%, 1% of 100 epochs). Exports the QaT epoch with the best val mIoU, as export
     takes a float RUN's best.pt. Reports the wall time of each phase."""
-    from edgepick.quant.passes import quantize_hybrid
+    from edgepick.quant.pt2e.passes import quantize_hybrid
 
     _check_onnx_out(out, run, data_dir)
     check_output(qat_run or str(Path(out).with_suffix(".run")), "--run", kind="dir", inputs=(run, data_dir, out))

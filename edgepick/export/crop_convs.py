@@ -19,6 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from edgepick.onnx_graph import Graph, attrs
+
 CROP_TAG = "_padcrop"
 
 
@@ -55,16 +57,6 @@ def tap_work(bands: list[Band]) -> int:
     return sum((b.out1 - b.out0) * (b.tap1 - b.tap0 + 1) for b in bands)
 
 
-def graph_links(graph) -> tuple[dict, dict[str, list], set[str]]:
-    """Tensor name -> the node that makes it, -> the nodes that read it; and the graph's output names."""
-    producer = {o: n for n in graph.node for o in n.output}
-    consumers: dict[str, list] = {}
-    for n in graph.node:
-        for i in n.input:
-            consumers.setdefault(i, []).append(n)
-    return producer, consumers, {o.name for o in graph.output}
-
-
 @dataclass
 class _Group:
     """One int8 conv: x_q -> DequantizeLinear -> Conv (kernel: int8 initializer -> DequantizeLinear)
@@ -80,22 +72,19 @@ def crop_padded_convs(model, min_saving: float = 0.25) -> int:
     static shapes) whose in-range taps are at most (1 - MIN_SAVING) of those it computes; returns how
     many. Depthwise convs are left whole: they are cheap, and a 5x5 kernel would make 25 regions."""
     import onnx
-    from onnx import helper
 
     shapes = {v.name: [d.dim_value for d in v.type.tensor_type.shape.dim]
               for v in onnx.shape_inference.infer_shapes(model).graph.value_info}
-    graph = model.graph
-    inits = {i.name for i in graph.initializer}
-    producer, consumers, outputs = graph_links(graph)
+    g = Graph(model)
     done = 0
-    for conv in [n for n in graph.node if n.op_type == "Conv"]:
-        group = _int8_group(conv, producer, consumers, inits, outputs)
-        attrs = {a.name: helper.get_attribute_value(a) for a in conv.attribute}
-        shape, kernel = shapes.get(conv.input[0]), list(attrs.get("kernel_shape", []))
-        if (group is None or not shape or len(shape) != 4 or 0 in shape or len(kernel) != 2 or attrs.get("group", 1) != 1
-                or attrs.get("auto_pad", b"NOTSET") != b"NOTSET" or any(s != 1 for s in attrs.get("strides", [1, 1]))):
+    for conv in [n for n in g.nodes if n.op_type == "Conv"]:
+        group = _int8_group(g, conv)
+        given = attrs(conv)
+        shape, kernel = shapes.get(conv.input[0]), list(given.get("kernel_shape", []))
+        if (group is None or not shape or len(shape) != 4 or 0 in shape or len(kernel) != 2 or given.get("group", 1) != 1
+                or given.get("auto_pad", b"NOTSET") != b"NOTSET" or any(s != 1 for s in given.get("strides", [1, 1]))):
             continue
-        dil, pads = list(attrs.get("dilations", [1, 1])), list(attrs.get("pads", [0, 0, 0, 0]))
+        dil, pads = list(given.get("dilations", [1, 1])), list(given.get("pads", [0, 0, 0, 0]))
         rows = axis_bands(shape[2], kernel[0], dil[0], pads[0], pads[2])
         cols = axis_bands(shape[3], kernel[1], dil[1], pads[1], pads[3])
         if rows is None or cols is None:
@@ -103,22 +92,21 @@ def crop_padded_convs(model, min_saving: float = 0.25) -> int:
         full = rows[-1].out1 * cols[-1].out1 * kernel[0] * kernel[1]
         if tap_work(rows) * tap_work(cols) > (1.0 - min_saving) * full:
             continue
-        _split(graph, group, attrs, rows, cols)
+        _split(g, group, given, rows, cols)
         done += 1
     return done
 
 
-def _int8_group(conv, producer, consumers, inits, outputs) -> _Group | None:
+def _int8_group(g: Graph, conv: Any) -> _Group | None:
     """The QDQ group around CONV, or None when it is not an int8 conv with a requantized output."""
-    x_dq, w_dq = producer.get(conv.input[0]), producer.get(conv.input[1])
+    x_dq, w_dq = g.producer(conv.input[0]), g.producer(conv.input[1])
     if x_dq is None or x_dq.op_type != "DequantizeLinear" or w_dq is None or w_dq.op_type != "DequantizeLinear":
         return None
-    if w_dq.input[0] not in inits:
+    if not g.is_initializer(w_dq.input[0]):
         return None
     tail: list[Any] = []
     out = conv.output[0]
-    while out not in outputs and len(consumers.get(out, [])) == 1 and not (tail and tail[-1].op_type == "QuantizeLinear"):
-        nxt = consumers[out][0]
+    while (nxt := g.only_consumer(out)) is not None and not (tail and tail[-1].op_type == "QuantizeLinear"):
         if nxt.op_type not in ("Relu", "QuantizeLinear"):
             break
         tail.append(nxt)
@@ -128,11 +116,12 @@ def _int8_group(conv, producer, consumers, inits, outputs) -> _Group | None:
     return _Group(conv, x_dq, w_dq, tail)
 
 
-def _split(graph, group: _Group, attrs: dict, rows: list[Band], cols: list[Band]) -> None:
+def _split(g: Graph, group: _Group, given: dict, rows: list[Band], cols: list[Band]) -> None:
+    """Replace GROUP by one QDQ group per band of ROWS x COLS (see the module doc)."""
     from onnx import helper, numpy_helper
 
     conv, base = group.conv, group.conv.name or group.conv.output[0]
-    conv_attrs = {k: v for k, v in attrs.items() if k not in ("pads", "kernel_shape", "auto_pad")}
+    conv_attrs = {k: v for k, v in given.items() if k not in ("pads", "kernel_shape", "auto_pad")}
     nodes, consts = [], []
 
     def const(name: str, values: list[int]) -> str:
@@ -140,8 +129,7 @@ def _split(graph, group: _Group, attrs: dict, rows: list[Band], cols: list[Band]
         return name
 
     def copy(node, inputs: list[str], output: str, name: str):
-        return helper.make_node(node.op_type, inputs, [output], name=name,
-                                **{a.name: helper.get_attribute_value(a) for a in node.attribute})
+        return helper.make_node(node.op_type, inputs, [output], name=name, **attrs(node))
 
     band_outs = []
     for i, r in enumerate(rows):
@@ -168,12 +156,9 @@ def _split(graph, group: _Group, attrs: dict, rows: list[Band], cols: list[Band]
         nodes.append(helper.make_node("Concat", parts, [band_outs[-1]], name=f"{band_outs[-1]}_concat", axis=3))
     nodes.append(helper.make_node("Concat", band_outs, [group.tail[-1].output[0]], name=f"{base}{CROP_TAG}_concat",
                                   axis=2))
-    at = list(graph.node).index(group.tail[-1])  # every input of the regions is made before it
-    for k, node in enumerate(nodes):
-        graph.node.insert(at + k, node)
-    for old in [conv, *group.tail]:
-        graph.node.remove(old)
+    g.replace([conv, *group.tail], nodes, at=group.tail[-1])  # every input of the regions is made before it
     for old in (group.x_dq, group.w_dq):
-        if not any(o in n.input for n in graph.node for o in old.output):
-            graph.node.remove(old)
-    graph.initializer.extend(consts)
+        if not g.consumers(old.output[0]):
+            g.remove(old)
+    for tensor in consts:
+        g.add_tensor(tensor)

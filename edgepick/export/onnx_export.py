@@ -9,11 +9,12 @@ from __future__ import annotations
 
 import json
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -24,6 +25,7 @@ from edgepick.export.int8_activations import integer_activations
 from edgepick.files import atomic_path, sha256_of
 from edgepick.geometry import Size
 from edgepick.models.deeplabv3 import LogitsNet
+from edgepick.onnx_graph import Graph
 from edgepick.train.checkpoint import Checkpoint, load_model
 from edgepick.train.run import Run
 
@@ -87,15 +89,6 @@ def strip_debug_info(model) -> None:
         del node.metadata_props[:]
         node.doc_string = ""
     del model.graph.value_info[:]
-
-
-def drop_unused_initializers(model) -> None:
-    """Initializers no node reads any more (left by the passes above); onnxruntime warns about each."""
-    used = {i for n in model.graph.node for i in n.input} | {o.name for o in model.graph.output}
-    keep = [i for i in model.graph.initializer if i.name in used]
-    if len(keep) != len(model.graph.initializer):
-        del model.graph.initializer[:]
-        model.graph.initializer.extend(keep)
 
 
 # ONNX graph passes run after the export, by name; both change only int8 graphs and keep the labels.
@@ -163,7 +156,7 @@ def _write(net: nn.Module, example: tuple, path: str | Path, metadata: dict, pas
         strip_debug_info(model)
         for name in passes:
             EXPORT_PASSES[name](model)
-        drop_unused_initializers(model)
+        Graph(model).drop_unused_initializers()  # left by the passes; onnxruntime warns about each
         for key, value in metadata.items():
             entry = model.metadata_props.add()
             entry.key, entry.value = key, str(value)
@@ -183,3 +176,23 @@ def export_checkpoint(checkpoint: str | Path, out: str | Path) -> ExportResult:
     trim_dilated_convs(model, size)
     path = export_onnx(LogitsNet(model), out, contract_metadata(ckpt, "fp32", None), size)
     return ExportResult(out=str(path), size_bytes=path.stat().st_size, input_size=size, classes=list(ckpt.classes))
+
+
+def label_agreement(onnx_path: str | Path, net: nn.Module, images: Iterable[np.ndarray]) -> float:
+    """Share of pixels where onnxruntime's labels equal NET's argmax, NET fed [0, 255] NCHW float.
+
+    For an int8 file NET is the converted pt2e graph (torch's simulation of the same
+    quantized model); for fp32 it is the float model. Images are already at the model size.
+    """
+    from edgepick.runtime.session import Segmenter
+
+    seg = Segmenter(onnx_path, threads=2)
+    same = total = 0
+    with torch.no_grad():
+        for rgb in images:
+            ours = seg.infer(seg.prepare(rgb))
+            out = net(torch.from_numpy(rgb).permute(2, 0, 1)[None].float())
+            ref = (out["out"] if isinstance(out, dict) else out).argmax(1)[0].numpy().astype(np.uint8)
+            same += int((ours == ref).sum())
+            total += ref.size
+    return same / max(total, 1)

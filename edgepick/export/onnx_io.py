@@ -11,6 +11,7 @@ from typing import Any
 
 from edgepick.errors import ParameterError
 from edgepick.geometry import Size
+from edgepick.onnx_graph import Graph
 from edgepick.runtime.preprocessing import Layout
 
 MIN_OPSET = 13
@@ -83,29 +84,19 @@ def constants_to_initializers(model: Any) -> int:
     only, and its pre-processing fails on a model that has none. Returns how many were turned."""
     from onnx import numpy_helper
 
-    turned = [n for n in model.graph.node if n.op_type == "Constant" and len(n.attribute) == 1
+    g = Graph(model)
+    turned = [n for n in g.nodes if n.op_type == "Constant" and len(n.attribute) == 1
               and n.attribute[0].name == "value"]
     for node in turned:
-        tensor = numpy_helper.from_array(numpy_helper.to_array(node.attribute[0].t), node.output[0])
-        model.graph.initializer.append(tensor)
-        model.graph.node.remove(node)
+        g.add_initializer(node.output[0], numpy_helper.to_array(node.attribute[0].t))
+    g.remove(*turned)
     return len(turned)
 
 
 def drop_unused_initializers(model: Any) -> int:
     """Remove the initializers no node (nor a subgraph) reads, and their graph-input entries;
     onnxruntime warns about each one on every load. Returns how many went."""
-    used = {name for node in model.graph.node for name in node.input}
-    used |= {name for node in model.graph.node for attr in node.attribute if attr.g.node
-             for sub in attr.g.node for name in sub.input}
-    used |= {o.name for o in model.graph.output}
-    unused = [i for i in model.graph.initializer if i.name not in used]
-    for init in unused:
-        model.graph.initializer.remove(init)
-    names = {i.name for i in unused}
-    for value in [v for v in model.graph.input if v.name in names]:
-        model.graph.input.remove(value)
-    return len(unused)
+    return Graph(model).drop_unused_initializers()
 
 
 def opset(model: Any) -> int:

@@ -15,13 +15,13 @@ from edgepick.errors import QuantizationError
 from edgepick.lazy import lazy_attributes
 
 _WHERE = {
-    "AccuracyAwareResult": "results", "agreement_images": "passes", "BiasCorrection": "config",
-    "CalibMethod": "config", "calibrate": "graph", "Placement": "config",
-    "convert": "graph", "folder_images": "passes", "inspect": "inspect", "PassResult": "results",
-    "prepare": "graph", "QatHooks": "qat", "QuantConfig": "config",
-    "quantize_accuracy_aware": "inspect", "quantize_hybrid": "passes", "quantize_qat": "passes",
-    "quantize_static": "passes", "WeightBits": "config", "quantize_onnx_static": "onnx_static", "folder_tensors": "onnx_inputs",
-    "OnnxPassResult": "onnx_static"
+    "AccuracyAwareResult": "results", "agreement_images": "pt2e.passes", "BiasCorrection": "config",
+    "CalibMethod": "config", "calibrate": "pt2e.graph", "Placement": "config",
+    "convert": "pt2e.graph", "folder_images": "pt2e.passes", "inspect": "pt2e.inspect", "PassResult": "results",
+    "prepare": "pt2e.graph", "QatHooks": "pt2e.qat", "QuantConfig": "config",
+    "quantize_accuracy_aware": "pt2e.inspect", "quantize_hybrid": "pt2e.passes", "quantize_qat": "pt2e.passes",
+    "quantize_static": "pt2e.passes", "WeightBits": "config", "quantize_onnx_static": "onnx.static",
+    "folder_tensors": "onnx.inputs", "OnnxPassResult": "onnx.static"
 }
 __all__ = ["AccuracyAwareResult", "BiasCorrection", "CalibMethod", "OnnxPassResult", "PassResult", "Placement", "QatHooks",
            "QuantConfig",
@@ -31,12 +31,12 @@ __all__ = ["AccuracyAwareResult", "BiasCorrection", "CalibMethod", "OnnxPassResu
 
 if TYPE_CHECKING:
     from edgepick.quant.config import BiasCorrection, CalibMethod, Placement, QuantConfig, WeightBits
-    from edgepick.quant.graph import calibrate, convert, prepare
-    from edgepick.quant.inspect import inspect, quantize_accuracy_aware
-    from edgepick.quant.onnx_inputs import folder_tensors
-    from edgepick.quant.onnx_static import OnnxPassResult, quantize_onnx_static
-    from edgepick.quant.passes import agreement_images, folder_images, quantize_hybrid, quantize_qat, quantize_static
-    from edgepick.quant.qat import QatHooks
+    from edgepick.quant.onnx.inputs import folder_tensors
+    from edgepick.quant.onnx.static import OnnxPassResult, quantize_onnx_static
+    from edgepick.quant.pt2e.graph import calibrate, convert, prepare
+    from edgepick.quant.pt2e.inspect import inspect, quantize_accuracy_aware
+    from edgepick.quant.pt2e.passes import agreement_images, folder_images, quantize_hybrid, quantize_qat, quantize_static
+    from edgepick.quant.pt2e.qat import QatHooks
     from edgepick.quant.results import AccuracyAwareResult, PassResult
 
 

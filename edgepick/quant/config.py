@@ -47,7 +47,7 @@ class CalibMethod(enum.StrEnum):
     """How static PTQ sets activation ranges (compared by benchmarks/calib_methods.py)."""
 
     # every rule below, each tried on held-out calibration inputs; the one whose int8 outputs stay closest to
-    # fp32's is kept (quant/onnx_qdq.py, quant/graph.py)
+    # fp32's is kept (quant/onnx/qdq.py, quant/pt2e/graph.py)
     AUTO = "auto"
     MINMAX = "minmax"
     PERCENTILE = "percentile"  # a percentile of each histogram: clips rare outliers
@@ -56,7 +56,7 @@ class CalibMethod(enum.StrEnum):
 
 
 class BiasCorrection(enum.StrEnum):
-    """How static PTQ corrects the mean shift quantization gives each conv's output (quant/bias_correction.py)."""
+    """How static PTQ corrects the mean shift quantization gives each conv's output (quant/pt2e/bias_correction.py)."""
 
     NONE = "none"
     FAST = "fast"  # each conv on the float model's input (NNCF's fast bias correction)
@@ -64,7 +64,7 @@ class BiasCorrection(enum.StrEnum):
 
 
 class Placement(enum.StrEnum):
-    """Which tensors of an .onnx model static PTQ puts on the int8 grid (quant/onnx_static.py); the
+    """Which tensors of an .onnx model static PTQ puts on the int8 grid (quant/onnx/static.py); the
     faster file depends on the engine and the model (benchmarks/results/peers-onnx/)."""
 
     ALL = "all"  # every op onnxruntime runs in int8, with edgepick's activation rewrites: made for onnxruntime
@@ -75,7 +75,7 @@ class Placement(enum.StrEnum):
     # written: where NNCF places its fake-quants for OpenVINO
     JOINS = "joins"
     # each of the above made, timed on the target engine on this machine, and the fastest whose outputs stay as close
-    # to fp32 as the closest's (quant/onnx_placement.py)
+    # to fp32 as the closest's (quant/onnx/placement.py)
     AUTO = "auto"
 
 
@@ -88,7 +88,7 @@ class Target(enum.StrEnum):
 
 class GeluForm(enum.StrEnum):
     """How static PTQ of an .onnx model runs a GELU (x * Phi(x), written with Erf): onnxruntime has no
-    integer kernel for Erf (quant/onnx_gelu.py; benchmarks/results/peers-onnx/ times both)."""
+    integer kernel for Erf (quant/onnx/gelu.py; benchmarks/results/peers-onnx/ times both)."""
 
     FLOAT = "float"  # as the model writes it, each step in float between its Q/DQ: exact but for their rounding
     SIGMOID = "sigmoid"  # c * x * sigmoid(alpha * x), alpha fitted per layer: integer kernels, an approximation
@@ -96,7 +96,7 @@ class GeluForm(enum.StrEnum):
 
 class WeightBits(enum.StrEnum):
     """Weight precision. onnxruntime's U8S8 kernels on AVX2 CPUs without VNNI (the thesis's laptop) add pairs
-    of u8*s8 products in int16, which can saturate with 8-bit weights and never with 7-bit ones (quant/overflow.py)."""
+    of u8*s8 products in int16, which can saturate with 8-bit weights and never with 7-bit ones (quant/pt2e/overflow.py)."""
 
     SEVEN = "7"  # every conv: safe on every x86 CPU
     EIGHT = "8"  # every conv: for AVX512-VNNI / AVX-VNNI CPUs, which add in int32
@@ -120,8 +120,8 @@ class QuantConfig:
     # static PTQ: shift conv biases back to fp32's means; empirical was as close to fp32 as none or closer on every model
     # measured (benchmarks/results/ptq-methods/, ptq-methods-onnx/)
     bias_correction: BiasCorrection = BiasCorrection.EMPIRICAL
-    equalize: bool = False  # static PTQ: cross-layer equalization of conv pairs before calibration (quant/equalize.py)
-    adaround: bool = False  # static PTQ: learn each conv's weight rounding on the calibration images (quant/adaround.py)
+    equalize: bool = False  # static PTQ: cross-layer equalization of conv pairs before calibration (quant/pt2e/equalize.py)
+    adaround: bool = False  # static PTQ: learn each conv's weight rounding on the calibration images (quant/pt2e/adaround.py)
     adaround_budget_s: float = 120.0  # AdaRound's time budget, shared by the convs
     placement: Placement = Placement.ALL  # static PTQ of an .onnx model: which tensors are int8
     target: Target = Target.ONNXRUNTIME  # static PTQ of an .onnx model with placement auto: the engine it times

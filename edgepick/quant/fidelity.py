@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from edgepick.errors import ParameterError
+from edgepick.onnx_graph import Graph
 from edgepick.quant.ranges import RangeRule
 
 PROBABILITY_OPS = ("Sigmoid", "Softmax")
@@ -99,17 +100,17 @@ def guess_task(shape: tuple[int, ...], made_by: str | bool | None, nhwc: bool = 
 def probability_outputs(model) -> dict[str, str | None]:
     """Per graph output of the ONNX MODEL: the op (Sigmoid or Softmax) that makes it a probability,
     through ops that only move values (Reshape, Transpose, a Concat of such, ...); None if none."""
-    producer = {o: n for n in model.graph.node for o in n.output}
+    g = Graph(model)
 
     def made_by(name: str, depth: int = 0) -> str | None:
-        node = producer.get(name)
+        node = g.producer(name)
         if node is None or depth > 32:
             return None
         if node.op_type in PROBABILITY_OPS:
             return node.op_type
         if node.op_type not in SHAPE_OPS:
             return None
-        inputs = [i for i in node.input if i in producer]
+        inputs = [i for i in node.input if g.producer(i) is not None]
         if not inputs:
             return None
         if node.op_type == "Concat":

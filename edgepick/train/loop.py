@@ -8,7 +8,7 @@ last.pt, losing at most one epoch.
 `fit` trains whatever model it is given and knows nothing of quantization: a model that needs
 more from the loop (a QaT graph: its own train/eval switch, an eval copy for validation, a change
 at a share of the steps, its own checkpoint entries) brings a `Hooks` object
-(edgepick.quant.qat.QatHooks), as torchao's pt2e flow expects: prepare_qat_pt2e returns a graph
+(edgepick.quant.QatHooks), as torchao's pt2e flow expects: prepare_qat_pt2e returns a graph
 and the user's own loop trains it.
 """
 

@@ -15,10 +15,10 @@ from torch import nn
 from edgepick.errors import ParameterError
 from edgepick.geometry import Size
 from edgepick.quant import QuantConfig, convert, prepare, quantize_static
-from edgepick.quant.adaround import adaround
-from edgepick.quant.bias_correction import int8_convs
-from edgepick.quant.graph import as_input
-from edgepick.quant.overflow import _float_weight
+from edgepick.quant.pt2e.adaround import adaround
+from edgepick.quant.pt2e.bias_correction import int8_convs
+from edgepick.quant.pt2e.graph import as_input
+from edgepick.quant.pt2e.overflow import float_weight
 
 SIZE = Size(32, 24)
 
@@ -69,7 +69,7 @@ def test_adaround_lowers_the_output_error_of_round_to_nearest(inputs):
 
     for name, q in int8_convs(converted).items():
         scale = attrgetter(q.args[1].args[1].target)(converted).view(-1, 1, 1, 1)
-        w = _float_weight(reference, name) / scale
+        w = float_weight(reference, name) / scale
         # every code is the float weight rounded down or up, and some differ from nearest rounding
         assert bool(((learnt[name] >= torch.floor(w) - 1e-6) & (learnt[name] <= torch.ceil(w) + 1e-6)).all())
     assert any(not torch.equal(nearest[n], learnt[n]) for n in dense)

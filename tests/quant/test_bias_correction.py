@@ -16,8 +16,8 @@ from torch import nn
 from edgepick.errors import ParameterError
 from edgepick.geometry import Size
 from edgepick.quant import BiasCorrection, QuantConfig, calibrate, convert, prepare, quantize_static
-from edgepick.quant.bias_correction import correct_biases, int8_convs
-from edgepick.quant.rewrites import snap_conv_biases
+from edgepick.quant.pt2e.bias_correction import correct_biases, int8_convs
+from edgepick.quant.pt2e.rewrites import snap_conv_biases
 
 SIZE = Size(32, 24)
 
@@ -68,10 +68,10 @@ def _graphs(images, net=None):
 
 def _conv_means(graph, inputs):
     """Per conv node name, the per-channel mean of its output over INPUTS (not the logits conv's)."""
-    from edgepick.quant.bias_correction import _Means
+    from edgepick.quant.pt2e.bias_correction import Means
 
     convs = [n.name for n in graph.graph.nodes if n.target == torch.ops.aten.conv2d.default]
-    means = _Means(graph, {name: name for name in convs[:-1]})
+    means = Means(graph, {name: name for name in convs[:-1]})
     with torch.no_grad():
         for x in inputs:
             means.run(x)
@@ -86,7 +86,7 @@ def images():
 
 @pytest.mark.parametrize("method", [BiasCorrection.FAST, BiasCorrection.EMPIRICAL])
 def test_a_planted_mean_shift_is_removed(images, method):
-    from edgepick.quant.graph import as_input
+    from edgepick.quant.pt2e.graph import as_input
 
     inputs = [as_input(rgb) for rgb in images]
     reference, converted = _graphs(images)
@@ -107,7 +107,7 @@ def test_a_planted_mean_shift_is_removed(images, method):
 def test_the_convs_summed_into_the_logits_are_left_alone(images):
     """Correcting the means of convs whose outputs are added into the logits would match the
     logits' means, which moved labels away from fp32's (benchmarks/results/ptq-methods-onnx/)."""
-    from edgepick.quant.graph import as_input
+    from edgepick.quant.pt2e.graph import as_input
 
     reference, converted = _graphs(images, SummedLogits())
     convs = int8_convs(converted)
@@ -120,12 +120,12 @@ def test_the_convs_summed_into_the_logits_are_left_alone(images):
 def _gaps(reference, converted, inputs):
     """Per conv (not the logits conv), [images, channels]: fp32's per-image channel means minus
     the int8 graph's, over INPUTS."""
-    from edgepick.quant.bias_correction import _ImageMeans
+    from edgepick.quant.pt2e.bias_correction import ImageMeans
 
     convs = [n.name for n in reference.graph.nodes if n.target == torch.ops.aten.conv2d.default][:-1]
     means = []
     for graph in (reference, converted):
-        runner = _ImageMeans(graph, convs)
+        runner = ImageMeans(graph, convs)
         with torch.no_grad():
             for x in inputs:
                 runner.run(x)
@@ -137,7 +137,7 @@ def test_the_empirical_form_closes_the_gap_at_every_conv_where_the_fast_one_does
     """Ranges calibrated on darker images clip the input of the first conv: its per-pixel errors
     move the mean of the second conv's output through the ReLU between them. Only the empirical
     form, which runs the int8 model itself, sees that: it leaves no typical (median) gap to fp32."""
-    from edgepick.quant.graph import as_input
+    from edgepick.quant.pt2e.graph import as_input
 
     inputs = [as_input(rgb) for rgb in images]
     left = {}
@@ -153,7 +153,7 @@ def test_one_image_clipped_hard_does_not_set_the_bias_of_the_others(images):
     """Calibrated on dark images, a white one is clipped at the first conv's input and its outputs
     fall far below fp32's. Its error must not be handed to the others: the images in range keep
     their planted shift removed (a mean over all images would leave a sixth of the white image's gap)."""
-    from edgepick.quant.graph import as_input
+    from edgepick.quant.pt2e.graph import as_input
 
     dark = [rgb // 2 for rgb in images]
     typical = [as_input(rgb) for rgb in dark[:5]]
@@ -182,7 +182,7 @@ def test_none_changes_nothing_and_onnx_models_say_it_is_not_there(images, tmp_pa
 
 
 def test_a_module_pass_records_its_bias_correction(images, tmp_path):
-    from edgepick.quant.graph import as_input
+    from edgepick.quant.pt2e.graph import as_input
 
     result = quantize_static(Planted().eval(), [as_input(rgb) for rgb in images], tmp_path / "p.onnx",
                              QuantConfig(bias_correction=BiasCorrection.EMPIRICAL), progress=False)

@@ -11,8 +11,8 @@ from torch import nn
 from edgepick.errors import ParameterError
 from edgepick.geometry import Size
 from edgepick.quant import QuantConfig, calibrate, convert, prepare
-from edgepick.quant.equalize import EQUALIZED, equalization_pairs
-from edgepick.quant.graph import as_input
+from edgepick.quant.pt2e.equalize import EQUALIZED, equalization_pairs
+from edgepick.quant.pt2e.graph import as_input
 
 SIZE = Size(32, 24)
 IMBALANCE = torch.logspace(0, 2, 8)  # 1x .. 100x
@@ -45,7 +45,7 @@ def images():
 
 
 def _conv_weight(graph, name):
-    from edgepick.quant.equalize import _param
+    from edgepick.quant.pt2e.equalize import _param
 
     node = next(n for n in graph.graph.nodes if n.name == name)
     return _param(graph, node.args[1]).detach()

@@ -17,7 +17,7 @@ from edgepick.quant.fidelity import (
     guess_task,
     probability_outputs,
 )
-from edgepick.quant.onnx_static import quantize_onnx_static
+from edgepick.quant.onnx.static import quantize_onnx_static
 from tests.quant.onnx_models import detector_head_model, helper_model
 
 

@@ -9,8 +9,8 @@ from edgepick.geometry import Size
 
 
 def test_a_quantizer_that_marks_nothing_is_refused(trained_run, monkeypatch):
-    from edgepick.quant import graph
-    from edgepick.quant.quantizer import EdgeQuantizer, QuantConfig
+    from edgepick.quant.pt2e import graph
+    from edgepick.quant.pt2e.quantizer import EdgeQuantizer, QuantConfig
     from edgepick.train.checkpoint import load_model
 
     monkeypatch.setattr(EdgeQuantizer, "annotate", lambda self, model: model)

@@ -9,8 +9,8 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from edgepick.quant.inspect import compare, float_graph, inspect, quantize_accuracy_aware  # noqa: E402
-from edgepick.quant.passes import folder_images, model_images  # noqa: E402
+from edgepick.quant.pt2e.inspect import compare, float_graph, inspect, quantize_accuracy_aware  # noqa: E402
+from edgepick.quant.pt2e.passes import folder_images, model_images  # noqa: E402
 from edgepick.train.checkpoint import load_model  # noqa: E402
 from tests.conftest import run_cli  # noqa: E402
 
@@ -38,7 +38,7 @@ def test_inspect_reports_every_conv_and_ranks_candidates(trained_run, small_data
 
 
 def test_accuracy_aware_static_keeps_the_worst_layers_float(trained_run, small_data, tmp_path, monkeypatch):
-    import edgepick.quant.inspect as module
+    import edgepick.quant.pt2e.inspect as module
 
     ranked_on = []  # the layer ranking runs only once a step misses the budget
     monkeypatch.setattr(module, "inspect", lambda *a, **k: ranked_on.append(1) or inspect(*a, **k))

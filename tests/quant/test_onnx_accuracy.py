@@ -1,4 +1,4 @@
-"""Fidelity first: which activations to leave float, found by measuring (quant/onnx_accuracy.py)."""
+"""Fidelity first: which activations to leave float, found by measuring (quant/onnx/accuracy.py)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import pytest
 
 from edgepick.errors import ParameterError
 from edgepick.quant.config import QuantConfig
-from edgepick.quant.onnx_accuracy import FidelityBudget
-from edgepick.quant.onnx_static import quantize_onnx_static
+from edgepick.quant.onnx.accuracy import FidelityBudget
+from edgepick.quant.onnx.static import quantize_onnx_static
 from tests.quant.onnx_models import faint_channel_inputs, faint_channel_model
 
 

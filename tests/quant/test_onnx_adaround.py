@@ -9,8 +9,10 @@ import json
 import numpy as np
 import onnx
 
-from edgepick.quant import QuantConfig, onnx_adaround, quantize_static
-from edgepick.quant.onnx_measure import _Values, qdq_convs
+from edgepick.quant import QuantConfig, quantize_static
+from edgepick.quant.onnx import adaround as onnx_adaround
+from edgepick.quant.onnx import static as onnx_static
+from edgepick.quant.onnx.measure import Values, qdq_convs
 from tests.quant.onnx_models import export_module, image_tensors, run
 from tests.quant.test_adaround import Small
 
@@ -29,15 +31,15 @@ def test_adaround_lowers_each_convs_error_and_rounds_each_weight_down_or_up(tmp_
 
     def spy(float_model, model, tensors, seconds, seven_bit):
         convs = qdq_convs(model)
-        values, nodes = _Values(model), {n.name: n for n in float_model.graph.node}
+        values, nodes = Values(model), {n.name: n for n in float_model.graph.node}
         seen["nearest"] = {name: values[c.weight_codes] for name, c in convs.items()}
         seen["report"] = report = original(float_model, model, tensors, seconds, seven_bit, steps=300)
-        seen["learnt"] = {name: _Values(model)[c.weight_codes] for name, c in convs.items()}
-        seen["w"] = {name: _Values(float_model)[nodes[name].input[1]] / values[c.weight_scale].reshape(-1, 1, 1, 1)
+        seen["learnt"] = {name: Values(model)[c.weight_codes] for name, c in convs.items()}
+        seen["w"] = {name: Values(float_model)[nodes[name].input[1]] / values[c.weight_scale].reshape(-1, 1, 1, 1)
                      for name, c in convs.items()}
         return report
 
-    monkeypatch.setattr(onnx_adaround, "adaround_onnx", spy)
+    monkeypatch.setattr(onnx_static, "adaround_onnx", spy)
     path, tensors = _export(tmp_path / "f.onnx"), _tensors()
     quantize_static(path, tensors, tmp_path / "a.onnx", QuantConfig(adaround=True), progress=False)
     report, nearest, learnt = seen["report"], seen["nearest"], seen["learnt"]
@@ -55,7 +57,7 @@ def test_adaround_lowers_each_convs_error_and_rounds_each_weight_down_or_up(tmp_
 def test_the_int8_file_follows_fp32_more_closely_and_records_it(tmp_path, monkeypatch):
     # a fixed step count, for a result that does not depend on the machine's speed (measured: the
     # logits' squared error 4.3e-6 with nearest rounding, 2.1e-6 with AdaRound)
-    monkeypatch.setattr(onnx_adaround, "adaround_onnx", functools.partial(onnx_adaround.adaround_onnx, steps=300))
+    monkeypatch.setattr(onnx_static, "adaround_onnx", functools.partial(onnx_adaround.adaround_onnx, steps=300))
     path, tensors = _export(tmp_path / "f.onnx"), _tensors()
     error = {}
     for ada in (False, True):

@@ -1,4 +1,4 @@
-"""Streaming calibration of an ONNX model (quant/onnx_calibrate.py): every tensor counted, whatever
+"""Streaming calibration of an ONNX model (quant/onnx/calibrate.py): every tensor counted, whatever
 their number, memory bounded, and the ranges the int8 file is written with."""
 
 from __future__ import annotations
@@ -10,14 +10,14 @@ import onnx
 import pytest
 
 from edgepick.quant.config import CalibMethod, QuantConfig
-from edgepick.quant.onnx_calibrate import (
+from edgepick.quant.onnx.calibrate import (
     CalibrationMemoryError,
     Collector,
     calibrated_tensors,
     check_memory,
     output_groups,
 )
-from edgepick.quant.onnx_static import quantize_onnx_static
+from edgepick.quant.onnx.static import quantize_onnx_static
 from edgepick.quant.ranges import RangeRule
 from tests.quant.onnx_models import conv_relu_model
 
@@ -100,11 +100,11 @@ def test_a_calibration_that_cannot_fit_is_refused_in_one_line(tmp_path, monkeypa
     path, _, _ = conv_relu_model(tmp_path / "m.onnx")
     model = onnx.shape_inference.infer_shapes(onnx.load(str(path)))
     sizes = calibrated_tensors(model, ["Conv", "Relu"])
-    monkeypatch.setattr("edgepick.quant.onnx_calibrate.available_memory", lambda: 100)
+    monkeypatch.setattr("edgepick.quant.onnx.calibrate.available_memory", lambda: 100)
     with pytest.raises(CalibrationMemoryError, match=r"^calib: calibration needs about .* GB and 0.0 GB is "
                                                      r"available .*: give smaller input tensors"):
         check_memory(model, sizes, input_bytes=512)
-    monkeypatch.setattr("edgepick.quant.onnx_calibrate.available_memory", lambda: None)  # unknown: no refusal
+    monkeypatch.setattr("edgepick.quant.onnx.calibrate.available_memory", lambda: None)  # unknown: no refusal
     assert check_memory(model, sizes, input_bytes=512) > 0
 
 

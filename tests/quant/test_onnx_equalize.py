@@ -9,9 +9,10 @@ import json
 import numpy as np
 import onnx
 
+from edgepick.onnx_graph import Graph
 from edgepick.quant import QuantConfig, quantize_static
-from edgepick.quant.onnx_equalize import equalize_onnx
-from edgepick.quant.onnx_graph import _conv_params, _Graph
+from edgepick.quant.onnx.equalize import equalize_onnx
+from edgepick.quant.onnx.rewrite import conv_params
 from tests.quant.onnx_models import export_module, image_tensors, run
 from tests.quant.test_equalize import Imbalanced
 
@@ -27,13 +28,13 @@ def _tensors(count=6):
 def test_the_onnx_graph_is_equalized_with_the_same_outputs(tmp_path):
     path = _export(tmp_path / "f.onnx")
     model = onnx.load(str(path))
-    g = _Graph(model)
+    g = Graph(model)
     first = next(n for n in g.graph.node if n.op_type == "Conv")
-    before = np.abs(_conv_params(g, first)[0]).max(axis=(1, 2, 3))
+    before = np.abs(conv_params(g, first)[0]).max(axis=(1, 2, 3))
     assert before.max() / before.min() > 30  # the exporter folded the planted BatchNorm gains into the conv
     assert equalize_onnx(model) == 2
-    g = _Graph(model)
-    after = np.abs(_conv_params(g, first)[0]).max(axis=(1, 2, 3))
+    g = Graph(model)
+    after = np.abs(conv_params(g, first)[0]).max(axis=(1, 2, 3))
     assert after.max() / after.min() < 4, after
     onnx.save(model, str(tmp_path / "e.onnx"))
     x = _tensors(1)[0]

@@ -1,4 +1,4 @@
-"""GELU on onnxruntime's integer kernels (`edgepick/quant/onnx_gelu.py`, QuantConfig(gelu="sigmoid"))."""
+"""GELU on onnxruntime's integer kernels (`edgepick/quant/onnx/gelu.py`, QuantConfig(gelu="sigmoid"))."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ import pytest
 
 from edgepick.errors import ParameterError
 from edgepick.quant.config import QuantConfig
-from edgepick.quant.onnx_gelu import fit_sigmoid_gelu
-from edgepick.quant.onnx_static import quantize_onnx_static
+from edgepick.quant.onnx.gelu import fit_sigmoid_gelu
+from edgepick.quant.onnx.static import quantize_onnx_static
 from tests.quant.onnx_models import calib_tensors, export_module, optimized_ops
 
 erf = np.vectorize(math.erf)

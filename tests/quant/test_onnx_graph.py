@@ -8,7 +8,7 @@ import pytest
 from onnx import TensorProto, helper, numpy_helper
 
 from edgepick.export.onnx_io import fix_input_shape, input_dims, lift_opset, load_float_onnx, opset
-from edgepick.quant.onnx_graph import fold_affine_into_convs, rewrite_activations
+from edgepick.quant.onnx.rewrite import fold_affine_into_convs, rewrite_activations
 from tests.quant.onnx_models import calib_tensors, export_torch, run
 
 

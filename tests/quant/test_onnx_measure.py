@@ -11,7 +11,8 @@ import pytest
 
 from edgepick.errors import ParameterError
 from edgepick.quant import QuantConfig, quantize_static
-from edgepick.quant.onnx_measure import _runner, _segments, _Values, qdq_convs, saturating_onnx_convs
+from edgepick.quant.onnx.lockstep import runner, segments
+from edgepick.quant.onnx.measure import Values, qdq_convs, saturating_onnx_convs
 from tests.quant.onnx_models import export_module, image_tensors
 from tests.quant.test_bias_correction import Planted, SummedLogits
 from tests.quant.test_overflow import Bright
@@ -35,7 +36,7 @@ def _conv_mean(path, conv, tensors):
     """Per-channel mean of the output of the node named CONV in the model at PATH over TENSORS."""
     model = onnx.load(str(path))
     out = next(n for n in model.graph.node if n.name == conv).output[0]
-    run = _runner(model, [out])
+    run = runner(model, [out])
     return np.mean([run(x, [out])[0].mean(axis=(0, 2, 3)) for x in tensors], axis=0)
 
 
@@ -53,14 +54,14 @@ def test_empirical_correction_removes_a_planted_mean_shift(tmp_path):
     quant = _quant(tmp_path / "empirical.onnx")
     assert quant["bias_correction"] == "empirical" and quant["measured_images"] == len(tensors)
     logits = {m: qdq_convs(onnx.load(str(tmp_path / f"{m}.onnx")))["/logits/Conv"] for m in ("none", "empirical")}
-    codes = {m: _Values(onnx.load(str(tmp_path / f"{m}.onnx")))[c.bias_codes] for m, c in logits.items()}
+    codes = {m: Values(onnx.load(str(tmp_path / f"{m}.onnx")))[c.bias_codes] for m, c in logits.items()}
     np.testing.assert_array_equal(codes["none"], codes["empirical"])  # the conv writing the float logits is left alone
 
 
 def test_one_tensor_clipped_hard_does_not_set_the_bias_of_the_others(tmp_path):
     """As on torch graphs (test_bias_correction): calibrated on dark tensors, a white one is clipped
     and its conv outputs fall far below fp32's; the tensors in range keep their planted shift removed."""
-    from edgepick.quant.onnx_measure import correct_onnx_biases
+    from edgepick.quant.onnx.measure import correct_onnx_biases
 
     path = _export(Planted(), tmp_path / "f.onnx")
     dark = [t // 2 for t in _tensors(60)]
@@ -72,7 +73,7 @@ def test_one_tensor_clipped_hard_does_not_set_the_bias_of_the_others(tmp_path):
         means = []
         for m in (fp32, model):
             outs = [next(n for n in m.graph.node if n.name == name).output[0] for name in ("/a/Conv", "/b/Conv")]
-            run = _runner(m, outs)
+            run = runner(m, outs)
             means.append([np.stack([y.mean(axis=(0, 2, 3)) for y in ys]) for ys in zip(*(run(x, outs) for x in tensors))])
         return {name: means[0][i] - means[1][i] for i, name in enumerate(("/a/Conv", "/b/Conv"))}
 
@@ -93,7 +94,7 @@ def test_the_convs_summed_into_the_logits_are_left_alone(tmp_path):
         quantize_static(path, _tensors(60), tmp_path / f"{method}.onnx", QuantConfig(bias_correction=method),
                         progress=False)
         model = onnx.load(str(tmp_path / f"{method}.onnx"))
-        codes[method] = {name: _Values(model)[c.bias_codes] for name, c in qdq_convs(model).items()}
+        codes[method] = {name: Values(model)[c.bias_codes] for name, c in qdq_convs(model).items()}
     assert sorted(codes["none"]) == ["/a/Conv", "/b/Conv", "/logits/Conv", "/low/Conv"]
     changed = {name for name in codes["none"] if not np.array_equal(codes["none"][name], codes["empirical"][name])}
     assert changed == {"/a/Conv", "/b/Conv"}, changed
@@ -104,15 +105,15 @@ def test_convs_are_corrected_in_waves_after_everything_they_read(tmp_path):
 
     model = onnx.load(str(export_torch(tmp_path / "f.onnx", opset=13)))
     convs = {n.name: n for n in model.graph.node if n.op_type == "Conv"}
-    segments = _segments(model, convs)
-    waves = [s.wave for s in segments if s.wave]
+    cut = segments(model, convs)
+    waves = [s.wave for s in cut if s.wave]
     assert sorted(sum(waves, [])) == sorted(convs)
     made = {model.graph.input[0].name}
-    for s in segments:  # each segment reads only what the segments before it made
+    for s in cut:  # each segment reads only what the segments before it made
         assert set(s.inputs) <= made, set(s.inputs) - made
         made.update(s.outputs)
         made.difference_update(s.last)
-    assert not any(n.op_type == "DequantizeLinear" for s in segments for n in s.nodes)  # a float model: none
+    assert not any(n.op_type == "DequantizeLinear" for s in cut for n in s.nodes)  # a float model: none
     wave_of = {name: i for i, wave in enumerate(waves) for name in wave}
     assert wave_of["/c1/Conv"] == 0 and wave_of["/dw/Conv"] == 1
     assert wave_of["/se/fc1/Conv"] < wave_of["/se/fc2/Conv"] < wave_of["/pw/Conv"] < wave_of["/c2/Conv"]
@@ -130,12 +131,12 @@ def test_first_7_gives_7_bit_weights_only_where_8_bit_ones_saturate(tmp_path):
     first = onnx.load(str(files["first-7"]))
     assert _quant(files["first-7"])["seven_bit_convs"] == ["/a/Conv"]
     assert all(v == 0.0 for v in saturating_onnx_convs(first, bright, 32767).values())
-    codes = {name: _Values(first)[c.weight_codes] for name, c in qdq_convs(first).items()}
+    codes = {name: Values(first)[c.weight_codes] for name, c in qdq_convs(first).items()}
     assert {name: int(np.abs(c).max()) for name, c in codes.items()} == {"/a/Conv": 64, "/b/Conv": 127}
     seven = onnx.load(str(files["7"]))
     a = qdq_convs(seven)["/a/Conv"]
-    np.testing.assert_array_equal(codes["/a/Conv"], _Values(seven)[a.weight_codes])  # onnxruntime's own 7-bit grid
-    np.testing.assert_allclose(_Values(first)[qdq_convs(first)["/a/Conv"].weight_scale], _Values(seven)[a.weight_scale])
+    np.testing.assert_array_equal(codes["/a/Conv"], Values(seven)[a.weight_codes])  # onnxruntime's own 7-bit grid
+    np.testing.assert_allclose(Values(first)[qdq_convs(first)["/a/Conv"].weight_scale], Values(seven)[a.weight_scale])
 
 
 def test_what_the_onnx_path_cannot_do_is_refused_in_one_line(tmp_path):

@@ -1,4 +1,4 @@
-"""Placement auto: the candidates made, timed on the target engine and the choice recorded (quant/onnx_placement.py)."""
+"""Placement auto: the candidates made, timed on the target engine and the choice recorded (quant/onnx/placement.py)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import pytest
 
 from edgepick.errors import ParameterError
 from edgepick.quant.config import QuantConfig
-from edgepick.quant.onnx_placement import PLACEMENT_FIDELITY_DB
-from edgepick.quant.onnx_static import quantize_onnx_static
+from edgepick.quant.onnx.placement import PLACEMENT_FIDELITY_DB
+from edgepick.quant.onnx.static import quantize_onnx_static
 from tests.quant.onnx_models import calib_tensors, export_torch
 
 

@@ -1,5 +1,5 @@
 """The QDQ graph for edgepick's own ranges, the tensors never clipped and the per-model choice of the
-range rule (quant/onnx_qdq.py, through quantize_onnx_static)."""
+range rule (quant/onnx/qdq.py, through quantize_onnx_static)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import onnx
 import pytest
 
 from edgepick.quant.config import QuantConfig
-from edgepick.quant.onnx_qdq import exact_tensors
-from edgepick.quant.onnx_static import quantize_onnx_static
+from edgepick.quant.onnx.qdq import exact_tensors
+from edgepick.quant.onnx.static import quantize_onnx_static
 from tests.quant.onnx_models import conv_relu_model, detector_head_model, run
 
 

@@ -15,7 +15,7 @@ import pytest
 from edgepick.errors import ParameterError
 from edgepick.export.checks import conv_weight_report
 from edgepick.quant.config import QuantConfig
-from edgepick.quant.onnx_static import quantize_onnx_static
+from edgepick.quant.onnx.static import quantize_onnx_static
 from tests.conftest import run_cli, without_torch
 from tests.quant.onnx_models import calib_tensors, export_torch, optimized_ops, run, unused_initializers
 
@@ -205,3 +205,14 @@ def test_the_json_reports_sqnr_and_cosine_per_output_and_a_raw_output_no_agreeme
     recorded = json.loads({p.key: p.value for p in onnx.load(str(out)).metadata_props}["edgepick.fidelity"])
     assert recorded == result["fidelity"]
 
+
+
+def test_the_onnx_pass_and_all_its_methods_run_without_torch(inputs, tmp_path):
+    """first-7, equalization, AdaRound and bias correction on an .onnx model: numpy and onnxruntime only."""
+    out = tmp_path / "q.onnx"
+    proc = run_cli("quantize", "static", str(inputs["NET"]), "--calib", str(inputs["NPY"]), "--weight-bits", "first-7",
+                   "--equalize", "--adaround", "--adaround-budget", "2", "--out", str(out),
+                   env=without_torch(tmp_path / "blocked"))
+    assert proc.returncode == 0, proc.stderr
+    quant = json.loads(proc.stdout)["quant"]
+    assert quant["adaround"] and quant["equalize"] and "seven_bit_convs" in quant and quant["measured_images"] >= 1

@@ -14,14 +14,19 @@ from torch import nn
 from edgepick.errors import ParameterError
 from edgepick.geometry import Size
 from edgepick.quant import QuantConfig, WeightBits, calibrate, prepare, quantize_static
-from edgepick.quant.bias_correction import int8_convs
-from edgepick.quant.graph import as_input
-from edgepick.quant.overflow import saturated_share, saturating_convs
-from edgepick.quant.ptq import convert_static
+from edgepick.quant.methods import saturated_share as numpy_share
+from edgepick.quant.pt2e.bias_correction import int8_convs
+from edgepick.quant.pt2e.graph import as_input
+from edgepick.quant.pt2e.overflow import saturating_convs
+from edgepick.quant.pt2e.ptq import convert_static
 
 SIZE = Size(16, 12)
 ONE = ((1, 1), (0, 0), (1, 1), 1)  # stride, padding, dilation, groups
 THREE = ((1, 1), (1, 1), (1, 1), 1)
+
+
+def saturated_share(codes: torch.Tensor, weights: torch.Tensor, *geometry) -> float:
+    return numpy_share(codes.numpy(), weights.numpy(), *geometry)
 
 
 def test_a_pair_saturates_where_two_large_codes_meet_two_large_weights_of_one_sign():

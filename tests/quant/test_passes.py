@@ -55,9 +55,9 @@ def test_preprocessing_constants_span_the_width(onnx_files):
 
 
 def test_fp32_onnx_agrees_with_torch(onnx_files, trained_run, small_data):
-    from edgepick.export.checks import label_agreement
+    from edgepick.export.onnx_export import label_agreement
     from edgepick.models.deeplabv3 import LogitsNet
-    from edgepick.quant.passes import model_images
+    from edgepick.quant.pt2e.passes import model_images
     from edgepick.train.checkpoint import load_model
 
     model, ckpt = load_model(trained_run)
@@ -88,7 +88,7 @@ def _as_if_trained_on_a_gpu(run: Path, dest: Path) -> Path:
 
 
 def test_hybrid_qat_from_a_kept_epoch(trained_run, small_data, tmp_path):
-    from edgepick.quant.passes import folder_images, quantize_hybrid
+    from edgepick.quant.pt2e.passes import folder_images, quantize_hybrid
 
     p = 1 / EPOCHS  # the last epoch with QaT, from epoch_024.pt
     # the QaT phase runs where it is started (here: CPU in CI), not on the device the float run recorded
@@ -121,10 +121,10 @@ def test_hybrid_qat_from_a_kept_epoch(trained_run, small_data, tmp_path):
         train(TrainConfig(data=str(small_data), out=str(tmp_path / "h.run")), resume=True)
 
     # held ranges: the QaT run ends with exactly the ranges that calibrating its start gives
-    from edgepick.quant.graph import prepare
-    from edgepick.quant.passes import model_images
-    from edgepick.quant.qat import activation_fake_quants, calibrate_activations, load_qat
-    from edgepick.quant.quantizer import QuantConfig
+    from edgepick.quant.pt2e.graph import prepare
+    from edgepick.quant.pt2e.passes import model_images
+    from edgepick.quant.pt2e.qat import activation_fake_quants, calibrate_activations, load_qat
+    from edgepick.quant.pt2e.quantizer import QuantConfig
     from edgepick.train.checkpoint import load_model
 
     def ranges(graph) -> dict:
@@ -138,7 +138,7 @@ def test_hybrid_qat_from_a_kept_epoch(trained_run, small_data, tmp_path):
     assert ranges(load_qat(Checkpoint.load(tmp_path / "h.run" / "last.pt"))) == pytest.approx(ranges(expected), rel=1e-5)
 
     # the file is the QaT phase's best epoch on val (best.pt); the phase time is the whole run's (last.pt)
-    from edgepick.quant.passes import _exported_epoch
+    from edgepick.quant.pt2e.passes import _exported_epoch
 
     last = Checkpoint.load(tmp_path / "h.run" / "last.pt")
     replace(last, epoch=EPOCHS + 1, train_time_s=last.train_time_s + 100.0).save(last.path)  # one more, worse, epoch
@@ -148,7 +148,7 @@ def test_hybrid_qat_from_a_kept_epoch(trained_run, small_data, tmp_path):
 
 
 def test_qat_from_scratch(small_data, tmp_path):
-    from edgepick.quant.passes import quantize_qat
+    from edgepick.quant.pt2e.passes import quantize_qat
     from edgepick.train.loop import TrainConfig
 
     cfg = TrainConfig(data=str(small_data), out=str(tmp_path / "q.run"), epochs=1, batch_size=4, size=Size(96, 64),
@@ -199,8 +199,8 @@ def test_static_takes_images_from_anywhere_at_any_size_and_keeps_layers_float(tr
     import numpy as np
 
     from edgepick.errors import ConfigError
-    from edgepick.quant.passes import folder_images, quantize_static
-    from edgepick.quant.quantizer import QuantConfig
+    from edgepick.quant.pt2e.passes import folder_images, quantize_static
+    from edgepick.quant.pt2e.quantizer import QuantConfig
 
     rng = np.random.default_rng(0)
     own = [rng.integers(0, 256, (480, 640, 3), dtype=np.uint8)]  # a camera frame, not a data set image
@@ -209,7 +209,7 @@ def test_static_takes_images_from_anywhere_at_any_size_and_keeps_layers_float(tr
     result = quantize_static(trained_run, images, tmp_path / "own.onnx", config, progress=False)
     assert result.quant["calib_images"] == 4 and result.int8_convs == 68 and len(result.float_convs) == 2
     assert json.loads(Segmenter(result.out).info.metadata["edgepick.quant"])["calib_images"] == 4
-    import edgepick.quant.passes as passes
+    import edgepick.quant.pt2e.passes as passes
 
     def no_prepare(*args, **kwargs):
         raise AssertionError("a bad first image must be refused before the graph is prepared")

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from edgepick.quant.config import BIAS_CORRECTION_IMAGES, MIN_LOCKSTEP_IMAGES
-from edgepick.quant.ptq import within_lockstep
+from edgepick.quant.pt2e.ptq import within_lockstep
 
 
 @pytest.mark.parametrize(("hw", "batch", "expected"), [

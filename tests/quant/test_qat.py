@@ -14,18 +14,18 @@ from edgepick.train.checkpoint import Checkpoint
 def fresh_qat() -> torch.fx.GraphModule:
     """One untrained DeepLabV3-MobileNetV3 (the default ModelConfig, seed 0) prepared for QaT at 96x64, built once
     for the tests that only look at or train such a graph: they take a copy.deepcopy of it. A copy's
-    train()/eval() act on the original: switch copies with edgepick.quant.qat.to_eval / set_mode."""
+    train()/eval() act on the original: switch copies with edgepick.quant.pt2e.qat.to_eval / set_mode."""
     from edgepick.models import ModelConfig, build_model
-    from edgepick.quant.graph import prepare
-    from edgepick.quant.quantizer import QuantConfig
+    from edgepick.quant.pt2e.graph import prepare
+    from edgepick.quant.pt2e.quantizer import QuantConfig
 
     torch.manual_seed(0)
     return prepare(build_model(ModelConfig()), QuantConfig(), Size(96, 64), qat=True)
 
 
 def _prepared_qat(trained_run):
-    from edgepick.quant.graph import prepare
-    from edgepick.quant.quantizer import QuantConfig
+    from edgepick.quant.pt2e.graph import prepare
+    from edgepick.quant.pt2e.quantizer import QuantConfig
     from edgepick.train.checkpoint import load_model
 
     model, ckpt = load_model(trained_run)
@@ -40,11 +40,11 @@ def test_calibrated_start_is_where_static_ptq_is(trained_run, small_data):
     from torchao.quantization.pt2e import disable_observer
 
     from edgepick.models.deeplabv3 import LogitsNet
-    from edgepick.quant.graph import as_input, convert
-    from edgepick.quant.graph import prepare as prepare_graph
-    from edgepick.quant.passes import model_images
-    from edgepick.quant.qat import activation_fake_quants, calibrate_activations, to_eval
-    from edgepick.quant.quantizer import QuantConfig
+    from edgepick.quant.pt2e.graph import as_input, convert
+    from edgepick.quant.pt2e.graph import prepare as prepare_graph
+    from edgepick.quant.pt2e.passes import model_images
+    from edgepick.quant.pt2e.qat import activation_fake_quants, calibrate_activations, to_eval
+    from edgepick.quant.pt2e.quantizer import QuantConfig
     from edgepick.train.checkpoint import load_model
 
     prepared, size = _prepared_qat(trained_run)
@@ -84,7 +84,7 @@ def test_calibration_hook_leaves_the_input_alone():
     """The calibration's pre-hook shows each input to its observer (on the CPU) without replacing it:
     an observer returns its input, and a pre-hook that returns that CPU copy moved a GPU graph's
     activations to the CPU (onto the wrong device for the next op)."""
-    from edgepick.quant.qat import _observing
+    from edgepick.quant.pt2e.qat import _observing
 
     seen = []
     module = torch.nn.Identity()
@@ -102,9 +102,9 @@ def test_qat_graph_keeps_the_models_batchnorm_eps(after):
     from torchao.quantization.pt2e import disable_fake_quant, disable_observer
 
     from edgepick.models import LogitsNet, ModelConfig, build_model
-    from edgepick.quant.graph import prepare
-    from edgepick.quant.qat import to_eval
-    from edgepick.quant.quantizer import QuantConfig
+    from edgepick.quant.pt2e.graph import prepare
+    from edgepick.quant.pt2e.qat import to_eval
+    from edgepick.quant.pt2e.quantizer import QuantConfig
 
     torch.manual_seed(0)
     model = build_model(ModelConfig(num_classes=4))
@@ -132,8 +132,8 @@ def test_qat_graph_keeps_the_models_batchnorm_eps(after):
 def test_weight_range_averaging_reaches_the_fake_quants():
     """--weight-averaging 1.0: each QaT step quantizes the weights with that step's own range."""
     from edgepick.models import ModelConfig, build_model
-    from edgepick.quant.graph import prepare
-    from edgepick.quant.quantizer import QuantConfig
+    from edgepick.quant.pt2e.graph import prepare
+    from edgepick.quant.pt2e.quantizer import QuantConfig
 
     prepared = prepare(build_model(ModelConfig(num_classes=4)), QuantConfig(weight_averaging=1.0), Size(96, 64), qat=True)
     weight_fqs = [m for m in prepared.modules() if getattr(m, "is_per_channel", False)]
@@ -176,10 +176,10 @@ def test_converted_qat_graph_computes_what_qat_trained(trained_run, small_data):
     from torchao.quantization.pt2e import FakeQuantizeBase, disable_observer
 
     from edgepick.models.deeplabv3 import LogitsNet
-    from edgepick.quant.graph import as_input, convert, prepare
-    from edgepick.quant.passes import model_images
-    from edgepick.quant.qat import to_eval
-    from edgepick.quant.quantizer import QuantConfig
+    from edgepick.quant.pt2e.graph import as_input, convert, prepare
+    from edgepick.quant.pt2e.passes import model_images
+    from edgepick.quant.pt2e.qat import to_eval
+    from edgepick.quant.pt2e.quantizer import QuantConfig
     from edgepick.train.checkpoint import load_model
 
     model, ckpt = load_model(trained_run)
@@ -245,7 +245,7 @@ def test_eval_copy_is_an_exact_eval_graph(fresh_qat):
 
     from torchao.quantization.pt2e import disable_observer
 
-    from edgepick.quant.qat import eval_copy, to_eval
+    from edgepick.quant.pt2e.qat import eval_copy, to_eval
 
     model = copy.deepcopy(fresh_qat)
     evaluator = eval_copy(model)
@@ -295,7 +295,7 @@ def test_a_qat_checkpoint_loads_into_the_graph_that_trained(fresh_qat):
     import copy
 
     from edgepick.models import ModelConfig
-    from edgepick.quant.qat import load_qat
+    from edgepick.quant.pt2e.qat import load_qat
 
     trained = copy.deepcopy(fresh_qat)
     best = fresh_qat.state_dict()  # with its version metadata, as a checkpoint keeps it (torchao's observers read it)

@@ -12,9 +12,9 @@ def test_gated_hardswish_is_the_same_function_and_quantizes_both_halves():
     import torch
 
     from edgepick.models import ModelConfig, build_model
-    from edgepick.quant.graph import prepare
-    from edgepick.quant.quantizer import QuantConfig
-    from edgepick.quant.rewrites import GatedHardswish, gate_hardswish
+    from edgepick.quant.pt2e.graph import prepare
+    from edgepick.quant.pt2e.quantizer import QuantConfig
+    from edgepick.quant.pt2e.rewrites import GatedHardswish, gate_hardswish
 
     torch.manual_seed(0)
     model = build_model(ModelConfig(num_classes=3)).eval()
@@ -39,9 +39,9 @@ def test_conv_biases_lie_on_onnxruntimes_int32_grid(trained_run, small_data):
     onnxruntime's QLinearConv fusion rounds it to, so that torch simulates the same sums."""
     import torch
 
-    from edgepick.quant.graph import as_input, convert, prepare
-    from edgepick.quant.passes import model_images
-    from edgepick.quant.quantizer import QuantConfig
+    from edgepick.quant.pt2e.graph import as_input, convert, prepare
+    from edgepick.quant.pt2e.passes import model_images
+    from edgepick.quant.pt2e.quantizer import QuantConfig
     from edgepick.train.checkpoint import load_model
 
     model, ckpt = load_model(trained_run)

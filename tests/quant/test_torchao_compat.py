@@ -1,4 +1,4 @@
-"""quant/torchao_compat.py workaround 2: torchao's traced pt2e patterns kept for the process, handed
+"""quant/pt2e/torchao_compat.py workaround 2: torchao's traced pt2e patterns kept for the process, handed
 out as copies, one trace per pattern function, flags and input shapes; and set_mode's rewrite only on
 a change of mode. (Workaround 1, the BatchNorm literals, is tested through the QaT graph in
 tests/quant/test_qat.py.)"""
@@ -12,7 +12,7 @@ pytest.importorskip("torchao")
 
 from torchao.quantization.pt2e.export_utils import WrapperModule  # noqa: E402
 
-from edgepick.quant.torchao_compat import _cached, patterns_traced_once  # noqa: E402
+from edgepick.quant.pt2e.torchao_compat import _cached, patterns_traced_once  # noqa: E402
 
 
 def _pattern(flag: bool) -> WrapperModule:
@@ -59,7 +59,7 @@ def test_torchaos_convert_patterns_call_their_conv_op(kind):
     match a graph without it."""
     from torchao.quantization.pt2e import qat_utils, utils
 
-    from edgepick.quant.torchao_compat import _absent_conv_kind, graph_ops
+    from edgepick.quant.pt2e.torchao_compat import _absent_conv_kind, graph_ops
 
     fn = getattr(torch.nn.functional, kind)
     pattern = qat_utils._get_quantized_qat_conv_bn_pattern(True, True, True, fn, False)
@@ -77,9 +77,9 @@ def test_patterns_of_conv_kinds_the_graph_lacks_are_not_traced(monkeypatch):
     from torchao.quantization.pt2e import utils
     from torchao.quantization.pt2e.quantize_pt2e import convert_pt2e, prepare_qat_pt2e
 
-    from edgepick.quant import torchao_compat
     from edgepick.quant.config import QuantConfig
-    from edgepick.quant.quantizer import EdgeQuantizer
+    from edgepick.quant.pt2e import torchao_compat
+    from edgepick.quant.pt2e.quantizer import EdgeQuantizer
 
     net = torch.nn.Sequential(torch.nn.Conv2d(3, 4, 3), torch.nn.BatchNorm2d(4), torch.nn.ReLU(),
                               torch.nn.Conv2d(4, 2, 1, bias=False), torch.nn.BatchNorm2d(2))
@@ -112,8 +112,8 @@ def test_a_graph_is_not_switched_into_the_mode_it_is_in(monkeypatch):
     from torchao.quantization.pt2e.quantize_pt2e import prepare_qat_pt2e
 
     from edgepick.quant.config import QuantConfig
-    from edgepick.quant.quantizer import EdgeQuantizer
-    from edgepick.quant.torchao_compat import set_mode
+    from edgepick.quant.pt2e.quantizer import EdgeQuantizer
+    from edgepick.quant.pt2e.torchao_compat import set_mode
 
     net = torch.nn.Sequential(torch.nn.Conv2d(3, 4, 3), torch.nn.BatchNorm2d(4), torch.nn.ReLU())
     example = (torch.randn(2, 3, 8, 8),)

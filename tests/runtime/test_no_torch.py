@@ -24,7 +24,7 @@ def test_runtime_robot_sim_bench_and_every_submodule_import_without_torch():
 import importlib, pkgutil, edgepick.runtime, edgepick.robot, edgepick.sim, edgepick.bench, edgepick.cli
 names = [m.name for pkg in (edgepick.runtime, edgepick.robot, edgepick.sim, edgepick.bench, edgepick.cli)
          for m in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + '.')]
-names += ['edgepick.geometry', 'edgepick.frames', 'edgepick.files', 'edgepick.progress']
+names += ['edgepick.geometry', 'edgepick.frames', 'edgepick.files', 'edgepick.progress', 'edgepick.onnx_graph']
 for n in names:
     importlib.import_module(n)
 assert 'torch' not in sys.modules

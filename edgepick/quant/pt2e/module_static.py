@@ -22,16 +22,16 @@ from edgepick.export.onnx_export import export_module_onnx
 from edgepick.geometry import Size
 from edgepick.quant.config import BIAS_CORRECTION_IMAGES, HELD_OUT_INPUTS, CalibMethod, QuantConfig, check_inputs
 from edgepick.quant.fidelity import compare_outputs, guess_task
-from edgepick.quant.graph import choose_rule, expected_int8_convs, prepare
-from edgepick.quant.onnx_inputs import check_tensor
-from edgepick.quant.onnx_static import OnnxPassResult
-from edgepick.quant.ptq import convert_static, measures
-from edgepick.quant.rewrites import GatedHardswish
+from edgepick.quant.onnx.inputs import check_tensor
+from edgepick.quant.onnx.static import OnnxPassResult
+from edgepick.quant.pt2e.graph import choose_rule, expected_int8_convs, prepare
+from edgepick.quant.pt2e.ptq import convert_static, measures
+from edgepick.quant.pt2e.rewrites import GatedHardswish
 
 
 def _tensor(x: Any, shape: tuple[int, ...] | None, what: str) -> torch.Tensor:
     """X (a tensor or an array) as a float32 batch of SHAPE, refused in one line naming `calib`
-    (onnx_static.check_tensor's checks)."""
+    (quant/onnx/inputs.check_tensor's checks)."""
     if isinstance(x, torch.Tensor):
         x = x.detach().cpu().numpy()
     return torch.from_numpy(check_tensor(x, shape, what))

@@ -1,7 +1,7 @@
 """Static PTQ's conversion: pt2e `convert`, then what static PTQ measures on the calibration
 images, in this order: 7-bit weights where 8-bit ones would saturate (`WeightBits.FIRST_SEVEN`,
-quant/overflow.py), learnt weight rounding (AdaRound, quant/adaround.py) on that weight grid, bias
-correction (quant/bias_correction.py) of what rounding leaves, and the conv biases on onnxruntime's
+quant/pt2e/overflow.py), learnt weight rounding (AdaRound, quant/pt2e/adaround.py) on that weight grid, bias
+correction (quant/pt2e/bias_correction.py) of what rounding leaves, and the conv biases on onnxruntime's
 int32 grid. Cross-layer equalization acts before calibration, in `graph.prepare`."""
 
 from __future__ import annotations
@@ -12,8 +12,6 @@ from collections.abc import Callable
 import torch
 from torch.fx import GraphModule
 
-from edgepick.quant.adaround import adaround
-from edgepick.quant.bias_correction import correct_biases
 from edgepick.quant.config import (
     HEADROOM,
     SATURATION_CHECK_INPUTS,
@@ -22,11 +20,13 @@ from edgepick.quant.config import (
     WeightBits,
     lockstep_images,
 )
-from edgepick.quant.equalize import EQUALIZED
-from edgepick.quant.graph import PREFIX, convert
-from edgepick.quant.overflow import INT16, saturating_convs, to_seven_bit
-from edgepick.quant.quantizer import module_path
-from edgepick.quant.rewrites import snap_conv_biases
+from edgepick.quant.pt2e.adaround import adaround
+from edgepick.quant.pt2e.bias_correction import correct_biases
+from edgepick.quant.pt2e.equalize import EQUALIZED
+from edgepick.quant.pt2e.graph import PREFIX, convert
+from edgepick.quant.pt2e.overflow import INT16, saturating_convs, to_seven_bit
+from edgepick.quant.pt2e.quantizer import module_path
+from edgepick.quant.pt2e.rewrites import snap_conv_biases
 
 
 def measures(config: QuantConfig) -> bool:

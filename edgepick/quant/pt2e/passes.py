@@ -22,8 +22,8 @@ import torch
 
 from edgepick.data.native import NativeDataset
 from edgepick.errors import CheckpointError, ConfigError, ParameterError, QuantizationError
-from edgepick.export.checks import conv_weight_report, label_agreement
-from edgepick.export.onnx_export import EXPORT_PASSES, check_onnx_out, contract_metadata, export_onnx
+from edgepick.export.checks import conv_weight_report
+from edgepick.export.onnx_export import EXPORT_PASSES, check_onnx_out, contract_metadata, export_onnx, label_agreement
 from edgepick.geometry import Size
 from edgepick.quant.config import (
     BIAS_CORRECTION_IMAGES,
@@ -33,7 +33,7 @@ from edgepick.quant.config import (
     CalibMethod,
     QuantConfig,
 )
-from edgepick.quant.graph import (
+from edgepick.quant.pt2e.graph import (
     as_input,
     at_input_size,
     calibrate,
@@ -45,9 +45,9 @@ from edgepick.quant.graph import (
     first_of,
     prepare,
 )
-from edgepick.quant.ptq import convert_static, measures
-from edgepick.quant.qat import load_qat, qat_config, train_qat
-from edgepick.quant.quantizer import count_quant_nodes
+from edgepick.quant.pt2e.ptq import convert_static, measures
+from edgepick.quant.pt2e.qat import load_qat, qat_config, train_qat
+from edgepick.quant.pt2e.quantizer import count_quant_nodes
 from edgepick.quant.results import Int8File, PassResult
 from edgepick.train.checkpoint import Checkpoint
 from edgepick.train.config import Device, TrainConfig
@@ -55,7 +55,7 @@ from edgepick.train.loop import check_run
 from edgepick.train.run import Run
 
 if TYPE_CHECKING:
-    from edgepick.quant.onnx_static import OnnxPassResult
+    from edgepick.quant.onnx.static import OnnxPassResult
 
 AGREEMENT_IMAGES = 8  # images on which each pass compares onnxruntime's labels with torch's simulation
 # QuantConfig fields that only static PTQ uses: a QaT file's metadata leaves them out
@@ -140,11 +140,11 @@ def quantize_static(checkpoint: str | Path | Checkpoint | torch.nn.Module, calib
     A model edgepick did not make: an nn.Module (quantize_module_static) or a float .onnx file
     (quantize_onnx_static), calibrated on its own input batches; INPUT_SHAPE fixes its input."""
     if isinstance(checkpoint, torch.nn.Module):
-        from edgepick.quant.module_static import quantize_module_static
+        from edgepick.quant.pt2e.module_static import quantize_module_static
 
         return quantize_module_static(checkpoint, calib, out, config, input_shape, progress)
     if isinstance(checkpoint, (str, Path)) and Path(checkpoint).suffix.lower() == ".onnx":
-        from edgepick.quant.onnx_static import quantize_onnx_static
+        from edgepick.quant.onnx.static import quantize_onnx_static
 
         return quantize_onnx_static(checkpoint, calib, out, config, input_shape, progress)
     config = config or QuantConfig()

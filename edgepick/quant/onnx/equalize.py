@@ -1,7 +1,7 @@
 """Cross-layer equalization on a float ONNX graph (BatchNorm already folded by onnxruntime's
-`quant_pre_process`): the same rescaling as `edgepick.quant.equalize` does on a torch graph (see
+`quant_pre_process`): the same rescaling as `edgepick.quant.pt2e.equalize` does on a torch graph (see
 there why), with the weights as initializers. Each equalized conv gets initializers of its own, as
-`onnx_graph.fold_affine_into_convs` gives them; the float function is unchanged."""
+`rewrite.fold_affine_into_convs` gives them; the float function is unchanged."""
 
 from __future__ import annotations
 
@@ -9,27 +9,26 @@ from typing import Any
 
 import numpy as np
 
-from edgepick.quant.cle_scales import ROUNDS, TOLERANCE, equalizing_scales
-from edgepick.quant.onnx_graph import _conv_params, _Graph, _set_conv_params
+from edgepick.onnx_graph import Graph, attr
+from edgepick.quant.methods import ROUNDS, TOLERANCE, equalizing_scales
+from edgepick.quant.onnx.rewrite import conv_params, set_conv_params
 
 # one data input, commutes with a positive per-channel scale of it
 _HOMOGENEOUS = {"Relu", "MaxPool", "AveragePool", "GlobalAveragePool", "Resize", "Upsample", "Dropout", "Identity"}
 
 
-def _layout(g: _Graph, conv: Any) -> str | None:
+def _layout(g: Graph, conv: Any) -> str | None:
     """'dense', 'depthwise', or None (other grouped convs, weights that are not constants)."""
-    from onnx import helper
-
-    params = _conv_params(g, conv)
+    params = conv_params(g, conv)
     if params is None:
         return None
-    group = next((helper.get_attribute_value(a) for a in conv.attribute if a.name == "group"), 1)
+    group = attr(conv, "group", 1)
     if group == 1:
         return "dense"
     return "depthwise" if params[0].shape[1] == 1 and group == params[0].shape[0] else None
 
 
-def _next_convs(g: _Graph, conv: Any) -> list[Any] | None:
+def _next_convs(g: Graph, conv: Any) -> list[Any] | None:
     """The convs reading CONV's output through homogeneous ops only, or None (see equalize.next_convs)."""
     scaled, found, todo = {conv.output[0]}, [], [conv.output[0]]
     muls = []
@@ -37,7 +36,7 @@ def _next_convs(g: _Graph, conv: Any) -> list[Any] | None:
         name = todo.pop()
         if name in g.outputs:
             return None
-        for user in g.consumers.get(name, []):
+        for user in g.consumers(name):
             if user.op_type == "Conv":
                 if user.input[0] != name or any(i in scaled for i in user.input[1:]) or _layout(g, user) is None:
                     return None
@@ -63,9 +62,9 @@ def _next_convs(g: _Graph, conv: Any) -> list[Any] | None:
 def equalize_onnx(model: Any, rounds: int = ROUNDS) -> int:
     """Equalize, in place, every conv pair of MODEL (an onnx ModelProto, BatchNorm folded). Returns
     how many pairs it rescaled."""
-    g = _Graph(model)
+    g = Graph(model)
     pairs = []
-    for node in g.graph.node:
+    for node in g.nodes:
         if node.op_type == "Conv" and _layout(g, node) is not None:
             after = _next_convs(g, node)
             if after:
@@ -73,15 +72,17 @@ def equalize_onnx(model: Any, rounds: int = ROUNDS) -> int:
     if not pairs:
         return 0
     params: dict[int, list[np.ndarray]] = {}
+    layouts: dict[int, str | None] = {}
     for first, after in pairs:
         for c in [first, *after]:
-            found = _conv_params(g, c)
+            found = conv_params(g, c)
             assert found is not None  # _layout accepted it
             params[id(c)] = [p.astype(np.float64) for p in found]
+            layouts[id(c)] = _layout(g, c)
 
     def input_range(conv: Any) -> np.ndarray:
         w = params[id(conv)][0]
-        return np.abs(w).max(axis=(1, 2, 3)) if _layout(g, conv) == "depthwise" else np.abs(w).max(axis=(0, 2, 3))
+        return np.abs(w).max(axis=(1, 2, 3)) if layouts[id(conv)] == "depthwise" else np.abs(w).max(axis=(0, 2, 3))
 
     for _ in range(rounds):
         moved = 0.0
@@ -95,7 +96,7 @@ def equalize_onnx(model: Any, rounds: int = ROUNDS) -> int:
             params[id(first)] = [w1 / s.reshape(-1, 1, 1, 1), b1 / s]
             for c in after:
                 w, b = params[id(c)]
-                shape = (-1, 1, 1, 1) if _layout(g, c) == "depthwise" else (1, -1, 1, 1)
+                shape = (-1, 1, 1, 1) if layouts[id(c)] == "depthwise" else (1, -1, 1, 1)
                 params[id(c)] = [w * s.reshape(shape), b]
             moved = max(moved, float(np.abs(s - 1).max()))
         if moved < TOLERANCE:
@@ -106,5 +107,5 @@ def equalize_onnx(model: Any, rounds: int = ROUNDS) -> int:
             if id(c) not in done:
                 done.add(id(c))
                 w, b = params[id(c)]
-                _set_conv_params(g, c, w, b, f"{c.name or c.output[0]}_equalized{k}")
+                set_conv_params(g, c, w, b, f"{c.name or c.output[0]}_equalized{k}")
     return len(pairs)

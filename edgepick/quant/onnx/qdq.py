@@ -2,7 +2,7 @@
 rule those ranges come from.
 
 onnxruntime's QDQ quantizer places the Q/DQ pairs and quantizes the weights; the ranges are
-edgepick's own (quant/onnx_calibrate.py), handed to it as a calibrator would. Which rule reads the
+edgepick's own (quant/onnx/calibrate.py), handed to it as a calibrator would. Which rule reads the
 ranges best off the histograms depends on the model: a percentile that suits a segmentation
 backbone clips a detector's rare high objectness logits, min/max wastes levels on a tensor with
 one outlier. With `CalibMethod.AUTO`, every candidate rule gives a QDQ graph, each graph runs on
@@ -21,13 +21,13 @@ from typing import Any
 
 import numpy as np
 
-from edgepick.export.crop_convs import graph_links
 from edgepick.export.onnx_io import CONV_OPS
+from edgepick.onnx_graph import Graph
 from edgepick.quant.config import QuantConfig
 from edgepick.quant.fidelity import RuleScore
-from edgepick.quant.onnx_accuracy import evaluator_for
-from edgepick.quant.onnx_calibrate import Collector
-from edgepick.quant.onnx_measure import adjusted_ranges, requantize_activations
+from edgepick.quant.onnx.accuracy import evaluator_for
+from edgepick.quant.onnx.calibrate import Collector
+from edgepick.quant.onnx.measure import adjusted_ranges, requantize_activations
 from edgepick.quant.ranges import RangeRule, candidate_rules
 
 # ops that may stand between a model's last conv and its outputs; they stay float with the outputs
@@ -59,7 +59,7 @@ def qdq_model(prepared: Path, ranges: dict[str, tuple[float, float]], op_types: 
 def exact_tensors(model: Any) -> set[str]:
     """The tensors of MODEL from which a graph output is reached through no compute op (conv,
     matmul, ...): what they hold is what the output holds, so their range is never clipped."""
-    producer = {o: n for n in model.graph.node for o in n.output}
+    g = Graph(model)
     found: set[str] = set()
     todo = [o.name for o in model.graph.output]
     while todo:
@@ -67,7 +67,7 @@ def exact_tensors(model: Any) -> set[str]:
         if name in found:
             continue
         found.add(name)
-        node = producer.get(name)
+        node = g.producer(name)
         if node is not None and node.op_type not in COMPUTE_OPS:
             todo.extend(i for i in node.input if i)
     return found
@@ -75,10 +75,10 @@ def exact_tensors(model: Any) -> set[str]:
 
 def float_tail(model: Any) -> list[str]:
     """Nodes between the last convs (or other compute) and the graph outputs, left in float."""
-    producer = {o: n for n in model.graph.node for o in n.output}
+    g = Graph(model)
     names, todo = [], [o.name for o in model.graph.output]
     while todo:
-        node = producer.get(todo.pop())
+        node = g.producer(todo.pop())
         if node is None or node.op_type not in FLOAT_TAIL_OPS or node.name in names:
             continue
         names.append(node.name)
@@ -89,11 +89,11 @@ def float_tail(model: Any) -> list[str]:
 def writes_float_output(model: Any) -> set[str]:
     """The convs that write the logits: their output reaches a graph output through nothing but
     FLOAT_TAIL_OPS and additions (LR-ASPP sums two convs' logits). Bias correction leaves them
-    alone, as quant/bias_correction.py does."""
-    producer = {o: n for n in model.graph.node for o in n.output}
+    alone, as quant/pt2e/bias_correction.py does."""
+    g = Graph(model)
     todo, seen, convs = [o.name for o in model.graph.output], set(), set()
     while todo:
-        node = producer.get(todo.pop())
+        node = g.producer(todo.pop())
         if node is None or node.name in seen:
             continue
         seen.add(node.name)
@@ -110,23 +110,20 @@ def float_outputs(model: Any, tail: list[str]) -> int:
     """Drop the Q -> DQ pair in front of each graph output and of each TAIL node (the float ops
     before the outputs), so that they get the float tensor the last quantized node makes; returns
     how many pairs it dropped."""
-    producer, consumers, _ = graph_links(model.graph)
-    readers = {name: len(nodes) for name, nodes in consumers.items()}
-    into_tail = [n.input[0] for n in model.graph.node if n.name in tail]
+    g = Graph(model)
+    into_tail = [n.input[0] for n in g.nodes if n.name in tail]
     freed = 0
     for name in [*(o.name for o in model.graph.output), *into_tail]:
-        dq = producer.get(name)
-        q = producer.get(dq.input[0]) if dq is not None and dq.op_type == "DequantizeLinear" else None
-        if q is None or q.op_type != "QuantizeLinear" or readers.get(q.output[0]) != 1:
+        dq = g.producer(name)
+        q = g.producer(dq.input[0]) if dq is not None and dq.op_type == "DequantizeLinear" else None
+        if q is None or q.op_type != "QuantizeLinear" or len(g.consumers(q.output[0])) != 1:
             continue
         source = q.input[0]
-        made = producer.get(source)
-        if made is None or readers.get(source, 0) != 1 or readers.get(name, 0) > 1:
+        made = g.producer(source)
+        if made is None or len(g.consumers(source)) != 1 or len(g.consumers(name)) > 1:
             continue
-        made.output[list(made.output).index(source)] = name
-        producer[name] = made
-        model.graph.node.remove(q)
-        model.graph.node.remove(dq)
+        g.remove(q, dq)
+        g.set_output(made, source, name)
         freed += 1
     return freed
 

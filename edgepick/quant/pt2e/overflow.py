@@ -8,7 +8,8 @@ of the same sign; 7-bit weights (|w| <= 64) never can. Whether it happens depend
 activations, so it is measured: the int8 model runs on sample inputs, and each conv's input codes
 are paired with its weights the way the kernel pairs them (K in kernel-row, kernel-column,
 input-channel order, onnxruntime's NHWC QLinearConv, padded with the zero point). Depthwise convs
-run on a kernel that widens to 32 bits first and never saturate.
+run on a kernel that widens to 32 bits first and never saturate. The measure itself is numpy
+(`edgepick.quant.methods.saturated_share`), shared with the ONNX pass.
 """
 
 from __future__ import annotations
@@ -17,43 +18,10 @@ from collections.abc import Iterable
 from operator import attrgetter
 
 import torch
-import torch.nn.functional as F
 from torch.fx import GraphModule, Interpreter, Node
 
-from edgepick.quant.bias_correction import conv_geometry, int8_convs
-
-INT16 = 32767
-_PAIRS_AT_ONCE = 32  # K pairs multiplied per step: memory is pairs x positions x output channels
-
-
-def saturated_share(codes: torch.Tensor, weights: torch.Tensor, zero_point: int, stride: tuple, padding: tuple,
-                    dilation: tuple, groups: int, limit: float = INT16) -> float:
-    """Share of a conv's outputs (positions x output channels) where at least one int16 pair sum of
-    uint8 input CODES [N, C, H, W] and int8 WEIGHTS [M, C/groups, kh, kw] leaves +-LIMIT."""
-    m, c_group, kh, kw = weights.shape
-    if c_group == 1 and groups > 1:  # depthwise: its kernel never adds pairs in int16
-        return 0.0
-    x = F.pad(codes.float(), (padding[1], padding[1], padding[0], padding[0]), value=float(zero_point))
-    hit = None
-    per_group = m // groups
-    for g in range(groups):
-        xg = x[:, g * c_group:(g + 1) * c_group]
-        cols = F.unfold(xg, (kh, kw), dilation=dilation, stride=stride)  # [N, C*kh*kw, L] in (c, kh, kw) order
-        n, _, positions = cols.shape
-        cols = cols.view(n, c_group, kh * kw, positions).transpose(1, 2).reshape(n, -1, positions)
-        w = weights[g * per_group:(g + 1) * per_group].float().permute(0, 2, 3, 1).reshape(per_group, -1)
-        k = w.shape[1] + w.shape[1] % 2
-        cols = F.pad(cols, (0, 0, 0, k - cols.shape[1]))
-        w = F.pad(w, (0, k - w.shape[1]))
-        a = cols.permute(1, 0, 2).reshape(k // 2, 2, n * positions)  # [pairs, 2, N*L]
-        b = w.t().reshape(k // 2, 2, per_group)  # [pairs, 2, M_g]
-        over = torch.zeros(n * positions, per_group, dtype=torch.bool)
-        for j in range(0, k // 2, _PAIRS_AT_ONCE):
-            sums = torch.bmm(a[j:j + _PAIRS_AT_ONCE].transpose(1, 2), b[j:j + _PAIRS_AT_ONCE])  # [pairs, N*L, M_g]
-            over |= (sums.abs() > limit).any(dim=0)
-        hit = over if hit is None else torch.cat([hit, over], dim=1)
-    assert hit is not None
-    return float(hit.float().mean())
+from edgepick.quant.methods import INT16, saturated_share
+from edgepick.quant.pt2e.bias_correction import conv_geometry, int8_convs
 
 
 class _Codes(Interpreter):
@@ -75,7 +43,7 @@ class _Codes(Interpreter):
             codes = self.codes.get(q.name) if isinstance(q, Node) else None
             if codes is not None and codes.dtype == torch.uint8:
                 w = attrgetter(n.args[1].args[0].target)(self.module)
-                share = saturated_share(codes, w, int(n.args[0].args[2]), *conv_geometry(n), self.limit)
+                share = saturated_share(codes.cpu().numpy(), w.cpu().numpy(), int(n.args[0].args[2]), *conv_geometry(n), self.limit)
                 self.share[n.name] = max(self.share[n.name], share)
         return out
 
@@ -93,7 +61,7 @@ def saturating_convs(converted: GraphModule, inputs: Iterable[torch.Tensor], lim
     return runner.share
 
 
-def _float_weight(reference: GraphModule, name: str) -> torch.Tensor:
+def float_weight(reference: GraphModule, name: str) -> torch.Tensor:
     """The float (BN-folded) weight of conv NAME in REFERENCE, the observed graph before convert."""
     conv = next(n for n in reference.graph.nodes if n.name == name)
     w = conv.args[1]
@@ -117,7 +85,7 @@ def to_seven_bit(reference: GraphModule, converted: GraphModule, names: Iterable
         dq = convs[name].args[1]
         observer = PerChannelMinMaxObserver(ch_axis=0, dtype=torch.int8, quant_min=-64, quant_max=63,
                                             qscheme=torch.per_channel_symmetric, eps=2 ** -12)
-        w = _float_weight(reference, name)
+        w = float_weight(reference, name)
         observer(w)
         scale, _ = observer.calculate_qparams()
         codes = torch.clamp(torch.round(w / scale.view(-1, *[1] * (w.dim() - 1))), -64, 63).to(torch.int8)

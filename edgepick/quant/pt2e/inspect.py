@@ -31,9 +31,9 @@ from edgepick.export.onnx_export import check_onnx_out
 from edgepick.geometry import Size
 from edgepick.models.deeplabv3 import LogitsNet, trim_dilated_convs
 from edgepick.quant.config import BIAS_CORRECTION_IMAGES, MAX_FLOAT_LAYERS, BiasCorrection, CalibMethod, QuantConfig
-from edgepick.quant.graph import PREFIX, as_input, at_input_size, calibrate, check_keep_float, first_of, prepare
-from edgepick.quant.ptq import convert_static, measures
-from edgepick.quant.quantizer import module_path
+from edgepick.quant.pt2e.graph import PREFIX, as_input, at_input_size, calibrate, check_keep_float, first_of, prepare
+from edgepick.quant.pt2e.ptq import convert_static, measures
+from edgepick.quant.pt2e.quantizer import module_path
 from edgepick.quant.ranges import RangeRule
 from edgepick.quant.results import AccuracyAwareResult
 from edgepick.train.checkpoint import Checkpoint
@@ -196,7 +196,7 @@ def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str |
     are float. Writes the best file found at OUT and reports every step."""
     from edgepick.evaluation import evaluate
     from edgepick.export.onnx_export import export_checkpoint
-    from edgepick.quant.passes import agreement_images, check_classes, check_image_count, folder_images, quantize_static
+    from edgepick.quant.pt2e.passes import agreement_images, check_classes, check_image_count, folder_images, quantize_static
 
     if not (math.isfinite(max_drop_pp) and max_drop_pp >= 0):
         raise ParameterError("{max_drop_pp}: must be a number of percentage points, 0 or more", max_drop_pp=max_drop_pp)

@@ -20,7 +20,11 @@ measures their agreement with fp32.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+
+from edgepick.onnx_graph import Graph
 
 ELEMENTWISE = frozenset({"Add", "Sub", "Mul", "Div", "Erf", "Tanh", "Pow", "Sqrt", "Neg", "Identity",
                          "QuantizeLinear", "DequantizeLinear"})
@@ -32,46 +36,35 @@ TAG = "_sigmoid_gelu"
 
 def sigmoid_gelu(model) -> int:
     """Rewrite each uint8 QDQ GELU chain of MODEL (onnx ModelProto, in place) as above; returns how many."""
-    from onnx import numpy_helper
-
-    graph = model.graph
-    nodes = list(graph.node)
-    inits = {i.name: numpy_helper.to_array(i) for i in graph.initializer}
-    const = _constants(nodes, inits)
-    producer = {o: k for k, n in enumerate(nodes) for o in n.output}
-    consumers: dict[str, list[int]] = {}
-    for k, n in enumerate(nodes):
-        for name in n.input:
-            consumers.setdefault(name, []).append(k)
-    outputs = {o.name for o in graph.output}
-    removed: set[int] = set()
-    inserted: dict[int, list] = {}
-    for anchor in (k for k, n in enumerate(nodes) if n.op_type in ANCHORS):
-        if anchor in removed:
+    g = Graph(model)
+    const = _constants(g)
+    removed: set[int] = set()  # ids of the nodes taken out
+    inserted: dict[int, list] = {}  # id of a chain's final Q -> the nodes put in its place
+    for anchor in [n for n in g.nodes if n.op_type in ANCHORS]:
+        if id(anchor) in removed:
             continue
-        dq = _source_dequantize(anchor, nodes, producer, const)
-        if dq is None or dq in removed or (x_params := _uint8_qparams(nodes[dq], inits)) is None:
+        dq = _source_dequantize(g, anchor, const)
+        if dq is None or id(dq) in removed or (x_params := _uint8_qparams(g, dq)) is None:
             continue
-        chain = _closed_chain(dq, anchor, nodes, producer, consumers, const, outputs, inits)
+        chain = _closed_chain(g, dq, anchor, const)
         if chain is None:
             continue
         members, q, (y_scale, y_zero) = chain
         x_scale, x_zero = x_params
         x = (np.arange(256) - x_zero) * x_scale
-        f = _float_chain(model, nodes, members, dq, q, inits, const, producer, x)
+        f = _float_chain(g, members, dq, q, const, x)
         fit = fit_sigmoid_gelu(x, f, y_scale, y_zero)
         if fit is None:
             continue
         alpha, c = fit
-        inserted[q] = _replacement(graph, nodes[dq], nodes[q], x_scale * alpha, y_scale / c)
-        removed |= members - {dq}
+        inserted[id(q)] = _replacement(g, dq, q, x_scale * alpha, y_scale / c)
+        removed |= {id(n) for n in members if n is not dq}
     kept = []
-    for k, n in enumerate(nodes):
-        kept += inserted.get(k, [])
-        if k not in removed:
+    for n in g.nodes:
+        kept += inserted.get(id(n), [])
+        if id(n) not in removed:
             kept.append(n)
-    del graph.node[:]
-    graph.node.extend(kept)
+    g.set_nodes(kept)
     return len(inserted)
 
 
@@ -92,24 +85,24 @@ def fit_sigmoid_gelu(x: np.ndarray, f: np.ndarray, y_scale: float, y_zero: int) 
     return float(ALPHAS[best]), float(c[best])
 
 
-def _constants(nodes, inits) -> set[str]:
+def _constants(g: Graph) -> set[str]:
     """Tensors that do not depend on the model's input: initializers, Constant outputs, and the
     outputs of nodes that read only those."""
-    const = set(inits)
+    const = {i.name for i in g.graph.initializer}
     grew = True
     while grew:
         grew = False
-        for n in nodes:
+        for n in g.nodes:
             if all(i in const for i in n.input if i) and not set(n.output) <= const:
                 const.update(n.output)
                 grew = True
     return const
 
 
-def _uint8_qparams(node, inits) -> tuple[float, int] | None:
+def _uint8_qparams(g: Graph, node) -> tuple[float, int] | None:
     """The per-tensor scale and uint8 zero point of a Q/DQ node, or None."""
-    scale = inits.get(node.input[1])
-    zero = inits.get(node.input[2]) if len(node.input) > 2 else None
+    scale = g.array(node.input[1]) if g.is_initializer(node.input[1]) else None
+    zero = g.array(node.input[2]) if len(node.input) > 2 and g.is_initializer(node.input[2]) else None
     if scale is None or zero is None or scale.size != 1 or zero.size != 1 or zero.dtype != np.uint8:
         return None
     return float(scale.ravel()[0]), int(zero.ravel()[0])
@@ -119,102 +112,108 @@ def _live(node, const) -> list[str]:
     return [i for i in node.input if i and i not in const]
 
 
-def _source_dequantize(anchor: int, nodes, producer, const) -> int | None:
+def _source_dequantize(g: Graph, anchor, const):
     """The DequantizeLinear the anchor's input comes from, through elementwise ops with one live input."""
-    k = anchor
+    node = anchor
     while True:
-        live = _live(nodes[k], const)
-        if len(live) != 1 or live[0] not in producer:
+        live = _live(node, const)
+        source = g.producer(live[0]) if len(live) == 1 else None
+        if source is None:
             return None
-        k = producer[live[0]]
-        if nodes[k].op_type == "DequantizeLinear":
-            return k
-        if nodes[k].op_type not in ELEMENTWISE:
+        node = source
+        if node.op_type == "DequantizeLinear":
+            return node
+        if node.op_type not in ELEMENTWISE:
             return None
 
 
-def _scalar(name: str, nodes, producer, inits) -> bool:
+def _scalar(g: Graph, name: str) -> bool:
     """Whether the constant NAME holds one value (an initializer, or a Q/DQ of one)."""
-    while name not in inits:
-        if name not in producer:
-            return False
-        node = nodes[producer[name]]
-        if node.op_type not in ("DequantizeLinear", "QuantizeLinear", "Identity", "Cast"):
+    while (init := g.initializer(name)) is None:
+        node = g.producer(name)
+        if node is None or node.op_type not in ("DequantizeLinear", "QuantizeLinear", "Identity", "Cast"):
             return False
         name = node.input[0]
-    return inits[name].size == 1
+    return int(np.prod(init.dims)) == 1
 
 
-def _closed_chain(dq: int, anchor: int, nodes, producer, consumers, const, outputs,
-                  inits) -> tuple[set[int], int, tuple[float, int]] | None:
-    """(members, final Q, its scale and zero point): the largest set of elementwise nodes from DQ
-    to a uint8 QuantizeLinear that reads only DQ's map and scalar constants, contains ANCHOR, and
-    that nothing outside reads but through the final Q; None if there is none."""
-    region, names, grew = {dq}, set(nodes[dq].output), True
+def _region(g: Graph, dq, const) -> list:
+    """The elementwise nodes reachable from DQ that read only DQ's map (or each other's outputs) and
+    scalar constants, DQ among them."""
+    region, names, grew = [dq], set(dq.output), True
     while grew:
         grew = False
-        for k in list(region):
-            for name in nodes[k].output:
-                for c in consumers.get(name, []):
-                    n = nodes[c]
-                    if c in region or n.op_type not in ELEMENTWISE:
+        for node in list(region):
+            for name in node.output:
+                for c in g.consumers(name):
+                    if any(c is r for r in region) or c.op_type not in ELEMENTWISE:
                         continue
-                    if all(i in names for i in _live(n, const)) and all(
-                            _scalar(i, nodes, producer, inits) for i in n.input if i in const):
-                        region.add(c)
-                        names.update(n.output)
+                    if all(i in names for i in _live(c, const)) and all(_scalar(g, i) for i in c.input if i in const):
+                        region.append(c)
+                        names.update(c.output)
                         grew = True
-    for q in sorted((k for k in region if nodes[k].op_type == "QuantizeLinear"), reverse=True):
-        members: set[int] = set()
+    return region
+
+
+def _closed_chain(g: Graph, dq, anchor, const) -> tuple[list, object, tuple[float, int]] | None:
+    """(members in graph order, final Q, its scale and zero point): the largest set of elementwise
+    nodes from DQ to a uint8 QuantizeLinear that reads only DQ's map and scalar constants, contains
+    ANCHOR, and that nothing outside reads but through the final Q; None if there is none."""
+    region = _region(g, dq, const)
+    place = {id(n): k for k, n in enumerate(g.nodes)}
+    inside = {id(n) for n in region}
+    for q in sorted((n for n in region if n.op_type == "QuantizeLinear"), key=lambda n: -place[id(n)]):
+        members: dict[int, Any] = {}
         todo = [q]
         while todo:
-            k = todo.pop()
-            if k not in members:
-                members.add(k)
-                todo += [producer[i] for i in _live(nodes[k], const) if producer.get(i) in region]
-        if dq not in members or anchor not in members:
+            node = todo.pop()
+            if id(node) not in members:
+                members[id(node)] = node
+                todo += [p for i in _live(node, const) if (p := g.producer(i)) is not None and id(p) in inside]
+        if id(dq) not in members or id(anchor) not in members:
             continue
-        y_params = _uint8_qparams(nodes[q], inits)
-        if y_params is not None and all(o not in outputs and all(c in members for c in consumers.get(o, []))
-                                        for k in members - {q} for o in nodes[k].output):
-            return members, q, y_params
+        y_params = _uint8_qparams(g, q)
+        if y_params is not None and all(o not in g.outputs and all(id(c) in members for c in g.consumers(o))
+                                        for key, n in members.items() if key != id(q) for o in n.output):
+            return sorted(members.values(), key=lambda n: place[id(n)]), q, y_params
     return None
 
 
-def _float_chain(model, nodes, members, dq: int, q: int, inits, const, producer, x: np.ndarray) -> np.ndarray:
+def _float_chain(g: Graph, members: list, dq, q, const, x: np.ndarray) -> np.ndarray:
     """The chain's value for the inputs X, computed in float: the Q -> DQ pairs inside it skipped
     and its final Q left out (onnxruntime runs the nodes, so every op means what the file says)."""
     import onnx
     import onnxruntime as ort
-    from onnx import helper, numpy_helper
+    from onnx import helper
 
+    inner = [n for n in members if n is not dq and n is not q]
     alias = {}
-    for k in members - {dq, q}:
-        n = nodes[k]
-        if n.op_type == "DequantizeLinear" and producer.get(n.input[0]) in members:
-            alias[n.output[0]] = nodes[producer[n.input[0]]].input[0]
+    for n in inner:
+        source = g.producer(n.input[0]) if n.op_type == "DequantizeLinear" else None
+        if source is not None and any(source is m for m in members):
+            alias[n.output[0]] = source.input[0]
     body = []
-    for k in sorted(members - {dq, q}):
-        n = nodes[k]
+    for n in inner:
         if n.op_type == "QuantizeLinear" or n.output[0] in alias:
             continue
         copy = onnx.NodeProto()
         copy.CopyFrom(n)
         copy.input[:] = [alias.get(i, i) for i in n.input]
         body.append(copy)
-    needed = {i for n in body for i in n.input if i in const and i not in inits}
+    needed = {i for n in body for i in n.input if i in const and not g.is_initializer(i)}
     setup: list = []
     while needed:
-        node = nodes[producer[needed.pop()]]
+        node = g.producer(needed.pop())
+        assert node is not None, "a constant that is no initializer is made by a node"
         setup.insert(0, node)
-        needed |= {i for i in node.input if i in const and i not in inits}
-    used = {i for n in [*setup, *body] for i in n.input if i in inits}
-    source, result = nodes[dq].output[0], nodes[q].input[0]
+        needed |= {i for i in node.input if i in const and not g.is_initializer(i)}
+    used = {i for n in [*setup, *body] for i in n.input if g.is_initializer(i)}
+    source, result = dq.output[0], q.input[0]
     graph = helper.make_graph(
         [*setup, *body], "chain", [helper.make_tensor_value_info(source, onnx.TensorProto.FLOAT, [x.size])],
         [helper.make_tensor_value_info(result, onnx.TensorProto.FLOAT, [x.size])],
-        [numpy_helper.from_array(inits[i], i) for i in sorted(used)])
-    chain = helper.make_model(graph, opset_imports=model.opset_import, ir_version=model.ir_version)
+        [g.initializer(i) for i in sorted(used)])
+    chain = helper.make_model(graph, opset_imports=g.model.opset_import, ir_version=g.model.ir_version)
     opts = ort.SessionOptions()
     opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
     opts.log_severity_level = 3
@@ -222,16 +221,14 @@ def _float_chain(model, nodes, members, dq: int, q: int, inits, const, producer,
     return session.run([result], {source: x.astype(np.float32)})[0].astype(np.float64).ravel()
 
 
-def _replacement(graph, dq, q, gate_scale: float, out_scale: float) -> list:
+def _replacement(g: Graph, dq, q, gate_scale: float, out_scale: float) -> list:
     """The gate DequantizeLinear -> Sigmoid -> Q/DQ on the 1/256 grid, and Mul -> the final Q's output."""
-    from onnx import helper, numpy_helper
+    from onnx import helper
 
     tag = f"{q.name or q.output[0]}{TAG}"
 
     def constant(suffix: str, value, dtype) -> str:
-        graph.initializer.append(numpy_helper.from_array(np.asarray(value, dtype=dtype), f"{tag}_{suffix}"))
-        return f"{tag}_{suffix}"
-
+        return g.add_initializer(f"{tag}_{suffix}", value, dtype)
     gate_s, step, zero = constant("gate_scale", gate_scale, np.float32), constant("step", 1 / 256, np.float32), \
         constant("zero", 0, np.uint8)
     return [

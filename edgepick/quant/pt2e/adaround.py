@@ -7,9 +7,10 @@ The float model runs the calibration images once, and at a sample of each conv's
 its output is kept as the target. The int8 model then runs all the images in lockstep, node by
 node, as empirical bias correction does, and each conv learns its rounding on the input the int8
 model itself gives it there (im2col columns), the convs before it already rounded: what it
-compensates includes the errors from upstream. The rounding is a soft variable h(V) in [0, 1] (a rectified sigmoid), trained with
-Adam on the output error plus a regulariser that pushes every h to 0 or 1 (its exponent annealed
-from 20 to 2 after a warm start), then hardened. The weight scales, the activation ranges and
+compensates includes the errors from upstream. The rounding is a soft variable h(V) in [0, 1] (a
+rectified sigmoid), trained with Adam on the output error plus a regulariser that pushes every h
+to 0 or 1 (its exponent annealed from 20 to 2 after a warm start), then hardened: the solver is
+numpy, shared with the ONNX pass (`edgepick.quant.methods.round_conv`). The weight scales, the activation ranges and
 every other conv stay as they are. A conv whose learnt rounding does not lower its output error
 on the sampled positions keeps round-to-nearest, so no conv ends worse on its own data.
 
@@ -24,27 +25,14 @@ import time
 from collections.abc import Callable, Iterable
 from operator import attrgetter
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch.fx import GraphModule, Interpreter, Node
 
-from edgepick.quant.bias_correction import _constant, _Means, conv_geometry, int8_convs
-from edgepick.quant.overflow import _float_weight
-
-COLUMNS = 4096  # input columns (positions) kept per conv, spread over the calibration images
-BATCH = 512  # columns per optimisation step
-MAX_STEPS = 2000
-MIN_STEPS = 20
-LEARNING_RATE = 1e-2
-REGULARIZATION = 0.01  # AIMET's default weight of the rounding regulariser
-WARM_START = 0.2  # share of the steps without the regulariser
-BETA = (20.0, 2.0)
-_STEP_OVERHEAD = 20_000  # weights' worth of per-step cost that does not grow with the conv
-_ZETA, _GAMMA = 1.1, -0.1  # the rectified sigmoid's stretch
-
-
-def _h(v: torch.Tensor) -> torch.Tensor:
-    return torch.clamp(torch.sigmoid(v) * (_ZETA - _GAMMA) + _GAMMA, 0.0, 1.0)
+from edgepick.quant.methods import COLUMNS, STEP_OVERHEAD, round_conv
+from edgepick.quant.pt2e.bias_correction import Means, constant_value, conv_geometry, int8_convs
+from edgepick.quant.pt2e.overflow import float_weight
 
 
 class _Targets:
@@ -73,65 +61,6 @@ class _Targets:
         return torch.cat(picked, dim=1)
 
 
-def _grouped(w: torch.Tensor, groups: int) -> torch.Tensor:
-    """[M, C/g, kh, kw] as [g, M/g, C/g*kh*kw], the order F.unfold gives the columns of each group."""
-    return w.reshape(groups, w.shape[0] // groups, -1)
-
-
-def _output(w: torch.Tensor, bias: torch.Tensor, x: torch.Tensor, groups: int) -> torch.Tensor:
-    """The conv's output [M, P] on columns X [C*kh*kw, P] with weights W [g, M/g, K/g]."""
-    xg = x.reshape(groups, x.shape[0] // groups, -1)
-    return torch.bmm(w, xg).reshape(-1, x.shape[1]) + bias.view(-1, 1)
-
-
-def _error(y: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """AIMET's reconstruction loss: squared error summed over channels, mean over positions."""
-    return (y - target).pow(2).sum(dim=0).mean()
-
-
-def _round_conv(w: torch.Tensor, scale: torch.Tensor, lo: int, hi: int, bias: torch.Tensor, x: torch.Tensor,
-                target: torch.Tensor, groups: int, seconds: float, generator: torch.Generator,
-                steps: int | None = None) -> tuple[torch.Tensor, float, float, int]:
-    """Learn the rounding of float weights W (scales SCALE per output channel, codes LO..HI) in the
-    steps SECONDS afford (or exactly STEPS). Returns (codes, error with nearest rounding, error with
-    the learnt one, steps taken)."""
-    s = scale.view(-1, *[1] * (w.dim() - 1))
-    floor = torch.floor(w / s)
-    nearest = torch.clamp(torch.round(w / s), lo, hi)
-    rest = (w / s - floor).clamp(1e-4, 1 - 1e-4)
-    v = (-torch.log((_ZETA - _GAMMA) / (rest - _GAMMA) - 1)).requires_grad_(True)
-    opt = torch.optim.Adam([v], lr=LEARNING_RATE)
-    sg = _grouped(s.expand_as(w), groups)
-    fg, wg = _grouped(floor, groups), _grouped(nearest * s, groups)
-    with torch.no_grad():
-        nearest_error = float(_error(_output(wg, bias, x, groups), target))
-    fixed = steps is not None
-    start, planned, steps = time.perf_counter(), steps or MAX_STEPS, 0
-    while steps < planned:
-        take = torch.randint(0, x.shape[1], (min(BATCH, x.shape[1]),), generator=generator)
-        xb, tb = x[:, take], target[:, take]
-        h = _h(v)
-        soft = torch.clamp(fg + _grouped(h, groups), lo, hi) * sg
-        loss = _error(_output(soft, bias, xb, groups), tb)
-        progress = steps / planned
-        if progress >= WARM_START:
-            beta = BETA[1] + (BETA[0] - BETA[1]) * (1 - (progress - WARM_START) / (1 - WARM_START))
-            loss = loss + REGULARIZATION * (1 - (2 * h - 1).abs().pow(beta)).sum()
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        steps += 1
-        if steps == 5 and not fixed:  # plan the steps this conv's share of the budget affords
-            per_step = (time.perf_counter() - start) / steps
-            planned = int(min(MAX_STEPS, max(MIN_STEPS, seconds / per_step)))
-    with torch.no_grad():
-        codes = torch.clamp(floor + (_h(v) >= 0.5).float(), lo, hi)
-        learnt_error = float(_error(_output(_grouped(codes * s, groups), bias, x, groups), target))
-    if learnt_error >= nearest_error:
-        return nearest, nearest_error, nearest_error, steps
-    return codes, nearest_error, learnt_error, steps
-
-
 def adaround(reference: GraphModule, converted: GraphModule, inputs: Iterable[torch.Tensor], seconds: float,
              seed: int = 0, steps: int | None = None) -> dict[str, dict]:
     """Learn the weight rounding of every int8 conv of CONVERTED in place (see the module doc), with
@@ -149,15 +78,15 @@ def adaround(reference: GraphModule, converted: GraphModule, inputs: Iterable[to
     if missing:
         raise ValueError(f"convs {', '.join(missing)} of the int8 graph are not in the float graph")
     targets = _Targets(convs, sum(x.shape[0] for x in inputs), seed)
-    runner = _Means(reference, {}, targets.at_conv)
+    runner = Means(reference, {}, targets.at_conv)
     with torch.no_grad():
         for x in inputs:
             runner.run(x)
     # a step costs the conv's multiplies plus a fixed overhead, which dominates the smallest convs
-    cost = {name: math.prod(attrgetter(q.args[1].args[0].target)(converted).shape) + _STEP_OVERHEAD
+    cost = {name: math.prod(attrgetter(q.args[1].args[0].target)(converted).shape) + STEP_OVERHEAD
             for name, q in convs.items()}
     left, deadline = sum(cost.values()), time.perf_counter() + seconds
-    generator = torch.Generator().manual_seed(seed)
+    rng = np.random.default_rng(seed)
     report = {}
 
     def at_conv(q: Node, conv_inputs: list[torch.Tensor]) -> torch.Tensor:
@@ -172,12 +101,12 @@ def adaround(reference: GraphModule, converted: GraphModule, inputs: Iterable[to
         groups = conv_geometry(q)[3]
         x = targets.columns(q, codes_now.shape, conv_inputs)
         target = torch.cat(targets.outputs.pop(name), dim=1)
-        with torch.enable_grad():
-            codes, before, after, taken = _round_conv(_float_weight(reference, name).float(), scale, int(dq.args[4]),
-                                                      int(dq.args[5]), bias, x, target, groups, share, generator, steps)
-        codes_now.copy_(codes.to(torch.int8))
+        codes, before, after, taken = round_conv(float_weight(reference, name).float().numpy(), scale.numpy(),
+                                                 int(dq.args[4]), int(dq.args[5]), bias.numpy(), x.numpy(),
+                                                 target.numpy(), groups, share, rng, steps)
+        codes_now.copy_(torch.from_numpy(codes).to(torch.int8))
         report[name] = {"error_nearest": before, "error_adaround": after, "steps": taken}
-        return _constant(converted, dq)
+        return constant_value(converted, dq)
 
     _lockstep(converted, convs, inputs, at_conv)
     converted.recompile()

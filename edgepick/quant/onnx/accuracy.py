@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from edgepick.errors import ParameterError
+from edgepick.onnx_graph import Graph, copy_model
 from edgepick.quant.fidelity import BalancedError, OutputFidelity, Task
 
 SCAN_BLOCKS = 16  # blocks of activations measured float first
@@ -35,16 +36,6 @@ SCAN_TENSORS = 4  # check tensors the scan measures on (the budget is checked on
 # an output's SQNR under this is int8 far from fp32 (segmentation logits and text maps measure 15-25 dB): the
 # file is written with a warning naming the activations to leave float
 SQNR_FLOOR_DB = 10.0
-
-
-def links(model: Any) -> tuple[dict[str, Any], dict[str, list[Any]]]:
-    """Tensor name -> the node that writes it, -> the nodes that read it."""
-    producer = {o: n for n in model.graph.node for o in n.output}
-    consumers: dict[str, list[Any]] = {}
-    for n in model.graph.node:
-        for i in n.input:
-            consumers.setdefault(i, []).append(n)
-    return producer, consumers
 
 
 def quantized_activations(model: Any) -> list[str]:
@@ -62,101 +53,79 @@ def float_tensors(model: Any, names: Sequence[str], float_model: Any) -> int:
     """Take the Q -> DQ pairs off the tensors NAMES of MODEL (in place): their readers get the float
     tensor. Where onnxruntime's writer dropped a Relu or Clip that wrote the tensor in FLOAT_MODEL
     (the uint8 grid clamped for it), the op is put back. Returns how many pairs went."""
-    outputs = {o.name for o in model.graph.output}
-    float_producer = {o: n for n in float_model.graph.node for o in n.output}
+    g, fg = Graph(model), Graph(float_model)
+    outputs = g.outputs
     dropped = 0
     for name in names:
-        producer, consumers = links(model)  # afresh: putting an op back reorders the nodes
-        made_by = float_producer.get(name)
-        restore = (made_by is not None and made_by.op_type in REMOVABLE_OPS and name in producer
-                   and producer[name].op_type != made_by.op_type)
-        for q in [n for n in consumers.get(name, []) if n.op_type == "QuantizeLinear"]:
-            dqs = [n for n in consumers.get(q.output[0], []) if n.op_type == "DequantizeLinear"]
-            if len(dqs) != len(consumers.get(q.output[0], [])) or any(dq.output[0] in outputs for dq in dqs):
+        made_by, writer = fg.producer(name), g.producer(name)
+        restore = (made_by is not None and made_by.op_type in REMOVABLE_OPS and writer is not None
+                   and writer.op_type != made_by.op_type)
+        for q in [n for n in g.consumers(name) if n.op_type == "QuantizeLinear"]:
+            dqs = [n for n in g.consumers(q.output[0]) if n.op_type == "DequantizeLinear"]
+            if len(dqs) != len(g.consumers(q.output[0])) or any(dq.output[0] in outputs for dq in dqs):
                 continue  # a reader takes the uint8 codes themselves, or a DQ is the graph's output: leave it
             for dq in dqs:
-                for reader in consumers.get(dq.output[0], []):
-                    for k, i in enumerate(reader.input):
-                        if i == dq.output[0]:
-                            reader.input[k] = name
+                readers = g.consumers(dq.output[0])
+                g.redirect(dq.output[0], name)
+                for reader in readers:
                     if reader.op_type in ("Conv", "ConvTranspose"):
-                        _float_bias(model, reader, producer, float_model)
-                model.graph.node.remove(dq)
-            model.graph.node.remove(q)
+                        _float_bias(g, reader, fg)
+                g.remove(dq)
+            g.remove(q)
             dropped += 1
             if restore:
-                _restore_activation(model, made_by, producer[name], float_model)
+                assert made_by is not None and writer is not None
+                _restore_activation(g, made_by, writer, fg)
                 restore = False
     return dropped
 
 
-def _float_bias(model: Any, conv: Any, producer: dict[str, Any], float_model: Any) -> None:
-    """Give CONV its float bias back: onnxruntime quantizes a conv's bias to int32 on the input's
-    scale times the weight's, which is coarse where the input had a wide range, and a float input no
-    longer needs it."""
+def _float_bias(g: Graph, conv: Any, fg: Graph) -> None:
+    """Give CONV its float bias back (FG: the float graph): onnxruntime quantizes a conv's bias to
+    int32 on the input's scale times the weight's, which is coarse where the input had a wide range,
+    and a float input no longer needs it."""
     if len(conv.input) < 3 or not conv.input[2]:
         return
-    dq = producer.get(conv.input[2])
-    values = {i.name: i for i in float_model.graph.initializer}
-    if dq is None or dq.op_type != "DequantizeLinear" or conv.input[2] not in values:
+    dq = g.producer(conv.input[2])
+    bias = fg.initializer(conv.input[2])
+    if dq is None or dq.op_type != "DequantizeLinear" or bias is None:
         return
-    if conv.input[2] not in {i.name for i in model.graph.initializer}:
-        model.graph.initializer.append(values[conv.input[2]])
-    if sum(conv.input[2] in n.input for n in model.graph.node) == 1 and dq in model.graph.node:
-        model.graph.node.remove(dq)
+    if not g.is_initializer(conv.input[2]):
+        g.add_tensor(bias)
+    if len(g.consumers(conv.input[2])) == 1:
+        g.remove(dq)
 
 
-def _restore_activation(model: Any, activation: Any, writer: Any, float_model: Any) -> None:
+def _restore_activation(g: Graph, activation: Any, writer: Any, fg: Graph) -> None:
     """Put the float model's ACTIVATION (a Relu or Clip) back between WRITER and the tensor it wrote."""
     import onnx
 
     name = activation.output[0]
-    writer.output[list(writer.output).index(name)] = f"{name}_before_{activation.op_type.lower()}"
+    before = f"{name}_before_{activation.op_type.lower()}"
+    g.set_output(writer, name, before)
     node = onnx.NodeProto()
     node.CopyFrom(activation)
-    node.input[0] = writer.output[list(writer.output).index(f"{name}_before_{activation.op_type.lower()}")]
-    have = {i.name for i in model.graph.initializer}
-    for bound in (i for i in float_model.graph.initializer if i.name in node.input[1:] and i.name not in have):
-        model.graph.initializer.append(bound)
-    constants = {n.output[0]: n for n in float_model.graph.node if n.op_type == "Constant"}
-    model.graph.node.extend(constants[i] for i in node.input[1:] if i in constants)
-    model.graph.node.append(node)
-    _topological(model)
-
-
-def _topological(model: Any) -> None:
-    """Order MODEL's nodes so that each comes after the nodes whose outputs it reads."""
-    known = {i.name for i in model.graph.input} | {i.name for i in model.graph.initializer} | {""}
-    ordered, pending = [], list(model.graph.node)
-    while pending:
-        ready = [k for k, n in enumerate(pending) if all(i in known for i in n.input)]
-        if not ready:
-            ordered.extend(pending)  # a cycle or a missing input: leave the rest as it was
-            break
-        for k in ready:
-            known.update(pending[k].output)
-        ordered.extend(pending[k] for k in ready)
-        taken = set(ready)
-        pending = [n for k, n in enumerate(pending) if k not in taken]
-    copies = [type(n)() for n in ordered]
-    for copy, n in zip(copies, ordered):
-        copy.CopyFrom(n)
-    del model.graph.node[:]
-    model.graph.node.extend(copies)
+    node.input[0] = before
+    for bound in [i for i in fg.graph.initializer if i.name in node.input[1:] and not g.is_initializer(i.name)]:
+        g.add_tensor(bound)
+    constants = {n.output[0]: n for n in fg.nodes if n.op_type == "Constant"}
+    g.append([constants[i] for i in node.input[1:] if i in constants])
+    g.append([node])
+    g.sort()
 
 
 def node_tensors(model: Any, nodes: Sequence[str]) -> list[str]:
     """The float tensors the nodes NODES of the QDQ MODEL read and write, as the float graph names
     them (a DequantizeLinear's output traced back to what its QuantizeLinear read)."""
-    producer, consumers = links(model)
+    g = Graph(model)
     found: list[str] = []
-    for node in (n for n in model.graph.node if n.name in set(nodes)):
+    for node in (n for n in g.nodes if n.name in set(nodes)):
         for name in node.input:
-            dq = producer.get(name)
-            q = producer.get(dq.input[0]) if dq is not None and dq.op_type == "DequantizeLinear" else None
+            dq = g.producer(name)
+            q = g.producer(dq.input[0]) if dq is not None and dq.op_type == "DequantizeLinear" else None
             if q is not None and q.op_type == "QuantizeLinear":
                 found.append(q.input[0])
-        found.extend(o for o in node.output if any(c.op_type == "QuantizeLinear" for c in consumers.get(o, [])))
+        found.extend(o for o in node.output if any(c.op_type == "QuantizeLinear" for c in g.consumers(o)))
     return list(dict.fromkeys(found))
 
 
@@ -209,21 +178,13 @@ def _db(error: float) -> float:
     return -10.0 * math.log10(error) if error > 0 else math.inf
 
 
-def _copy(model: Any) -> Any:
-    import onnx
-
-    copy = onnx.ModelProto()
-    copy.CopyFrom(model)
-    return copy
-
-
 def rank_tensors(model: Any, evaluator: Evaluator, candidates: list[str]) -> list[tuple[str, float]]:
     """CANDIDATES (activations of the QDQ MODEL) with the output SQNR in dB that leaving each float
     gains, best first: blocks in graph order, the best split again, down to single tensors."""
     base = _db(evaluator.error(model))
 
     def gain(names: list[str]) -> float:
-        trial = _copy(model)
+        trial = copy_model(model)
         float_tensors(trial, names, evaluator.float_model)
         return _db(evaluator.error(trial)) - base
 
@@ -288,7 +249,7 @@ def restore_fidelity(model: Any, evaluator: Evaluator, budget: FidelityBudget,
     for name, value in ranked:
         if len(kept) >= budget.max_float or value <= 0:
             break
-        trial = _copy(model)
+        trial = copy_model(model)
         float_tensors(trial, [*kept, name], evaluator.float_model)
         error = evaluator.error(trial, None)
         if error >= best_error:

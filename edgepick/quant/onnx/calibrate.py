@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from edgepick.errors import ParameterError
+from edgepick.onnx_graph import Graph, copy_model
 from edgepick.quant.config import CalibMethod
 from edgepick.quant.ranges import CHUNK, SAMPLED, Histogram, RangeRule
 
@@ -129,14 +130,14 @@ def _spatial_step(shape: list[int]) -> int:
     return math.ceil(math.sqrt(np.prod(shape) / SAMPLED))
 
 
-def _sampled(model: Any, name: str, step: int, k: int) -> tuple[list[Any], list[str]]:
-    """The nodes that give tensor NAME of MODEL's strided sample (every STEP-th row and column), its
-    min and its max (their constants added to MODEL), and their output names."""
-    from onnx import helper, numpy_helper
+def _sampled(g: Graph, name: str, step: int, k: int) -> tuple[list[Any], list[str]]:
+    """The nodes that give tensor NAME's strided sample (every STEP-th row and column), its min and
+    its max (their constants added to the graph G), and their output names."""
+    from onnx import helper
 
     tag = f"edgepick_calib_{k}"
     for suffix, values in (("starts", [0, 0]), ("ends", [2 ** 62, 2 ** 62]), ("axes", [2, 3]), ("steps", [step, step])):
-        model.graph.initializer.append(numpy_helper.from_array(np.array(values, np.int64), f"{tag}_{suffix}"))
+        g.add_initializer(f"{tag}_{suffix}", values, np.int64)
     nodes = [helper.make_node("Slice", [name, f"{tag}_starts", f"{tag}_ends", f"{tag}_axes", f"{tag}_steps"],
                               [f"{name}_sample"], name=f"{tag}_slice"),
              helper.make_node("ReduceMin", [name], [f"{name}_min"], keepdims=0, name=f"{tag}_min"),
@@ -150,8 +151,8 @@ def _with_samples(model: Any, group: list[str], steps: dict[str, int]) -> tuple[
     onnxruntime, which runs nodes in the order given, frees the whole map as early as without them."""
     import onnx
 
-    part = onnx.ModelProto()
-    part.CopyFrom(model)
+    part = copy_model(model)
+    g = Graph(part)
     del part.graph.output[:]
     fetch: list[str] = []
     after: dict[str, list[Any]] = {}
@@ -159,31 +160,12 @@ def _with_samples(model: Any, group: list[str], steps: dict[str, int]) -> tuple[
         if steps[name] == 1:
             fetch.append(name)
             continue
-        nodes, names = _sampled(part, name, steps[name], k)
+        nodes, names = _sampled(g, name, steps[name], k)
         after[name] = nodes
         fetch.extend(names)
-    insert_after_producers(part, after)
+    g.insert_after_producers(after)
     part.graph.output.extend(onnx.ValueInfoProto(name=n) for n in fetch)
     return part, fetch
-
-
-def insert_after_producers(model: Any, after: dict[str, list[Any]]) -> None:
-    """Put the nodes AFTER[tensor] right after the node of MODEL that makes the tensor (at the end for a
-    graph input): onnxruntime's priority order runs nodes as given, so a node that reduces a feature
-    map runs as soon as the map is made and the map is freed as early as without it."""
-    import onnx
-
-    pending = dict(after)
-    ordered = []
-    for node in model.graph.node:
-        ordered.append(node)
-        ordered.extend(n for o in node.output for n in pending.pop(o, []))
-    ordered.extend(n for nodes in pending.values() for n in nodes)
-    copies = [onnx.NodeProto() for _ in ordered]
-    for copy, node in zip(copies, ordered):
-        copy.CopyFrom(node)
-    del model.graph.node[:]
-    model.graph.node.extend(copies)
 
 
 class Collector:
@@ -223,7 +205,7 @@ class Collector:
             part, fetch = _with_samples(model, group, self.steps)
             self.fetches.append(fetch)
             self.sessions.append(ort.InferenceSession(part.SerializeToString(), opts, providers=["CPUExecutionProvider"]))
-        self.input = next(i.name for i in model.graph.input if i.name not in {t.name for t in model.graph.initializer})
+        self.input = Graph(model).inputs[0]
         self.seen = 0
         self.counts = not minmax_only  # minmax reads the extremes alone: no histogram to fill
 

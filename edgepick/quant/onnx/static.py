@@ -1,22 +1,22 @@
 """Static PTQ of a float ONNX model edgepick did not make: edgepick's int8 recipe on any graph.
 
-edgepick calibrates (quant/onnx_calibrate.py: every calibration tensor streamed once through the
+edgepick calibrates (quant/onnx/calibrate.py: every calibration tensor streamed once through the
 model, a histogram per activation, memory bounded), chooses the range rule per model by measuring
-the outputs (quant/onnx_qdq.py; `CalibMethod.AUTO`, the default), has onnxruntime's QDQ quantizer
+the outputs (quant/onnx/qdq.py; `CalibMethod.AUTO`, the default), has onnxruntime's QDQ quantizer
 write the Q/DQ pairs for those ranges, and rewrites around it (docs/quantization.md, "Your own model"):
 
 - before: the input dims fixed, opset lifted to 13, hardswish/hardsigmoid/mean pooling in the
-  forms with integer kernels (`onnx_graph.rewrite_activations`), BatchNorm folded and shapes
+  forms with integer kernels (`rewrite.rewrite_activations`), BatchNorm folded and shapes
   inferred (onnxruntime's `quant_pre_process`);
 - the recipe: U8S8, weights int8 per output channel and symmetric, 7-bit unless
-  weight_bits 8 (or first-7: 7-bit only where 8-bit weights saturate, `onnx_measure`), uint8
+  weight_bits 8 (or first-7: 7-bit only where 8-bit weights saturate, `measure`), uint8
   activations per tensor, HardSigmoid quantized as well (with placement convs: only the convs
   and the tensors they read and write, the model's own activations left float as it writes them,
   for OpenVINO, which fuses them into its int8 convs); with gelu sigmoid, each GELU written as
-  c * x * sigmoid(alpha * x) on integer kernels (`onnx_gelu`); with config.equalize, conv pairs equalized
-  before calibration (`onnx_equalize`); with config.adaround, each conv's weight rounding learnt
-  on the calibration tensors (`onnx_adaround`); with empirical bias correction, the conv biases
-  shifted back to fp32's means (`onnx_measure`);
+  c * x * sigmoid(alpha * x) on integer kernels (`gelu`); with config.equalize, conv pairs equalized
+  before calibration (`equalize`); with config.adaround, each conv's weight rounding learnt
+  on the calibration tensors (`adaround`); with empirical bias correction, the conv biases
+  shifted back to fp32's means (`measure`);
 - after: the model's outputs and the ops between its last conv and them (Resize, Sigmoid,
   Softmax, ...) in float, as edgepick's own logits are (uint8 logits tie in an ArgMax or a
   threshold); the integer activations and the padding-tap crop of `edgepick.export`; initializers
@@ -57,6 +57,7 @@ from edgepick.export.onnx_io import (
     opset,
 )
 from edgepick.files import atomic_path
+from edgepick.onnx_graph import Graph
 from edgepick.quant.config import (
     HEADROOM,
     SATURATION_CHECK_INPUTS,
@@ -70,7 +71,8 @@ from edgepick.quant.config import (
     lockstep_images,
 )
 from edgepick.quant.fidelity import Task, check_task_names, output_tasks
-from edgepick.quant.onnx_accuracy import (
+from edgepick.quant.methods import INT16
+from edgepick.quant.onnx.accuracy import (
     Evaluator,
     FidelityBudget,
     evaluator_for,
@@ -78,13 +80,14 @@ from edgepick.quant.onnx_accuracy import (
     float_tensors,
     node_tensors,
 )
-from edgepick.quant.onnx_calibrate import Collector, calibrated_tensors, check_memory, release_memory
-from edgepick.quant.onnx_equalize import equalize_onnx
-from edgepick.quant.onnx_gelu import sigmoid_gelu
-from edgepick.quant.onnx_graph import fold_affine_into_convs, rewrite_activations
-from edgepick.quant.onnx_inputs import check_tensor
-from edgepick.quant.onnx_measure import correct_onnx_biases, qdq_convs, saturating_onnx_convs, to_seven_bit_onnx
-from edgepick.quant.onnx_qdq import choose_rule, exact_tensors, float_outputs, float_tail, qdq_model, writes_float_output
+from edgepick.quant.onnx.adaround import adaround_onnx
+from edgepick.quant.onnx.calibrate import Collector, calibrated_tensors, check_memory, release_memory
+from edgepick.quant.onnx.equalize import equalize_onnx
+from edgepick.quant.onnx.gelu import sigmoid_gelu
+from edgepick.quant.onnx.inputs import check_tensor
+from edgepick.quant.onnx.measure import correct_onnx_biases, qdq_convs, saturating_onnx_convs, to_seven_bit_onnx
+from edgepick.quant.onnx.qdq import choose_rule, exact_tensors, float_outputs, float_tail, qdq_model, writes_float_output
+from edgepick.quant.onnx.rewrite import fold_affine_into_convs, rewrite_activations
 
 
 @dataclass(frozen=True)
@@ -120,7 +123,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
     written to OUT. INPUT_SHAPE fixes dynamic input dims [default: the first tensor's shape].
     config.keep_float names ONNX nodes to leave in float (their weights, inputs and outputs). TASK
     says what the outputs decide, for the fidelity report (one Task for all, or per output name)
-    [default: guessed per output]. BUDGET: the accuracy-aware mode (quant/onnx_accuracy.py), which
+    [default: guessed per output]. BUDGET: the accuracy-aware mode (quant/onnx/accuracy.py), which
     leaves the activations that matter most float until the outputs meet it; without one, a file
     whose worst output falls under SQNR_FLOOR_DB is written with a warning naming them."""
     import onnx
@@ -129,7 +132,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
 
     config = config or QuantConfig()
     if config.placement == Placement.AUTO:
-        from edgepick.quant.onnx_placement import choose_placement
+        from edgepick.quant.onnx.placement import choose_placement
 
         return choose_placement(quantize_onnx_static, model, calib, out, config, progress, input_shape=input_shape,
                                 task=task, budget=budget)
@@ -139,7 +142,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
         raise ParameterError("{bias_correction}: fast is not available for ONNX models; use empirical",
                              bias_correction=config.bias_correction)
     proto = load_float_onnx(model)
-    name_nodes(proto)
+    Graph(proto).name_nodes()  # the quantizer and keep_float know nodes by name
     constants = constants_to_initializers(proto)
     known = {n.name for n in proto.graph.node}
     unknown = [k for k in config.keep_float if k not in known]
@@ -286,14 +289,10 @@ def _measure(prepared: Any, int8: Any, kept: list[np.ndarray], images: int, conf
     correction); returns what was done."""
     done: dict = {}
     if config.weight_bits == WeightBits.FIRST_SEVEN:
-        from edgepick.quant.overflow import INT16
-
         share = saturating_onnx_convs(int8, kept[:SATURATION_CHECK_INPUTS], HEADROOM * INT16)
         done["seven_bit_convs"] = [name for name, s in share.items() if s > 0]
         to_seven_bit_onnx(prepared, int8, done["seven_bit_convs"])
     if config.adaround:
-        from edgepick.quant.onnx_adaround import adaround_onnx
-
         seven = set(qdq_convs(int8)) if config.weight_bits == WeightBits.SEVEN else set(done.get("seven_bit_convs", []))
         rounded = adaround_onnx(prepared, int8, kept[:images], config.adaround_budget_s, seven)
         done["adaround_convs"] = sum(r["error_adaround"] < r["error_nearest"] for r in rounded.values())
@@ -341,22 +340,6 @@ def _pre_process(proto: Any, out: Path) -> None:
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
         raise ParameterError(f"{{model:name}}: onnxruntime's pre-processing (shape inference, optimisation) fails "
                              f"on this graph: {first}", model=None) from None
-
-
-def name_nodes(model: Any) -> int:
-    """Give every node of MODEL without a name a unique one (its op type and place): the quantizer
-    and keep_float know nodes by name. Returns how many were named."""
-    taken = {n.name for n in model.graph.node}
-    named = 0
-    for k, node in enumerate(model.graph.node):
-        if not node.name:
-            name = f"{node.op_type}_{k}"
-            while name in taken:
-                name += "_"
-            node.name = name
-            taken.add(name)
-            named += 1
-    return named
 
 
 @contextlib.contextmanager

@@ -28,7 +28,7 @@ from edgepick.errors import EdgepickError, ParameterError
 from edgepick.files import atomic_path
 from edgepick.machine import cpu_flags, cpu_model
 from edgepick.quant.config import GeluForm, Placement, QuantConfig, Target
-from edgepick.quant.onnx_inputs import check_tensor
+from edgepick.quant.onnx.inputs import check_tensor
 
 PLACEMENT_CANDIDATES = (Placement.ALL, Placement.CONVS, Placement.JOINS)
 # a candidate whose worst output SQNR is this much under the closest candidate's is not taken for its speed

@@ -49,7 +49,7 @@ SHARED_OPS = {aten.upsample_bilinear2d.vec, aten.upsample_nearest2d.vec, aten.ma
 class RuleObserver(HistogramObserver):
     """Activation range read off the observer's histogram by a `RangeRule` (quant/ranges.py, the rules
     the ONNX path uses too). The rule can change after calibration: with calib_method auto each
-    candidate is measured (quant/graph.py `choose_rule`). While `observing` is off the observer
+    candidate is measured (quant/pt2e/graph.py `choose_rule`). While `observing` is off the observer
     passes values through without counting them (held-out inputs), or, given `simulated` qparams,
     puts them on that uint8 grid: the graph then computes its activations as the int8 model will."""
 

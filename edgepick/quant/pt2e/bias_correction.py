@@ -32,6 +32,7 @@ from torch.fx import GraphModule, Interpreter, Node
 from torchao.quantization.pt2e import ObserverBase
 
 from edgepick.quant.config import BiasCorrection
+from edgepick.quant.methods import bias_shift
 
 _qd = torch.ops.quantized_decomposed
 _CONV = torch.ops.aten.conv2d.default
@@ -81,7 +82,7 @@ def int8_convs(converted: GraphModule) -> dict[str, Node]:
     return found
 
 
-class _Means(Interpreter):
+class Means(Interpreter):
     """Runs a graph and sums, per channel, the outputs of the nodes in WATCH (node name -> key);
     AT_CONV(node, inputs, output), when given, is called at each conv and may add sums of its own."""
 
@@ -114,7 +115,7 @@ class _Means(Interpreter):
         return {k: (s / self.counts[k]).float() for k, s in self.sums.items()}
 
 
-def _run(interpreter: _Means, inputs: Iterable[torch.Tensor]) -> int:
+def _run(interpreter: Means, inputs: Iterable[torch.Tensor]) -> int:
     seen = 0
     with torch.no_grad():
         for x in inputs:
@@ -125,7 +126,7 @@ def _run(interpreter: _Means, inputs: Iterable[torch.Tensor]) -> int:
     return seen
 
 
-class _ImageMeans(_Means):
+class ImageMeans(Means):
     """Runs a graph and keeps, for the nodes in WATCH (node names), each image's per-channel mean."""
 
     def __init__(self, graph: GraphModule, watch: Iterable[str]):
@@ -158,7 +159,7 @@ def _empirical(converted: GraphModule, convs: dict[str, Node], target: dict[str,
                 break
             outs = [runner.run_node(node) for runner in runners]
             if node.name in convs:
-                delta = torch.quantile(target[node.name] - _image_means(outs), 0.5, dim=0).float()
+                delta = torch.from_numpy(bias_shift(target[node.name].numpy(), _image_means(outs).numpy())).float()
                 attrgetter(node.args[2].target)(converted).add_(delta)
                 outs = [y + delta.view(1, -1, 1, 1) for y in outs]
                 moved[node.name] = float(delta.abs().max())
@@ -176,7 +177,7 @@ def _quantized_input(x: torch.Tensor, dq: Node) -> torch.Tensor:
                                      scale, zero, lo, hi, dtype)
 
 
-def _constant(converted: GraphModule, node: Node) -> torch.Tensor:
+def constant_value(converted: GraphModule, node: Node) -> torch.Tensor:
     """The value of a node made of get_attr inputs only (a dequantized weight)."""
     args = [attrgetter(a.target)(converted) if isinstance(a, Node) else a for a in node.args]
     return node.target(*args)
@@ -201,11 +202,11 @@ def correct_biases(prepared: GraphModule, converted: GraphModule, inputs: list[t
     if missing:
         raise ValueError(f"convs {', '.join(missing)} of the int8 graph are not in the float graph")
     if method == BiasCorrection.EMPIRICAL:
-        images = _ImageMeans(prepared, convs)
+        images = ImageMeans(prepared, convs)
         _run(images, inputs)
         return _empirical(converted, convs, {k: torch.cat(v) for k, v in images.rows.items()}, inputs)
-    weights = {name: _constant(converted, node.args[1]) for name, node in convs.items()}
-    shadow = _Means(prepared, {})
+    weights = {name: constant_value(converted, node.args[1]) for name, node in convs.items()}
+    shadow = Means(prepared, {})
 
     def at_conv(n: Node, args: tuple, out: torch.Tensor) -> None:
         if n.name in convs:  # the int8 conv on the float model's input
@@ -214,7 +215,7 @@ def correct_biases(prepared: GraphModule, converted: GraphModule, inputs: list[t
             x = _quantized_input(args[0], q.args[0])
             shadow.add(n.name, torch.ops.aten.conv2d.default(x, weights[n.name], bias, *q.args[3:]))
 
-    reference = _Means(prepared, watch, at_conv)
+    reference = Means(prepared, watch, at_conv)
     _run(reference, inputs)
     target, got = reference.means(), shadow.means()
     moved = {}

@@ -23,8 +23,8 @@ import torch
 from torch.fx import GraphModule, Node
 from torchao.quantization.pt2e import ObserverBase
 
-from edgepick.quant.bias_correction import conv_geometry
-from edgepick.quant.cle_scales import ROUNDS, TOLERANCE, equalizing_scales
+from edgepick.quant.methods import ROUNDS, TOLERANCE, equalizing_scales
+from edgepick.quant.pt2e.bias_correction import conv_geometry
 
 EQUALIZED = "edgepick_equalized"  # GraphModule.meta key: the equalized pairs, (first conv, [next convs])
 

@@ -24,10 +24,10 @@ import torch
 from edgepick.errors import CheckpointError
 from edgepick.models.zoo import build_model
 from edgepick.quant.config import FREEZE_AT, CalibMethod, QuantConfig
-from edgepick.quant.graph import PREFIX, calibrate, prepare
-from edgepick.quant.quantizer import RuleObserver
+from edgepick.quant.pt2e.graph import PREFIX, calibrate, prepare
+from edgepick.quant.pt2e.quantizer import RuleObserver
+from edgepick.quant.pt2e.torchao_compat import set_mode
 from edgepick.quant.ranges import RangeRule
-from edgepick.quant.torchao_compat import set_mode
 from edgepick.train.checkpoint import Checkpoint, load_weights
 from edgepick.train.config import TrainConfig
 from edgepick.train.loop import Hooks, fit, new_model

@@ -17,12 +17,12 @@ from edgepick.errors import ConfigError, ParameterError, QuantizationError
 from edgepick.geometry import Size, check_size
 from edgepick.models.deeplabv3 import DeepLabV3, LogitsNet, trim_dilated_convs
 from edgepick.quant.config import GeluForm, Placement, QuantConfig, WeightBits
-from edgepick.quant.equalize import equalize
 from edgepick.quant.fidelity import RuleScore, balanced_error
-from edgepick.quant.quantizer import EdgeQuantizer, RuleObserver, count_quant_nodes, module_path, under
+from edgepick.quant.pt2e.equalize import equalize
+from edgepick.quant.pt2e.quantizer import EdgeQuantizer, RuleObserver, count_quant_nodes, module_path, under
+from edgepick.quant.pt2e.rewrites import drop_fake_quants_after_dropout, gate_hardswish, snap_conv_biases
+from edgepick.quant.pt2e.torchao_compat import bn_folds_with_own_eps, install_train_eval, patterns_traced_once, set_mode
 from edgepick.quant.ranges import candidate_rules
-from edgepick.quant.rewrites import drop_fake_quants_after_dropout, gate_hardswish, snap_conv_biases
-from edgepick.quant.torchao_compat import bn_folds_with_own_eps, install_train_eval, patterns_traced_once, set_mode
 
 PREFIX = "model."  # LogitsNet's attribute in front of every module name
 
@@ -92,7 +92,7 @@ def prepare(model: torch.nn.Module, config: QuantConfig, size: Size, qat: bool,
     fake-quant was inserted (the silent-float trap). MODEL is edgepick's DeepLabV3 or any
     segmentation module (a `{"out": ...}` dict or a tensor out) taking [N, 3, H, W] at SIZE, or
     INPUT_SHAPE when given. With config.equalize (static PTQ only), conv pairs are equalized
-    (quant/equalize.py) before any observer runs."""
+    (quant/pt2e/equalize.py) before any observer runs."""
     from torchao.quantization.pt2e.quantize_pt2e import prepare_pt2e, prepare_qat_pt2e
 
     check_size(size, "size")
