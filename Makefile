@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 DEMO_DIR ?= demo-out
 TEST_WORKERS ?= 2  # pytest-xdist workers; tests/conftest.py says why
 
-.PHONY: setup demo test clean
+.PHONY: setup demo test check clean
 
 setup: $(STAMP)
 
@@ -25,6 +25,12 @@ test: $(STAMP)
 	$(PY) -m ruff check edgepick benchmarks tests
 	$(PY) -m mypy edgepick/__init__.py edgepick/onnx_graph.py edgepick/train edgepick/quant edgepick/export edgepick/runtime
 	$(PY) -m pytest -q -p no:cacheprovider -n $(TEST_WORKERS) --dist loadfile --durations=15
+
+# The inner loop: lint, type-check and the tests that train no model (no training run, nothing marked slow).
+check: $(STAMP)
+	$(PY) -m ruff check edgepick benchmarks tests
+	$(PY) -m mypy edgepick/__init__.py edgepick/onnx_graph.py edgepick/train edgepick/quant edgepick/export edgepick/runtime
+	$(PY) -m pytest -q -p no:cacheprovider -n $(TEST_WORKERS) --dist loadfile -m "not slow and not trained" --durations=10
 
 clean:
 	rm -rf $(VENV) $(DEMO_DIR) build *.egg-info

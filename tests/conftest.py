@@ -25,6 +25,16 @@ REPO = Path(__file__).resolve().parents[1]
 EPOCHS = 25  # ~100 s on 2 cores
 
 
+TRAINED = {"trained_run", "onnx_files"}  # fixtures built on a training run: `make check` leaves their tests out
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Mark every test that needs the session's training run `trained` (`-m "not trained"` skips them)."""
+    for item in items:
+        if TRAINED & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.trained)
+
+
 def run_cli(*args: str, check: bool = False, timeout: float = 600, env: dict | None = None) -> subprocess.CompletedProcess:
     """Run `python -m edgepick ARGS` in a subprocess, as a user would."""
     proc = subprocess.run([sys.executable, "-m", "edgepick", *args], capture_output=True, text=True, timeout=timeout,

@@ -12,6 +12,7 @@ import re
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SETTINGS = re.compile(r"^data, size, epochs = .*$", re.M)
@@ -40,6 +41,7 @@ def test_the_api_section_imports_only_public_names():
                     assert alias.name in module.__all__, f"{node.module}.{alias.name} is not public"
 
 
+@pytest.mark.slow
 def test_the_first_api_block_runs_on_a_tiny_data_set(tmp_path, monkeypatch):
     from edgepick.data.synth import SynthConfig, synthesize
     from edgepick.train import Run

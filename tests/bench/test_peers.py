@@ -29,6 +29,7 @@ def test_openvino_rows_run_in_the_precision_they_are_labelled(tmp_path, monkeypa
     assert bf16.compiled.get_property("INFERENCE_PRECISION_HINT") in (ov.Type.bf16, ov.Type.f32)  # f32: no bf16 here
 
 
+@pytest.mark.slow
 def test_peers_onnx_compares_every_tool_on_a_model_edgepick_did_not_make(tmp_path, monkeypatch, capsys):
     pytest.importorskip("nncf")
     import numpy as np

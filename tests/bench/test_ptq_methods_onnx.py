@@ -29,6 +29,7 @@ def test_foreground_agreement_counts_only_pixels_either_model_calls_foreground()
     assert np.isnan(foreground[0])
 
 
+@pytest.mark.slow
 def test_each_case_gets_a_row_over_the_seeds(tmp_path, monkeypatch, capsys):
     pytest.importorskip("openvino")
     from tests.quant.onnx_models import calib_tensors, export_torch

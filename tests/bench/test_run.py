@@ -44,6 +44,7 @@ def float_checkpoint(path):
     return str(path)
 
 
+@pytest.mark.slow
 def test_bench_rows_columns_and_files(tmp_path, data):
     torch = pytest.importorskip("torch")
     models = [model(tmp_path / "h5.onnx", "int8", {"mode": "hybrid", "qat_fraction": 0.05}, 130.0),

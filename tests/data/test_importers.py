@@ -360,6 +360,7 @@ def test_assign_splits_is_deterministic_and_fills_every_split():
     assert [list(a.values()).count(s) for s in ("train", "val", "test")] == [40, 5, 5]
 
 
+@pytest.mark.slow
 def test_imported_cityscapes_trains_and_evaluates_with_ignored_pixels(tmp_path):
     pytest.importorskip("torch")
     import_dataset("cityscapes", cityscapes_tree(tmp_path / "cs"), tmp_path / "data",

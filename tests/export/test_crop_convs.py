@@ -115,6 +115,7 @@ def test_convs_that_read_little_padding_depthwise_and_fp32_convs_are_left_alone(
     assert crop_padded_convs(fp32) == 0
 
 
+@pytest.mark.slow
 def test_int8_export_crops_aspp_and_keeps_labels(small_data: Path, tmp_path: Path):
     """At 256x192 the map is 16x12: ASPP's rate 12 reaches past it along the width only, so its
     1x3 kernel is split into three column bands. Every conv still counts as one int8 conv."""

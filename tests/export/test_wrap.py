@@ -44,6 +44,7 @@ def test_a_wrapped_model_labels_as_its_own_outputs_say(small_data, tmp_path):
     assert (ours == logits.argmax(1)[0]).mean() >= 0.999
 
 
+@pytest.mark.slow
 def test_quantize_wrap_eval_bench_and_grasp_on_a_model_from_elsewhere(small_data, tmp_path):
     """The whole path for an opset-12 export with dynamic dims: int8 by `quantize static`, then
     wrapped, then run by the commands that take edgepick's own models."""

@@ -55,6 +55,7 @@ def _codes(converted):
     return {name: attrgetter(q.args[1].args[0].target)(converted).clone() for name, q in int8_convs(converted).items()}
 
 
+@pytest.mark.slow
 def test_adaround_lowers_the_output_error_of_round_to_nearest(inputs):
     reference, converted = _graphs(inputs)
     nearest = _codes(converted)
@@ -86,6 +87,7 @@ def test_the_converted_model_follows_fp32_more_closely(inputs):
     assert error["adaround"] < error["nearest"], error
 
 
+@pytest.mark.slow
 def test_a_pass_records_it_and_qat_refuses_it(inputs, tmp_path):
     result = quantize_static(Small().eval(), inputs, tmp_path / "a.onnx",
                              QuantConfig(adaround=True, adaround_budget_s=2.0, equalize=True), progress=False)

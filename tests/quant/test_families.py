@@ -20,6 +20,7 @@ from edgepick.train.loop import TrainConfig, train
 FAMILIES = ["lraspp-mobilenetv3", "fcn-resnet50", "deeplabv3-resnet50", "unet", "segnet", "ddrnet23-slim"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("arch", FAMILIES)
 def test_a_family_trains_exports_and_quantizes_with_every_conv_int8(arch, small_data, tmp_path):
     run = tmp_path / "run"

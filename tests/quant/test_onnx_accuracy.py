@@ -44,6 +44,7 @@ def faint(tmp_path_factory):
     return path, faint_channel_inputs(16), check, [session.run(None, {"input": x})[0] for x in check], tmp
 
 
+@pytest.mark.slow
 def test_a_faint_channel_is_named_and_the_accuracy_aware_mode_leaves_it_float(faint, capsys):
     path, calib, check, reference, tmp = faint
     plain = quantize_onnx_static(path, calib, tmp / "plain.onnx", QuantConfig(bias_correction="none"))
@@ -64,6 +65,7 @@ def test_a_faint_channel_is_named_and_the_accuracy_aware_mode_leaves_it_float(fa
         assert _sqnr(fixed.out, check, reference, engine) > _sqnr(plain.out, check, reference, engine) + 15, engine
 
 
+@pytest.mark.slow
 def test_keeping_a_node_float_never_lowers_fidelity_on_either_engine(faint):
     path, calib, check, reference, tmp = faint
     config = {"bias_correction": "none", "calib_method": "minmax"}

@@ -8,6 +8,7 @@ import json
 
 import numpy as np
 import onnx
+import pytest
 
 from edgepick.quant import QuantConfig, quantize_static
 from edgepick.quant.onnx import adaround as onnx_adaround
@@ -25,6 +26,7 @@ def _tensors(count=6):
     return image_tensors(count)
 
 
+@pytest.mark.slow
 def test_adaround_lowers_each_convs_error_and_rounds_each_weight_down_or_up(tmp_path, monkeypatch):
     seen = {}
     original = onnx_adaround.adaround_onnx
@@ -54,6 +56,7 @@ def test_adaround_lowers_each_convs_error_and_rounds_each_weight_down_or_up(tmp_
     assert any(not np.array_equal(nearest[n], learnt[n]) for n in dense)
 
 
+@pytest.mark.slow
 def test_the_int8_file_follows_fp32_more_closely_and_records_it(tmp_path, monkeypatch):
     # a fixed step count, for a result that does not depend on the machine's speed (measured: the
     # logits' squared error 4.3e-6 with nearest rounding, 2.1e-6 with AdaRound)

@@ -8,6 +8,7 @@ import json
 
 import numpy as np
 import onnx
+import pytest
 
 from edgepick.onnx_graph import Graph
 from edgepick.quant import QuantConfig, quantize_static
@@ -41,6 +42,7 @@ def test_the_onnx_graph_is_equalized_with_the_same_outputs(tmp_path):
     np.testing.assert_allclose(run(tmp_path / "e.onnx", x)[0], run(path, x)[0], atol=1e-4)
 
 
+@pytest.mark.slow
 def test_an_equalized_onnx_model_quantizes_closer_to_fp32(tmp_path):
     path = _export(tmp_path / "f.onnx")
     tensors = _tensors()

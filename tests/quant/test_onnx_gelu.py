@@ -47,6 +47,7 @@ def _quantize(tmp_path: Path, activation: str, gelu: str):
                                 progress=False)
 
 
+@pytest.mark.slow
 def test_gelu_sigmoid_runs_each_gelu_on_integer_kernels(tmp_path):
     fast = _quantize(tmp_path, "gelu", "sigmoid")
     assert fast.rewrites["sigmoid_gelu"] == 2 and fast.int8_convs == fast.convs == 3

@@ -119,6 +119,7 @@ def test_convs_are_corrected_in_waves_after_everything_they_read(tmp_path):
     assert wave_of["/se/fc1/Conv"] < wave_of["/se/fc2/Conv"] < wave_of["/pw/Conv"] < wave_of["/c2/Conv"]
 
 
+@pytest.mark.slow
 def test_first_7_gives_7_bit_weights_only_where_8_bit_ones_saturate(tmp_path):
     path = _export(Bright(), tmp_path / "f.onnx")
     bright = _tensors(240, 3)

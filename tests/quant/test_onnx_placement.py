@@ -14,6 +14,7 @@ from edgepick.quant.onnx.static import quantize_onnx_static
 from tests.quant.onnx_models import calib_tensors, export_torch
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("target", ["onnxruntime", "openvino"])
 def test_placement_auto_times_each_candidate_on_the_target_and_records_the_choice(tmp_path, target):
     src = export_torch(tmp_path / "net.onnx", opset=13)

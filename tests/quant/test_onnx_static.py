@@ -128,6 +128,7 @@ def test_keep_float_leaves_the_named_conv_float(tmp_path):
     assert conv_weight_report(result.out)["float"] == [first]
 
 
+@pytest.mark.slow
 def test_the_command_line_calibrates_on_npy_tensors_or_on_images(tmp_path):
     src = export_torch(tmp_path / "net.onnx")
     (tmp_path / "npy").mkdir()
@@ -193,6 +194,7 @@ def test_a_mistake_is_one_line_exit_2_and_nothing_written(inputs, tmp_path, args
     assert not (tmp_path / "out").exists() or list((tmp_path / "out").iterdir()) == []
 
 
+@pytest.mark.slow
 def test_the_json_reports_sqnr_and_cosine_per_output_and_a_raw_output_no_agreement(inputs, tmp_path):
     out = tmp_path / "q.onnx"
     proc = run_cli("quantize", "static", str(inputs["NET"]), "--calib", str(inputs["NPY"]), "--task", "logits=raw",

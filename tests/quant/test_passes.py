@@ -147,6 +147,7 @@ def test_hybrid_qat_from_a_kept_epoch(trained_run, small_data, tmp_path):
     assert float_s == pytest.approx(result.float_phase_s, abs=0.01)
 
 
+@pytest.mark.slow
 def test_qat_from_scratch(small_data, tmp_path):
     from edgepick.quant.pt2e.passes import quantize_qat
     from edgepick.train.loop import TrainConfig

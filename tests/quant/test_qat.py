@@ -94,6 +94,7 @@ def test_calibration_hook_leaves_the_input_alone():
     assert seen[0].dtype == torch.float32 and torch.equal(seen[0], x.float())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("after", ["prepare", "train_switch"])
 def test_qat_graph_keeps_the_models_batchnorm_eps(after):
     """torchao's QaT rewrites reset BatchNorm to eps 1e-5; MobileNetV3's is 1e-3. With fake-quant off,
@@ -129,6 +130,7 @@ def test_qat_graph_keeps_the_models_batchnorm_eps(after):
     assert torch.allclose(got, want, rtol=1e-3, atol=1e-3 * float(want.abs().max())), float((got - want).abs().max())
 
 
+@pytest.mark.slow
 def test_weight_range_averaging_reaches_the_fake_quants():
     """--weight-averaging 1.0: each QaT step quantizes the weights with that step's own range."""
     from edgepick.models import ModelConfig, build_model
@@ -238,6 +240,7 @@ def test_qat_state_loads_only_into_the_graph_it_came_from(fresh_qat):
             load_weights(prepared, {**prepared.state_dict(), extra: torch.ones(1)}, ckpt)
 
 
+@pytest.mark.slow
 def test_eval_copy_is_an_exact_eval_graph(fresh_qat):
     """Validation of a QaT run uses an eval-mode copy (switching the graph costs ~1 s each way):
     after training steps and a weight copy it must give what the trained graph gives in eval mode."""

@@ -3,9 +3,12 @@ conv biases snapped to onnxruntime's int32 grid."""
 
 from __future__ import annotations
 
+import pytest
+
 from edgepick.geometry import Size
 
 
+@pytest.mark.slow
 def test_gated_hardswish_is_the_same_function_and_quantizes_both_halves():
     """hardswish -> x * hardsigmoid(x): the float outputs do not move, and pt2e then sees a
     hardsigmoid and a mul (both with their own uint8 grid) where it saw one hardswish."""

@@ -73,6 +73,7 @@ def test_torchaos_convert_patterns_call_their_conv_op(kind):
     assert _absent_conv_kind(pattern, None) is None
 
 
+@pytest.mark.slow
 def test_patterns_of_conv_kinds_the_graph_lacks_are_not_traced(monkeypatch):
     from torchao.quantization.pt2e import utils
     from torchao.quantization.pt2e.quantize_pt2e import convert_pt2e, prepare_qat_pt2e

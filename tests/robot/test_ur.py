@@ -73,6 +73,7 @@ def test_connect_move_and_digital_output(peer):
     assert commands(log())[:3] == [36, 3, 1] and commands(log())[-1] == 255
 
 
+@pytest.mark.slow
 def test_a_full_pick_cycle_on_the_controller(peer, tmp_path):
     host, log = peer()
     plan = plan_pick(RECORD, PickConfig())
@@ -82,6 +83,7 @@ def test_a_full_pick_cycle_on_the_controller(peer, tmp_path):
     assert commands(log()).count(3) == 7  # the seven moveL steps of the plan
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fault, word", [("--protective-stop-on-move", "protective stop"), ("--drop-on-move", "lost")])
 def test_a_stop_mid_move_ends_the_cycle_and_nothing_more_is_sent(peer, fault, word):
     host, log = peer(fault, "2")  # the descent (second motion) stops halfway
@@ -190,6 +192,7 @@ def test_the_robot_log_folder_is_made_when_missing(peer, tmp_path):
     assert debug_log.is_file()
 
 
+@pytest.mark.slow
 def test_pick_command_executes_on_the_controller(peer, tmp_path):
     pytest.importorskip("onnx")
     from tests.conftest import run_cli
@@ -224,6 +227,7 @@ def _only_edgepick_lines(stderr: str) -> None:
     assert all(line.startswith(("cycle ", "edgepick: ")) for line in lines), stderr  # nothing from ur_rtde
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signal_name", ["SIGKILL", "SIGSTOP"])
 def test_a_controller_killed_or_frozen_mid_move_ends_pick_with_exit_3(peer, tmp_path, signal_name):
     pytest.importorskip("onnx")
@@ -280,6 +284,7 @@ def test_an_rg2_that_cannot_be_reached_stops_pick_before_the_arm_is_sent_anythin
     assert [e for e in log() if "cmd" in e or e.get("event") == "script"] == []  # the arm was sent nothing
 
 
+@pytest.mark.slow
 def test_calibrate_collect_through_ur_rtde_on_the_controller(peer, tmp_path):
     """The same collection against the loopback controller: real ur_rtde client, the synthetic
     camera seeing the marker where the controller reports the TCP."""

@@ -120,6 +120,7 @@ def test_robot_pose_with_camera_rotated_about_vertical(yaw_deg):
     assert abs(abs(tool[:, 0] @ minor_robot) - 1.0) < 1e-3  # fingers close across the object
 
 
+@pytest.mark.slow
 @given(st.integers(0, 2**31 - 1), st.floats(0.0, 1.0))
 @settings(max_examples=60, deadline=None)
 def test_random_masks_and_depth_never_raise_or_give_nan(seed, hole_fraction):

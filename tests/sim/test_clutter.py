@@ -150,6 +150,7 @@ def test_round_summary_sums_the_rounds_with_their_intervals():
     assert s["time_per_pick_s"] > 0
 
 
+@pytest.mark.slow
 def test_pick_rounds_end_to_end_with_a_recording_per_round(tmp_path):
     proc = run_cli("pick", "--rounds", "2", "--max-cycles", "3", "--verdict", "physics", "--record",
                    str(tmp_path / "run.mcap"), "--log", str(tmp_path / "log.jsonl"))

@@ -69,6 +69,7 @@ def test_eval_cli_reports_metrics(trained_run, small_data, tmp_path):
     assert json.loads((tmp_path / "m.json").read_text())["miou"] == result["miou"]
 
 
+@pytest.mark.slow
 def test_resume_after_kill_loses_at_most_one_epoch(small_data, tmp_path):
     run = tmp_path / "run"
     args = [sys.executable, "-m", "edgepick", "train", str(small_data), "--out", str(run), "--epochs", "4",
@@ -103,6 +104,7 @@ def test_resume_after_kill_loses_at_most_one_epoch(small_data, tmp_path):
     assert (run / "best.pt").stat().st_size < 0.5 * (run / "last.pt").stat().st_size
 
 
+@pytest.mark.slow
 def test_ddp_two_cpu_processes_with_gloo(small_data, tmp_path):
     run = tmp_path / "ddp"
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
