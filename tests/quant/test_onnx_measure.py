@@ -147,3 +147,59 @@ def test_what_the_onnx_path_cannot_do_is_refused_in_one_line(tmp_path):
     with pytest.raises(ParameterError, match="adaround_budget_s"):
         quantize_static(path, _tensors(0, 1), tmp_path / "o.onnx", QuantConfig(adaround=True, adaround_budget_s=-1))
     assert not (tmp_path / "o.onnx").exists()
+
+
+def _pooled_chain_model(path):
+    """x -> Conv -> Relu -> AveragePool -> Reshape -> Gemm: the writer gives the pool and the Reshape the
+    Relu's qparams (one shared scale), so their own ranges must not set it."""
+    from onnx import TensorProto, helper, numpy_helper
+
+    rng = np.random.default_rng(0)
+    inits = [numpy_helper.from_array(rng.normal(size=(4, 2, 3, 3)).astype(np.float32), "w"),
+             numpy_helper.from_array(rng.normal(size=4).astype(np.float32), "b"),
+             numpy_helper.from_array(np.array([1, -1], np.int64), "flat"),
+             numpy_helper.from_array(rng.normal(size=(3, 64)).astype(np.float32), "fc_w"),
+             numpy_helper.from_array(rng.normal(size=3).astype(np.float32), "fc_b")]
+    nodes = [helper.make_node("Conv", ["x", "w", "b"], ["conv"], pads=[1, 1, 1, 1], name="conv"),
+             helper.make_node("Relu", ["conv"], ["relu"], name="relu"),
+             helper.make_node("AveragePool", ["relu"], ["pool"], kernel_shape=[2, 2], strides=[2, 2], name="pool"),
+             helper.make_node("Reshape", ["pool", "flat"], ["rows"], name="reshape"),
+             helper.make_node("Gemm", ["rows", "fc_w", "fc_b"], ["y"], transB=1, name="fc")]
+    graph = helper.make_graph(nodes, "chain", [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 2, 8, 8])],
+                              [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3])], inits)
+    model = onnx.shape_inference.infer_shapes(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)]))
+    onnx.save(model, str(path))
+    return path
+
+
+def _qparams(model):
+    values = Values(model)
+    return {i.name: values[i.name] for i in model.graph.initializer if i.name.endswith(("_scale", "_zero_point",
+                                                                                          "_quantized"))}
+
+
+def test_requantized_qparams_are_the_writers_own_for_the_same_ranges(tmp_path):
+    """calib_method auto measures every rule on one written graph given each rule's qparams: they must be
+    the ones the writer computes from the same ranges (a pooled chain's shared scale, the conv's bias codes)."""
+    from onnxruntime.quantization.registry import QDQRegistry, QLinearOpsRegistry
+
+    from edgepick.quant.config import Placement
+    from edgepick.quant.onnx.measure import adjusted_ranges, requantize_activations
+    from edgepick.quant.onnx.qdq import qdq_model
+    from edgepick.quant.onnx.static import placement_ops
+
+    path = _pooled_chain_model(tmp_path / "chain.onnx")
+    float_model = onnx.load(str(path))
+    ops = placement_ops(Placement.ALL, {*QDQRegistry, *QLinearOpsRegistry})
+    first = {"x": (-1.0, 1.0), "conv": (-4.0, 4.0), "relu": (0.0, 4.0), "pool": (0.0, 2.0), "rows": (0.0, 2.0),
+             "y": (-9.0, 9.0)}
+    # the Relu's range below its pool's (a clipping rule such as entropy on a sparse map does that)
+    second = {"x": (-2.0, 1.5), "conv": (-3.0, 6.0), "relu": (0.0, 1.5), "pool": (0.0, 3.0), "rows": (0.0, 3.0),
+              "y": (-5.0, 7.0)}
+    written = qdq_model(path, first, ops, [], False)
+    requantize_activations(written, float_model, adjusted_ranges(float_model, second))
+    fresh = qdq_model(path, second, ops, [], False)
+    got, want = _qparams(written), _qparams(fresh)
+    assert set(got) == set(want) and any(k.startswith("relu") for k in want)
+    for name in want:
+        np.testing.assert_allclose(got[name], want[name], rtol=1e-6, err_msg=name)

@@ -48,9 +48,10 @@ class QdqConv:
     bias_scale: str | None
 
 
-def qdq_convs(model: Any) -> dict[str, QdqConv]:
-    """The Convs of MODEL (QDQ) with a DequantizeLinear on their input and on their own, unshared
-    int8 weights, by node name; the bias, when it is a DequantizeLinear of its own int32 codes."""
+def qdq_convs(model: Any, op_types: tuple[str, ...] = ("Conv",)) -> dict[str, QdqConv]:
+    """The Convs (or nodes of OP_TYPES) of MODEL (QDQ) with a DequantizeLinear on their input and on
+    their own, unshared int8 weights, by node name; the bias, when it is a DequantizeLinear of its own
+    int32 codes."""
     from onnx import TensorProto
 
     g = Graph(model)
@@ -63,7 +64,7 @@ def qdq_convs(model: Any) -> dict[str, QdqConv]:
 
     found = {}
     for n in g.nodes:
-        if n.op_type != "Conv" or len(n.input) < 2:
+        if n.op_type not in op_types or len(n.input) < 2:
             continue
         x, w = g.producer(n.input[0]), own_dq(n.input[1])
         codes = g.initializer(w.input[0]) if w is not None else None
@@ -108,29 +109,36 @@ def adjusted_ranges(float_model: Any, ranges: dict[str, tuple[float, float]]) ->
 
 def requantize_activations(model: Any, float_model: Any, ranges: dict[str, tuple[float, float]]) -> None:
     """Set the uint8 qparams of MODEL's activations (QDQ, as onnxruntime wrote it from FLOAT_MODEL) to
-    those of RANGES, as its writer computes them, and the conv biases' int32 codes to the new input
-    scales: the graph calib_method auto measures each candidate rule with, without writing it again.
+    those of RANGES, as its writer computes them, and the int32 bias codes of its Convs and Gemms to
+    the new input scales: the graph calib_method auto measures each candidate rule with, without
+    writing it again.
     (onnxruntime's writer may also widen a weight's scale where a bias would overflow int32; here
     such a bias clips, so a candidate's measure can differ from its written file's in that case.)"""
     from onnxruntime.quantization.quant_utils import compute_scale_zp
 
     values = Values(model)
     weights = {i.name for i in float_model.graph.initializer}
+    done: set[str] = set()
     for q in values.graph.nodes:
-        if q.op_type != "QuantizeLinear" or q.input[0] in weights or q.input[0] not in ranges:
+        if q.op_type != "QuantizeLinear" or q.input[0] in weights or len(q.input) < 3 or q.input[1] in done:
             continue
-        if len(q.input) < 3 or not values.graph.is_initializer(q.input[1]) or not values.graph.is_initializer(q.input[2]):
+        if not values.graph.is_initializer(q.input[1]) or not values.graph.is_initializer(q.input[2]):
             continue
+        # qparams shared along a chain (a pool or Reshape after a Relu: one scale initializer, named after the
+        # chain's first tensor) take that tensor's range, as the writer computes them
+        owner = q.input[1].removesuffix("_scale")
+        tensor = owner if owner in ranges else q.input[0]
         zero_point = values[q.input[2]]
-        if zero_point.dtype != np.uint8:
+        if tensor not in ranges or zero_point.dtype != np.uint8:
             continue
-        low, high = ranges[q.input[0]]
+        done.add(q.input[1])
+        low, high = ranges[tensor]
         zero, scale = compute_scale_zp(np.array(low, np.float32), np.array(high, np.float32), np.array(0, np.uint8),
                                        np.array(255, np.uint8))
         values[q.input[1]] = np.asarray(scale, np.float32).reshape(values[q.input[1]].shape)
         values[q.input[2]] = np.asarray(zero, np.uint8).reshape(zero_point.shape)
     floats, by_name = Values(float_model), {n.name: n for n in float_model.graph.node}
-    for name, c in qdq_convs(model).items():
+    for name, c in qdq_convs(model, ("Conv", "Gemm")).items():
         source = by_name.get(name)
         if c.bias_codes is None or c.bias_scale is None or source is None or len(source.input) < 3:
             continue
