@@ -131,9 +131,8 @@ def float_outputs(model: Any, tail: list[str]) -> int:
 def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np.ndarray], ops: list[str],
                 exclude: list[str], config: QuantConfig, nhwc: bool, progress: bool) -> tuple[RangeRule, dict]:
     """The range rule: config's own, or with auto the candidate whose int8 outputs on the HELD tensors
-    (held out of COLLECTOR, unless fewer others were counted) stay closest to fp32's. Held-out tensors
-    stay out of the ranges: the file is written with the ranges its rule was measured with (a rule
-    such as entropy can move far with a few more tensors). Returns the rule and what was measured."""
+    (held out of COLLECTOR until now, unless fewer others were counted) stay closest to fp32's. HELD
+    is counted into COLLECTOR on the way. Returns the rule and what was measured."""
     rules = candidate_rules(config)
     held_out = bool(held) and collector.seen >= len(held)
     if not held_out:
@@ -153,5 +152,8 @@ def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np
         requantize_activations(written, float_model, adjusted_ranges(float_model, collector.ranges(rule, exact)))
         scores.append(RuleScore(rule, evaluator.error(written, None)))
     best = min(scores, key=lambda s: s.error)
+    if held_out:
+        for x in held:
+            collector.add(x)
     return best.rule, {"rule": str(best.rule), "held_out": len(held) if held_out else 0,
                        "candidates": [s.to_dict() for s in scores]}

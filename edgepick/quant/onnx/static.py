@@ -243,7 +243,7 @@ def _output_shapes(model: Any) -> dict[str, tuple[int, ...]]:
 def _calibrate(collector: Collector, first: np.ndarray, rest: Iterator[Any], shape: tuple[int, ...], keep: int,
                hold: int, total: int | None, progress: bool) -> tuple[list[np.ndarray], int]:
     """Every calibration tensor, checked, into COLLECTOR but the first HOLD (held out for choosing the
-    rule); returns the first KEEP tensors and how many there were."""
+    rule, counted in later); returns the first KEEP tensors and how many there were."""
     from edgepick.progress import progress as progress_bar
 
     kept: list[np.ndarray] = []

@@ -155,12 +155,11 @@ def convert(prepared: torch.fx.GraphModule, snap_biases: bool = True) -> torch.f
 
 def choose_rule(prepared: torch.fx.GraphModule, held: list[torch.Tensor], config: QuantConfig, fitted: int) -> dict:
     """Set the range rule of PREPARED's activation observers (calibrated on FITTED other inputs than
-    HELD). With calib_method auto, PREPARED runs HELD with its activations on each
+    HELD) and count HELD in. With calib_method auto, PREPARED runs HELD with its activations on each
     candidate rule's uint8 grid (the weights float: they are the same for every rule), and the rule
     whose logits stay closest to fp32's is kept (each class weighted alike: the ONNX path's
     measure). With fewer FITTED inputs than HELD, HELD are counted in first and the choice is made
-    on them. HELD stay out of the ranges otherwise: the graph keeps the ranges its rule was measured
-    with (a rule such as entropy can move far with a few more inputs). Returns what was chosen and measured."""
+    on them. Returns what was chosen and measured."""
     observers = [m for m in prepared.modules() if isinstance(m, RuleObserver)]
     rules = candidate_rules(config)
     held_out = bool(held) and fitted >= len(held)
@@ -186,6 +185,8 @@ def choose_rule(prepared: torch.fx.GraphModule, held: list[torch.Tensor], config
     for o in observers:
         o.simulate(None)
         o.rule, o.observing = best.rule, True
+    if held_out:
+        _count_in(prepared, held, device)
     return {"rule": str(best.rule), "held_out": len(held) if held_out else 0,
             "candidates": [s.to_dict() for s in scores]}
 
