@@ -147,7 +147,7 @@ def test_the_walk_sees_the_package():
 
 
 @pytest.mark.parametrize("package", ["edgepick", "edgepick.train", "edgepick.quant", "edgepick.export", "edgepick.runtime",
-                                     "edgepick.models"])
+                                     "edgepick.models", "edgepick.data", "edgepick.robot", "edgepick.sim", "edgepick.bench"])
 def test_every_public_name_of_a_package_resolves(package):
     """The API packages load their objects on first use (a light config module must not import
     torch); every name in __all__ must still resolve, and nothing else be offered."""

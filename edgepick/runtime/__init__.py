@@ -12,8 +12,7 @@ _WHERE = {
     "grasp_records": "grasp", "kabsch": "calibration", "ModelError": "session", "Pipeline": "pipeline",
     "Preprocessing": "preprocessing", "RealSenseCamera": "camera", "Segmenter": "session"
 }
-__all__ = ["Calibration", "Engine", "FolderCamera", "ModelError", "Pipeline", "Preprocessing", "RealSenseCamera",
-           "Segmenter", "draw_overlay", "grasp_records", "kabsch"]
+__all__ = sorted(_WHERE)
 
 if TYPE_CHECKING:
     from edgepick.runtime.calibration import Calibration, kabsch
