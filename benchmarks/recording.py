@@ -31,7 +31,7 @@ from edgepick.robot.grippers import DigitalGripper  # noqa: E402
 from edgepick.robot.loop import run_cycles  # noqa: E402
 from edgepick.robot.pick import CommandLog, PickConfig  # noqa: E402
 from edgepick.robot.recording import Recorder, pick_metadata  # noqa: E402
-from edgepick.runtime.grasp import GraspConfig  # noqa: E402
+from edgepick.runtime.grasp_config import GraspConfig  # noqa: E402
 from edgepick.runtime.pipeline import Pipeline  # noqa: E402
 from edgepick.runtime.session import Segmenter  # noqa: E402
 from edgepick.sim.camera import SynthCamera  # noqa: E402

@@ -14,20 +14,22 @@ from tests.conftest import REPO
 GROUND = {"errors", "files", "progress", "geometry", "frames", "metrics", "intervals", "schema", "lazy", "onnx_graph"}
 
 
-def _imports() -> dict[str, set[str]]:
-    """module -> the edgepick modules it imports, at the top level ('top') or anywhere ('all')."""
+def _imports() -> dict[str, dict[str, set[str]]]:
+    """module -> the edgepick modules it imports, at the top level ('top', under TYPE_CHECKING too:
+    a type-only circle is a circle all the same) or anywhere ('all')."""
     graph: dict[str, dict[str, set[str]]] = {}
     for path in (REPO / "edgepick").rglob("*.py"):
         parts = path.relative_to(REPO).with_suffix("").parts
         module = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
         tree = ast.parse(path.read_text())
         top, every = set(), set()
+        module_level = [*tree.body, *(n for node in tree.body if _is_type_checking(node) for n in node.body)]
         for node in ast.walk(tree):
             names = [node.module] if isinstance(node, ast.ImportFrom) and node.module else \
                 [a.name for a in node.names] if isinstance(node, ast.Import) else []
             names = [n for n in names if n.startswith("edgepick")]
             every.update(names)
-            if node in tree.body:
+            if node in module_level:
                 top.update(names)
         graph[module] = {"top": top, "all": every}
     return graph

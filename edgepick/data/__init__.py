@@ -11,7 +11,7 @@ from edgepick.lazy import lazy_attributes
 _WHERE = {
     "CityscapesClasses": "config", "ImportConfig": "config", "ImportFormat": "config", "Split": "config",
     "import_dataset": "importers", "NativeDataset": "native", "read_meta": "native", "contact_sheet": "preview",
-    "CLASSES": "render", "LIGHTINGS": "render", "Layout": "render", "Placed": "render", "SceneRenderer": "render",
+    "CLASSES": "render", "LIGHTINGS": "render", "Layout": "render", "Placed": "shapes", "SceneRenderer": "render",
     "ObjectModel": "shapes", "SynthConfig": "synth", "synthesize": "synth"
 }
 __all__ = sorted(_WHERE)
@@ -21,8 +21,8 @@ if TYPE_CHECKING:
     from edgepick.data.importers import import_dataset
     from edgepick.data.native import NativeDataset, read_meta
     from edgepick.data.preview import contact_sheet
-    from edgepick.data.render import CLASSES, LIGHTINGS, Layout, Placed, SceneRenderer
-    from edgepick.data.shapes import ObjectModel
+    from edgepick.data.render import CLASSES, LIGHTINGS, Layout, SceneRenderer
+    from edgepick.data.shapes import ObjectModel, Placed
     from edgepick.data.synth import SynthConfig, synthesize
 
 

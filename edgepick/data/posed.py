@@ -11,14 +11,9 @@ the side wall, whichever the point lies nearest.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
-from edgepick.data.shapes import Part
-
-if TYPE_CHECKING:
-    from edgepick.data.render import Placed
+from edgepick.data.shapes import Part, Placed
 
 STEP_M = 0.0015  # the march's step in depth: thinner than any part
 REFINE = 5  # bisections of the step a ray first enters a part in (0.05 mm)

@@ -4,15 +4,11 @@ shadows objects cast on the table."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import cv2
 import numpy as np
 
+from edgepick.data.shapes import Placed
 from edgepick.geometry import Intrinsics
-
-if TYPE_CHECKING:
-    from edgepick.data.render import Placed
 
 
 def table_albedo(rng: np.random.Generator, kind: str, h: int, w: int) -> tuple[np.ndarray, float, float]:

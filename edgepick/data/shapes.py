@@ -272,3 +272,22 @@ MAKERS: dict[str, Callable[[np.random.Generator], ObjectModel]] = {
     "adapter": make_adapter,
     "box": make_box,
 }
+
+
+@dataclass
+class Placed:
+    """One object laid out in a scene: its model, where it stands on the table, and how it is turned."""
+
+    model: ObjectModel
+    ground: np.ndarray  # point on the table plane under the object's centre (camera frame, m)
+    base_elev: float  # elevation of the object's base above the table (stacked objects)
+    a1: np.ndarray  # local x axis (major axis) in the table plane
+    a2: np.ndarray
+    # an object posed anywhere (where it settled: sim/clutter.py): its own down axis (its base's normal, away
+    # from its top), with GROUND its base centre, BASE_ELEV 0 and A1, A2 across DOWN; None: upright on the table
+    down: np.ndarray | None = None
+    key: int | None = None  # the object's id in its grasp truth ("id"), when it has one (a clutter-removal round)
+
+    def axis(self, n: np.ndarray) -> np.ndarray:
+        """The object's down axis: its own when posed, else the table's normal N."""
+        return n if self.down is None else self.down

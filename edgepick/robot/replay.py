@@ -28,7 +28,8 @@ from edgepick.robot.envelope import Envelope
 from edgepick.robot.messages import rotation, schemas
 from edgepick.robot.pick import PickConfig, choose_target
 from edgepick.runtime.calibration import Calibration
-from edgepick.runtime.grasp import GraspConfig, grasp_records
+from edgepick.runtime.grasp import grasp_records
+from edgepick.runtime.grasp_config import GraspConfig
 from edgepick.runtime.session import Segmenter
 
 SAME_OBJECT_PX = 2.0  # two choices of one class this close are the same object (another model moves a centroid)

@@ -13,7 +13,8 @@ import numpy as np
 
 from edgepick.frames import Frame
 from edgepick.runtime.calibration import Calibration
-from edgepick.runtime.grasp import GraspConfig, Laps, grasp_records
+from edgepick.runtime.grasp import Laps, grasp_records
+from edgepick.runtime.grasp_config import GraspConfig
 from edgepick.runtime.session import Segmenter
 
 STAGES = ("pre", "inference", "post", "grasp")

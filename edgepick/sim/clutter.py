@@ -24,8 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from edgepick.data.render import Layout, Placed
-from edgepick.data.shapes import ObjectModel
+from edgepick.data.render import Layout
+from edgepick.data.shapes import ObjectModel, Placed
 from edgepick.errors import ParameterError
 from edgepick.frames import Frame
 from edgepick.intervals import rounded, wilson

@@ -7,7 +7,8 @@ import time
 
 from edgepick.frames import Frame
 from edgepick.runtime.calibration import Calibration
-from edgepick.runtime.grasp import GraspConfig, Laps, grasp_records
+from edgepick.runtime.grasp import Laps, grasp_records
+from edgepick.runtime.grasp_config import GraspConfig
 from edgepick.runtime.pipeline import Perception, Pipeline
 
 

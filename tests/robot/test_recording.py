@@ -246,7 +246,7 @@ def test_a_recording_stopped_by_a_robot_halt_is_a_readable_file(tmp_path):
     from edgepick.robot.loop import run_cycles
     from edgepick.robot.pick import CommandLog, PickConfig
     from edgepick.robot.recording import Recorder, pick_metadata
-    from edgepick.runtime.grasp import GraspConfig
+    from edgepick.runtime.grasp_config import GraspConfig
     from edgepick.runtime.pipeline import Pipeline
     from edgepick.runtime.session import Segmenter
     from edgepick.sim.robot import SimRobot

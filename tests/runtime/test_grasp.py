@@ -174,7 +174,8 @@ def test_cli_refuses_size_mismatch_bad_rotation_and_8bit_depth(tmp_path):
 @given(st.integers(0, 2**31 - 1))
 @settings(max_examples=40, deadline=None)
 def test_class_masks_filtered_on_crops_equal_whole_frame_filtering(seed):
-    from edgepick.runtime.grasp import GraspConfig, filter_class_masks
+    from edgepick.runtime.grasp import filter_class_masks
+    from edgepick.runtime.grasp_config import GraspConfig
 
     rng = np.random.default_rng(seed)
     labels = np.zeros((120, 160), np.uint8)
