@@ -28,21 +28,23 @@ from edgepick.robot.recording import PickCycle, Recorder, SceneChange, StepDone
 from edgepick.robot.verdict import judge, summarize, undetected
 from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.grasp import draw_overlay
+from edgepick.runtime.grasp_record import Grasp
 from edgepick.runtime.pipeline import Pipeline
 
 SUCCESS_M = 0.01  # thesis 5.1.5: a grasp point within 1 cm
 
 
-def grasp_error_m(record: dict, truth: list[dict] | None) -> float | None:
-    """Distance from the record's 3D point to the nearest true object of its class (camera
+def grasp_error_m(record: Grasp, truth: list[dict] | None) -> float | None:
+    """Distance from the grasp's 3D point to the nearest true object of its class (camera
     frame); infinity when the scene has no object of that class (a false detection)."""
-    if not truth or record.get("point_camera_m") is None:
+    point = record.point_camera_m
+    if not truth or point is None:
         return None
-    same = [t for t in truth if t["class"] == record["class"]]
-    return min((math.dist(record["point_camera_m"], t["point_camera_m"]) for t in same), default=math.inf)
+    same = [t for t in truth if t["class"] == record.cls]
+    return min((math.dist(point, t["point_camera_m"]) for t in same), default=math.inf)
 
 
-def judge_cycle(record: dict | None, seen: list[dict], frame: Frame, cfg: PickConfig,
+def judge_cycle(record: Grasp | None, seen: list[Grasp], frame: Frame, cfg: PickConfig,
                 truth_cal: Calibration | None) -> dict:
     """What a cycle's result says about its choice: the grasp point's error against the scene's
     truth and, in the synthetic cell (TRUTH_CAL, the cell's true calibration), the verdict
@@ -51,14 +53,14 @@ def judge_cycle(record: dict | None, seen: list[dict], frame: Frame, cfg: PickCo
     if record is None:
         if not judged:
             return {}
-        wanted = [r for r in seen if not cfg.classes or r["class"] in cfg.classes]
+        wanted = [r for r in seen if not cfg.classes or r.cls in cfg.classes]
         return {"verdict": {"success": False, "failure": "unreachable" if wanted else "no object seen"},
                 "undetected": undetected(seen, frame.truth or [])}
     err = grasp_error_m(record, frame.truth)
     fields = {"grasp_error_m": None if err is None or math.isinf(err) else round(err, 4),
               "within_1cm": None if err is None else err <= SUCCESS_M}
     if err is not None and math.isinf(err):
-        fields["note"] = f"no {record['class']} in the scene's truth (false detection)"
+        fields["note"] = f"no {record.cls} in the scene's truth (false detection)"
     if judged:
         fields["verdict"] = judge(record, frame, truth_cal)
         fields["undetected"] = undetected(seen, frame.truth or [])
@@ -104,8 +106,8 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None,
                gripper: DigitalGripper | RG2Gripper | None, *, cfg: PickConfig, cycles: int, log: CommandLog,
                overlay_dir: str | Path | None = None, echo: Callable[[str], object] = print,
                truth_cal: Calibration | None = None, overlap: bool = False,
-               recorder: Recorder | None = None, physics: Callable[[dict, Frame], dict] | None = None,
-               done: list[dict] | None = None, after: Callable[[dict, dict | None, Frame], SceneChange] | None = None,
+               recorder: Recorder | None = None, physics: Callable[[Grasp, Frame], dict] | None = None,
+               done: list[dict] | None = None, after: Callable[[dict, Grasp | None, Frame], SceneChange] | None = None,
                first: int = 1) -> list[dict]:
     """Run up to `cycles` pick cycles (robot None = plan only). Stops early when the robot halts
     (a failed gripper halts it too). Each plan passes the envelope and, with a robot, the
@@ -137,8 +139,8 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None,
 def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper: DigitalGripper | RG2Gripper | None,
             cfg: PickConfig, cycles: range, log: CommandLog, overlay_dir: str | Path | None, echo: Callable[[str], object],
             truth_cal: Calibration | None, ahead: Lookahead | None, recorder: Recorder | None,
-            physics: Callable[[dict, Frame], dict] | None, results: list[dict],
-            after: Callable[[dict, dict | None, Frame], SceneChange] | None) -> list[dict]:
+            physics: Callable[[Grasp, Frame], dict] | None, results: list[dict],
+            after: Callable[[dict, Grasp | None, Frame], SceneChange] | None) -> list[dict]:
     """run_cycles' loop, appending to RESULTS. Per cycle, besides the outcome: plan_ms (frame read ->
     checked plan), frame_to_command_ms (-> the first command sent), frame_to_frame_ms (since the
     previous frame was read) and arm_wait_ms (the previous cycle's last command done -> this one's
@@ -178,7 +180,7 @@ def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper
             log.write(cycle=cycle, command="none", target=None, result=f"skipped: {note}")
             result.update(judge_cycle(None, seen.records, frame, cfg, truth_cal))
         else:
-            result.update(target=record["class"], pixel=record["pixel"], pose_robot=record["pose_robot"])
+            result.update(target=record.cls, pixel=list(record.pixel), pose_robot=list(record.chosen_pose()))
             result.update(judge_cycle(record, seen.records, frame, cfg, truth_cal))
             if robot is None:
                 result.update(outcome="planned", plan=[asdict(s) for s in plan])
@@ -223,7 +225,7 @@ def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper
     return results
 
 
-def physics_verdict(result: dict, record: dict | None, frame: Frame, physics: Callable[[dict, Frame], dict]) -> dict:
+def physics_verdict(result: dict, record: Grasp | None, frame: Frame, physics: Callable[[Grasp, Frame], dict]) -> dict:
     """The physics check's verdict on a judged cycle: its own on a grasp that was carried out, the
     geometric one where nothing was chosen, a failure where the robot stopped."""
     if record is None:

@@ -44,6 +44,7 @@ from edgepick.robot.messages import quaternion, schemas, set_pose
 from edgepick.robot.pick import Step
 from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.grasp import draw_overlay
+from edgepick.runtime.grasp_record import Grasp
 
 JPEG_QUALITY = 90
 WORKER_NICE = 10  # the writer thread yields the CPU to the loop's inference when both want it
@@ -85,8 +86,8 @@ class PickCycle:
     frame: Frame
     frame_ns: int  # wall time the frame was read
     labels: np.ndarray
-    records: list[dict]
-    chosen: dict | None
+    records: list[Grasp]
+    chosen: Grasp | None
     plan: list[Step]
     start_pose: list[float] | None  # the arm's pose the plan starts from (None: plan only, from home)
     result: dict  # the cycle's result, as `pick` prints it
@@ -239,8 +240,8 @@ class Recorder:
         if self.calibration is not None:
             self.transform(self.calibration, t, c.start_pose)
         self.write("/grasp/markers", grasp_markers(m, c.records, c.chosen, c.plan, plan_ns), plan_ns)
-        posed = [r for r in c.records if r.get("pose_robot") is not None]
-        self.write("/grasp/points", point_cloud(m, [r["pose_robot"] for r in posed],
+        posed = [r for r in c.records if r.pose_robot is not None]
+        self.write("/grasp/points", point_cloud(m, [r.pose_robot for r in posed],
                                                 [GREEN if r is c.chosen else GREY for r in posed]), plan_ns)
         targets = [s.target for s in c.plan if s.target is not None]
         self.write("/plan/targets", point_cloud(m, targets, [BLUE] * len(targets)), plan_ns)
@@ -327,7 +328,7 @@ def pick_cycle_message(m, c: PickCycle):
                                           for k in ("pre", "inference", "post", "grasp")},
         plan_ms=float(r.get("plan_ms", nan)), frame_to_command_ms=float(r.get("frame_to_command_ms", nan)),
         judged=bool(v), success=bool(v.get("success")), failure=str(v.get("failure") or ""),
-        result_json=json.dumps(r), records_json=json.dumps(c.records))
+        result_json=json.dumps(r), records_json=json.dumps([g.to_dict() for g in c.records]))
     message.frame_time.FromNanoseconds(c.frame_ns)
     return message
 

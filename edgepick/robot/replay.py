@@ -175,8 +175,8 @@ def replay(recording: Recording, segmenter: Segmenter | None = None) -> Iterator
             if pick_cfg.hand is not None and recording.calibration is not None else None
         chosen, _, note = choose_target(records, envelope, pick_cfg, rc.start_pose, clear=clear)
         recorded = {"target": rc.result.get("target"), "pixel": rc.result.get("pixel")}
-        now = {"target": chosen["class"], "pixel": chosen["pixel"], "pose_robot": chosen["pose_robot"]} \
-            if chosen else {"target": None, "pixel": None, "reason": note}
+        now = {"target": None, "pixel": None, "reason": note} if chosen is None else \
+            {"target": chosen.cls, "pixel": list(chosen.pixel), "pose_robot": list(chosen.chosen_pose())}
         shift = math.dist(recorded["pixel"], now["pixel"]) if recorded["pixel"] and now["pixel"] else None
         same = recorded["target"] == now["target"] and (shift is None or shift <= SAME_OBJECT_PX)
         out = {"cycle": rc.cycle, "frame": rc.frame, "objects": len(records), "recorded": recorded, "replayed": now,

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import enum
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -20,6 +21,7 @@ from edgepick.frames import Frame
 from edgepick.intervals import rounded, wilson
 from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.grasp import top_down_pose
+from edgepick.runtime.grasp_record import Grasp
 
 POSITION_M = 0.010
 ANGLE_DEG = 15.0
@@ -36,7 +38,7 @@ class VerdictRule(enum.StrEnum):
 FAILURES = ("false detection", "position", "orientation", "unreachable", "no object seen", "robot stopped")
 
 
-def closing_yaw_deg(pose: list[float]) -> float:
+def closing_yaw_deg(pose: Sequence[float]) -> float:
     """The fingers' closing direction (tool x) of a top-down pose, as a yaw in (-90, 90] degrees."""
     rot = np.asarray(pose[3:], np.float64)
     angle = float(np.linalg.norm(rot))
@@ -56,20 +58,20 @@ def yaw_difference_deg(a: float, b: float) -> float:
     return min(d, 180.0 - d)
 
 
-def judge(record: dict, frame: Frame, truth_cal: Calibration) -> dict:
-    """The verdict on one chosen target: success, the failure (FAILURES) and the errors."""
-    same = [t for t in frame.truth or [] if t["class"] == record["class"]]
+def judge(record: Grasp, frame: Frame, truth_cal: Calibration) -> dict:
+    """The verdict on one chosen target (with a robot pose): success, the failure (FAILURES) and the errors."""
+    same = [t for t in frame.truth or [] if t["class"] == record.cls]
     if not same:
         return {"success": False, "failure": "false detection", "position_error_m": None, "angle_error_deg": None}
-    commanded = np.asarray(record["pose_robot"][:3], np.float64)
+    commanded = np.asarray(record.chosen_pose()[:3], np.float64)
     true_points = [truth_cal.apply(np.asarray(t["point_camera_m"], np.float64)) for t in same]
     k = int(np.argmin([np.linalg.norm(p - commanded) for p in true_points]))
     obj, error = same[k], float(np.linalg.norm(true_points[k] - commanded))
     angle_error = None
-    if GRIPPER.get(record["class"]) == "two-finger" and obj.get("orientation_defined"):
+    if GRIPPER.get(record.cls) == "two-finger" and obj.get("orientation_defined"):
         u, v = obj["pixel"]
         true_pose = top_down_pose(truth_cal, frame.intrinsics, u, v, obj["point_camera_m"][2], obj["angle_deg"], True)
-        angle_error = yaw_difference_deg(closing_yaw_deg(record["pose_robot"]), closing_yaw_deg(true_pose))
+        angle_error = yaw_difference_deg(closing_yaw_deg(record.chosen_pose()), closing_yaw_deg(true_pose))
     failure = "position" if error > POSITION_M else \
         "orientation" if angle_error is not None and angle_error > ANGLE_DEG else None
     return {"success": failure is None, "failure": failure, "position_error_m": round(error, 4),
@@ -79,10 +81,10 @@ def judge(record: dict, frame: Frame, truth_cal: Calibration) -> dict:
 DETECTED_PX = 15.0  # a grasp record of an object's class this close to its true grasp pixel found it (17 mm at 0.7 m)
 
 
-def undetected(records: list[dict], truth: list[dict]) -> int:
+def undetected(records: list[Grasp], truth: list[dict]) -> int:
     """How many of the scene's objects no grasp record of their class found (within DETECTED_PX
     of the true grasp pixel): objects the model missed, or that the grasp step could not separate."""
-    return sum(not any(r["class"] == t["class"] and math.dist(r["pixel"], t["pixel"]) <= DETECTED_PX for r in records)
+    return sum(not any(r.cls == t["class"] and math.dist(r.pixel, t["pixel"]) <= DETECTED_PX for r in records)
                for t in truth)
 
 

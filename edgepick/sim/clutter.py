@@ -32,6 +32,7 @@ from edgepick.intervals import rounded, wilson
 from edgepick.robot.pick import PickConfig
 from edgepick.robot.recording import SceneChange
 from edgepick.robot.verdict import summarize
+from edgepick.runtime.grasp_record import Grasp
 from edgepick.sim.camera import SynthCamera
 from edgepick.sim.physics import PhysicsConfig, physics_run, require_mujoco
 from edgepick.sim.physics_scene import OVERLAP_M, Solid, scene_xml, settle
@@ -199,14 +200,14 @@ class ClutterRound(SynthCamera):
         poses the check left the parts in kept for `after`."""
         truth_cal = self.calibration()
 
-        def judge(record: dict, frame: Frame) -> dict:
+        def judge(record: Grasp, frame: Frame) -> dict:
             self._run = physics_run(record, frame.truth or [], truth_cal, list(pick.place_pose), pick.grasp_offset_m,
                                     self.physics_cfg, hidden=frame.hidden or [])
             return self._run.verdict
 
         return judge
 
-    def after(self, result: dict, record: dict | None, frame: Frame) -> SceneChange:
+    def after(self, result: dict, record: Grasp | None, frame: Frame) -> SceneChange:
         """run_cycles' AFTER: the picked part off the table when the cycle succeeded (the physics
         check's verdict where it ran, else the geometric rule's), the rest settled; adds "round" to
         RESULT and says whether the round ends."""
@@ -248,11 +249,11 @@ class ClutterRound(SynthCamera):
         m = TRAY_MARGIN_M
         return x0 - m <= x <= x1 + m and y0 - m <= y <= y1 + m and z > -0.02
 
-    def _nearest(self, record: dict) -> int | None:
+    def _nearest(self, record: Grasp) -> int | None:
         """The part of the record's class whose top lies nearest its commanded point (the part the
         geometric rule judged it against)."""
-        same = [p for p in self.parts if p.model.cls == record["class"]]
-        point = np.asarray(record["pose_robot"][:3], np.float64)
+        same = [p for p in self.parts if p.model.cls == record.cls]
+        point = np.asarray(record.chosen_pose()[:3], np.float64)
         best = min(same, key=lambda p: float(np.linalg.norm(p.solid().top - point)), default=None)
         return None if best is None else best.key
 

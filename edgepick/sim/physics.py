@@ -34,6 +34,7 @@ from edgepick.errors import ConfigError
 from edgepick.frames import Frame
 from edgepick.robot.pick import PickConfig
 from edgepick.runtime.calibration import Calibration
+from edgepick.runtime.grasp_record import Grasp
 from edgepick.sim.physics_scene import FINGER_DAMPING, PhysicsConfig, Solid, solids, without_overlaps
 
 __all__ = ["PHYSICS_FAILURES", "PhysicsConfig", "PhysicsRun", "Solid", "physics_judge", "physics_run", "physics_verdict",
@@ -89,11 +90,11 @@ def steel_share(solid: Solid, centre: np.ndarray, radius: float, body_pos: np.nd
     return (_overlap(radius, outer, d) - _overlap(radius, inner, d)) / (math.pi * radius * radius)
 
 
-def _target(record: dict, world: list[Solid]) -> int | None:
-    same = [k for k, s in enumerate(world) if s.cls == record["class"]]
+def _target(record: Grasp, world: list[Solid]) -> int | None:
+    same = [k for k, s in enumerate(world) if s.cls == record.cls]
     if not same:
         return None
-    commanded = np.asarray(record["pose_robot"][:3], np.float64)
+    commanded = np.asarray(record.chosen_pose()[:3], np.float64)
     return min(same, key=lambda k: float(np.linalg.norm(world[k].top - commanded)))
 
 
@@ -107,20 +108,20 @@ def require_mujoco():
 
 
 def physics_judge(truth_cal: Calibration, pick: PickConfig, cfg: PhysicsConfig | None = None
-                  ) -> Callable[[dict, Frame], dict]:
+                  ) -> Callable[[Grasp, Frame], dict]:
     """run_cycles' PHYSICS for the synthetic cell: each chosen record's grasp carried out on the
     frame's truth, with the pick's place pose and grasp offset. Needs the [sim] extra (checked now)."""
     require_mujoco()
     cfg = cfg or PhysicsConfig()
 
-    def judge(record: dict, frame: Frame) -> dict:
+    def judge(record: Grasp, frame: Frame) -> dict:
         return physics_verdict(record, frame.truth or [], truth_cal, list(pick.place_pose), pick.grasp_offset_m, cfg,
                                hidden=frame.hidden or [])
 
     return judge
 
 
-def physics_verdict(record: dict, truth: list[dict], cal: Calibration, place_pose: list[float],
+def physics_verdict(record: Grasp, truth: list[dict], cal: Calibration, place_pose: list[float],
                     grasp_offset_m: float = 0.0, cfg: PhysicsConfig | None = None, hidden: Sequence[dict] = ()) -> dict:
     """Carry out RECORD's grasp (its pose_robot, the chosen object) on the scene TRUTH (the true
     calibration CAL puts it in the robot frame): {"success", "failure" (PHYSICS_FAILURES),
@@ -140,7 +141,7 @@ class PhysicsRun:
     target: int | None = None
 
 
-def physics_run(record: dict, truth: list[dict], cal: Calibration, place_pose: list[float],
+def physics_run(record: Grasp, truth: list[dict], cal: Calibration, place_pose: list[float],
                 grasp_offset_m: float = 0.0, cfg: PhysicsConfig | None = None, hidden: Sequence[dict] = ()
                 ) -> PhysicsRun:
     """physics_verdict, with the poses the check left its objects in: what a clutter-removal round
@@ -160,12 +161,12 @@ def physics_run(record: dict, truth: list[dict], cal: Calibration, place_pose: l
     target = world[k]
     world = [target] + [s for s in world if s is not target and np.linalg.norm((s.base - target.base)[:2]) < NEAR_M]
     k = 0
-    magnet = GRIPPER.get(record["class"]) == "electromagnet"
+    magnet = GRIPPER.get(record.cls) == "electromagnet"
     model, data, left_out = without_overlaps(mujoco, world, magnet, cfg)
     world = [s for i, s in enumerate(world) if i not in left_out]
     sim = _Sim(mujoco, model, data, world, k, magnet, cfg)
-    yaw = math.radians(closing_yaw_deg(record["pose_robot"]))
-    grasp = np.asarray(record["pose_robot"][:3], np.float64) + [0, 0, grasp_offset_m]
+    yaw = math.radians(closing_yaw_deg(record.chosen_pose()))
+    grasp = np.asarray(record.chosen_pose()[:3], np.float64) + [0, 0, grasp_offset_m]
     verdict = sim.run(grasp, yaw, np.asarray(place_pose[:3], np.float64))
     if not verdict["success"] and sim.settled_m > SETTLED_M:  # the scene, not the grasp, failed
         verdict = {**verdict, "failure": "unsettled", "note": f"the scene does not stand as rendered: the "

@@ -14,6 +14,8 @@ from edgepick.geometry import Intrinsics
 from edgepick.robot.verdict import closing_yaw_deg, judge, yaw_difference_deg
 from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.grasp import top_down_pose
+from edgepick.runtime.grasp_record import Grasp
+from tests.conftest import make_grasp
 
 INTR = Intrinsics.d415(640, 480)
 CAL = Calibration(np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]), np.array([0.28, 0.0, 0.7]), 0, 0)
@@ -25,9 +27,9 @@ def _frame(*truth: dict) -> Frame:
     return Frame(np.zeros((480, 640, 3), np.uint8), np.zeros((480, 640), np.uint16), INTR, "f", list(truth))
 
 
-def _record(cls: str, du: float = 0.0, angle: float = 30.0) -> dict:
+def _record(cls: str, du: float = 0.0, angle: float = 30.0) -> Grasp:
     pose = top_down_pose(CAL, INTR, 320.0 + du, 240.0, 0.62, angle, True)
-    return {"class": cls, "pose_robot": pose}
+    return make_grasp(cls, pose)
 
 
 @pytest.mark.parametrize("phi", [-80.0, -30.0, 0.0, 45.0, 89.0])
@@ -77,8 +79,8 @@ def test_undetected_counts_the_objects_no_record_of_their_class_found():
 
     truth = [{"class": "box", "pixel": [100, 100]}, {"class": "disk", "pixel": [300, 200]},
              {"class": "box", "pixel": [500, 400]}]
-    records = [{"class": "box", "pixel": [104, 109]},  # 9.8 px: found
-               {"class": "bearing", "pixel": [300, 200]},  # the disk's pixel, another class: not found
-               {"class": "box", "pixel": [520, 400]}]  # 20 px off: not found
+    records = [make_grasp("box", None, pixel=(104, 109)),  # 9.8 px: found
+               make_grasp("bearing", None, pixel=(300, 200)),  # the disk's pixel, another class: not found
+               make_grasp("box", None, pixel=(520, 400))]  # 20 px off: not found
     assert undetected(records, truth) == 2
     assert undetected([], truth) == 3 and undetected(records, []) == 0

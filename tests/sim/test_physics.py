@@ -12,7 +12,9 @@ pytest.importorskip("mujoco")
 
 from edgepick.errors import ParameterError  # noqa: E402
 from edgepick.runtime.calibration import Calibration  # noqa: E402
+from edgepick.runtime.grasp_record import Grasp  # noqa: E402
 from edgepick.sim.physics import PhysicsConfig, physics_verdict, solids, steel_share  # noqa: E402
+from tests.conftest import make_grasp  # noqa: E402
 
 IDENTITY = Calibration(np.eye(3), np.zeros(3), 0.0, 0)  # the tests' "camera" frame is the robot frame
 PLACE = [-0.05, -0.32, 0.10, math.pi, 0.0, 0.0]
@@ -37,13 +39,12 @@ def disk(x: float, y: float) -> dict:
                       "hat_h": 0.055}}
 
 
-def grasp(cls: str, x: float, y: float, z: float, closing_yaw: float = 0.0) -> dict:
-    """A chosen record: the TCP at (x, y, z), tool down, the fingers closing along CLOSING_YAW."""
-    return {"class": cls, "pose_robot": [x, y, z, math.pi * math.cos(closing_yaw / 2),
-                                         math.pi * math.sin(closing_yaw / 2), 0.0]}
+def grasp(cls: str, x: float, y: float, z: float, closing_yaw: float = 0.0) -> Grasp:
+    """A chosen grasp: the TCP at (x, y, z), tool down, the fingers closing along CLOSING_YAW."""
+    return make_grasp(cls, [x, y, z, math.pi * math.cos(closing_yaw / 2), math.pi * math.sin(closing_yaw / 2), 0.0])
 
 
-def verdict(record: dict, scene: list[dict], **cfg) -> dict:
+def verdict(record: Grasp, scene: list[dict], **cfg) -> dict:
     return physics_verdict(record, scene, IDENTITY, PLACE, cfg=PhysicsConfig(**cfg) if cfg else None)
 
 
