@@ -49,8 +49,9 @@ def row(segmenter: Segmenter, cycles: int, overlap: bool, realtime: float) -> di
     with camera, robot:
         run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=PickConfig(), cycles=2,
                    log=CommandLog(None), echo=lambda line: None)  # warm-up
-        results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=PickConfig(), cycles=cycles,
-                             log=CommandLog(None), echo=lambda line: None, overlap=overlap)
+        results = [r.to_dict() for r in run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=PickConfig(),
+                                                    cycles=cycles, log=CommandLog(None), echo=lambda line: None,
+                                                    overlap=overlap)]
     return {"cycles": len(results), "picked": sum("frame_to_command_ms" in r for r in results),
             "inference": statistics.median(r["stage_ms"]["inference"] for r in results),
             "grasp": statistics.median(r["stage_ms"]["grasp"] for r in results),

@@ -50,7 +50,7 @@ def block(segmenter: Segmenter, seed: int, cycles: int, realtime: float, record:
         results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=PickConfig(), cycles=cycles,
                              log=CommandLog(None), echo=lambda line: None, recorder=recorder)
         loop_s = time.perf_counter() - start
-    out = {"results": results, "loop_s": loop_s}
+    out = {"results": [r.to_dict() for r in results], "loop_s": loop_s}
     if recorder is not None:
         start = time.perf_counter()
         recorder.close()

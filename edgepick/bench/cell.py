@@ -26,6 +26,7 @@ from edgepick.errors import ParameterError
 from edgepick.intervals import rounded, wilson
 from edgepick.machine import machine_line
 from edgepick.robot.clearance import HandShape
+from edgepick.robot.cycle import CycleResult, verdicts
 from edgepick.robot.grippers import DigitalGripper
 from edgepick.robot.loop import run_cycles
 from edgepick.robot.pick import CommandLog, PickConfig
@@ -73,7 +74,7 @@ def cell_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: int, 
 
 def measure_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: int, size_mb: float | None,
                 verdict: VerdictRule = VerdictRule.GEOMETRIC, physics_config=None, rounds: int | None = None,
-                round_config=None) -> tuple[CellRow, list[dict], list[dict] | None]:
+                round_config=None) -> tuple[CellRow, list[CycleResult], list[dict] | None]:
     """cell_row, with the cycles' results; with ROUNDS, that many clutter-removal rounds (sim/clutter.py,
     ROUND_CONFIG) in place of CYCLES single scenes, and the rounds' `describe()`."""
     camera = SynthCamera(640, 480, seed=seed, mount_height_m=MOUNT_M)
@@ -97,12 +98,12 @@ def measure_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: in
         else:
             from edgepick.sim.clutter import run_rounds
 
-            results = []
+            results: list[CycleResult] = []
             described = run_rounds(pipeline, robot, DigitalGripper(robot, 0), rounds=rounds, pick=pick,
                                    log=CommandLog(None), seed=seed, cfg=round_config, physics=physics_config,
                                    judge=physics is not None, echo=lambda line: None, done=results)
-    times = np.array([r["plan_ms"] for r in results])  # frame -> labels -> records -> the checked plan
-    summary = summarize(results)
+    times = np.array([r.plan_ms for r in results])  # frame -> labels -> records -> the checked plan
+    summary = summarize(verdicts(results))
     row = CellRow(mode, model, len(results), round(float(times.mean()), 2), round(float(times.std()), 2),
                   round(float(np.median(times)), 2), round(float(np.percentile(times, 95)), 2), size_mb,
                   summary["success"], summary["success_rate"], summary["success_rate_reachable"], summary["failures"],
@@ -115,11 +116,11 @@ def measure_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: in
     return row, results, described
 
 
-def physics_summary(results: list[dict]) -> dict:
+def physics_summary(results: list[CycleResult]) -> dict:
     """The physics check over the judged cycles, with its time per check (p50 of those it simulated)."""
-    judged = [r["physics"] for r in results if "physics" in r]
-    times = [p["ms"] for p in judged if p.get("ms")]
-    s = summarize(results, "physics")
+    judged = verdicts(results, "physics")
+    times = [p.ms for p in judged if p.ms]
+    s = summarize(judged)
     standing = len(judged) - s["failures"].get("unsettled", 0)  # the scenes that stand as rendered
     return {"success": s["success"], "executions": len(judged), "success_rate": s["success_rate"],
             "success_ci95": s["success_ci95"],
@@ -128,32 +129,36 @@ def physics_summary(results: list[dict]) -> dict:
             "failures": s["failures"], "ms_p50": round(float(np.median(times)), 1) if times else None}
 
 
-def disagreements(results: list[dict]) -> dict[str, dict[str, int]]:
+def disagreements(results: list[CycleResult]) -> dict[str, dict[str, int]]:
     """Per class of the chosen target: cycles only the geometric rule passed, and only physics."""
     out: dict[str, dict[str, int]] = {}
     for r in results:
-        if "physics" in r and r["verdict"]["success"] != r["physics"]["success"]:
-            side = "geometric only" if r["verdict"]["success"] else "physics only"
-            counts = out.setdefault(r.get("target") or "-", {"geometric only": 0, "physics only": 0})
+        if r.physics is not None and r.verdict is not None and r.verdict.success != r.physics.success:
+            side = "geometric only" if r.verdict.success else "physics only"
+            counts = out.setdefault(r.target or "-", {"geometric only": 0, "physics only": 0})
             counts[side] += 1
     return out
 
 
-def by_lighting(results: list[dict]) -> dict[str, dict]:
+def by_lighting(results: list[CycleResult]) -> dict[str, dict]:
     """Success per light condition of the scenes (thesis Table 5.3): executions, success, rate,
     failures, the objects no grasp record found (robot/verdict.py undetected), and the physics
     check's success where it ran."""
+    def light_of(r: CycleResult) -> str | None:
+        return (r.scene or {}).get("lighting")
+
     out: dict[str, dict] = {}
-    for light in dict.fromkeys(r.get("scene", {}).get("lighting") for r in results if "verdict" in r):
+    judged = [r for r in results if r.verdict is not None]
+    for light in dict.fromkeys(light_of(r) for r in judged):
         if light is None:
             continue
-        these = [r for r in results if "verdict" in r and r.get("scene", {}).get("lighting") == light]
-        s = summarize(these)
+        these = [r for r in judged if light_of(r) == light]
+        s = summarize(verdicts(these))
         out[light] = {"executions": len(these), "success": s["success"], "success_rate": s["success_rate"],
                       "success_ci95": s["success_ci95"], "failures": s["failures"],
-                      "undetected": sum(r.get("undetected", 0) for r in these)}
-        if any("physics" in r for r in these):
-            p = summarize(these, "physics")
+                      "undetected": sum(r.undetected or 0 for r in these)}
+        if any(r.physics is not None for r in these):
+            p = summarize(verdicts(these, "physics"))
             out[light].update(physics_success=p["success"], physics_success_rate=p["success_rate"],
                               physics_success_ci95=p["success_ci95"])
     return out

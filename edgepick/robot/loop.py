@@ -12,7 +12,7 @@ import math
 import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import asdict
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -21,11 +21,12 @@ from edgepick.errors import ParameterError
 from edgepick.frames import Camera, Frame
 from edgepick.robot.base import RobotBase
 from edgepick.robot.clearance import hand_clearance
+from edgepick.robot.cycle import CycleResult, verdicts
 from edgepick.robot.envelope import Envelope
 from edgepick.robot.grippers import DigitalGripper, RG2Gripper
 from edgepick.robot.pick import CommandLog, PickConfig, Step, choose_target, execute
 from edgepick.robot.recording import PickCycle, Recorder, SceneChange, StepDone
-from edgepick.robot.verdict import judge, summarize, undetected
+from edgepick.robot.verdict import Verdict, judge, summarize, undetected
 from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.grasp import draw_overlay
 from edgepick.runtime.grasp_record import Grasp
@@ -44,32 +45,26 @@ def grasp_error_m(record: Grasp, truth: list[dict] | None) -> float | None:
     return min((math.dist(point, t["point_camera_m"]) for t in same), default=math.inf)
 
 
-def judge_cycle(record: Grasp | None, seen: list[Grasp], frame: Frame, cfg: PickConfig,
-                truth_cal: Calibration | None) -> dict:
-    """What a cycle's result says about its choice: the grasp point's error against the scene's
+def judge_cycle(result: CycleResult, seen: list[Grasp], frame: Frame, cfg: PickConfig,
+                truth_cal: Calibration | None) -> CycleResult:
+    """RESULT with what it says about its choice: the grasp point's error against the scene's
     truth and, in the synthetic cell (TRUTH_CAL, the cell's true calibration), the verdict
-    (robot/verdict.py). RECORD is the chosen object (None: nothing chosen), SEEN every record."""
-    judged = truth_cal is not None and frame.truth is not None
+    (robot/verdict.py). SEEN: every grasp of the frame."""
+    record = result.chosen
     if record is None:
-        if not judged:
-            return {}
+        if truth_cal is None or frame.truth is None:
+            return result
         wanted = [r for r in seen if not cfg.classes or r.cls in cfg.classes]
-        return {"verdict": {"success": False, "failure": "unreachable" if wanted else "no object seen"},
-                "undetected": undetected(seen, frame.truth or [])}
+        return replace(result, verdict=Verdict(False, "unreachable" if wanted else "no object seen"),
+                       undetected=undetected(seen, frame.truth))
     err = grasp_error_m(record, frame.truth)
-    fields = {"grasp_error_m": None if err is None or math.isinf(err) else round(err, 4),
-              "within_1cm": None if err is None else err <= SUCCESS_M}
-    if err is not None and math.isinf(err):
-        fields["note"] = f"no {record.cls} in the scene's truth (false detection)"
-    if judged:
-        fields["verdict"] = judge(record, frame, truth_cal)
-        fields["undetected"] = undetected(seen, frame.truth or [])
-    return fields
-
-
-def stopped_verdict(verdict: dict) -> dict:
-    """The verdict of a cycle the robot stopped: a failure, whatever the grasp would have been."""
-    return {**verdict, "success": False, "failure": "robot stopped"}
+    false_detection = err is not None and math.isinf(err)
+    result = replace(result, grasp_error_m=None if err is None or false_detection else round(err, 4),
+                     within_1cm=None if err is None else err <= SUCCESS_M,
+                     note=f"no {record.cls} in the scene's truth (false detection)" if false_detection else None)
+    if truth_cal is not None and frame.truth is not None:
+        result = replace(result, verdict=judge(record, frame, truth_cal), undetected=undetected(seen, frame.truth))
+    return result
 
 
 class Lookahead:
@@ -106,9 +101,10 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None,
                gripper: DigitalGripper | RG2Gripper | None, *, cfg: PickConfig, cycles: int, log: CommandLog,
                overlay_dir: str | Path | None = None, echo: Callable[[str], object] = print,
                truth_cal: Calibration | None = None, overlap: bool = False,
-               recorder: Recorder | None = None, physics: Callable[[Grasp, Frame], dict] | None = None,
-               done: list[dict] | None = None, after: Callable[[dict, Grasp | None, Frame], SceneChange] | None = None,
-               first: int = 1) -> list[dict]:
+               recorder: Recorder | None = None, physics: Callable[[Grasp, Frame], Verdict] | None = None,
+               done: list[CycleResult] | None = None,
+               after: Callable[[CycleResult, Grasp | None, Frame], SceneChange] | None = None,
+               first: int = 1) -> list[CycleResult]:
     """Run up to `cycles` pick cycles (robot None = plan only). Stops early when the robot halts
     (a failed gripper halts it too). Each plan passes the envelope and, with a robot, the
     controller's own safety limits before its first command. TRUTH_CAL (the synthetic cell's true
@@ -139,8 +135,8 @@ def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None,
 def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper: DigitalGripper | RG2Gripper | None,
             cfg: PickConfig, cycles: range, log: CommandLog, overlay_dir: str | Path | None, echo: Callable[[str], object],
             truth_cal: Calibration | None, ahead: Lookahead | None, recorder: Recorder | None,
-            physics: Callable[[Grasp, Frame], dict] | None, results: list[dict],
-            after: Callable[[dict, Grasp | None, Frame], SceneChange] | None) -> list[dict]:
+            physics: Callable[[Grasp, Frame], Verdict] | None, results: list[CycleResult],
+            after: Callable[[CycleResult, Grasp | None, Frame], SceneChange] | None) -> list[CycleResult]:
     """run_cycles' loop, appending to RESULTS. Per cycle, besides the outcome: plan_ms (frame read ->
     checked plan), frame_to_command_ms (-> the first command sent), frame_to_frame_ms (since the
     previous frame was read) and arm_wait_ms (the previous cycle's last command done -> this one's
@@ -168,46 +164,38 @@ def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper
         record, plan, note = choose_target(seen.records, envelope, cfg, start, limits, clear)
         steps: list[StepDone] = []
         t_plan = time.perf_counter()
-        result = {"cycle": cycle, "frame": frame.name, "objects": len(seen.records), "stage_ms": seen.ms,
-                  "plan_ms": round(1000 * (t_plan - t0), 2)}
-        if frame.scene is not None:
-            result["scene"] = frame.scene
-        if previous_frame is not None:
-            result["frame_to_frame_ms"] = round(1000 * (t0 - previous_frame), 2)
+        result = CycleResult(cycle, frame.name, len(seen.records), seen.ms, round(1000 * (t_plan - t0), 2),
+                             "skipped" if record is None else "planned", note if record is None else None, frame.scene,
+                             None if previous_frame is None else round(1000 * (t0 - previous_frame), 2), record,
+                             plan=plan)
         previous_frame = t0
         if record is None:
-            result.update(outcome="skipped", reason=note)
             log.write(cycle=cycle, command="none", target=None, result=f"skipped: {note}")
-            result.update(judge_cycle(None, seen.records, frame, cfg, truth_cal))
-        else:
-            result.update(target=record.cls, pixel=list(record.pixel), pose_robot=list(record.chosen_pose()))
-            result.update(judge_cycle(record, seen.records, frame, cfg, truth_cal))
-            if robot is None:
-                result.update(outcome="planned", plan=[asdict(s) for s in plan])
-            else:
-                motion0 = getattr(robot, "motion_s", 0.0)
-                first = {}
+        result = judge_cycle(result, seen.records, frame, cfg, truth_cal)
+        if record is not None and robot is not None:
+            motion0 = getattr(robot, "motion_s", 0.0)
+            first: dict[str, float] = {}
 
-                def mark(first=first):
-                    first.setdefault("t", time.perf_counter())
+            def mark(first=first):
+                first.setdefault("t", time.perf_counter())
 
-                robot.on_send = mark
-                next_frame = ahead.start if ahead is not None and cycle < cycles[-1] else None
-                on_step = _step_recorder(robot, steps) if recorder is not None else None
-                stopped = execute(plan, robot, gripper, log, cycle, cfg, on_clear=next_frame, on_step=on_step)
-                robot.on_send = None
-                if "t" in first:
-                    result["frame_to_command_ms"] = round(1000 * (first["t"] - t0), 2)
-                    if arm_free is not None:
-                        result["arm_wait_ms"] = round(1000 * (first["t"] - arm_free), 2)
-                arm_free = time.perf_counter()
-                result["motion_s"] = round(getattr(robot, "motion_s", 0.0) - motion0, 3)
-                result.update(outcome="done" if stopped is None else "stopped", reason=stopped)
-                if stopped is not None and "verdict" in result:
-                    result["verdict"] = stopped_verdict(result["verdict"])
-        if physics is not None and "verdict" in result:  # after the commands, as the overlay
-            result["physics"] = physics_verdict(result, record, frame, physics)
+            robot.on_send = mark
+            next_frame = ahead.start if ahead is not None and cycle < cycles[-1] else None
+            on_step = _step_recorder(robot, steps) if recorder is not None else None
+            stopped = execute(plan, robot, gripper, log, cycle, cfg, on_clear=next_frame, on_step=on_step)
+            robot.on_send = None
+            sent, commands_done = first.get("t"), time.perf_counter()
+            verdict = result.verdict.stopped() if stopped is not None and result.verdict is not None else result.verdict
+            result = replace(result, outcome="done" if stopped is None else "stopped", reason=stopped, verdict=verdict,
+                             frame_to_command_ms=None if sent is None else round(1000 * (sent - t0), 2),
+                             arm_wait_ms=None if sent is None or arm_free is None else round(1000 * (sent - arm_free), 2),
+                             motion_s=round(getattr(robot, "motion_s", 0.0) - motion0, 3))
+            arm_free = commands_done
+        if physics is not None and result.verdict is not None:  # after the commands, as the overlay
+            result = replace(result, physics=physics_verdict(result, frame, physics))
         change = after(result, record, frame) if after is not None else None
+        if change is not None:
+            result = replace(result, round=change.summary())
         if overlay_dir:  # after the robot's commands: not part of the frame -> command latency
             cv2.imwrite(str(Path(overlay_dir) / f"cycle_{cycle:03d}.png"),
                         draw_overlay(frame.rgb, [record] if record else seen.records))
@@ -225,14 +213,16 @@ def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper
     return results
 
 
-def physics_verdict(result: dict, record: Grasp | None, frame: Frame, physics: Callable[[Grasp, Frame], dict]) -> dict:
+def physics_verdict(result: CycleResult, frame: Frame, physics: Callable[[Grasp, Frame], Verdict]) -> Verdict:
     """The physics check's verdict on a judged cycle: its own on a grasp that was carried out, the
     geometric one where nothing was chosen, a failure where the robot stopped."""
-    if record is None:
-        return {k: result["verdict"][k] for k in ("success", "failure")}
-    if result.get("outcome") == "stopped":
-        return {"success": False, "failure": "robot stopped"}
-    return physics(record, frame)
+    if result.verdict is None:
+        raise ValueError(f"cycle {result.cycle} was not judged: the physics check follows the geometric rule")
+    if result.chosen is None:
+        return Verdict(result.verdict.success, result.verdict.failure)
+    if result.outcome == "stopped":
+        return Verdict(False, "robot stopped")
+    return physics(result.chosen, frame)
 
 
 def _step_recorder(robot: RobotBase, steps: list[StepDone]) -> Callable[[Step, str], None]:
@@ -247,48 +237,49 @@ def _step_recorder(robot: RobotBase, steps: list[StepDone]) -> Callable[[Step, s
     return on_step
 
 
-def cycles_summary(results: list[dict]) -> dict:
+def cycles_summary(results: list[CycleResult]) -> dict:
     """What `pick` and the demo report over their cycles: count, done, within 1 cm, median grasp
     error and frame -> command latency, and (synthetic cell) grasp success and failures by kind,
     of the geometric verdict and, where it ran, the physics check ("physics")."""
-    def median(values: list[float]) -> float | None:
-        return sorted(values)[len(values) // 2] if values else None
+    def median(values: list[float | None]) -> float | None:
+        known = sorted(v for v in values if v is not None)
+        return known[len(known) // 2] if known else None
 
-    error = median([r["grasp_error_m"] for r in results if r.get("grasp_error_m") is not None])
-    return {"cycles": len(results), "done": sum(r["outcome"] == "done" for r in results),
-            "within_1cm": sum(bool(r.get("within_1cm")) for r in results),
+    error = median([r.grasp_error_m for r in results])
+    return {"cycles": len(results), "done": sum(r.outcome == "done" for r in results),
+            "within_1cm": sum(bool(r.within_1cm) for r in results),
             "grasp_error_mm_median": None if error is None else round(1000 * error, 2),
-            **summarize(results),
-            **({"physics": summarize(results, "physics")} if any("physics" in r for r in results) else {}),
-            **{f"{key}_median": median([r[key] for r in results if key in r])
-               for key in ("frame_to_command_ms", "frame_to_frame_ms", "arm_wait_ms")}}
+            **summarize(verdicts(results)),
+            **({"physics": summarize(verdicts(results, "physics"))} if any(r.physics is not None for r in results) else {}),
+            "frame_to_command_ms_median": median([r.frame_to_command_ms for r in results]),
+            "frame_to_frame_ms_median": median([r.frame_to_frame_ms for r in results]),
+            "arm_wait_ms_median": median([r.arm_wait_ms for r in results])}
 
 
-def cycle_line(r: dict) -> str:
+def cycle_line(r: CycleResult) -> str:
     """One cycle's result as the line `pick` prints: the target, outcome, grasp error, latency and verdict."""
-    if r["outcome"] == "skipped":
-        return f"cycle {r['cycle']}: nothing to pick ({r['reason']}){_verdict(r)}"
-    err = "" if r.get("grasp_error_m") is None else \
-        f", grasp error {1000 * r['grasp_error_m']:.1f} mm ({'within' if r['within_1cm'] else 'NOT within'} 1 cm)"
-    if r.get("note"):
-        err += f", {r['note']}"
-    lat = f", frame->command {r['frame_to_command_ms']:.0f} ms" if "frame_to_command_ms" in r else ""
-    tail = "" if r["outcome"] in ("done", "planned") else f": {r['reason']}"
-    return f"cycle {r['cycle']}: {r['target']} at {r['pixel']} -> {r['outcome']}{err}{lat}{tail}{_verdict(r)}"
+    if r.chosen is None:
+        return f"cycle {r.cycle}: nothing to pick ({r.reason}){_verdict(r)}"
+    err = "" if r.grasp_error_m is None else \
+        f", grasp error {1000 * r.grasp_error_m:.1f} mm ({'within' if r.within_1cm else 'NOT within'} 1 cm)"
+    if r.note:
+        err += f", {r.note}"
+    lat = f", frame->command {r.frame_to_command_ms:.0f} ms" if r.frame_to_command_ms is not None else ""
+    tail = "" if r.outcome in ("done", "planned") else f": {r.reason}"
+    return f"cycle {r.cycle}: {r.target} at {list(r.chosen.pixel)} -> {r.outcome}{err}{lat}{tail}{_verdict(r)}"
 
 
-def _verdict(r: dict) -> str:
+def _verdict(r: CycleResult) -> str:
     """The line's verdict tail ('; verdict: ...'), empty for a cycle that was not judged."""
-    v = r.get("verdict")
+    v = r.verdict
     if v is None:
         return ""
-    errors = [f"{1000 * v['position_error_m']:.1f} mm"] if v.get("position_error_m") is not None else []
-    errors += [f"{v['angle_error_deg']:.0f} deg"] if v.get("angle_error_deg") is not None else []
+    errors = [f"{1000 * v.position_error_m:.1f} mm"] if v.position_error_m is not None else []
+    errors += [f"{v.angle_error_deg:.0f} deg"] if v.angle_error_deg is not None else []
     detail = f" ({', '.join(errors)})" if errors else ""
-    line = f"; verdict: success{detail}" if v["success"] else f"; verdict: FAILED, {v['failure']}{detail}"
-    p = r.get("physics")
+    line = f"; verdict: success{detail}" if v.success else f"; verdict: FAILED, {v.failure}{detail}"
+    p = r.physics
     if p is not None:
-        why = f" ({p['note']})" if p.get("note") else ""
-        line += "; physics: success" if p["success"] else f"; physics: FAILED, {p['failure']}{why}"
+        why = f" ({p.note})" if p.note else ""
+        line += "; physics: success" if p.success else f"; physics: FAILED, {p.failure}{why}"
     return line
-

@@ -9,6 +9,7 @@ import re
 from edgepick.data.render import CLASSES
 from edgepick.files import sha256_of
 from edgepick.reference import CARD, reference_model
+from edgepick.robot.cycle import verdicts
 from edgepick.robot.grippers import DigitalGripper
 from edgepick.robot.loop import run_cycles
 from edgepick.robot.pick import CommandLog, PickConfig
@@ -38,4 +39,4 @@ def test_reference_model_picks_in_the_synthetic_cell():
         results = run_cycles(camera, Pipeline(Segmenter(reference_model(), threads=2), truth), robot,
                              DigitalGripper(robot, 0), cfg=PickConfig(), cycles=8, log=CommandLog(None),
                              echo=lambda line: None, truth_cal=truth)
-    assert summarize(results)["success"] >= 6, [r.get("verdict") for r in results]
+    assert summarize(verdicts(results))["success"] >= 6, [r.verdict for r in results]

@@ -260,7 +260,7 @@ def test_a_recording_stopped_by_a_robot_halt_is_a_readable_file(tmp_path):
         results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=cfg, cycles=5,
                              log=CommandLog(None), echo=lambda line: None, truth_cal=camera.calibration(),
                              recorder=recorder)
-    assert len(results) == 1 and results[0]["outcome"] == "stopped"
+    assert len(results) == 1 and results[0].outcome == "stopped"
     counts, _, messages = read(tmp_path / "halt.mcap")
     assert counts["/pick/cycle"] == 1 and counts["/robot/tcp_command"] == 3  # approach, descent, the halted lift
     lift, halted_at = on(messages, "/robot/tcp_command")[-1], on(messages, "/robot/tcp")[-1]
