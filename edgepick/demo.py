@@ -107,7 +107,7 @@ def quantize_demo(workdir: Path, epochs: int) -> dict:
 def pick_demo(workdir: Path, model: Path, cycles: int = PICK_CYCLES) -> dict:
     """Pick cycles on SimRobot: a synthetic camera over a calibrated cell, the int8 model, a magnet."""
     from edgepick.robot.grippers import DigitalGripper
-    from edgepick.robot.loop import cycles_summary, run_cycles
+    from edgepick.robot.loop import Cell, cycles_summary, run_cycles
     from edgepick.robot.pick import CommandLog, PickConfig
     from edgepick.runtime.pipeline import Pipeline
     from edgepick.runtime.session import Segmenter
@@ -121,9 +121,8 @@ def pick_demo(workdir: Path, model: Path, cycles: int = PICK_CYCLES) -> dict:
     log = CommandLog(workdir / "picks.jsonl")
     try:
         with camera, SimRobot() as robot:
-            results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=PickConfig(), cycles=cycles,
-                                 log=log, overlay_dir=workdir / "picks", echo=lambda line: click.echo(line, err=True),
-                                 truth_cal=truth)
+            results = run_cycles(Cell(camera, pipeline, robot, DigitalGripper(robot, 0), log, truth), cfg=PickConfig(),
+                                 cycles=cycles, overlay_dir=workdir / "picks", echo=lambda line: click.echo(line, err=True))
     finally:
         log.close()
     return {"model": str(model), **cycles_summary(results), "overlays": str(workdir / "picks"),

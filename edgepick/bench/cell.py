@@ -28,7 +28,7 @@ from edgepick.machine import machine_line
 from edgepick.robot.clearance import HandShape
 from edgepick.robot.cycle import CycleResult, verdicts
 from edgepick.robot.grippers import DigitalGripper
-from edgepick.robot.loop import run_cycles
+from edgepick.robot.loop import Cell, run_cycles
 from edgepick.robot.pick import CommandLog, PickConfig
 from edgepick.robot.verdict import VerdictRule, summarize
 from edgepick.runtime.engine import Engine
@@ -93,8 +93,8 @@ def measure_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: in
     described = None
     with camera, robot:
         if rounds is None:
-            results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=pick, cycles=cycles,
-                                 log=CommandLog(None), echo=lambda line: None, truth_cal=truth, physics=physics)
+            results = run_cycles(Cell(camera, pipeline, robot, DigitalGripper(robot, 0), CommandLog(None), truth,
+                                      physics=physics), cfg=pick, cycles=cycles, echo=lambda line: None)
         else:
             from edgepick.sim.clutter import run_rounds
 

@@ -137,7 +137,7 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     """
     from edgepick.cli.cameras import open_camera
     from edgepick.robot.base import RobotError, RobotHalted, RobotUnreachable
-    from edgepick.robot.loop import run_cycles
+    from edgepick.robot.loop import Cell, run_cycles
     from edgepick.robot.pick import CommandLog
     from edgepick.runtime.calibration import Calibration
     from edgepick.runtime.pipeline import Pipeline
@@ -205,8 +205,8 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
 
     def run(arm, hand) -> None:
         if round_cfg is None:
-            run_cycles(source, pipeline, arm, hand, cfg=cfg, cycles=cycles, log=log, overlay_dir=overlay_dir, echo=echo,
-                       truth_cal=truth_cal, overlap=overlap, recorder=recorder, physics=physics, done=results)
+            run_cycles(Cell(source, pipeline, arm, hand, log, truth_cal, recorder, physics), cfg=cfg, cycles=cycles,
+                       overlay_dir=overlay_dir, echo=echo, overlap=overlap, done=results)
         else:
             _run_rounds(arm, hand, rounds, round_cfg, cfg, log, source, pipeline, physics is not None, echo, overlay_dir,
                         record_path, model, segmenter.info.classes, results, described)

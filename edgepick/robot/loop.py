@@ -12,7 +12,7 @@ import math
 import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -30,7 +30,7 @@ from edgepick.robot.verdict import Verdict, judge, summarize, undetected
 from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.grasp import draw_overlay
 from edgepick.runtime.grasp_record import Grasp
-from edgepick.runtime.pipeline import Pipeline
+from edgepick.runtime.pipeline import Perception, Pipeline
 
 SUCCESS_M = 0.01  # thesis 5.1.5: a grasp point within 1 cm
 
@@ -97,120 +97,169 @@ class Lookahead:
         self._pool.shutdown(wait=True, cancel_futures=True)
 
 
-def run_cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None,
-               gripper: DigitalGripper | RG2Gripper | None, *, cfg: PickConfig, cycles: int, log: CommandLog,
-               overlay_dir: str | Path | None = None, echo: Callable[[str], object] = print,
-               truth_cal: Calibration | None = None, overlap: bool = False,
-               recorder: Recorder | None = None, physics: Callable[[Grasp, Frame], Verdict] | None = None,
-               done: list[CycleResult] | None = None,
+@dataclass(frozen=True)
+class Cell:
+    """What the pick loop drives: the camera and the pipeline that sees through it, the arm and its
+    gripper (None: plan only), the command log, and where the cycles also go: a recorder, and in
+    the synthetic cell its true calibration (TRUTH_CAL: each cycle judged against the scene's truth)
+    and the physics check (PHYSICS: sim/physics.py's judge, a second verdict after the commands)."""
+
+    camera: Camera
+    pipeline: Pipeline
+    robot: RobotBase | None
+    gripper: DigitalGripper | RG2Gripper | None
+    log: CommandLog
+    truth_cal: Calibration | None = None
+    recorder: Recorder | None = None
+    physics: Callable[[Grasp, Frame], Verdict] | None = None
+
+
+def run_cycles(cell: Cell, *, cfg: PickConfig, cycles: int, overlay_dir: str | Path | None = None,
+               echo: Callable[[str], object] = print, overlap: bool = False, done: list[CycleResult] | None = None,
                after: Callable[[CycleResult, Grasp | None, Frame], SceneChange] | None = None,
                first: int = 1) -> list[CycleResult]:
-    """Run up to `cycles` pick cycles (robot None = plan only). Stops early when the robot halts
-    (a failed gripper halts it too). Each plan passes the envelope and, with a robot, the
-    controller's own safety limits before its first command. TRUTH_CAL (the synthetic cell's true
-    calibration) lets each cycle be judged against the truth. ECHO gets each cycle's line.
+    """Run up to `cycles` pick cycles in CELL (its robot None = plan only). Stops early when the robot
+    halts (a failed gripper halts it too). Each plan passes the envelope and, with a robot, the
+    controller's own safety limits before its first command. ECHO gets each cycle's line.
     OVERLAP (with a robot): the next frame is read and segmented while the arm places the object
     and returns (Lookahead), so the arm waits only for the plan; the cell's camera must then not
-    see the arm, nor the part it holds, from the place approach pose on. RECORDER gets each cycle
-    once its commands are sent (robot/recording.py). PHYSICS (the synthetic cell: sim/physics.py's
-    judge) gives each judged cycle a second verdict, "physics", after its commands. DONE, when given, is
-    the list each finished cycle's result is appended to (and returned): the caller's own, which still
-    holds the cycles run when Ctrl-C or SIGTERM ends the loop half-way. AFTER (a clutter-removal round,
-    sim/clutter.py) is called with each cycle's result, chosen record and frame once it is judged: the
-    scene changes for the next frame, and the run ends where its SceneChange says the round ended (a
-    scene that changes after a cycle cannot be read ahead: not with OVERLAP). FIRST: the first cycle's
-    number (rounds number their cycles on from the round before)."""
+    see the arm, nor the part it holds, from the place approach pose on. The cell's recorder gets each
+    cycle once its commands are sent (robot/recording.py). DONE, when given, is the list each finished
+    cycle's result is appended to (and returned): the caller's own, which still holds the cycles run
+    when Ctrl-C or SIGTERM ends the loop half-way. AFTER (a clutter-removal round, sim/clutter.py) is
+    called with each cycle's result, chosen grasp and frame once it is judged: the scene changes for the
+    next frame, and the run ends where its SceneChange says the round ended (a scene that changes after
+    a cycle cannot be read ahead: not with OVERLAP). FIRST: the first cycle's number (rounds number
+    their cycles on from the round before)."""
     if after is not None and overlap:
         raise ParameterError("{overlap}: the next frame shows the scene the cycle leaves behind, so it cannot be "
                              "read while the cycle goes on", overlap=overlap)
-    ahead = Lookahead(camera, pipeline) if overlap and robot is not None else None
+    ahead = Lookahead(cell.camera, cell.pipeline) if overlap and cell.robot is not None else None
     try:
-        return _cycles(camera, pipeline, robot, gripper, cfg, range(first, first + cycles), log, overlay_dir, echo,
-                       truth_cal, ahead, recorder, physics, [] if done is None else done, after)
+        loop = _Loop(cell, cfg, overlay_dir, echo, ahead, after)
+        return loop.run(range(first, first + cycles), [] if done is None else done)
     finally:
         if ahead is not None:
             ahead.close()
 
 
-def _cycles(camera: Camera, pipeline: Pipeline, robot: RobotBase | None, gripper: DigitalGripper | RG2Gripper | None,
-            cfg: PickConfig, cycles: range, log: CommandLog, overlay_dir: str | Path | None, echo: Callable[[str], object],
-            truth_cal: Calibration | None, ahead: Lookahead | None, recorder: Recorder | None,
-            physics: Callable[[Grasp, Frame], Verdict] | None, results: list[CycleResult],
-            after: Callable[[CycleResult, Grasp | None, Frame], SceneChange] | None) -> list[CycleResult]:
-    """run_cycles' loop, appending to RESULTS. Per cycle, besides the outcome: plan_ms (frame read ->
-    checked plan), frame_to_command_ms (-> the first command sent), frame_to_frame_ms (since the
-    previous frame was read) and arm_wait_ms (the previous cycle's last command done -> this one's
-    first sent)."""
-    envelope = robot.envelope if robot is not None else Envelope()
-    limits = robot.limits_reason if robot is not None else None  # plan only: no controller to ask
-    if overlay_dir:
-        Path(overlay_dir).mkdir(parents=True, exist_ok=True)
-    previous_frame = arm_free = None
-    for cycle in cycles:
+class _Loop:
+    """run_cycles' loop over one cell: per cycle a frame perceived, a grasp chosen and planned, the plan
+    carried out, the cycle judged, and reported. Besides the outcome each cycle times plan_ms (frame
+    read -> checked plan), frame_to_command_ms (-> the first command sent), frame_to_frame_ms (since
+    the previous frame was read) and arm_wait_ms (the previous cycle's last command done -> this
+    one's first sent)."""
+
+    def __init__(self, cell: Cell, cfg: PickConfig, overlay_dir: str | Path | None, echo: Callable[[str], object],
+                 ahead: Lookahead | None, after: Callable[[CycleResult, Grasp | None, Frame], SceneChange] | None):
+        self.cell, self.cfg, self.overlay_dir, self.echo, self.ahead, self.after = cell, cfg, overlay_dir, echo, ahead, after
+        self.envelope = cell.robot.envelope if cell.robot is not None else Envelope()
+        self.limits = cell.robot.limits_reason if cell.robot is not None else None  # plan only: no controller to ask
+        self.previous_frame: float | None = None
+        self.arm_free: float | None = None
+        if overlay_dir:
+            Path(overlay_dir).mkdir(parents=True, exist_ok=True)
+
+    def run(self, cycles: range, results: list[CycleResult]) -> list[CycleResult]:
+        """Each of CYCLES in turn, appended to RESULTS, until the camera has no more frames, the robot
+        halts or a round ends."""
+        robot = self.cell.robot
+        for cycle in cycles:
+            perceived = self.perceive()
+            if perceived is None:
+                self.echo(f"cycle {cycle}: the camera has no more frames")
+                break
+            frame, t0, seen = perceived
+            start = robot.tcp_pose() if robot is not None else None  # plan only: from the home pose
+            steps: list[StepDone] = []
+            result = self.choose(cycle, frame, t0, seen, start)
+            result = self.act(result, t0, steps, read_ahead=cycle < cycles[-1])
+            result, change = self.judge(result, frame)
+            self.report(result, frame, t0, seen, start, steps, change, results)
+            if robot is not None and robot.halted:
+                break  # the caller reports it once
+            if change is not None and change.ended:
+                break
+        return results
+
+    def perceive(self) -> tuple[Frame, float, Perception] | None:
+        """The next frame, when it was read, and what the pipeline saw in it: read ahead while the cycle
+        before went on, or now. None: the camera has no more frames."""
         try:
-            early = ahead.take() if ahead is not None else None
-            if early is None:
-                frame: Frame = camera.read()
-                t0 = time.perf_counter()
-                seen = pipeline(frame)
-            else:
-                frame, t0, seen = early
+            early = self.ahead.take() if self.ahead is not None else None
+            if early is not None:
+                return early
+            frame: Frame = self.cell.camera.read()
+            t0 = time.perf_counter()
+            return frame, t0, self.cell.pipeline(frame)
         except StopIteration:
-            echo(f"cycle {cycle}: the camera has no more frames")
-            break
-        start = robot.tcp_pose() if robot is not None else None  # plan only: from the home pose
-        clear = hand_clearance(frame.depth, frame.intrinsics, pipeline.calib, cfg.hand) \
-            if cfg.hand is not None and pipeline.calib is not None else None
-        record, plan, note = choose_target(seen.records, envelope, cfg, start, limits, clear)
-        steps: list[StepDone] = []
+            return None
+
+    def choose(self, cycle: int, frame: Frame, t0: float, seen: Perception, start: list[float] | None) -> CycleResult:
+        """The preferred grasp whose plan from START passes the envelope and the controller's limits
+        (robot/pick.py) and leaves the hand room to come down, timed from the frame's read (T0), and
+        what the scene's truth says of it."""
+        cell, cfg = self.cell, self.cfg
+        clear = hand_clearance(frame.depth, frame.intrinsics, cell.pipeline.calib, cfg.hand) \
+            if cfg.hand is not None and cell.pipeline.calib is not None else None
+        record, plan, note = choose_target(seen.records, self.envelope, cfg, start, self.limits, clear)
         t_plan = time.perf_counter()
         result = CycleResult(cycle, frame.name, len(seen.records), seen.ms, round(1000 * (t_plan - t0), 2),
                              "skipped" if record is None else "planned", note if record is None else None, frame.scene,
-                             None if previous_frame is None else round(1000 * (t0 - previous_frame), 2), record,
-                             plan=plan)
-        previous_frame = t0
+                             None if self.previous_frame is None else round(1000 * (t0 - self.previous_frame), 2),
+                             record, plan=plan)
+        self.previous_frame = t0
         if record is None:
-            log.write(cycle=cycle, command="none", target=None, result=f"skipped: {note}")
-        result = judge_cycle(result, seen.records, frame, cfg, truth_cal)
-        if record is not None and robot is not None:
-            motion0 = getattr(robot, "motion_s", 0.0)
-            first: dict[str, float] = {}
+            cell.log.write(cycle=cycle, command="none", target=None, result=f"skipped: {note}")
+        return judge_cycle(result, seen.records, frame, cfg, cell.truth_cal)
 
-            def mark(first=first):
-                first.setdefault("t", time.perf_counter())
+    def act(self, result: CycleResult, t0: float, steps: list[StepDone], read_ahead: bool) -> CycleResult:
+        """RESULT's plan carried out by the arm, when it chose something and there is an arm (STEPS gets
+        each step for a recording; READ_AHEAD: the next frame may be read once the arm has left): the
+        outcome, the latency of its first command and the arm's motion time."""
+        robot = self.cell.robot
+        if result.chosen is None or robot is None:
+            return result
+        motion0 = getattr(robot, "motion_s", 0.0)
+        first: dict[str, float] = {}
+        robot.on_send = lambda: first.setdefault("t", time.perf_counter())
+        next_frame = self.ahead.start if self.ahead is not None and read_ahead else None
+        on_step = _step_recorder(robot, steps) if self.cell.recorder is not None else None
+        stopped = execute(list(result.plan), robot, self.cell.gripper, self.cell.log, result.cycle, self.cfg,
+                          on_clear=next_frame, on_step=on_step)
+        robot.on_send = None
+        sent, commands_done = first.get("t"), time.perf_counter()
+        verdict = result.verdict.stopped() if stopped is not None and result.verdict is not None else result.verdict
+        result = replace(result, outcome="done" if stopped is None else "stopped", reason=stopped, verdict=verdict,
+                         frame_to_command_ms=None if sent is None else round(1000 * (sent - t0), 2),
+                         arm_wait_ms=None if sent is None or self.arm_free is None else round(1000 * (sent - self.arm_free), 2),
+                         motion_s=round(getattr(robot, "motion_s", 0.0) - motion0, 3))
+        self.arm_free = commands_done
+        return result
 
-            robot.on_send = mark
-            next_frame = ahead.start if ahead is not None and cycle < cycles[-1] else None
-            on_step = _step_recorder(robot, steps) if recorder is not None else None
-            stopped = execute(plan, robot, gripper, log, cycle, cfg, on_clear=next_frame, on_step=on_step)
-            robot.on_send = None
-            sent, commands_done = first.get("t"), time.perf_counter()
-            verdict = result.verdict.stopped() if stopped is not None and result.verdict is not None else result.verdict
-            result = replace(result, outcome="done" if stopped is None else "stopped", reason=stopped, verdict=verdict,
-                             frame_to_command_ms=None if sent is None else round(1000 * (sent - t0), 2),
-                             arm_wait_ms=None if sent is None or arm_free is None else round(1000 * (sent - arm_free), 2),
-                             motion_s=round(getattr(robot, "motion_s", 0.0) - motion0, 3))
-            arm_free = commands_done
-        if physics is not None and result.verdict is not None:  # after the commands, as the overlay
+    def judge(self, result: CycleResult, frame: Frame) -> tuple[CycleResult, SceneChange | None]:
+        """After the commands: the physics check's verdict on a judged cycle, then a round's table
+        changed by the pick (AFTER), with the round's entry of the cycle."""
+        physics = self.cell.physics
+        if physics is not None and result.verdict is not None:
             result = replace(result, physics=physics_verdict(result, frame, physics))
-        change = after(result, record, frame) if after is not None else None
-        if change is not None:
-            result = replace(result, round=change.summary())
-        if overlay_dir:  # after the robot's commands: not part of the frame -> command latency
-            cv2.imwrite(str(Path(overlay_dir) / f"cycle_{cycle:03d}.png"),
-                        draw_overlay(frame.rgb, [record] if record else seen.records))
+        change = self.after(result, result.chosen, frame) if self.after is not None else None
+        return (result, None) if change is None else (replace(result, round=change.summary()), change)
+
+    def report(self, result: CycleResult, frame: Frame, t0: float, seen: Perception, start: list[float] | None,
+               steps: list[StepDone], change: SceneChange | None, results: list[CycleResult]) -> None:
+        """The cycle's overlay, its place in RESULTS, its recording and its line, after the robot's
+        commands (not part of the frame -> command latency; the recorder writes on its own thread)."""
+        if self.overlay_dir:
+            cv2.imwrite(str(Path(self.overlay_dir) / f"cycle_{result.cycle:03d}.png"),
+                        draw_overlay(frame.rgb, [result.chosen] if result.chosen else seen.records))
         results.append(result)
         line = cycle_line(result)
-        if recorder is not None:  # after the robot's commands, written on the recorder's thread
+        if self.cell.recorder is not None:
             frame_ns = time.time_ns() - int(1e9 * (time.perf_counter() - t0))
-            recorder.add(PickCycle(cycle, frame, frame_ns, seen.labels, seen.records, record, plan, start, result,
-                                   steps, line, change))
-        echo(line)
-        if robot is not None and robot.halted:
-            break  # the caller reports it once
-        if change is not None and change.ended:
-            break
-    return results
+            self.cell.recorder.add(PickCycle(result.cycle, frame, frame_ns, seen.labels, seen.records, result.chosen,
+                                             list(result.plan), start, result, steps, line, change))
+        self.echo(line)
 
 
 def physics_verdict(result: CycleResult, frame: Frame, physics: Callable[[Grasp, Frame], Verdict]) -> Verdict:

@@ -313,7 +313,7 @@ def run_rounds(pipeline, robot, gripper, *, rounds: int, pick: PickConfig, log, 
     the round's recording (closed when the round ends). DONE gets each cycle's result and DESCRIBED
     each round's `describe()` as they finish (the caller's lists: still there after an interrupt);
     returns DESCRIBED."""
-    from edgepick.robot.loop import run_cycles
+    from edgepick.robot.loop import Cell, run_cycles
 
     if rounds < 1:
         raise ParameterError("{rounds}: must be at least 1", rounds=rounds)
@@ -323,9 +323,9 @@ def run_rounds(pipeline, robot, gripper, *, rounds: int, pick: PickConfig, log, 
         cell = ClutterRound(*size, seed=seed, index=index, cfg=cfg, physics=physics)
         rec = recorder(cell) if recorder is not None else None
         try:
-            run_cycles(cell, pipeline, robot, gripper, cfg=pick, cycles=cell.cap, log=log, overlay_dir=overlay_dir,
-                       echo=echo, truth_cal=cell.calibration(), recorder=rec,
-                       physics=cell.physics_judge(pick) if judge else None, done=done, after=cell.after,
+            picking = Cell(cell, pipeline, robot, gripper, log, cell.calibration(), rec,
+                           cell.physics_judge(pick) if judge else None)
+            run_cycles(picking, cfg=pick, cycles=cell.cap, overlay_dir=overlay_dir, echo=echo, done=done, after=cell.after,
                        first=len(done) + 1)
         finally:
             described.append(cell.describe())  # an interrupted round too: what it did so far

@@ -192,7 +192,7 @@ def test_overlap_reads_the_next_frame_once_the_arm_has_left_and_changes_no_decis
     approach pose, on a worker thread, and every cycle chooses, plans and is judged as without it."""
     from edgepick.data.render import CLASSES
     from edgepick.robot.grippers import DigitalGripper
-    from edgepick.robot.loop import run_cycles
+    from edgepick.robot.loop import Cell, run_cycles
     from edgepick.robot.pick import CommandLog, PickConfig
     from edgepick.sim.camera import SynthCamera
     from edgepick.sim.oracle import TruthPipeline
@@ -209,8 +209,8 @@ def test_overlap_reads_the_next_frame_once_the_arm_has_left_and_changes_no_decis
         cam.read = watched_read
         cal = cam.calibration()
         with cam, robot:
-            results = run_cycles(cam, TruthPipeline(list(CLASSES), cal), robot, DigitalGripper(robot, 0), cfg=PickConfig(),
-                                 cycles=6, log=CommandLog(None), echo=lambda line: None, truth_cal=cal, overlap=overlap)
+            cell = Cell(cam, TruthPipeline(list(CLASSES), cal), robot, DigitalGripper(robot, 0), CommandLog(None), cal)
+            results = run_cycles(cell, cfg=PickConfig(), cycles=6, echo=lambda line: None, overlap=overlap)
         return results, reads
 
     plain, plain_reads = run(False)

@@ -71,7 +71,7 @@ def test_a_verdict_prints_what_its_rule_measured_and_names_its_failure_exactly_w
 def test_pick_loop_judges_each_cycle_with_the_true_labels():
     from edgepick.data.render import CLASSES
     from edgepick.robot.grippers import DigitalGripper
-    from edgepick.robot.loop import run_cycles
+    from edgepick.robot.loop import Cell, run_cycles
     from edgepick.robot.pick import CommandLog, PickConfig
     from edgepick.sim.camera import SynthCamera
     from edgepick.sim.oracle import TruthPipeline
@@ -80,8 +80,8 @@ def test_pick_loop_judges_each_cycle_with_the_true_labels():
     cam, robot, lines = SynthCamera(640, 480, seed=0, mount_height_m=0.7), SimRobot(), []
     cal = cam.calibration()
     with cam, robot:
-        results = run_cycles(cam, TruthPipeline(list(CLASSES), cal), robot, DigitalGripper(robot, 0), cfg=PickConfig(),
-                             cycles=12, log=CommandLog(None), echo=lines.append, truth_cal=cal)
+        results = run_cycles(Cell(cam, TruthPipeline(list(CLASSES), cal), robot, DigitalGripper(robot, 0), CommandLog(None), cal),
+                             cfg=PickConfig(), cycles=12, echo=lines.append)
     verdicts = [r.verdict for r in results]
     assert len(verdicts) == 12 and all("verdict:" in line for line in lines)
     assert sum(v.success for v in verdicts) >= 6

@@ -17,7 +17,7 @@ from edgepick.errors import ParameterError  # noqa: E402
 from edgepick.intervals import wilson  # noqa: E402
 from edgepick.robot.clearance import HandShape  # noqa: E402
 from edgepick.robot.grippers import DigitalGripper  # noqa: E402
-from edgepick.robot.loop import run_cycles  # noqa: E402
+from edgepick.robot.loop import Cell, run_cycles  # noqa: E402
 from edgepick.robot.messages import rotation  # noqa: E402
 from edgepick.robot.pick import CommandLog, PickConfig  # noqa: E402
 from edgepick.sim.clutter import ClutterRound, RoundConfig, round_summary, run_rounds  # noqa: E402
@@ -45,10 +45,9 @@ def _run(cell: ClutterRound, pick: PickConfig = PICK, physics: bool = True) -> t
     cell.read, cell.after = reading, settling
     robot = SimRobot()
     with robot:
-        results = run_cycles(cell, TruthPipeline(list(CLASSES), cell.calibration()), robot, DigitalGripper(robot, 0),
-                             cfg=pick, cycles=cell.cap, log=CommandLog(None), echo=lambda line: None,
-                             truth_cal=cell.calibration(), physics=cell.physics_judge(pick) if physics else None,
-                             after=settling)
+        picking = Cell(cell, TruthPipeline(list(CLASSES), cell.calibration()), robot, DigitalGripper(robot, 0),
+                       CommandLog(None), cell.calibration(), physics=cell.physics_judge(pick) if physics else None)
+        results = run_cycles(picking, cfg=pick, cycles=cell.cap, echo=lambda line: None, after=settling)
     return results, seen
 
 
@@ -188,5 +187,5 @@ def test_a_round_cannot_read_its_next_frame_ahead():
     cell = ClutterRound(640, 480, seed=0, index=1)
     robot = SimRobot()
     with pytest.raises(ParameterError, match="overlap=True"):
-        run_cycles(cell, TruthPipeline(list(CLASSES), cell.calibration()), robot, DigitalGripper(robot, 0), cfg=PICK,
-                   cycles=2, log=CommandLog(None), overlap=True, after=cell.after)
+        run_cycles(Cell(cell, TruthPipeline(list(CLASSES), cell.calibration()), robot, DigitalGripper(robot, 0),
+                        CommandLog(None)), cfg=PICK, cycles=2, overlap=True, after=cell.after)
