@@ -11,7 +11,8 @@ import pytest
 
 from tests.conftest import REPO
 
-GROUND = {"errors", "files", "progress", "geometry", "frames", "metrics", "intervals", "schema", "lazy", "onnx_graph"}
+GROUND = {"errors", "files", "progress", "geometry", "frames", "metrics", "intervals", "schema", "lazy", "onnx_graph",
+          "machine"}
 
 
 def _imports() -> dict[str, dict[str, set[str]]]:
@@ -64,8 +65,13 @@ def test_arrows_point_down():
                  "train": {"quant", "export", "runtime", "robot", "sim", "bench", "cli"},
                  "export": {"quant", "evaluation", "robot", "sim", "bench", "demo", "cli"},
                  "quant": {"robot", "sim", "bench", "demo", "cli"},
-                 "robot": {"sim", "bench", "cli", "train", "quant", "export"},
-                 "runtime": {"sim", "robot", "bench", "cli", "train", "quant", "export", "data"},
+                 "robot": {"sim", "bench", "cli", "train", "quant", "export", "data", "models", "evaluation", "demo"},
+                 "runtime": {"sim", "robot", "bench", "cli", "train", "quant", "export", "data", "models", "evaluation",
+                             "demo"},
+                 "sim": {"train", "quant", "export", "evaluation", "bench", "demo", "cli", "models"},
+                 "evaluation": {"quant", "export", "robot", "sim", "bench", "demo", "cli"},
+                 "bench": {"demo", "cli"},
+                 "demo": {"cli"},
                  "models": {"train", "quant", "export", "runtime", "robot", "sim", "bench", "cli"},
                  **{g: {"data", "models", "train", "quant", "export", "runtime", "robot", "sim", "bench", "cli"}
                     for g in GROUND}}
