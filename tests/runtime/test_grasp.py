@@ -131,7 +131,7 @@ def test_random_masks_and_depth_never_raise_or_give_nan(seed, hole_fraction):
     depth[rng.random(depth.shape) < hole_fraction] = 0
     cal = Calibration(np.eye(3), np.zeros(3), 0.0, 4)
     records = grasp_records(labels, depth, INTR, calib=cal)
-    text = json.dumps(records)
+    text = json.dumps([r.to_dict() for r in records])
     assert "NaN" not in text and "Infinity" not in text
     for r in records:
         assert -90 < r.angle_deg <= 90
