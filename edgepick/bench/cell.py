@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from itertools import cycle
 from pathlib import Path
@@ -91,6 +92,7 @@ def measure_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: in
         physics = physics_judge(truth, pick, physics_config)
         pick = PickConfig(hand=HandShape(jaw_opening_m=physics_config.jaw_stroke_m))
     described = None
+    results: list[CycleResult] = []
     with camera, robot:
         if rounds is None:
             results = run_cycles(Cell(camera, pipeline, robot, DigitalGripper(robot, 0), CommandLog(None), truth,
@@ -98,7 +100,6 @@ def measure_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: in
         else:
             from edgepick.sim.clutter import run_rounds
 
-            results: list[CycleResult] = []
             described = run_rounds(pipeline, robot, DigitalGripper(robot, 0), rounds=rounds, pick=pick,
                                    log=CommandLog(None), seed=seed, cfg=round_config, physics=physics_config,
                                    judge=physics is not None, echo=lambda line: None, done=results)
@@ -164,7 +165,7 @@ def by_lighting(results: list[CycleResult]) -> dict[str, dict]:
     return out
 
 
-def run_cell(models: list[str | Path], cycles: int, out_dir: str | Path, threads: int = 2, seed: int = 0,
+def run_cell(models: Sequence[str | Path], cycles: int, out_dir: str | Path, threads: int = 2, seed: int = 0,
              engine: Engine = Engine.ONNXRUNTIME, progress=print, verdict: VerdictRule = VerdictRule.GEOMETRIC,
              physics_config=None, rounds: int | None = None, round_config=None, margin_pp: float = 1.0,
              measured: list[Measured] | None = None) -> dict:
@@ -196,9 +197,9 @@ def run_cell(models: list[str | Path], cycles: int, out_dir: str | Path, threads
         rows.append(row)
         measured.append(Measured(row.mode, seg.info.metadata.get("edgepick.precision", "fp32"), results, described))
     modes = [r.mode for r in rows]
-    for r, m in zip(rows, measured[-len(rows):]):  # two models of one mode (the demo's hybrid, the reference): name the files
+    for r, kept in zip(rows, measured[-len(rows):]):  # two models of one mode (the demo's hybrid, the reference): name the files
         if modes.count(r.mode) > 1:
-            r.mode = m.mode = f"{r.mode} ({Path(r.model).stem})"
+            r.mode = kept.mode = f"{r.mode} ({Path(r.model).stem})"
     title = f"{cycles} executions per model" if rounds is None else f"{rounds} clutter-removal rounds per model"
     context = {"title": f"Table 5.6 in the synthetic cell: {title}",
                "machine": machine_line().removeprefix("Machine: "), "onnxruntime": ort.__version__, "opencv": cv2.__version__,
@@ -280,10 +281,10 @@ def sections(rows: list[CellRow], compared: list[dict] | tuple = ()) -> list[str
         out.append(markdown(["Mode", *classes], [[r.mode, *(
             f"{r.disagreements[c]['geometric only']} / {r.disagreements[c]['physics only']}" if c in r.disagreements
             else "0 / 0" for c in classes)] for r in rows]) if classes else "None.")
-    with_rounds = [r for r in rows if r.rounds]
+    with_rounds = [(r.mode, r.rounds) for r in rows if r.rounds]
     if with_rounds:
-        light_seen = {light for r in with_rounds for light in r.rounds["by_lighting"]}
-        out += rounds_section([r.mode for r in with_rounds], [r.rounds for r in with_rounds],
+        light_seen = {light for _, rounds in with_rounds for light in rounds["by_lighting"]}
+        out += rounds_section([mode for mode, _ in with_rounds], [rounds for _, rounds in with_rounds],
                               [light for light in LIGHTINGS if light in light_seen])
     return out + compare_section(list(compared))
 

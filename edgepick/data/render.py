@@ -150,9 +150,9 @@ class SceneRenderer:
             r = p.model.radius * intr.fx / c[2] * 1.05 + 3
             u, v = c[0] / c[2] * intr.fx + intr.cx, c[1] / c[2] * intr.fy + intr.cy
             pts += [(u - r, v - r), (u + r, v + r)]
-        pts = np.array(pts)
-        x0, y0 = np.floor(pts.min(0)).astype(int)
-        x1, y1 = np.ceil(pts.max(0)).astype(int)
+        corners = np.array(pts)
+        x0, y0 = np.floor(corners.min(0)).astype(int)
+        x1, y1 = np.ceil(corners.max(0)).astype(int)
         x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, intr.width), min(y1, intr.height)
         return (x0, y0, x1, y1) if x1 > x0 and y1 > y0 else None
 

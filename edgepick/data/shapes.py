@@ -127,7 +127,7 @@ def make_box(rng: np.random.Generator) -> ObjectModel:
     blotch = Noise(rng, 8, length, octaves=2)
     hl, hw = length / 2, width / 2
     tape_w = rng.uniform(0.04, 0.05) / 2
-    tape_col = _srgb_to_linear((0.72, 0.56, 0.34)) if variant == "tape" else None
+    tape_col = _srgb_to_linear((0.72, 0.56, 0.34))  # the "tape" variant's
     logo = (rng.uniform(-0.5, 0.2) * hl, rng.uniform(-0.6, 0.2) * hw,
             rng.uniform(0.15, 0.35) * hl, rng.uniform(0.2, 0.35) * hw)
     ink = _srgb_to_linear(tuple(rng.uniform(0.02, 0.35, 3)))

@@ -207,7 +207,7 @@ class _Loop:
         result = CycleResult(cycle, frame.name, len(seen.records), seen.ms, round(1000 * (t_plan - t0), 2),
                              "skipped" if record is None else "planned", note if record is None else None, frame.scene,
                              None if self.previous_frame is None else round(1000 * (t0 - self.previous_frame), 2),
-                             record, plan=plan)
+                             record, plan=tuple(plan))
         self.previous_frame = t0
         if record is None:
             cell.log.write(cycle=cycle, command="none", target=None, result=f"skipped: {note}")

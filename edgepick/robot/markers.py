@@ -107,14 +107,15 @@ def scene_objects(m, objects: list[dict], time_ns: int):
 def point_cloud(m, points: list, colours: list):
     """foxglove.PointCloud in the base frame: x, y, z (float32) and red, green, blue, alpha (uint8)
     per point. The 3D views of both viewers draw it (Rerun draws no SceneUpdate)."""
-    layout = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
-                       ("alpha", "u1")])
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"), ("alpha", "u1")]
+    layout = np.dtype(fields)
     rows = np.zeros(len(points), layout)
     for i, (point, colour) in enumerate(zip(points, colours, strict=True)):
         rows[i] = (*point[:3], *(round(255 * c) for c in colour))
     cloud = m.PointCloud(frame_id=BASE, point_stride=layout.itemsize, data=rows.tobytes())
     cloud.pose.orientation.w = 1.0
-    for name in layout.names:
-        kind = 7 if layout[name] == np.dtype("<f4") else 1  # FLOAT32, UINT8
-        cloud.fields.add(name=name, offset=layout.fields[name][1], type=kind)
+    offset = 0
+    for name, kind in fields:
+        cloud.fields.add(name=name, offset=offset, type=7 if kind == "<f4" else 1)  # FLOAT32, UINT8
+        offset += np.dtype(kind).itemsize
     return cloud

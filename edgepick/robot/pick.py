@@ -127,11 +127,11 @@ def plan_reason(plan: list[Step], envelope: Envelope, cfg: PickConfig, start: li
             if reason:
                 return f"{step.note}: {reason}"
             previous = step.target
-    targets = [step for step in plan if step.target is not None] if limits is not None else []
-    for step in targets:
-        reason = limits(step.target)
-        if reason:
-            return f"{step.note}: {reason}"
+    if limits is not None:
+        for step in plan:
+            reason = limits(step.target) if step.target is not None else None
+            if reason:
+                return f"{step.note}: {reason}"
     return None
 
 
@@ -211,7 +211,7 @@ def execute(plan: list[Step], robot: RobotBase, gripper, log: CommandLog, cycle:
     ON_STEP after each step carried out or failed, with its result as the log writes it."""
     for step in plan:
         try:
-            if step.command == "moveL":
+            if step.target is not None:  # a moveL
                 robot.move_l(step.target, cfg.speed, cfg.acc)
             else:
                 getattr(gripper, step.command)()

@@ -125,7 +125,8 @@ class Recorder:
 
     def __init__(self, path: str | Path, metadata: dict, calibration: Calibration | None = None,
                  option: str = "--record"):
-        self.path, self.calibration, self._error = Path(path), calibration, None
+        self.path, self.calibration = Path(path), calibration
+        self._error: ConfigError | None = None
         self.msgs = schemas()  # the [record] extra, or one line saying how to install it
         from mcap_protobuf.writer import Writer
 
@@ -254,7 +255,7 @@ class Recorder:
         targets = [s.target for s in c.plan if s.target is not None]
         self.write("/plan/targets", point_cloud(m, targets, [BLUE] * len(targets)), plan_ns)
         for done in c.steps:
-            if done.step.command == "moveL":
+            if done.step.target is not None:  # a moveL
                 self.pose("/robot/tcp_command", done.step.target, done.time_ns)
             else:
                 self.write("/robot/gripper", m.GripperState(cycle=c.cycle, command=done.step.command,
@@ -270,17 +271,16 @@ class Recorder:
         self.write("/pick/cycle", pick_cycle_message(m, c), end_ns)
         self.log(c.line, end_ns, level=2 if c.result.outcome in ("done", "planned") else 3)
         if c.scene is not None:
-            self._round_scene(c, t)
+            self._round_scene(c.scene, c.cycle, t)
 
-    def _round_scene(self, c: PickCycle, frame_ns: int) -> None:
+    def _round_scene(self, change: SceneChange, cycle: int, frame_ns: int) -> None:
         """A round's table: as the frame showed it (at the frame's time) and where the rest settled after
         the pick (at the time they came to rest), as /round/scene and as solids on /scene/objects."""
-        change = c.scene
         for stage, objects, time_ns in (("before", change.before, frame_ns),
                                         ("settled", change.after, max(change.settled_ns, frame_ns + 1))):
             settled = stage == "settled"
             self.write("/round/scene", self.msgs.RoundScene(
-                round=change.round, cycle=c.cycle, pick=change.pick, stage=stage,
+                round=change.round, cycle=cycle, pick=change.pick, stage=stage,
                 removed=-1 if change.removed is None or not settled else change.removed,
                 ended=str(change.ended or "") if settled else "", objects_json=json.dumps(objects)), time_ns)
             self.write("/scene/objects", scene_objects(self.msgs, objects, time_ns), time_ns)

@@ -144,6 +144,8 @@ def recorded_cycles(recording: Recording) -> Iterator[RecordedCycle]:
 
 def _colour(message) -> np.ndarray:
     bgr = cv2.imdecode(np.frombuffer(message.data, np.uint8), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise RecordingError("a colour frame of the recording is not a JPEG image")
     return np.ascontiguousarray(bgr[..., ::-1])
 
 
@@ -177,7 +179,8 @@ def replay(recording: Recording, segmenter: Segmenter | None = None) -> Iterator
         recorded = {"target": rc.result.get("target"), "pixel": rc.result.get("pixel")}
         now = {"target": None, "pixel": None, "reason": note} if chosen is None else \
             {"target": chosen.cls, "pixel": list(chosen.pixel), "pose_robot": list(chosen.chosen_pose())}
-        shift = math.dist(recorded["pixel"], now["pixel"]) if recorded["pixel"] and now["pixel"] else None
+        was = rc.result.get("pixel")
+        shift = math.dist(was, chosen.pixel) if was and chosen is not None else None
         same = recorded["target"] == now["target"] and (shift is None or shift <= SAME_OBJECT_PX)
         out = {"cycle": rc.cycle, "frame": rc.frame, "objects": len(records), "recorded": recorded, "replayed": now,
                "same": same, "shift_px": None if shift is None else round(shift, 3)}

@@ -35,7 +35,7 @@ from edgepick.robot.recording import SceneChange
 from edgepick.robot.verdict import Verdict, summarize
 from edgepick.runtime.grasp_record import Grasp
 from edgepick.sim.camera import SynthCamera
-from edgepick.sim.physics import PhysicsConfig, physics_run, require_mujoco
+from edgepick.sim.physics import PhysicsConfig, PhysicsRun, physics_run, require_mujoco
 from edgepick.sim.physics_scene import OVERLAP_M, Solid, scene_xml, settle
 
 ROUND_ENDS = ("cleared", "two failures in a row", "cycle cap", "robot stopped")
@@ -122,11 +122,12 @@ class ClutterRound(SynthCamera):
         self.cfg, self.round = cfg or RoundConfig(), index
         self.physics_cfg = dataclasses.replace(physics, contact_s=3 * physics.timestep_s, magnet_steel_only=True)
         self.layout, self.parts = self._lay_out(np.random.default_rng([seed, 17, index]))
-        self.laid_out, self.picks, self.failures, self.ended = len(self.parts), 0, 0, None
+        self.laid_out, self.picks, self.failures = len(self.parts), 0, 0
+        self.ended: str | None = None
         self.removed: list[int] = []  # the parts picks took off the table
         self.fell: list[int] = []  # the parts that left the tray otherwise (carried along, pushed off)
         self.cap = self.cfg.cap(self.laid_out)
-        self._run = None  # the physics check of the cycle going on
+        self._run: PhysicsRun | None = None  # the physics check of the cycle going on
 
     # -- the table --------------------------------------------------------------------------------
     def _lay_out(self, rng: np.random.Generator) -> tuple[Layout, list[Part]]:
@@ -142,7 +143,7 @@ class ClutterRound(SynthCamera):
             stays = rested is not None and all(
                 np.linalg.norm(base - p.base) <= STAYS_M and rotation[:, 2] @ p.rotation[:, 2] >= np.cos(np.radians(STAYS_DEG))
                 for p, (base, rotation) in zip(parts, rested))
-            if stays and len(parts) >= self.cfg.objects[0]:
+            if rested is not None and stays and len(parts) >= self.cfg.objects[0]:
                 for part, pose in zip(parts, rested):
                     part.rest(*pose)
                 return layout, parts
