@@ -73,10 +73,11 @@ def evaluate(seeds: list[int], cycles: int, threads: int, count_splits: bool = F
         pipeline = pipelines.setdefault(seed, Pipeline(segmenter, camera.calibration()))
         splits.append(0)
         seen = pipeline(frame)
-        truth = grasp_records(frame.labels, frame.depth, frame.intrinsics, CLASSES, pipeline.calib)
-        rows.append({"frame": frame.name, "labels": digest(seen.labels), "model": digest(seen.records),
+        model = [g.to_dict() for g in seen.records]
+        truth = [g.to_dict() for g in grasp_records(frame.labels, frame.depth, frame.intrinsics, CLASSES, pipeline.calib)]
+        rows.append({"frame": frame.name, "labels": digest(seen.labels), "model": digest(model),
                      "truth": digest(truth), "splits": splits[-1], "label_image": seen.labels,
-                     "model_records": seen.records, "truth_records": truth})
+                     "model_records": model, "truth_records": truth})
         if len(rows) % 50 == 0:
             print(f"{len(rows)} frames, {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     return rows

@@ -57,6 +57,11 @@ def grasp_step_of(commit: str, folder: Path):
     return theirs
 
 
+def as_records(made: list) -> list[dict]:
+    """The records a grasp step made, as JSON records: a commit's step may return dicts or Grasps."""
+    return [r if isinstance(r, dict) else r.to_dict() for r in made]
+
+
 def compare(theirs, mine, frames: list, labels: list, calibration, repeat: int) -> tuple[np.ndarray, np.ndarray, int]:
     """(their ms, my ms) per frame, each the least of REPEAT calls, the two taken in turn with the
     first alternating; and on how many frames both made the same records."""
@@ -74,7 +79,7 @@ def compare(theirs, mine, frames: list, labels: list, calibration, repeat: int) 
                 best[k] = min(best[k], 1000 * (time.perf_counter() - t0))
         times[0].append(best[0])
         times[1].append(best[1])
-        same += made[0] == made[1]
+        same += as_records(made[0]) == as_records(made[1])
     return np.array(times[0]), np.array(times[1]), same
 
 

@@ -22,7 +22,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import add_output, emit, machine_line  # noqa: E402
 
+from edgepick.robot.verdict import Verdict  # noqa: E402
 from edgepick.runtime.calibration import Calibration  # noqa: E402
+from edgepick.runtime.grasp_record import Grasp  # noqa: E402
 from edgepick.sim.physics import PhysicsConfig, physics_verdict  # noqa: E402
 
 IDENTITY = Calibration(np.eye(3), np.zeros(3), 0.0, 0)  # the solids are given in the robot frame
@@ -50,14 +52,15 @@ def truth(name: str) -> list[dict]:
 
 
 def attempt(name: str, across: float = 0.0, along: float = 0.0, yaw_deg: float = 0.0, above: float = 0.0,
-            cfg: PhysicsConfig | None = None) -> dict:
+            cfg: PhysicsConfig | None = None) -> Verdict:
     """The grasp moved ACROSS the jaw's closing axis... (metres, degrees) from the true one."""
     cls, height = name.split()[0], SOLIDS[name]["height"]
     closing = YAW + math.pi / 2 + math.radians(yaw_deg)  # the fingers close across the major axis
     c, a = np.array([math.cos(YAW + math.pi / 2), math.sin(YAW + math.pi / 2)]), np.array([math.cos(YAW), math.sin(YAW)])
     x, y = np.array([X, Y]) + across * c + along * a
     pose = [float(x), float(y), height + above, math.pi * math.cos(closing / 2), math.pi * math.sin(closing / 2), 0.0]
-    return physics_verdict({"class": cls, "pose_robot": pose}, truth(name), IDENTITY, PLACE, cfg=cfg)
+    grasp = Grasp(cls, (0.0, 0.0), 0.0, True, 0, height, (X, Y, height), pose)  # the check reads its class and pose
+    return physics_verdict(grasp, truth(name), IDENTITY, PLACE, cfg=cfg)
 
 
 def tolerance(name: str, key: str, values: list[float], cfg: PhysicsConfig) -> tuple[float | None, str, list[float]]:
@@ -65,9 +68,9 @@ def tolerance(name: str, key: str, values: list[float], cfg: PhysicsConfig) -> t
     best, times = None, []
     for v in values:
         verdict = attempt(name, cfg=cfg, **{key: v})
-        times.append(verdict["ms"])
-        if not verdict["success"]:
-            return best, f"{verdict['failure']} at {v:g}", times
+        times.append(verdict.ms)
+        if not verdict.success:
+            return best, f"{verdict.failure} at {v:g}", times
         best = v
     return best, "none in range", times
 

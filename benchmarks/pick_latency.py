@@ -27,7 +27,7 @@ from _common import add_output, emit, machine_line  # noqa: E402
 
 from edgepick.reference import reference_model  # noqa: E402
 from edgepick.robot.grippers import DigitalGripper  # noqa: E402
-from edgepick.robot.loop import run_cycles  # noqa: E402
+from edgepick.robot.loop import Cell, run_cycles  # noqa: E402
 from edgepick.robot.pick import CommandLog, PickConfig  # noqa: E402
 from edgepick.runtime.engine import Engine  # noqa: E402
 from edgepick.runtime.pipeline import Pipeline  # noqa: E402
@@ -47,10 +47,10 @@ def row(segmenter: Segmenter, cycles: int, overlap: bool, realtime: float) -> di
     pipeline = Pipeline(segmenter, camera.calibration())
     robot = SimRobot(realtime=realtime)
     with camera, robot:
-        run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=PickConfig(), cycles=2,
-                   log=CommandLog(None), echo=lambda line: None)  # warm-up
-        results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=PickConfig(), cycles=cycles,
-                             log=CommandLog(None), echo=lambda line: None, overlap=overlap)
+        cell = Cell(camera, pipeline, robot, DigitalGripper(robot, 0), CommandLog(None))
+        run_cycles(cell, cfg=PickConfig(), cycles=2, echo=lambda line: None)  # warm-up
+        results = [r.to_dict() for r in run_cycles(cell, cfg=PickConfig(), cycles=cycles, echo=lambda line: None,
+                                                    overlap=overlap)]
     return {"cycles": len(results), "picked": sum("frame_to_command_ms" in r for r in results),
             "inference": statistics.median(r["stage_ms"]["inference"] for r in results),
             "grasp": statistics.median(r["stage_ms"]["grasp"] for r in results),

@@ -28,10 +28,10 @@ from _common import add_output, emit, machine_line  # noqa: E402
 
 from edgepick.reference import reference_model  # noqa: E402
 from edgepick.robot.grippers import DigitalGripper  # noqa: E402
-from edgepick.robot.loop import run_cycles  # noqa: E402
+from edgepick.robot.loop import Cell, run_cycles  # noqa: E402
 from edgepick.robot.pick import CommandLog, PickConfig  # noqa: E402
 from edgepick.robot.recording import Recorder, pick_metadata  # noqa: E402
-from edgepick.runtime.grasp import GraspConfig  # noqa: E402
+from edgepick.runtime.grasp_config import GraspConfig  # noqa: E402
 from edgepick.runtime.pipeline import Pipeline  # noqa: E402
 from edgepick.runtime.session import Segmenter  # noqa: E402
 from edgepick.sim.camera import SynthCamera  # noqa: E402
@@ -47,10 +47,10 @@ def block(segmenter: Segmenter, seed: int, cycles: int, realtime: float, record:
                         pipeline.calib) if record else None
     with camera, robot:
         start = time.perf_counter()
-        results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=PickConfig(), cycles=cycles,
-                             log=CommandLog(None), echo=lambda line: None, recorder=recorder)
+        cell = Cell(camera, pipeline, robot, DigitalGripper(robot, 0), CommandLog(None), recorder=recorder)
+        results = run_cycles(cell, cfg=PickConfig(), cycles=cycles, echo=lambda line: None)
         loop_s = time.perf_counter() - start
-    out = {"results": results, "loop_s": loop_s}
+    out = {"results": [r.to_dict() for r in results], "loop_s": loop_s}
     if recorder is not None:
         start = time.perf_counter()
         recorder.close()

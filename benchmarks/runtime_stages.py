@@ -61,7 +61,7 @@ def by_objects(runs: list[Perception]) -> dict[int, tuple[int, float, float, flo
     for n in sorted({len(r.records) for r in runs}):
         some = [r for r in runs if len(r.records) == n]
         ms = [r.ms["grasp"] for r in some]
-        pixels = float(np.median([sum(rec["area_px"] for rec in r.records) for r in some]))
+        pixels = float(np.median([sum(rec.area_px for rec in r.records) for r in some]))
         table[n] = (len(some), pixels, float(np.percentile(ms, 50)), float(np.percentile(ms, 95)))
     return table
 

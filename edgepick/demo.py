@@ -41,6 +41,7 @@ def _run_demo(workdir: Path, scenes: int, epochs: int, size: Size) -> dict:
     from edgepick.data.synth import SynthConfig, synthesize
     from edgepick.evaluation import evaluate
     from edgepick.reference import reference_model
+    from edgepick.train.config import Device
     from edgepick.train.loop import TrainConfig, train
 
     t0 = time.perf_counter()
@@ -51,7 +52,7 @@ def _run_demo(workdir: Path, scenes: int, epochs: int, size: Size) -> dict:
     contact_sheet(workdir / "data", workdir / "preview.png", count=9)
     _step(f"2/8 train DeepLabV3-MobileNetV3 on CPU, {epochs} epochs at {size}")
     run = train(TrainConfig(data=str(workdir / "data"), out=str(workdir / "run"), epochs=epochs, batch_size=8,
-                            size=size, device="cpu", keep_epochs=[max(1, epochs - 1)]))
+                            size=size, device=Device.CPU, keep_epochs=(max(1, epochs - 1),)))
     _step("3/8 evaluate the best checkpoint on the test split")
     test = evaluate(workdir / "run", workdir / "data", "test")
     int8 = quantize_demo(workdir, epochs)
@@ -80,6 +81,7 @@ def quantize_demo(workdir: Path, epochs: int) -> dict:
     from edgepick.evaluation import evaluate
     from edgepick.export.onnx_export import export_checkpoint
     from edgepick.quant import agreement_images, folder_images, quantize_hybrid, quantize_static
+    from edgepick.train.config import Device
 
     _step("4/8 export fp32, quantize static int8 and hybrid-QaT int8 (onnxruntime QDQ)")
     models = workdir / "models"
@@ -87,7 +89,7 @@ def quantize_demo(workdir: Path, epochs: int) -> dict:
              "static": quantize_static(workdir / "run", folder_images(workdir / "data", "train", 32),
                                        models / "static.onnx", check_images=agreement_images(workdir / "data")),
              "hybrid": quantize_hybrid(workdir / "run", workdir / "data", models / "hybrid.onnx", 1 / epochs,
-                                       qat_run=workdir / "hybrid.run", device="cpu")}
+                                       qat_run=workdir / "hybrid.run", device=Device.CPU)}
     _step("5/8 evaluate the ONNX files with the runtime (onnxruntime, CPU) on the test split")
     fp32_size = files["fp32"].size_bytes
     out = {}
@@ -107,7 +109,7 @@ def quantize_demo(workdir: Path, epochs: int) -> dict:
 def pick_demo(workdir: Path, model: Path, cycles: int = PICK_CYCLES) -> dict:
     """Pick cycles on SimRobot: a synthetic camera over a calibrated cell, the int8 model, a magnet."""
     from edgepick.robot.grippers import DigitalGripper
-    from edgepick.robot.loop import cycles_summary, run_cycles
+    from edgepick.robot.loop import Cell, cycles_summary, run_cycles
     from edgepick.robot.pick import CommandLog, PickConfig
     from edgepick.runtime.pipeline import Pipeline
     from edgepick.runtime.session import Segmenter
@@ -121,9 +123,8 @@ def pick_demo(workdir: Path, model: Path, cycles: int = PICK_CYCLES) -> dict:
     log = CommandLog(workdir / "picks.jsonl")
     try:
         with camera, SimRobot() as robot:
-            results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=PickConfig(), cycles=cycles,
-                                 log=log, overlay_dir=workdir / "picks", echo=lambda line: click.echo(line, err=True),
-                                 truth_cal=truth)
+            results = run_cycles(Cell(camera, pipeline, robot, DigitalGripper(robot, 0), log, truth), cfg=PickConfig(),
+                                 cycles=cycles, overlay_dir=workdir / "picks", echo=lambda line: click.echo(line, err=True))
     finally:
         log.close()
     return {"model": str(model), **cycles_summary(results), "overlays": str(workdir / "picks"),
@@ -158,6 +159,7 @@ def quick_table_demo(workdir: Path) -> str:
           f"{QUICK.size}: float, static, QaT from scratch, hybrid-QaT 1/5/10%")
     table = make_table55(workdir / "table55", QUICK, "cpu", "edgepick demo (step 8)",
                          echo=lambda line: click.echo(line, err=True))
+    assert table is not None, "make_table55 asked for every phase makes the table"
     out = workdir / "table55-quick.md"
     out.write_text(table["markdown"])
     return str(out)

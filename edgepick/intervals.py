@@ -71,7 +71,9 @@ def paired_difference(both: int, first_only: int, second_only: int, neither: int
     if margins:
         a = both * neither - first_only * second_only
         phi = (a - n / 2) / math.sqrt(margins) if a > n / 2 else min(a, 0) / math.sqrt(margins)
-    return p1 - p2, _square_and_add(p1, wilson(first, n, level), p2, wilson(second, n, level), phi)
+    first_ci, second_ci = wilson(first, n, level), wilson(second, n, level)
+    assert first_ci is not None and second_ci is not None, "n > 0: each rate has its interval"
+    return p1 - p2, _square_and_add(p1, first_ci, p2, second_ci, phi)
 
 
 def paired_outcomes(first: Sequence[bool], second: Sequence[bool],
@@ -104,7 +106,9 @@ def clustered_difference(first: Sequence[tuple[int, int]], second: Sequence[tupl
     r2 = [s - p2 * n for s, n in second]
     spread = math.sqrt(sum(v * v for v in r1) * sum(v * v for v in r2))
     correlation = sum(a * b for a, b in zip(r1, r2)) / spread if spread > 1e-12 else 0.0
-    return p1 - p2, _square_and_add(p1, wilson(s1, n1, level), p2, wilson(s2, n2, level), correlation)
+    first_ci, second_ci = wilson(s1, n1, level), wilson(s2, n2, level)
+    assert first_ci is not None and second_ci is not None, "n1, n2 > 0: each rate has its interval"
+    return p1 - p2, _square_and_add(p1, first_ci, p2, second_ci, correlation)
 
 
 def equivalence(interval: tuple[float, float], margin: float) -> str:

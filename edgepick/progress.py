@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sized
 
 from tqdm import tqdm
 
@@ -19,11 +19,13 @@ class _LogProgress:
 
     def __init__(self, iterable: Iterable | None, desc: str, total: int | None, unit: str, every_s: float):
         self.iterable, self.desc, self.unit, self.every_s = iterable, desc, unit, every_s
-        self.total = total if total is not None else (len(iterable) if hasattr(iterable, "__len__") else None)
+        self.total = total if total is not None else (len(iterable) if isinstance(iterable, Sized) else None)
         self.n, self.postfix = 0, ""
         self.t0 = self.last = time.monotonic()
 
     def __iter__(self) -> Iterator:
+        if self.iterable is None:
+            raise TypeError(f"{self.desc}: a progress made without an iterable is updated, not iterated")
         for item in self.iterable:
             yield item
             self.update()

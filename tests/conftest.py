@@ -13,11 +13,13 @@ import os
 import shutil
 import subprocess
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import pytest
 from filelock import FileLock
+
+from edgepick.runtime.grasp_record import NO_DEPTH, Grasp
 
 # one thread per xdist worker: two workers with two OpenMP threads each would run four threads on 2 cores
 os.environ.setdefault("OMP_NUM_THREADS", "1" if "PYTEST_XDIST_WORKER" in os.environ else "2")
@@ -51,6 +53,15 @@ def without_torch(folder: Path) -> dict:
     blocked.mkdir(parents=True, exist_ok=True)
     (blocked / "__init__.py").write_text("raise ImportError('torch is not imported before a mistake is found')\n")
     return {"PYTHONPATH": str(folder)}
+
+
+def make_grasp(cls: str, pose_robot: Sequence[float] | None, **fields) -> Grasp:
+    """A Grasp for the tests that choose, plan or judge one: CLS at POSE_ROBOT (None: not posed), the
+    rest as FIELDS give it, else seen at the image's centre, 0.62 m away, over 900 pixels."""
+    depth = fields.pop("depth_m", 0.62)
+    seen = {"pixel": (320.0, 240.0), "angle_deg": 0.0, "orientation_defined": True, "area_px": 900, "depth_m": depth,
+            "point_camera_m": None if depth is None else (0.0, 0.0, depth), "reason": NO_DEPTH if depth is None else None}
+    return Grasp(cls, pose_robot=None if pose_robot is None else tuple(pose_robot), **{**seen, **fields})
 
 
 def worker_index() -> int:

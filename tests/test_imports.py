@@ -11,23 +11,26 @@ import pytest
 
 from tests.conftest import REPO
 
-GROUND = {"errors", "files", "progress", "geometry", "frames", "metrics", "intervals", "schema", "lazy", "onnx_graph"}
+GROUND = {"errors", "files", "progress", "geometry", "frames", "metrics", "intervals", "schema", "lazy", "onnx_graph",
+          "machine"}
 
 
-def _imports() -> dict[str, set[str]]:
-    """module -> the edgepick modules it imports, at the top level ('top') or anywhere ('all')."""
+def _imports() -> dict[str, dict[str, set[str]]]:
+    """module -> the edgepick modules it imports, at the top level ('top', under TYPE_CHECKING too:
+    a type-only circle is a circle all the same) or anywhere ('all')."""
     graph: dict[str, dict[str, set[str]]] = {}
     for path in (REPO / "edgepick").rglob("*.py"):
         parts = path.relative_to(REPO).with_suffix("").parts
         module = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
         tree = ast.parse(path.read_text())
         top, every = set(), set()
+        module_level = [*tree.body, *(n for node in tree.body if _is_type_checking(node) for n in node.body)]
         for node in ast.walk(tree):
             names = [node.module] if isinstance(node, ast.ImportFrom) and node.module else \
                 [a.name for a in node.names] if isinstance(node, ast.Import) else []
             names = [n for n in names if n.startswith("edgepick")]
             every.update(names)
-            if node in tree.body:
+            if node in module_level:
                 top.update(names)
         graph[module] = {"top": top, "all": every}
     return graph
@@ -62,8 +65,13 @@ def test_arrows_point_down():
                  "train": {"quant", "export", "runtime", "robot", "sim", "bench", "cli"},
                  "export": {"quant", "evaluation", "robot", "sim", "bench", "demo", "cli"},
                  "quant": {"robot", "sim", "bench", "demo", "cli"},
-                 "robot": {"sim", "bench", "cli", "train", "quant", "export"},
-                 "runtime": {"sim", "robot", "bench", "cli", "train", "quant", "export", "data"},
+                 "robot": {"sim", "bench", "cli", "train", "quant", "export", "data", "models", "evaluation", "demo"},
+                 "runtime": {"sim", "robot", "bench", "cli", "train", "quant", "export", "data", "models", "evaluation",
+                             "demo"},
+                 "sim": {"train", "quant", "export", "evaluation", "bench", "demo", "cli", "models"},
+                 "evaluation": {"quant", "export", "robot", "sim", "bench", "demo", "cli"},
+                 "bench": {"demo", "cli"},
+                 "demo": {"cli"},
                  "models": {"train", "quant", "export", "runtime", "robot", "sim", "bench", "cli"},
                  **{g: {"data", "models", "train", "quant", "export", "runtime", "robot", "sim", "bench", "cli"}
                     for g in GROUND}}
@@ -147,7 +155,7 @@ def test_the_walk_sees_the_package():
 
 
 @pytest.mark.parametrize("package", ["edgepick", "edgepick.train", "edgepick.quant", "edgepick.export", "edgepick.runtime",
-                                     "edgepick.models"])
+                                     "edgepick.models", "edgepick.data", "edgepick.robot", "edgepick.sim", "edgepick.bench"])
 def test_every_public_name_of_a_package_resolves(package):
     """The API packages load their objects on first use (a light config module must not import
     torch); every name in __all__ must still resolve, and nothing else be offered."""

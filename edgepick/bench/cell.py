@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from itertools import cycle
 from pathlib import Path
@@ -26,8 +27,9 @@ from edgepick.errors import ParameterError
 from edgepick.intervals import rounded, wilson
 from edgepick.machine import machine_line
 from edgepick.robot.clearance import HandShape
+from edgepick.robot.cycle import CycleResult, verdicts
 from edgepick.robot.grippers import DigitalGripper
-from edgepick.robot.loop import run_cycles
+from edgepick.robot.loop import Cell, run_cycles
 from edgepick.robot.pick import CommandLog, PickConfig
 from edgepick.robot.verdict import VerdictRule, summarize
 from edgepick.runtime.engine import Engine
@@ -73,7 +75,7 @@ def cell_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: int, 
 
 def measure_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: int, size_mb: float | None,
                 verdict: VerdictRule = VerdictRule.GEOMETRIC, physics_config=None, rounds: int | None = None,
-                round_config=None) -> tuple[CellRow, list[dict], list[dict] | None]:
+                round_config=None) -> tuple[CellRow, list[CycleResult], list[dict] | None]:
     """cell_row, with the cycles' results; with ROUNDS, that many clutter-removal rounds (sim/clutter.py,
     ROUND_CONFIG) in place of CYCLES single scenes, and the rounds' `describe()`."""
     camera = SynthCamera(640, 480, seed=seed, mount_height_m=MOUNT_M)
@@ -90,19 +92,19 @@ def measure_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: in
         physics = physics_judge(truth, pick, physics_config)
         pick = PickConfig(hand=HandShape(jaw_opening_m=physics_config.jaw_stroke_m))
     described = None
+    results: list[CycleResult] = []
     with camera, robot:
         if rounds is None:
-            results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=pick, cycles=cycles,
-                                 log=CommandLog(None), echo=lambda line: None, truth_cal=truth, physics=physics)
+            results = run_cycles(Cell(camera, pipeline, robot, DigitalGripper(robot, 0), CommandLog(None), truth,
+                                      physics=physics), cfg=pick, cycles=cycles, echo=lambda line: None)
         else:
             from edgepick.sim.clutter import run_rounds
 
-            results = []
             described = run_rounds(pipeline, robot, DigitalGripper(robot, 0), rounds=rounds, pick=pick,
                                    log=CommandLog(None), seed=seed, cfg=round_config, physics=physics_config,
                                    judge=physics is not None, echo=lambda line: None, done=results)
-    times = np.array([r["plan_ms"] for r in results])  # frame -> labels -> records -> the checked plan
-    summary = summarize(results)
+    times = np.array([r.plan_ms for r in results])  # frame -> labels -> records -> the checked plan
+    summary = summarize(verdicts(results))
     row = CellRow(mode, model, len(results), round(float(times.mean()), 2), round(float(times.std()), 2),
                   round(float(np.median(times)), 2), round(float(np.percentile(times, 95)), 2), size_mb,
                   summary["success"], summary["success_rate"], summary["success_rate_reachable"], summary["failures"],
@@ -115,11 +117,11 @@ def measure_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: in
     return row, results, described
 
 
-def physics_summary(results: list[dict]) -> dict:
+def physics_summary(results: list[CycleResult]) -> dict:
     """The physics check over the judged cycles, with its time per check (p50 of those it simulated)."""
-    judged = [r["physics"] for r in results if "physics" in r]
-    times = [p["ms"] for p in judged if p.get("ms")]
-    s = summarize(results, "physics")
+    judged = verdicts(results, "physics")
+    times = [p.ms for p in judged if p.ms]
+    s = summarize(judged)
     standing = len(judged) - s["failures"].get("unsettled", 0)  # the scenes that stand as rendered
     return {"success": s["success"], "executions": len(judged), "success_rate": s["success_rate"],
             "success_ci95": s["success_ci95"],
@@ -128,38 +130,42 @@ def physics_summary(results: list[dict]) -> dict:
             "failures": s["failures"], "ms_p50": round(float(np.median(times)), 1) if times else None}
 
 
-def disagreements(results: list[dict]) -> dict[str, dict[str, int]]:
+def disagreements(results: list[CycleResult]) -> dict[str, dict[str, int]]:
     """Per class of the chosen target: cycles only the geometric rule passed, and only physics."""
     out: dict[str, dict[str, int]] = {}
     for r in results:
-        if "physics" in r and r["verdict"]["success"] != r["physics"]["success"]:
-            side = "geometric only" if r["verdict"]["success"] else "physics only"
-            counts = out.setdefault(r.get("target") or "-", {"geometric only": 0, "physics only": 0})
+        if r.physics is not None and r.verdict is not None and r.verdict.success != r.physics.success:
+            side = "geometric only" if r.verdict.success else "physics only"
+            counts = out.setdefault(r.target or "-", {"geometric only": 0, "physics only": 0})
             counts[side] += 1
     return out
 
 
-def by_lighting(results: list[dict]) -> dict[str, dict]:
+def by_lighting(results: list[CycleResult]) -> dict[str, dict]:
     """Success per light condition of the scenes (thesis Table 5.3): executions, success, rate,
     failures, the objects no grasp record found (robot/verdict.py undetected), and the physics
     check's success where it ran."""
+    def light_of(r: CycleResult) -> str | None:
+        return (r.scene or {}).get("lighting")
+
     out: dict[str, dict] = {}
-    for light in dict.fromkeys(r.get("scene", {}).get("lighting") for r in results if "verdict" in r):
+    judged = [r for r in results if r.verdict is not None]
+    for light in dict.fromkeys(light_of(r) for r in judged):
         if light is None:
             continue
-        these = [r for r in results if "verdict" in r and r.get("scene", {}).get("lighting") == light]
-        s = summarize(these)
+        these = [r for r in judged if light_of(r) == light]
+        s = summarize(verdicts(these))
         out[light] = {"executions": len(these), "success": s["success"], "success_rate": s["success_rate"],
                       "success_ci95": s["success_ci95"], "failures": s["failures"],
-                      "undetected": sum(r.get("undetected", 0) for r in these)}
-        if any("physics" in r for r in these):
-            p = summarize(these, "physics")
+                      "undetected": sum(r.undetected or 0 for r in these)}
+        if any(r.physics is not None for r in these):
+            p = summarize(verdicts(these, "physics"))
             out[light].update(physics_success=p["success"], physics_success_rate=p["success_rate"],
                               physics_success_ci95=p["success_ci95"])
     return out
 
 
-def run_cell(models: list[str | Path], cycles: int, out_dir: str | Path, threads: int = 2, seed: int = 0,
+def run_cell(models: Sequence[str | Path], cycles: int, out_dir: str | Path, threads: int = 2, seed: int = 0,
              engine: Engine = Engine.ONNXRUNTIME, progress=print, verdict: VerdictRule = VerdictRule.GEOMETRIC,
              physics_config=None, rounds: int | None = None, round_config=None, margin_pp: float = 1.0,
              measured: list[Measured] | None = None) -> dict:
@@ -191,9 +197,9 @@ def run_cell(models: list[str | Path], cycles: int, out_dir: str | Path, threads
         rows.append(row)
         measured.append(Measured(row.mode, seg.info.metadata.get("edgepick.precision", "fp32"), results, described))
     modes = [r.mode for r in rows]
-    for r, m in zip(rows, measured[-len(rows):]):  # two models of one mode (the demo's hybrid, the reference): name the files
+    for r, kept in zip(rows, measured[-len(rows):]):  # two models of one mode (the demo's hybrid, the reference): name the files
         if modes.count(r.mode) > 1:
-            r.mode = m.mode = f"{r.mode} ({Path(r.model).stem})"
+            r.mode = kept.mode = f"{r.mode} ({Path(r.model).stem})"
     title = f"{cycles} executions per model" if rounds is None else f"{rounds} clutter-removal rounds per model"
     context = {"title": f"Table 5.6 in the synthetic cell: {title}",
                "machine": machine_line().removeprefix("Machine: "), "onnxruntime": ort.__version__, "opencv": cv2.__version__,
@@ -275,10 +281,10 @@ def sections(rows: list[CellRow], compared: list[dict] | tuple = ()) -> list[str
         out.append(markdown(["Mode", *classes], [[r.mode, *(
             f"{r.disagreements[c]['geometric only']} / {r.disagreements[c]['physics only']}" if c in r.disagreements
             else "0 / 0" for c in classes)] for r in rows]) if classes else "None.")
-    with_rounds = [r for r in rows if r.rounds]
+    with_rounds = [(r.mode, r.rounds) for r in rows if r.rounds]
     if with_rounds:
-        light_seen = {light for r in with_rounds for light in r.rounds["by_lighting"]}
-        out += rounds_section([r.mode for r in with_rounds], [r.rounds for r in with_rounds],
+        light_seen = {light for _, rounds in with_rounds for light in rounds["by_lighting"]}
+        out += rounds_section([mode for mode, _ in with_rounds], [rounds for _, rounds in with_rounds],
                               [light for light in LIGHTINGS if light in light_seen])
     return out + compare_section(list(compared))
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 from edgepick.bench.report import markdown
 from edgepick.intervals import clustered_difference, equivalence, paired_outcomes, rounded
+from edgepick.robot.cycle import CycleResult
 
 VERDICTS = {"verdict": "geometric", "physics": "physics"}
 
@@ -24,16 +25,23 @@ class Measured:
 
     mode: str
     precision: str
-    results: list[dict]
+    results: list[CycleResult]
     rounds: list[dict] | None = None
+
+
+def _succeeded(r: CycleResult, key: str) -> bool:
+    """Whether R's verdict KEY ("verdict" or "physics") is a success (False where it has none)."""
+    v = r.judged(key)
+    return v is not None and v.success
 
 
 def _per_round(m: Measured, key: str) -> list[tuple[int, int]]:
     """(successes, picks) of each round of M under the verdict KEY."""
     out = []
     for d in m.rounds or []:
-        these = [r for r in m.results if r.get("round", {}).get("round") == d["round"] and key in r]
-        out.append((sum(bool(r[key]["success"]) for r in these), len(these)))
+        these = [r for r in m.results if r.round is not None and r.round["round"] == d["round"]
+                 and r.judged(key) is not None]
+        out.append((sum(_succeeded(r, key) for r in these), len(these)))
     return out
 
 
@@ -49,20 +57,19 @@ def compare(rows: list[Measured], margin: float) -> list[dict]:
         if m.precision != "int8":
             continue
         for key, name in VERDICTS.items():
-            if not any(key in r for r in m.results) or not any(key in r for r in base.results):
+            if not any(r.judged(key) for r in m.results) or not any(r.judged(key) for r in base.results):
                 continue
             if m.rounds is not None:
                 found = clustered_difference(_per_round(m, key), _per_round(base, key))
                 pairs = len(m.rounds)
             else:
-                found = paired_outcomes([bool(r.get(key, {}).get("success")) for r in m.results],
-                                        [bool(r.get(key, {}).get("success")) for r in base.results])
+                found = paired_outcomes([_succeeded(r, key) for r in m.results], [_succeeded(r, key) for r in base.results])
                 pairs = len(m.results)
             out.append(_entry(m, base, "grasp success", name, found, pairs, margin))
         if m.rounds is not None:
             found = clustered_difference([(d["removed"], d["parts"]) for d in m.rounds],
                                          [(d["removed"], d["parts"]) for d in base.rounds or []])
-            out.append(_entry(m, base, "clearance", "physics" if any("physics" in r for r in m.results)
+            out.append(_entry(m, base, "clearance", "physics" if any(r.physics is not None for r in m.results)
                               else "geometric", found, len(m.rounds), margin))
     return out
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +46,7 @@ def gpu_row(checkpoint: str | Path, data: str | Path, images: list[np.ndarray], 
             if i >= cfg.warmup:
                 times.append(1000 * (time.perf_counter() - t0))
     acc = evaluate(checkpoint, data, cfg.split, progress=False)
+    assert ckpt.path is not None, "a checkpoint load_model read has its file"
     size = ckpt.path.stat().st_size
     return Row("fp32 GPU", str(checkpoint), "fp32", acc["pixel_acc"], acc["miou"], round(float(np.median(times)), 3),
                round(float(np.percentile(times, 95)), 3), run_train_time_s(ckpt.path, ckpt.train_time_s),
@@ -73,7 +75,7 @@ def check_gpu_checkpoint(checkpoint: str | Path, classes: list[str]) -> None:
                               f"{classes}")
 
 
-def run_bench(models: list[str | Path], data: str | Path, out_dir: str | Path, cfg: BenchConfig | None = None,
+def run_bench(models: Sequence[str | Path], data: str | Path, out_dir: str | Path, cfg: BenchConfig | None = None,
               gpu_checkpoint: str | Path | None = None, with_pipeline: bool = True, title: str = "edgepick bench",
               progress=print) -> dict:
     """Bench each ONNX model (and the GPU row when asked and possible); write the reports."""

@@ -20,6 +20,7 @@ from edgepick.bench.run import run_bench
 from edgepick.files import atomic_write
 from edgepick.geometry import Size
 from edgepick.machine import machine_line, machine_slug
+from edgepick.schema import member
 
 
 @dataclass(frozen=True)
@@ -85,6 +86,7 @@ def make_table55(work: str | Path, setting: Setting, device: str = "auto", comma
     from edgepick.data.synth import SynthConfig, synthesize
     from edgepick.export.onnx_export import export_checkpoint
     from edgepick.quant import agreement_images, folder_images, quantize_hybrid, quantize_qat, quantize_static
+    from edgepick.train.config import Device
     from edgepick.train.loop import TrainConfig, train
 
     s = setting
@@ -116,7 +118,8 @@ def make_table55(work: str | Path, setting: Setting, device: str = "auto", comma
     timed("synth", "synth", data / "meta.json", synthesize, data,
           SynthConfig(scenes=sum(s.splits), splits=s.splits, seed=0), progress=False)
     tc = TrainConfig(data=str(data), out=str(work / "float"), epochs=s.epochs, batch_size=s.batch_size, size=s.size,
-                     lr=s.lr, device=device, keep_epochs=keep, epoch_images=s.epoch_images, val_images=s.val_images)
+                     lr=s.lr, device=member(Device, "device", device), keep_epochs=tuple(keep), epoch_images=s.epoch_images,
+                     val_images=s.val_images)
     timed("float training", "float", work / "float" / "done", _train_and_mark, train, tc)
     files = [models / "fp32.onnx", models / "static.onnx", models / "qat.onnx",
              *[models / f"hybrid{p:.2f}.onnx" for p in FRACTIONS]]

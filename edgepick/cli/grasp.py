@@ -110,5 +110,5 @@ def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, d
         click.echo(" | ".join(f"{k} {v:.2f} ms" for k, v in med.items()), err=True)
         click.echo("grasp sub-steps: " + " | ".join(f"{k} {np.median([s[k] for s in steps]):.2f} ms" for k in Laps.STEPS),
                    err=True)
-    click.echo(json.dumps(records, indent=1))
+    click.echo(json.dumps([r.to_dict() for r in records], indent=1))
 

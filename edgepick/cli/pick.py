@@ -8,6 +8,7 @@ import math
 import signal
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
@@ -18,6 +19,9 @@ from edgepick.robot.envelope import Envelope
 from edgepick.robot.pick import Choose, PickConfig
 from edgepick.robot.verdict import VerdictRule
 from edgepick.runtime.engine import Engine
+
+if TYPE_CHECKING:
+    from edgepick.robot.cycle import CycleResult
 
 
 def check_gripper(spec: str, robot_host: str | None) -> tuple[str, int | str]:
@@ -133,7 +137,7 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     """
     from edgepick.cli.cameras import open_camera
     from edgepick.robot.base import RobotError, RobotHalted, RobotUnreachable
-    from edgepick.robot.loop import run_cycles
+    from edgepick.robot.loop import Cell, run_cycles
     from edgepick.robot.pick import CommandLog
     from edgepick.runtime.calibration import Calibration
     from edgepick.runtime.pipeline import Pipeline
@@ -192,7 +196,7 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     grip = make_gripper(gripper_spec, robot) if robot is not None else None
     log = CommandLog(log_path)
     echo = lambda line: click.echo(line, err=True)  # noqa: E731
-    results: list[dict] = []  # filled cycle by cycle: still there when an interrupt ends the loop
+    results: list[CycleResult] = []  # filled cycle by cycle: still there when an interrupt ends the loop
     described: list[dict] = []  # --rounds: each round as it ends
     halted, unreachable, interrupt = None, False, None
     overlays = output_dir(overlay_dir, "pick") if overlay_dir is not None else contextlib.nullcontext()
@@ -201,8 +205,8 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
 
     def run(arm, hand) -> None:
         if round_cfg is None:
-            run_cycles(source, pipeline, arm, hand, cfg=cfg, cycles=cycles, log=log, overlay_dir=overlay_dir, echo=echo,
-                       truth_cal=truth_cal, overlap=overlap, recorder=recorder, physics=physics, done=results)
+            run_cycles(Cell(source, pipeline, arm, hand, log, truth_cal, recorder, physics), cfg=cfg, cycles=cycles,
+                       overlay_dir=overlay_dir, echo=echo, overlap=overlap, done=results)
         else:
             _run_rounds(arm, hand, rounds, round_cfg, cfg, log, source, pipeline, physics is not None, echo, overlay_dir,
                         record_path, model, segmenter.info.classes, results, described)
@@ -253,7 +257,7 @@ def _open_robot(kind: str, execute: bool, host: str, robot_log: str | None):
 
 
 def _run_rounds(arm, hand, rounds: int, round_cfg, cfg: PickConfig, log, source, pipeline, judge: bool, echo,
-                overlay_dir: str | None, record_path: str | None, model: str, classes, results: list[dict],
+                overlay_dir: str | None, record_path: str | None, model: str, classes, results: list[CycleResult],
                 described: list[dict]) -> None:
     """`pick --rounds`: sim/clutter.py's run_rounds on SOURCE's seed and frame size, a recording per round."""
     from edgepick.sim.clutter import run_rounds
@@ -267,7 +271,7 @@ def _run_rounds(arm, hand, rounds: int, round_cfg, cfg: PickConfig, log, source,
                described=described, size=(source.intrinsics.width, source.intrinsics.height))
 
 
-def _summary(model: str, results: list[dict], described: list[dict], rounds: int | None, halted, interrupt,
+def _summary(model: str, results: list[CycleResult], described: list[dict], rounds: int | None, halted, interrupt,
              log, log_path: str, record_path: str | None) -> dict:
     """`pick`'s JSON summary: the cycles summed (robot/loop.py), how the run ended, its files, with --rounds
     the rounds summed ("rounds", sim/clutter.py), and every cycle's result."""
@@ -281,7 +285,7 @@ def _summary(model: str, results: list[dict], described: list[dict], rounds: int
         from edgepick.sim.clutter import round_summary
 
         summary["rounds"] = round_summary(described, results)
-    return {**summary, "results": results}
+    return {**summary, "results": [r.to_dict() for r in results]}
 
 
 def _signal_name(interrupt: KeyboardInterrupt | None) -> str | None:

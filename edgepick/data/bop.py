@@ -70,7 +70,8 @@ def read_scene(scene: Path) -> list[BopImage]:
     gt_file, cam_file = scene / "scene_gt.json", scene / "scene_camera.json"
     gt = as_dict(read_json(gt_file, "BOP ground truth"), Where(str(gt_file)))
     cams = as_dict(read_json(cam_file, "BOP camera file"), Where(str(cam_file)))
-    images, seen = [], {}
+    images: list[BopImage] = []
+    seen: dict[int, str] = {}
     for key, objs in gt.items():
         if not re.fullmatch(r"[0-9]+", key):
             Where(str(gt_file)).fail(f"image id {key!r} must be a whole number (BOP writes \"0\", \"1\", ...)")

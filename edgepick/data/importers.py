@@ -49,7 +49,7 @@ class NativeWriter:
 
     def __init__(self, tmp: Path):
         self.tmp = tmp
-        self.counts = dict.fromkeys(Split, 0)
+        self.counts: dict[str, int] = dict.fromkeys(Split, 0)
         self.has_depth = False
 
     def add(self, split: str, rgb: np.ndarray, mask: np.ndarray, depth_mm: np.ndarray | None, name: str) -> None:
@@ -176,7 +176,7 @@ def import_cityscapes(src: Path, writer: NativeWriter, cfg: ImportConfig) -> tup
 
 
 # ----------------------------------------------------------------------------------- BOP
-def import_bop(src: Path, writer: NativeWriter, cfg: ImportConfig) -> tuple[list[str], Intrinsics, dict]:
+def import_bop(src: Path, writer: NativeWriter, cfg: ImportConfig) -> tuple[list[str], Intrinsics | None, dict]:
     """rgb/, depth/, mask_visib/<im>_<k>.png, scene_gt.json (obj_id per gt), scene_camera.json
     (cam_K, depth_scale in mm per unit). One class per object id; depth converted to mm.
     Every scene's JSON is checked (edgepick.data.bop) before the first image is converted."""
@@ -238,7 +238,8 @@ def read_labelmap(path: Path) -> list[tuple[str, tuple[int, int, int]]]:
     each colour channel 0..255."""
     if not path.is_file():
         raise DatasetError(f"{path.parent} has no labelmap.txt (CVAT 'Segmentation mask 1.1' export)")
-    out, line_of = [], {}
+    out: list[tuple[str, tuple[int, int, int]]] = []
+    line_of: dict[str, int] = {}
     for n, line in enumerate(read_text(path, "labelmap").splitlines(), start=1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
@@ -313,7 +314,7 @@ def import_cvat(src: Path, writer: NativeWriter, cfg: ImportConfig) -> tuple[lis
     images = _images_by_stem(image_dir)
     depth_dir = Path(cfg.depth) if cfg.depth else None
     intr = None
-    if depth_dir is not None:
+    if depth_dir is not None and cfg.intrinsics:  # ImportConfig refuses a depth folder without intrinsics
         if not depth_dir.is_dir():
             raise DatasetError(f"depth folder {depth_dir} does not exist")
         intr = Intrinsics.load(cfg.intrinsics)
@@ -340,7 +341,7 @@ def import_cvat(src: Path, writer: NativeWriter, cfg: ImportConfig) -> tuple[lis
                                "does not list")
         mask = lut[np.searchsorted(lut_keys, key)]
         depth_mm = None
-        if depth_dir is not None:
+        if depth_dir is not None and intr is not None:
             dpath = depth_dir / f"{stem}.png"
             if not dpath.is_file():
                 raise DatasetError(f"no depth image {dpath} for {mpath.name}")

@@ -11,14 +11,9 @@ the side wall, whichever the point lies nearest.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
-from edgepick.data.shapes import Part
-
-if TYPE_CHECKING:
-    from edgepick.data.render import Placed
+from edgepick.data.shapes import Part, Placed
 
 STEP_M = 0.0015  # the march's step in depth: thinner than any part
 REFINE = 5  # bisections of the step a ray first enters a part in (0.05 mm)
@@ -73,6 +68,7 @@ def draw_marched(rays: np.ndarray, p: Placed, label: int, k: int, box: tuple[int
     LABEL: each part marched ray by ray (RAYS: those of BOX) into the per-pixel buffers BUF; returns
     BOX and the object's footprint in it."""
     x0, y0, x1, y1 = box
+    assert p.down is not None, "only an object posed off upright is marched"
     full = np.zeros((y1 - y0, x1 - x0), bool)
     for part in p.model.parts:
         hit, z, lx, ly, nn = march(rays, part, p.ground, p.a1, p.a2, -p.down, p.model.radius)

@@ -20,7 +20,7 @@ import numpy as np
 
 from edgepick.data.posed import draw_marched, paint
 from edgepick.data.shading import footprints_small, lights_for, shade, shadow, table_albedo
-from edgepick.data.shapes import MAKERS, ObjectModel
+from edgepick.data.shapes import MAKERS, Placed
 from edgepick.data.stacking import rest_height
 from edgepick.geometry import Intrinsics
 
@@ -29,23 +29,6 @@ LIGHTINGS = ("ceiling", "ceiling+white", "single", "hazard")
 TABLES = ("wood", "laminate", "mat", "steel")
 MARCH_TILT_DEG = 30.0  # a posed object tilted farther than this is marched ray by ray (data/posed.py)
 OBJECT_WEIGHTS = {"bearing": 0.28, "disk": 0.16, "adapter": 0.28, "box": 0.28}
-
-
-@dataclass
-class Placed:
-    model: ObjectModel
-    ground: np.ndarray  # point on the table plane under the object's centre (camera frame, m)
-    base_elev: float  # elevation of the object's base above the table (stacked objects)
-    a1: np.ndarray  # local x axis (major axis) in the table plane
-    a2: np.ndarray
-    # an object posed anywhere (where it settled: sim/clutter.py): its own down axis (its base's normal, away
-    # from its top), with GROUND its base centre, BASE_ELEV 0 and A1, A2 across DOWN; None: upright on the table
-    down: np.ndarray | None = None
-    key: int | None = None  # the object's id in its grasp truth ("id"), when it has one (a clutter-removal round)
-
-    def axis(self, n: np.ndarray) -> np.ndarray:
-        """The object's down axis: its own when posed, else the table's normal N."""
-        return n if self.down is None else self.down
 
 
 @dataclass
@@ -167,9 +150,9 @@ class SceneRenderer:
             r = p.model.radius * intr.fx / c[2] * 1.05 + 3
             u, v = c[0] / c[2] * intr.fx + intr.cx, c[1] / c[2] * intr.fy + intr.cy
             pts += [(u - r, v - r), (u + r, v + r)]
-        pts = np.array(pts)
-        x0, y0 = np.floor(pts.min(0)).astype(int)
-        x1, y1 = np.ceil(pts.max(0)).astype(int)
+        corners = np.array(pts)
+        x0, y0 = np.floor(corners.min(0)).astype(int)
+        x1, y1 = np.ceil(corners.max(0)).astype(int)
         x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, intr.width), min(y1, intr.height)
         return (x0, y0, x1, y1) if x1 > x0 and y1 > y0 else None
 

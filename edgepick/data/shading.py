@@ -4,15 +4,11 @@ shadows objects cast on the table."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import cv2
 import numpy as np
 
+from edgepick.data.shapes import Placed
 from edgepick.geometry import Intrinsics
-
-if TYPE_CHECKING:
-    from edgepick.data.render import Placed
 
 
 def table_albedo(rng: np.random.Generator, kind: str, h: int, w: int) -> tuple[np.ndarray, float, float]:
@@ -114,7 +110,7 @@ def shade(points: np.ndarray, normals: np.ndarray, ks, shin, lights: list[dict],
 def footprints_small(intr: Intrinsics, footprints: list, grid: tuple[int, int]) -> list[np.ndarray | None]:
     """Each object's footprint (the renderer's bounding box and mask) on the (width, height) shading grid."""
     h, w = intr.height, intr.width
-    out = []
+    out: list[np.ndarray | None] = []
     for fp in footprints:
         if fp is None:
             out.append(None)
@@ -143,7 +139,7 @@ def shadow(intr: Intrinsics, light: dict, placed: list[Placed], footprints: list
         dv = (hit[1] / hit[2] - top[1] / top[2]) * intr.fy / q
         steps = 4
         for s in range(1, steps + 1):
-            shift = np.float32([[1, 0, du * s / steps], [0, 1, dv * s / steps]])
+            shift = np.array([[1, 0, du * s / steps], [0, 1, dv * s / steps]], np.float32)
             occl = np.maximum(occl, cv2.warpAffine(m, shift, (wq, hq)))
     occl = cv2.GaussianBlur(occl, (0, 0), max(0.7, light["soft"] / q))
     return 1.0 - 0.85 * occl.ravel()

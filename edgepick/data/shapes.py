@@ -127,7 +127,7 @@ def make_box(rng: np.random.Generator) -> ObjectModel:
     blotch = Noise(rng, 8, length, octaves=2)
     hl, hw = length / 2, width / 2
     tape_w = rng.uniform(0.04, 0.05) / 2
-    tape_col = _srgb_to_linear((0.72, 0.56, 0.34)) if variant == "tape" else None
+    tape_col = _srgb_to_linear((0.72, 0.56, 0.34))  # the "tape" variant's
     logo = (rng.uniform(-0.5, 0.2) * hl, rng.uniform(-0.6, 0.2) * hw,
             rng.uniform(0.15, 0.35) * hl, rng.uniform(0.2, 0.35) * hw)
     ink = _srgb_to_linear(tuple(rng.uniform(0.02, 0.35, 3)))
@@ -272,3 +272,22 @@ MAKERS: dict[str, Callable[[np.random.Generator], ObjectModel]] = {
     "adapter": make_adapter,
     "box": make_box,
 }
+
+
+@dataclass
+class Placed:
+    """One object laid out in a scene: its model, where it stands on the table, and how it is turned."""
+
+    model: ObjectModel
+    ground: np.ndarray  # point on the table plane under the object's centre (camera frame, m)
+    base_elev: float  # elevation of the object's base above the table (stacked objects)
+    a1: np.ndarray  # local x axis (major axis) in the table plane
+    a2: np.ndarray
+    # an object posed anywhere (where it settled: sim/clutter.py): its own down axis (its base's normal, away
+    # from its top), with GROUND its base centre, BASE_ELEV 0 and A1, A2 across DOWN; None: upright on the table
+    down: np.ndarray | None = None
+    key: int | None = None  # the object's id in its grasp truth ("id"), when it has one (a clutter-removal round)
+
+    def axis(self, n: np.ndarray) -> np.ndarray:
+        """The object's down axis: its own when posed, else the table's normal N."""
+        return n if self.down is None else self.down

@@ -10,15 +10,10 @@ never draws a part intersecting another, nor one held up by nothing, and the phy
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import cv2
 import numpy as np
 
-from edgepick.data.shapes import ObjectModel
-
-if TYPE_CHECKING:
-    from edgepick.data.render import Placed
+from edgepick.data.shapes import ObjectModel, Placed
 
 CELL_M = 0.002  # the grid on which footprints and top faces are compared
 CONTACT_M = 0.003  # a surface this close below the highest one touches the object's base too

@@ -17,8 +17,10 @@ import shutil
 import signal
 import threading
 import time
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -226,6 +228,7 @@ def synthesize(out: str | Path, config: SynthConfig, progress: bool = True) -> d
         scenes: dict[str, dict] = {s: {} for s in Split}
         t0 = time.perf_counter()
         bar = progress_bar(total=len(jobs), desc="synth", unit="scene", enabled=progress)
+        results: Iterable[tuple[str, str, list, dict]]
         if workers <= 1:
             results = map(_render_one, jobs)
             pool = None
@@ -233,9 +236,9 @@ def synthesize(out: str | Path, config: SynthConfig, progress: bool = True) -> d
             pool = _start_pool(workers)
             results = pool.imap(_render_one, jobs, chunksize=4)
         try:
-            for split, sid, g, info in results:
-                grasps[split][sid] = g
-                scenes[split][sid] = info
+            for name, sid, g, info in results:
+                grasps[name][sid] = g
+                scenes[name][sid] = info
                 bar.update()
         except BaseException:
             if pool is not None:  # an error, Ctrl-C or SIGTERM: stop the workers now, not after their queue
@@ -251,7 +254,7 @@ def synthesize(out: str | Path, config: SynthConfig, progress: bool = True) -> d
         for split in Split:
             (tmp / split / "grasps.json").write_text(json.dumps(grasps[split], indent=1))
             (tmp / split / "scenes.json").write_text(json.dumps(scenes[split], indent=1))
-        meta = {
+        meta: dict[str, Any] = {
             "classes": list(CLASSES),
             "intrinsics": intr.to_dict(),
             "depth_scale": intr.depth_scale,

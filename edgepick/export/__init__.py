@@ -9,7 +9,7 @@ _WHERE = {
     "export_checkpoint": "onnx_export", "export_onnx": "onnx_export", "EXPORT_PASSES": "onnx_export",
     "ExportResult": "onnx_export"
 }
-__all__ = ["EXPORT_PASSES", "ExportResult", "export_checkpoint", "export_onnx"]
+__all__ = sorted(_WHERE)
 
 if TYPE_CHECKING:
     from edgepick.export.onnx_export import EXPORT_PASSES, ExportResult, export_checkpoint, export_onnx

@@ -6,15 +6,16 @@ builders are loaded from edgepick.models.zoo when first asked for."""
 
 from typing import TYPE_CHECKING
 
+from edgepick.lazy import lazy_attributes
 from edgepick.models.config import Arch, ColorSpace, ModelConfig, OutputStride, Variant
 
-_TORCH = {"LogitsNet", "build_model", "load_backbone_weights", "deeplabv3_mobilenet_v3_large", "deeplabv3_resnet50",
-          "deeplabv3_resnet101", "lraspp_mobilenet_v3_large", "fcn_resnet50", "fcn_resnet101", "unet", "segnet",
-          "ddrnet23_slim"}
-
-__all__ = ["Arch", "ColorSpace", "LogitsNet", "ModelConfig", "OutputStride", "Variant", "build_model",
-           "ddrnet23_slim", "deeplabv3_mobilenet_v3_large", "deeplabv3_resnet50", "deeplabv3_resnet101",
-           "fcn_resnet50", "fcn_resnet101", "load_backbone_weights", "lraspp_mobilenet_v3_large", "segnet", "unet"]
+_WHERE = {
+    "LogitsNet": "blocks", **dict.fromkeys(
+        ("build_model", "load_backbone_weights", "deeplabv3_mobilenet_v3_large", "deeplabv3_resnet50",
+         "deeplabv3_resnet101", "lraspp_mobilenet_v3_large", "fcn_resnet50", "fcn_resnet101", "unet", "segnet",
+         "ddrnet23_slim"), "zoo")
+}
+__all__ = sorted([*_WHERE, "Arch", "ColorSpace", "ModelConfig", "OutputStride", "Variant"])
 
 if TYPE_CHECKING:
     from edgepick.models.blocks import LogitsNet
@@ -33,13 +34,4 @@ if TYPE_CHECKING:
     )
 
 
-def __getattr__(name: str) -> object:
-    if name == "LogitsNet":
-        from edgepick.models.blocks import LogitsNet
-
-        return LogitsNet
-    if name in _TORCH:
-        from edgepick.models import zoo
-
-        return getattr(zoo, name)
-    raise AttributeError(f"module 'edgepick.models' has no attribute {name!r}")
+__getattr__ = lazy_attributes(__name__, _WHERE)

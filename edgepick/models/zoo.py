@@ -17,8 +17,8 @@ from edgepick.models.deeplabv3 import (
 )
 from edgepick.models.fcn import build_fcn, fcn_resnet50, fcn_resnet101
 from edgepick.models.lraspp import LRASPP, lraspp_mobilenet_v3_large
-from edgepick.models.segnet import SegNet, segnet
-from edgepick.models.unet import UNet, unet
+from edgepick.models.seg_net import SegNet, segnet
+from edgepick.models.u_net import UNet, unet
 
 BUILDERS = {"deeplabv3_mobilenet_v3_large": deeplabv3_mobilenet_v3_large, "deeplabv3_resnet50": deeplabv3_resnet50,
             "deeplabv3_resnet101": deeplabv3_resnet101, "lraspp_mobilenet_v3_large": lraspp_mobilenet_v3_large,

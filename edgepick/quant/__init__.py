@@ -23,11 +23,7 @@ _WHERE = {
     "quantize_static": "pt2e.passes", "WeightBits": "config", "quantize_onnx_static": "onnx.static",
     "folder_tensors": "onnx.inputs", "OnnxPassResult": "onnx.static"
 }
-__all__ = ["AccuracyAwareResult", "BiasCorrection", "CalibMethod", "OnnxPassResult", "PassResult", "Placement", "QatHooks",
-           "QuantConfig",
-           "QuantizationError", "agreement_images", "calibrate", "convert", "folder_images", "folder_tensors",
-           "inspect", "prepare", "quantize_accuracy_aware", "quantize_hybrid", "quantize_onnx_static", "quantize_qat",
-           "quantize_static", "WeightBits"]
+__all__ = sorted([*_WHERE, "QuantizationError"])
 
 if TYPE_CHECKING:
     from edgepick.quant.config import BiasCorrection, CalibMethod, Placement, QuantConfig, WeightBits

@@ -11,6 +11,7 @@ stops and disconnects on the way out. Subclasses implement the `_`-prefixed tran
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from edgepick.errors import EdgepickError
@@ -60,7 +61,7 @@ class SafetyStatus:
         """Why the robot takes no more commands (with the controller's safety mode), or None."""
         if not self.connected:
             return "link to the robot lost"
-        mode = STOP_MODES.get(self.safety_mode)
+        mode = None if self.safety_mode is None else STOP_MODES.get(self.safety_mode)
         if self.emergency_stop:
             words = "emergency stop"
         elif self.protective_stop:
@@ -80,7 +81,7 @@ class RobotBase:
         self.halted: str | None = None
         self.connected = False
         self.sent: list[str] = []  # names of the commands that reached the transport
-        self.on_send = None  # optional callback, called as each command goes out (latency probes)
+        self.on_send: Callable[[], object] | None = None  # called as each command goes out (latency probes)
         self.last_target: list[float] | None = None  # where the last moveL went: the next one's path start
         self._limits_verdicts: dict[tuple[float, ...], bool] = {}  # the controller's answers, by pose
 

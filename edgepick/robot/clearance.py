@@ -21,6 +21,7 @@ from edgepick.errors import ParameterError
 from edgepick.geometry import Intrinsics
 from edgepick.robot.verdict import GRIPPER, closing_yaw_deg
 from edgepick.runtime.calibration import Calibration
+from edgepick.runtime.grasp_record import Grasp
 
 REACH_ABOVE_M = 0.2  # surfaces higher than this above a grasp point are not looked for (the tallest stack is lower)
 
@@ -46,18 +47,18 @@ class HandShape:
 
 
 def hand_clearance(depth: np.ndarray, intr: Intrinsics, calib: Calibration,
-                   shape: HandShape | None = None) -> Callable[[dict], str | None]:
-    """choose_target's CLEAR for one frame: a grasp record with a robot pose -> why the hand
+                   shape: HandShape | None = None) -> Callable[[Grasp], str | None]:
+    """choose_target's CLEAR for one frame: a grasp with a robot pose -> why the hand
     cannot come down there (what stands too high under its footprint), or None when it can."""
     shape = shape or HandShape()
     inverse = np.linalg.inv(calib.R)
 
-    def reason(record: dict) -> str | None:
-        pose = record.get("pose_robot")
-        if pose is None or record.get("class") not in GRIPPER:
+    def reason(record: Grasp) -> str | None:
+        pose = record.pose_robot
+        if pose is None or record.cls not in GRIPPER:
             return None
         grasp = np.asarray(pose[:3], np.float64)
-        magnet = GRIPPER[record["class"]] == "electromagnet"
+        magnet = GRIPPER[record.cls] == "electromagnet"
         reach = shape.pole_radius_m if magnet else \
             math.hypot(shape.jaw_opening_m / 2 + shape.finger_thickness_m, shape.finger_width_m / 2)
         points = _surface_near(depth, intr, calib, inverse, grasp, reach + shape.margin_m)

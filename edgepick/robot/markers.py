@@ -9,6 +9,7 @@ import numpy as np
 from edgepick.geometry import Intrinsics
 from edgepick.robot.messages import rotation, set_pose
 from edgepick.robot.pick import Step
+from edgepick.runtime.grasp_record import Grasp
 
 BASE, CAMERA = "base", "camera"  # the frames (docs/contracts.md#recordings)
 GREEN, GREY, BLUE = (0.1, 0.85, 0.2, 1.0), (0.7, 0.7, 0.7, 0.8), (0.2, 0.5, 1.0, 1.0)
@@ -25,24 +26,24 @@ def _colour(target, rgba) -> None:
     target.r, target.g, target.b, target.a = rgba
 
 
-def image_annotations(m, records: list[dict], chosen: dict | None, time_ns: int):
+def image_annotations(m, records: list[Grasp], chosen: Grasp | None, time_ns: int):
     """Each record's grasp point (a circle) and finger axis (a line) on the colour image; the chosen
     one green. Each carries the frame's time: a viewer matches annotations to an image by it."""
     out = m.ImageAnnotations()
     for r in records:
         colour = GREEN if r is chosen else GREY
-        cx, cy = r["pixel"]
+        cx, cy = r.pixel
         circle = out.circles.add(diameter=10, thickness=2)
         circle.position.x, circle.position.y = cx, cy
         _colour(circle.outline_color, colour)
-        a = np.radians(r["angle_deg"])
+        a = np.radians(r.angle_deg)
         dx, dy = -np.sin(a) * 30, np.cos(a) * 30  # fingers close along the minor axis
         line = out.points.add(type=3, thickness=2)  # LINE_STRIP
         for s in (-1, 1):
             p = line.points.add()
             p.x, p.y = float(cx + s * dx), float(cy + s * dy)
         _colour(line.outline_color, colour)
-        text = out.texts.add(text=r["class"], font_size=12)
+        text = out.texts.add(text=r.cls, font_size=12)
         text.position.x, text.position.y = cx + 8, cy - 8
         _colour(text.text_color, colour)
     for annotation in (*out.circles, *out.points, *out.texts):
@@ -50,7 +51,7 @@ def image_annotations(m, records: list[dict], chosen: dict | None, time_ns: int)
     return out
 
 
-def grasp_markers(m, records: list[dict], chosen: dict | None, plan: list[Step], time_ns: int):
+def grasp_markers(m, records: list[Grasp], chosen: Grasp | None, plan: list[Step], time_ns: int):
     """/grasp/markers: per record with a robot pose, an arrow along its finger axis (tool x) at the
     grasp point; the plan's targets as spheres joined by a line, in the base frame. Each entity
     replaces the one of the same id from the cycle before."""
@@ -58,13 +59,14 @@ def grasp_markers(m, records: list[dict], chosen: dict | None, plan: list[Step],
     grasps = update.entities.add(id="grasps", frame_id=BASE)
     grasps.timestamp.FromNanoseconds(time_ns)
     for r in records:
-        if r.get("pose_robot") is None:
+        pose = r.pose_robot
+        if pose is None:
             continue
         arrow = grasps.arrows.add(shaft_length=0.04, shaft_diameter=0.004, head_length=0.012, head_diameter=0.01)
-        set_pose(arrow.pose, r["pose_robot"])
+        set_pose(arrow.pose, pose)
         _colour(arrow.color, GREEN if r is chosen else GREY)
-        text = grasps.texts.add(text=r["class"], font_size=14, billboard=True, scale_invariant=True)
-        set_pose(text.pose, [*r["pose_robot"][:2], r["pose_robot"][2] + 0.02, 0, 0, 0])
+        text = grasps.texts.add(text=r.cls, font_size=14, billboard=True, scale_invariant=True)
+        set_pose(text.pose, [*pose[:2], pose[2] + 0.02, 0, 0, 0])
         _colour(text.color, GREEN if r is chosen else GREY)
     targets = [s.target for s in plan if s.target is not None]
     if targets:
@@ -105,14 +107,15 @@ def scene_objects(m, objects: list[dict], time_ns: int):
 def point_cloud(m, points: list, colours: list):
     """foxglove.PointCloud in the base frame: x, y, z (float32) and red, green, blue, alpha (uint8)
     per point. The 3D views of both viewers draw it (Rerun draws no SceneUpdate)."""
-    layout = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
-                       ("alpha", "u1")])
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"), ("alpha", "u1")]
+    layout = np.dtype(fields)
     rows = np.zeros(len(points), layout)
     for i, (point, colour) in enumerate(zip(points, colours, strict=True)):
         rows[i] = (*point[:3], *(round(255 * c) for c in colour))
     cloud = m.PointCloud(frame_id=BASE, point_stride=layout.itemsize, data=rows.tobytes())
     cloud.pose.orientation.w = 1.0
-    for name in layout.names:
-        kind = 7 if layout[name] == np.dtype("<f4") else 1  # FLOAT32, UINT8
-        cloud.fields.add(name=name, offset=layout.fields[name][1], type=kind)
+    offset = 0
+    for name, kind in fields:
+        cloud.fields.add(name=name, offset=offset, type=7 if kind == "<f4" else 1)  # FLOAT32, UINT8
+        offset += np.dtype(kind).itemsize
     return cloud

@@ -13,6 +13,7 @@ from __future__ import annotations
 import functools
 import importlib
 import math
+from collections.abc import Sequence
 from types import SimpleNamespace
 
 import cv2
@@ -110,7 +111,7 @@ def rotation(q) -> np.ndarray:
                      [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
-def set_pose(message, pose: list[float]) -> None:
+def set_pose(message, pose: Sequence[float]) -> None:
     """Fill a foxglove Pose from a robot pose [x, y, z, rx, ry, rz] (a rotation vector, as the UR takes it)."""
     message.position.x, message.position.y, message.position.z = (float(v) for v in pose[:3])
     q = quaternion(cv2.Rodrigues(np.asarray(pose[3:6], np.float64))[0])

@@ -21,6 +21,7 @@ from edgepick.robot.base import RobotBase, RobotError
 from edgepick.robot.clearance import HandShape
 from edgepick.robot.envelope import Envelope, SafetyError
 from edgepick.robot.motion import HOME_POSE
+from edgepick.runtime.grasp_record import Grasp
 from edgepick.schema import member
 
 OCCLUDED = 0.02  # share of an object's rim under other objects above which it is picked last
@@ -90,9 +91,9 @@ def _around_the_base(a: list[float], b: list[float], cfg: PickConfig) -> list[li
             for k in range(1, n + 1)]
 
 
-def plan_pick(record: dict, cfg: PickConfig) -> list[Step]:
-    """The cycle's steps for one grasp record with a robot pose."""
-    grasp = list(record["pose_robot"])
+def plan_pick(record: Grasp, cfg: PickConfig) -> list[Step]:
+    """The cycle's steps for one grasp with a robot pose."""
+    grasp = list(record.chosen_pose())
     grasp[2] += cfg.grasp_offset_m
     place = list(cfg.place_pose)
     return [Step("moveL", _above(grasp, cfg.approach_m), "approach above the object"),
@@ -126,52 +127,52 @@ def plan_reason(plan: list[Step], envelope: Envelope, cfg: PickConfig, start: li
             if reason:
                 return f"{step.note}: {reason}"
             previous = step.target
-    targets = [step for step in plan if step.target is not None] if limits is not None else []
-    for step in targets:
-        reason = limits(step.target)
-        if reason:
-            return f"{step.note}: {reason}"
+    if limits is not None:
+        for step in plan:
+            reason = limits(step.target) if step.target is not None else None
+            if reason:
+                return f"{step.note}: {reason}"
     return None
 
 
-def choose_target(records: list[dict], envelope: Envelope, cfg: PickConfig, start: list[float] | None = None,
+def choose_target(records: list[Grasp], envelope: Envelope, cfg: PickConfig, start: list[float] | None = None,
                   limits: Callable[[list[float]], str | None] | None = None,
-                  clear: Callable[[dict], str | None] | None = None) -> tuple[dict | None, list[Step], str]:
+                  clear: Callable[[Grasp], str | None] | None = None) -> tuple[Grasp | None, list[Step], str]:
     """The preferred record whose whole plan, from the arm's pose `start` [default: the home
     pose], passes the envelope and LIMITS (see plan_reason); its plan, and a note. An object cut
     by the image border is not chosen (its centroid is that of the part in view, not of the
     object), nor one with BURIED or more of its rim under other objects, nor one where CLEAR
     (robot/clearance.py: the hand's footprint on the frame's depth) says the hand cannot come down."""
     start = list(cfg.home_pose) if start is None else start
-    candidates = [r for r in records if not cfg.classes or r["class"] in cfg.classes]
+    candidates = [r for r in records if not cfg.classes or r.cls in cfg.classes]
     if not candidates:
         return None, [], "no object of the requested classes"
     if cfg.choose == Choose.CLOSEST:
-        candidates.sort(key=lambda r: r["depth_m"] if r.get("depth_m") is not None else math.inf)
+        candidates.sort(key=lambda r: r.depth_m if r.depth_m is not None else math.inf)
     else:
-        candidates.sort(key=lambda r: -r["area_px"])
+        candidates.sort(key=lambda r: -r.area_px)
     # objects with nothing on top first: a partly hidden object's centroid is that of its visible part
-    candidates.sort(key=lambda r: r.get("occluded", 0.0) > OCCLUDED)
+    candidates.sort(key=lambda r: r.occluded > OCCLUDED)
     reasons = []
     for r in candidates:
-        if r.get("partial"):
-            reasons.append(f"{r['class']}: cut by the image border")
+        if r.partial:
+            reasons.append(f"{r.cls}: cut by the image border")
             continue
-        if r.get("occluded", 0.0) >= BURIED:
-            reasons.append(f"{r['class']}: under other objects ({100 * r['occluded']:.0f}% of its rim)")
+        if r.occluded >= BURIED:
+            reasons.append(f"{r.cls}: under other objects ({100 * r.occluded:.0f}% of its rim)")
             continue
-        if r.get("pose_robot") is None:
-            reasons.append(f"{r['class']}: {r.get('reason', 'no robot pose (no calibration?)')}")
+        if r.pose_robot is None:
+            reasons.append(f"{r.cls}: {r.reason or 'no robot pose (no calibration?)'}")
             continue
         blocked = clear(r) if clear is not None else None
         if blocked:
-            reasons.append(f"{r['class']}: {blocked}")
+            reasons.append(f"{r.cls}: {blocked}")
             continue
         plan = plan_pick(r, cfg)
         reason = plan_reason(plan, envelope, cfg, start, limits)
         if reason is None:
             return r, plan, "ok"
-        reasons.append(f"{r['class']}: {reason}")
+        reasons.append(f"{r.cls}: {reason}")
     return None, [], "; ".join(reasons)
 
 
@@ -210,7 +211,7 @@ def execute(plan: list[Step], robot: RobotBase, gripper, log: CommandLog, cycle:
     ON_STEP after each step carried out or failed, with its result as the log writes it."""
     for step in plan:
         try:
-            if step.command == "moveL":
+            if step.target is not None:  # a moveL
                 robot.move_l(step.target, cfg.speed, cfg.acc)
             else:
                 getattr(gripper, step.command)()

@@ -19,7 +19,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import cv2
@@ -28,6 +28,7 @@ import numpy as np
 from edgepick.errors import ConfigError
 from edgepick.files import public_mode
 from edgepick.frames import Frame
+from edgepick.robot.cycle import CycleResult
 from edgepick.robot.markers import (
     BASE,
     BLUE,
@@ -44,6 +45,7 @@ from edgepick.robot.messages import quaternion, schemas, set_pose
 from edgepick.robot.pick import Step
 from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.grasp import draw_overlay
+from edgepick.runtime.grasp_record import Grasp
 
 JPEG_QUALITY = 90
 WORKER_NICE = 10  # the writer thread yields the CPU to the loop's inference when both want it
@@ -66,7 +68,8 @@ class SceneChange:
     """How a clutter-removal round's table changed over one cycle (sim/clutter.py): its parts as the
     frame showed them and once the rest had settled after the pick, each {"id", "class", "pose"
     [x, y, z, qx, qy, qz, qw] in the base frame, "size"}; the id of the part the pick took off
-    (None: none), when the rest had settled (wall ns), and why the round ends here (None: it goes on)."""
+    (None: none), when the rest had settled (wall ns), why the round ends here (None: it goes on),
+    and the ids of the parts that left the tray otherwise."""
 
     round: int
     pick: int
@@ -75,6 +78,12 @@ class SceneChange:
     removed: int | None
     settled_ns: int
     ended: str | None
+    fell: list[int] = field(default_factory=list)
+
+    def summary(self) -> dict:
+        """The cycle's "round" as `pick` prints it: the round, the pick, what left the table, what is left."""
+        return {"round": self.round, "pick": self.pick, "removed": self.removed, "fell": self.fell,
+                "left": len(self.after), "ended": self.ended}
 
 
 @dataclass
@@ -85,11 +94,11 @@ class PickCycle:
     frame: Frame
     frame_ns: int  # wall time the frame was read
     labels: np.ndarray
-    records: list[dict]
-    chosen: dict | None
+    records: list[Grasp]
+    chosen: Grasp | None
     plan: list[Step]
     start_pose: list[float] | None  # the arm's pose the plan starts from (None: plan only, from home)
-    result: dict  # the cycle's result, as `pick` prints it
+    result: CycleResult
     steps: list[StepDone]
     line: str  # the line `pick` printed for it
     scene: SceneChange | None = None  # a clutter-removal round's table before the pick and after it settled
@@ -116,7 +125,8 @@ class Recorder:
 
     def __init__(self, path: str | Path, metadata: dict, calibration: Calibration | None = None,
                  option: str = "--record"):
-        self.path, self.calibration, self._error = Path(path), calibration, None
+        self.path, self.calibration = Path(path), calibration
+        self._error: ConfigError | None = None
         self.msgs = schemas()  # the [record] extra, or one line saying how to install it
         from mcap_protobuf.writer import Writer
 
@@ -235,17 +245,17 @@ class Recorder:
         ok, overlay = cv2.imencode(".jpg", draw_overlay(labels, c.records), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
         self.write("/segmentation/overlay", m.CompressedImage(frame_id=CAMERA, format="jpeg", data=overlay.tobytes()), t)
         self.write("/camera/annotations", image_annotations(m, c.records, c.chosen, t), t)
-        plan_ns = t + int(1e6 * c.result.get("plan_ms", 0.0))
+        plan_ns = t + int(1e6 * c.result.plan_ms)
         if self.calibration is not None:
             self.transform(self.calibration, t, c.start_pose)
         self.write("/grasp/markers", grasp_markers(m, c.records, c.chosen, c.plan, plan_ns), plan_ns)
-        posed = [r for r in c.records if r.get("pose_robot") is not None]
-        self.write("/grasp/points", point_cloud(m, [r["pose_robot"] for r in posed],
+        posed = [r for r in c.records if r.pose_robot is not None]
+        self.write("/grasp/points", point_cloud(m, [r.pose_robot for r in posed],
                                                 [GREEN if r is c.chosen else GREY for r in posed]), plan_ns)
         targets = [s.target for s in c.plan if s.target is not None]
         self.write("/plan/targets", point_cloud(m, targets, [BLUE] * len(targets)), plan_ns)
         for done in c.steps:
-            if done.step.command == "moveL":
+            if done.step.target is not None:  # a moveL
                 self.pose("/robot/tcp_command", done.step.target, done.time_ns)
             else:
                 self.write("/robot/gripper", m.GripperState(cycle=c.cycle, command=done.step.command,
@@ -259,19 +269,18 @@ class Recorder:
                 self.write("/tf", tf, done.time_ns)
         end_ns = max([plan_ns, *(d.time_ns for d in c.steps)])
         self.write("/pick/cycle", pick_cycle_message(m, c), end_ns)
-        self.log(c.line, end_ns, level=2 if c.result["outcome"] in ("done", "planned") else 3)
+        self.log(c.line, end_ns, level=2 if c.result.outcome in ("done", "planned") else 3)
         if c.scene is not None:
-            self._round_scene(c, t)
+            self._round_scene(c.scene, c.cycle, t)
 
-    def _round_scene(self, c: PickCycle, frame_ns: int) -> None:
+    def _round_scene(self, change: SceneChange, cycle: int, frame_ns: int) -> None:
         """A round's table: as the frame showed it (at the frame's time) and where the rest settled after
         the pick (at the time they came to rest), as /round/scene and as solids on /scene/objects."""
-        change = c.scene
         for stage, objects, time_ns in (("before", change.before, frame_ns),
                                         ("settled", change.after, max(change.settled_ns, frame_ns + 1))):
             settled = stage == "settled"
             self.write("/round/scene", self.msgs.RoundScene(
-                round=change.round, cycle=c.cycle, pick=change.pick, stage=stage,
+                round=change.round, cycle=cycle, pick=change.pick, stage=stage,
                 removed=-1 if change.removed is None or not settled else change.removed,
                 ended=str(change.ended or "") if settled else "", objects_json=json.dumps(objects)), time_ns)
             self.write("/scene/objects", scene_objects(self.msgs, objects, time_ns), time_ns)
@@ -318,16 +327,16 @@ def _add_transform(m, child: str, translation, rotation: np.ndarray, time_ns: in
 
 
 def pick_cycle_message(m, c: PickCycle):
-    r, v = c.result, c.result.get("verdict") or {}
+    r, v = c.result, c.result.verdict
     nan = float("nan")
     message = m.PickCycle(
-        cycle=c.cycle, frame=str(c.frame.name), objects=len(c.records), outcome=r["outcome"],
-        reason=str(r.get("reason") or ""), target=str(r.get("target") or ""), pixel=r.get("pixel") or [],
-        start_pose=c.start_pose or [], **{f"{k}_ms": float(r.get("stage_ms", {}).get(k, nan))
+        cycle=c.cycle, frame=str(c.frame.name), objects=len(c.records), outcome=r.outcome,
+        reason=str(r.reason or ""), target=str(r.target or ""), pixel=list(r.chosen.pixel) if r.chosen else [],
+        start_pose=c.start_pose or [], **{f"{k}_ms": float(r.stage_ms.get(k, nan))
                                           for k in ("pre", "inference", "post", "grasp")},
-        plan_ms=float(r.get("plan_ms", nan)), frame_to_command_ms=float(r.get("frame_to_command_ms", nan)),
-        judged=bool(v), success=bool(v.get("success")), failure=str(v.get("failure") or ""),
-        result_json=json.dumps(r), records_json=json.dumps(c.records))
+        plan_ms=float(r.plan_ms), frame_to_command_ms=float(nan if r.frame_to_command_ms is None else r.frame_to_command_ms),
+        judged=v is not None, success=v is not None and v.success, failure=str(v.failure or "") if v is not None else "",
+        result_json=json.dumps(r.to_dict()), records_json=json.dumps([g.to_dict() for g in c.records]))
     message.frame_time.FromNanoseconds(c.frame_ns)
     return message
 

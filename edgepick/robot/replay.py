@@ -28,7 +28,8 @@ from edgepick.robot.envelope import Envelope
 from edgepick.robot.messages import rotation, schemas
 from edgepick.robot.pick import PickConfig, choose_target
 from edgepick.runtime.calibration import Calibration
-from edgepick.runtime.grasp import GraspConfig, grasp_records
+from edgepick.runtime.grasp import grasp_records
+from edgepick.runtime.grasp_config import GraspConfig
 from edgepick.runtime.session import Segmenter
 
 SAME_OBJECT_PX = 2.0  # two choices of one class this close are the same object (another model moves a centroid)
@@ -143,6 +144,8 @@ def recorded_cycles(recording: Recording) -> Iterator[RecordedCycle]:
 
 def _colour(message) -> np.ndarray:
     bgr = cv2.imdecode(np.frombuffer(message.data, np.uint8), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise RecordingError("a colour frame of the recording is not a JPEG image")
     return np.ascontiguousarray(bgr[..., ::-1])
 
 
@@ -174,9 +177,10 @@ def replay(recording: Recording, segmenter: Segmenter | None = None) -> Iterator
             if pick_cfg.hand is not None and recording.calibration is not None else None
         chosen, _, note = choose_target(records, envelope, pick_cfg, rc.start_pose, clear=clear)
         recorded = {"target": rc.result.get("target"), "pixel": rc.result.get("pixel")}
-        now = {"target": chosen["class"], "pixel": chosen["pixel"], "pose_robot": chosen["pose_robot"]} \
-            if chosen else {"target": None, "pixel": None, "reason": note}
-        shift = math.dist(recorded["pixel"], now["pixel"]) if recorded["pixel"] and now["pixel"] else None
+        now = {"target": None, "pixel": None, "reason": note} if chosen is None else \
+            {"target": chosen.cls, "pixel": list(chosen.pixel), "pose_robot": list(chosen.chosen_pose())}
+        was = rc.result.get("pixel")
+        shift = math.dist(was, chosen.pixel) if was and chosen is not None else None
         same = recorded["target"] == now["target"] and (shift is None or shift <= SAME_OBJECT_PX)
         out = {"cycle": rc.cycle, "frame": rc.frame, "objects": len(records), "recorded": recorded, "replayed": now,
                "same": same, "shift_px": None if shift is None else round(shift, 3)}

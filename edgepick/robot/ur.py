@@ -17,6 +17,8 @@ import math
 import multiprocessing as mp
 import os
 import time
+from multiprocessing.connection import Connection
+from multiprocessing.process import BaseProcess
 
 from edgepick.errors import ParameterError
 from edgepick.robot.base import RobotBase, RobotError, RobotHalted, RobotUnreachable, SafetyStatus
@@ -115,12 +117,12 @@ class URRobot(RobotBase):
         super().__init__(envelope)
         self.host, self.connect_timeout_s, self.margin_s = host, connect_timeout_s, command_margin_s
         self.debug_log = debug_log  # where ur_rtde's own output goes (None: discarded)
-        self.proc = None
-        self.pipe = None
+        self.proc: BaseProcess | None = None
+        self.pipe: Connection | None = None
         self.lost = False
 
     def _call(self, *msg, timeout: float):
-        if self.proc is None or self.lost:
+        if self.proc is None or self.pipe is None or self.lost:
             raise RobotError("no link to the robot")
         try:
             self.pipe.send(msg)

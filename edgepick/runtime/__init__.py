@@ -9,17 +9,18 @@ from edgepick.lazy import lazy_attributes
 
 _WHERE = {
     "Calibration": "calibration", "draw_overlay": "grasp", "Engine": "engine", "FolderCamera": "camera",
-    "grasp_records": "grasp", "kabsch": "calibration", "ModelError": "session", "Pipeline": "pipeline",
-    "Preprocessing": "preprocessing", "RealSenseCamera": "camera", "Segmenter": "session"
+    "grasp_records": "grasp", "GraspConfig": "grasp_config", "Grasp": "grasp_record", "kabsch": "calibration", "ModelError": "session",
+    "Pipeline": "pipeline", "Preprocessing": "preprocessing", "RealSenseCamera": "camera", "Segmenter": "session"
 }
-__all__ = ["Calibration", "Engine", "FolderCamera", "ModelError", "Pipeline", "Preprocessing", "RealSenseCamera",
-           "Segmenter", "draw_overlay", "grasp_records", "kabsch"]
+__all__ = sorted(_WHERE)
 
 if TYPE_CHECKING:
     from edgepick.runtime.calibration import Calibration, kabsch
     from edgepick.runtime.camera import FolderCamera, RealSenseCamera
     from edgepick.runtime.engine import Engine
     from edgepick.runtime.grasp import draw_overlay, grasp_records
+    from edgepick.runtime.grasp_config import GraspConfig
+    from edgepick.runtime.grasp_record import Grasp
     from edgepick.runtime.pipeline import Pipeline
     from edgepick.runtime.preprocessing import Preprocessing
     from edgepick.runtime.session import ModelError, Segmenter

@@ -13,7 +13,6 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, fields
 
 import cv2
 import numpy as np
@@ -21,47 +20,12 @@ import numpy as np
 from edgepick.errors import EdgepickError, ParameterError
 from edgepick.geometry import Intrinsics, deproject
 from edgepick.runtime.calibration import Calibration
+from edgepick.runtime.grasp_config import GraspConfig
+from edgepick.runtime.grasp_record import NO_DEPTH, Grasp
 from edgepick.runtime.readings import histogram, median, percentile_25, readings
 from edgepick.runtime.regions import components, depth_holes, near_level, row_ends, split_touching
 
 DEFAULT_CLASSES = ("background", "bearing", "disk", "adapter", "box")
-
-
-@dataclass(frozen=True)
-class GraspConfig:
-    """The mask filters' and grasp geometry's settings, checked on creation."""
-
-    median_ksize: int = 3
-    dilate_ksize: int = 5
-    min_area_px: int = 120  # regions smaller than this are noise, not objects
-    round_ratio: float = 0.8  # minor/major variance ratio above which there is no stable major axis
-    min_depth_px: int = 10  # valid depth pixels needed for a depth estimate
-    centre_fraction: float = 0.3  # depth from pixels within this share of the equivalent radius of the centroid
-    split_core: float = 0.5  # touching objects of one class: cores where the distance to the edge > this x its max
-    hole_rim: float = 0.7  # a hole splits rings when this share of its rim is the region itself
-    split_min_share: float = 0.15  # a core counts as an object when it holds this share of all cores' area
-    notch_depth: float = 0.07  # objects side by side at one height: notches deeper than this x sqrt(area) mark a seam
-    split_min_part: float = 0.25  # ... when each side of the cut holds at least this share of the region
-    split_solidity: float = 0.98  # ... and is convex (pixels / hull area): not a disk with bites out of its rim
-    deep_notch: float = 0.15  # ... or, when both notches are deeper than this x sqrt(area),
-    split_solidity_deep: float = 0.95  # ... nearly convex: a model's mask rounds the corners at the seam
-    face_compactness: float = 12.0  # a face at its own height: area <= this x (largest edge distance)^2,
-    #                                 i.e. at most 3x as long as wide; a side wall is a longer, thin band
-    top_tolerance_m: float = 0.008  # an object's top face: its pixels within this depth of the top
-    stray_gap_px: int = 15  # ... less the groups of them farther than this - 1 pixels from the others
-    stray_share: float = 0.1  # ... that hold less than this share of them: a mask spilling onto a neighbour
-    partial_contact: float = 0.3  # cut by the image border: meets it along this x sqrt(area) pixels or more; a
-    #                               shorter cut (an object a few pixels over the edge, a mask bleeding to it)
-    #                               moves the centroid by 2 px or less
-    rect_fill: float = 0.85  # a face filling this share of its minimum-area rectangle takes that rectangle's axis
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ParameterError(f"{{{f.name}}}: must be 0 or more", **{f.name: value})
-        if self.median_ksize % 2 != 1:
-            raise ParameterError("{median_ksize}: a median filter's size must be odd", median_ksize=self.median_ksize)
 
 
 class Laps:
@@ -248,8 +212,8 @@ def top_down_pose(cal: Calibration, intr: Intrinsics, cx: float, cy: float, z: f
 
 def grasp_records(labels: np.ndarray, depth: np.ndarray, intr: Intrinsics, classes: list[str] | tuple[str, ...] =
                   DEFAULT_CLASSES, calib: Calibration | None = None, cfg: GraspConfig | None = None,
-                  laps: Laps | None = None) -> list[dict]:
-    """One record per object region (docs/contracts.md#grasp-record), largest first. LAPS, when
+                  laps: Laps | None = None) -> list[Grasp]:
+    """One Grasp per object region (docs/contracts.md#grasp-record), largest first. LAPS, when
     given, adds up the time of each sub-step."""
     cfg = cfg or GraspConfig()
     if len(set(classes)) != len(classes):  # two ids of one name: which object a record names would be a guess
@@ -279,19 +243,17 @@ def grasp_records(labels: np.ndarray, depth: np.ndarray, intr: Intrinsics, class
             parts = split_touching(region, cfg, background, depth[y + oy:y + oy + h, x + ox:x + ox + w], intr.depth_scale)
             lap("splits")
             for part in parts:
-                rec = _record(part, x + ox, y + oy, c, labels, depth, intr, classes, calib, cfg, lap)
-                if rec is not None:  # cut by the image border: its centroid is that of the part in view
-                    rec["partial"] = border_contact(part, x + ox, y + oy, labels.shape) >= \
-                        cfg.partial_contact * math.sqrt(rec["area_px"])
-                    records.append(rec)
+                grasp = _grasp(part, x + ox, y + oy, c, labels, depth, intr, classes, calib, cfg, lap)
+                if grasp is not None:
+                    records.append(grasp)
                 lap("regions")
-    records.sort(key=lambda r: -r["area_px"])
+    records.sort(key=lambda r: -r.area_px)
     return records
 
 
-def _record(region: np.ndarray, x: int, y: int, c: int, labels: np.ndarray, depth: np.ndarray, intr: Intrinsics,
-            classes, calib: Calibration | None, cfg: GraspConfig, lap: Callable[[str], None] = _no_lap) -> dict | None:
-    """The grasp record of one object's mask REGION, whose top left is frame pixel (x, y)."""
+def _grasp(region: np.ndarray, x: int, y: int, c: int, labels: np.ndarray, depth: np.ndarray, intr: Intrinsics,
+           classes, calib: Calibration | None, cfg: GraspConfig, lap: Callable[[str], None] = _no_lap) -> Grasp | None:
+    """The grasp of one object's mask REGION, whose top left is frame pixel (x, y)."""
     h, w = region.shape
     if cv2.countNonZero(region) < cfg.min_area_px:
         return None
@@ -315,19 +277,20 @@ def _record(region: np.ndarray, x: int, y: int, c: int, labels: np.ndarray, dept
             angle = axis if fill >= cfg.rect_fill else angle
     lap("top face")
     cx, cy = cx + x, cy + y
-    rec: dict = {"class": classes[c], "pixel": [round(cx, 2), round(cy, 2)], "angle_deg": angle,
-                 "orientation_defined": defined, "area_px": area}
-    if z is None:
-        rec.update(depth_m=None, point_camera_m=None, reason="no valid depth under the object")
-    else:
-        rec.update(depth_m=round(z, 5), point_camera_m=[round(float(v), 5) for v in deproject(intr, cx, cy, z)])
-        if calib is not None:
-            rec["pose_robot"] = top_down_pose(calib, intr, cx, cy, z, angle, defined)
+    depth_m: float | None = None
+    point: tuple[float, ...] | None = None
+    pose: tuple[float, ...] | None = None
+    occluded = 0.0
+    if z is not None:
+        depth_m, point = round(z, 5), tuple(round(float(v), 5) for v in deproject(intr, cx, cy, z))
+        pose = tuple(top_down_pose(calib, intr, cx, cy, z, angle, defined)) if calib is not None else None
         lap("3d")
-        rec["occluded"] = occluded_fraction(region, labels[y:y + h, x:x + w], depth[y:y + h, x:x + w], z,
-                                            intr.depth_scale)
+        occluded = occluded_fraction(region, labels[y:y + h, x:x + w], depth[y:y + h, x:x + w], z, intr.depth_scale)
         lap("occlusion")
-    return rec
+    # cut by the image border: its centroid is that of the part in view
+    partial = border_contact(region, x, y, labels.shape) >= cfg.partial_contact * math.sqrt(area)
+    return Grasp(classes[c], (round(cx, 2), round(cy, 2)), angle, defined, area, depth_m, point, pose, occluded,
+                 partial, None if z is not None else NO_DEPTH)
 
 
 def occluded_fraction(region: np.ndarray, labels: np.ndarray, depth: np.ndarray, z: float, depth_scale: float,
@@ -342,7 +305,7 @@ def occluded_fraction(region: np.ndarray, labels: np.ndarray, depth: np.ndarray,
     return round(int(above.sum()) / ys.size, 3)
 
 
-def draw_overlay(rgb_or_labels: np.ndarray, records: list[dict], finger_px: float = 30.0) -> np.ndarray:
+def draw_overlay(rgb_or_labels: np.ndarray, records: list[Grasp], finger_px: float = 30.0) -> np.ndarray:
     """BGR picture with each record's centroid, major axis and finger positions."""
     img = rgb_or_labels
     if img.ndim == 2:
@@ -350,17 +313,17 @@ def draw_overlay(rgb_or_labels: np.ndarray, records: list[dict], finger_px: floa
     else:
         img = img[..., ::-1].copy()
     for r in records:
-        cx, cy = r["pixel"]
+        cx, cy = r.pixel
         c = (int(round(cx)), int(round(cy)))
         cv2.drawMarker(img, c, (255, 255, 255), cv2.MARKER_CROSS, 14, 2)
-        a = math.radians(r["angle_deg"])
-        if r["orientation_defined"]:
+        a = math.radians(r.angle_deg)
+        if r.orientation_defined:
             d = (math.cos(a) * 40, math.sin(a) * 40)
             cv2.line(img, (int(cx - d[0]), int(cy - d[1])), (int(cx + d[0]), int(cy + d[1])), (0, 255, 255), 1,
                      cv2.LINE_AA)
         f = (-math.sin(a) * finger_px, math.cos(a) * finger_px)  # fingers close along the minor axis
         for s in (-1, 1):
             cv2.circle(img, (int(cx + s * f[0]), int(cy + s * f[1])), 4, (0, 0, 255), -1)
-        cv2.putText(img, r["class"], (c[0] + 8, c[1] - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1,
+        cv2.putText(img, r.cls, (c[0] + 8, c[1] - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1,
                     cv2.LINE_AA)
     return img

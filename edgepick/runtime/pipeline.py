@@ -13,7 +13,9 @@ import numpy as np
 
 from edgepick.frames import Frame
 from edgepick.runtime.calibration import Calibration
-from edgepick.runtime.grasp import GraspConfig, Laps, grasp_records
+from edgepick.runtime.grasp import Laps, grasp_records
+from edgepick.runtime.grasp_config import GraspConfig
+from edgepick.runtime.grasp_record import Grasp
 from edgepick.runtime.session import Segmenter
 
 STAGES = ("pre", "inference", "post", "grasp")
@@ -22,7 +24,7 @@ STAGES = ("pre", "inference", "post", "grasp")
 @dataclass
 class Perception:
     labels: np.ndarray  # class ids at the frame's resolution
-    records: list[dict]  # docs/contracts.md#grasp-record, largest first
+    records: list[Grasp]  # largest first
     ms: dict[str, float] = field(default_factory=dict)  # per stage
     grasp_ms: dict[str, float] = field(default_factory=dict)  # per sub-step of the grasp stage (Laps.STEPS), profiling only
 

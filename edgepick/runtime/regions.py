@@ -5,15 +5,12 @@ notches of a seam, or at distance-transform cores. numpy + OpenCV only."""
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
+from edgepick.runtime.grasp_config import GraspConfig
 from edgepick.runtime.readings import histogram, readings
-
-if TYPE_CHECKING:
-    from edgepick.runtime.grasp import GraspConfig
 
 
 def split_touching(region: np.ndarray, cfg: GraspConfig, background: np.ndarray | None = None,

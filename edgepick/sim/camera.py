@@ -51,7 +51,7 @@ def draw_plate(rgb: np.ndarray, depth: np.ndarray, intr: Intrinsics, rays: np.nd
     px = np.stack([corners_cam[:, 0] / corners_cam[:, 2] * intr.fx + intr.cx,
                    corners_cam[:, 1] / corners_cam[:, 2] * intr.fy + intr.cy], 1).astype(np.float32)
     th, tw = texture.shape[:2]
-    warp = cv2.getPerspectiveTransform(np.float32([[0, 0], [tw, 0], [tw, th], [0, th]]), px)
+    warp = cv2.getPerspectiveTransform(np.array([[0, 0], [tw, 0], [tw, th], [0, th]], np.float32), px)
     h, w = depth.shape
     image = cv2.warpPerspective(texture, warp, (w, h), flags=cv2.INTER_LINEAR)
     alpha = cv2.warpPerspective(np.ones((th, tw), np.float32), warp, (w, h), flags=cv2.INTER_LINEAR)

@@ -24,16 +24,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from edgepick.data.render import Layout, Placed
-from edgepick.data.shapes import ObjectModel
+from edgepick.data.render import Layout
+from edgepick.data.shapes import ObjectModel, Placed
 from edgepick.errors import ParameterError
 from edgepick.frames import Frame
 from edgepick.intervals import rounded, wilson
+from edgepick.robot.cycle import CycleResult, verdicts
 from edgepick.robot.pick import PickConfig
 from edgepick.robot.recording import SceneChange
-from edgepick.robot.verdict import summarize
+from edgepick.robot.verdict import Verdict, summarize
+from edgepick.runtime.grasp_record import Grasp
 from edgepick.sim.camera import SynthCamera
-from edgepick.sim.physics import PhysicsConfig, physics_run, require_mujoco
+from edgepick.sim.physics import PhysicsConfig, PhysicsRun, physics_run, require_mujoco
 from edgepick.sim.physics_scene import OVERLAP_M, Solid, scene_xml, settle
 
 ROUND_ENDS = ("cleared", "two failures in a row", "cycle cap", "robot stopped")
@@ -120,11 +122,12 @@ class ClutterRound(SynthCamera):
         self.cfg, self.round = cfg or RoundConfig(), index
         self.physics_cfg = dataclasses.replace(physics, contact_s=3 * physics.timestep_s, magnet_steel_only=True)
         self.layout, self.parts = self._lay_out(np.random.default_rng([seed, 17, index]))
-        self.laid_out, self.picks, self.failures, self.ended = len(self.parts), 0, 0, None
+        self.laid_out, self.picks, self.failures = len(self.parts), 0, 0
+        self.ended: str | None = None
         self.removed: list[int] = []  # the parts picks took off the table
         self.fell: list[int] = []  # the parts that left the tray otherwise (carried along, pushed off)
         self.cap = self.cfg.cap(self.laid_out)
-        self._run = None  # the physics check of the cycle going on
+        self._run: PhysicsRun | None = None  # the physics check of the cycle going on
 
     # -- the table --------------------------------------------------------------------------------
     def _lay_out(self, rng: np.random.Generator) -> tuple[Layout, list[Part]]:
@@ -140,7 +143,7 @@ class ClutterRound(SynthCamera):
             stays = rested is not None and all(
                 np.linalg.norm(base - p.base) <= STAYS_M and rotation[:, 2] @ p.rotation[:, 2] >= np.cos(np.radians(STAYS_DEG))
                 for p, (base, rotation) in zip(parts, rested))
-            if stays and len(parts) >= self.cfg.objects[0]:
+            if rested is not None and stays and len(parts) >= self.cfg.objects[0]:
                 for part, pose in zip(parts, rested):
                     part.rest(*pose)
                 return layout, parts
@@ -199,26 +202,27 @@ class ClutterRound(SynthCamera):
         poses the check left the parts in kept for `after`."""
         truth_cal = self.calibration()
 
-        def judge(record: dict, frame: Frame) -> dict:
+        def judge(record: Grasp, frame: Frame) -> Verdict:
             self._run = physics_run(record, frame.truth or [], truth_cal, list(pick.place_pose), pick.grasp_offset_m,
                                     self.physics_cfg, hidden=frame.hidden or [])
             return self._run.verdict
 
         return judge
 
-    def after(self, result: dict, record: dict | None, frame: Frame) -> SceneChange:
+    def after(self, result: CycleResult, record: Grasp | None, frame: Frame) -> SceneChange:
         """run_cycles' AFTER: the picked part off the table when the cycle succeeded (the physics
-        check's verdict where it ran, else the geometric rule's), the rest settled; adds "round" to
-        RESULT and says whether the round ends."""
+        check's verdict where it ran, else the geometric rule's), the rest settled; says what changed
+        and whether the round ends."""
         before = [p.describe() for p in self.parts]
-        verdict = result.get("physics", result.get("verdict")) or {}
+        verdict = result.physics or result.verdict
+        succeeded = verdict is not None and verdict.success
         run, self._run = self._run, None
-        if run is not None and run.verdict.get("failure") != "unstable":
+        if run is not None and run.verdict.failure != "unstable":
             for part in self.parts:
                 if part.key in run.poses:
                     part.base, part.rotation = run.poses[part.key]
         removed = None
-        if verdict.get("success") and record is not None:
+        if succeeded and record is not None:
             removed = run.target if run is not None else self._nearest(record)
             self.parts = [p for p in self.parts if p.key != removed]
             self.removed += [] if removed is None else [removed]
@@ -231,14 +235,12 @@ class ClutterRound(SynthCamera):
         self.parts = [p for p in self.parts if p.key not in fell]
         self.fell += fell
         self.picks += 1
-        self.failures = 0 if verdict.get("success") else self.failures + 1
-        self.ended = "cleared" if not self.parts else "robot stopped" if result.get("outcome") == "stopped" else \
+        self.failures = 0 if succeeded else self.failures + 1
+        self.ended = "cleared" if not self.parts else "robot stopped" if result.outcome == "stopped" else \
             "two failures in a row" if self.failures >= self.cfg.failures_in_row else \
             "cycle cap" if self.picks >= self.cap else None
-        result["round"] = {"round": self.round, "pick": self.picks, "removed": removed, "fell": fell,
-                           "left": len(self.parts), "ended": self.ended}
         return SceneChange(self.round, self.picks, before, [p.describe() for p in self.parts], removed,
-                           time.time_ns(), self.ended)
+                           time.time_ns(), self.ended, fell)
 
     def _in_tray(self, part: Part) -> bool:
         """Whether PART still lies in the tray: its base centre within TRAY_MARGIN_M of the pick area,
@@ -248,30 +250,31 @@ class ClutterRound(SynthCamera):
         m = TRAY_MARGIN_M
         return x0 - m <= x <= x1 + m and y0 - m <= y <= y1 + m and z > -0.02
 
-    def _nearest(self, record: dict) -> int | None:
+    def _nearest(self, record: Grasp) -> int | None:
         """The part of the record's class whose top lies nearest its commanded point (the part the
         geometric rule judged it against)."""
-        same = [p for p in self.parts if p.model.cls == record["class"]]
-        point = np.asarray(record["pose_robot"][:3], np.float64)
+        same = [p for p in self.parts if p.model.cls == record.cls]
+        point = np.asarray(record.chosen_pose()[:3], np.float64)
         best = min(same, key=lambda p: float(np.linalg.norm(p.solid().top - point)), default=None)
         return None if best is None else best.key
 
 
-def round_summary(rounds: list[dict], results: list[dict]) -> dict:
+def round_summary(rounds: list[dict], results: list[CycleResult]) -> dict:
     """What a run of rounds reports, summed and per round and per light condition: grasp success
     (of the verdict that removed parts: the physics check's where it ran) with its 95% Wilson
     interval, clearance (parts removed over parts laid out) with its interval, picks per part
     removed, failures by kind, how the rounds ended and the time per pick (frame -> checked plan plus
     the arm's simulated motion)."""
-    key = "physics" if any("physics" in r for r in results) else "verdict"
-    by_round = {d["round"]: [r for r in results if r.get("round", {}).get("round") == d["round"]] for d in rounds}
+    key = "physics" if any(r.physics is not None for r in results) else "verdict"
+    by_round = {d["round"]: [r for r in results if r.round is not None and r.round["round"] == d["round"]]
+                for d in rounds}
     per_round = [{**d, **_rates(by_round[d["round"]], [d], key)} for d in rounds]
     lights = list(dict.fromkeys(d["lighting"] for d in rounds))
     by_lighting = {light: _rates([r for d in rounds if d["lighting"] == light for r in by_round[d["round"]]],
                                  [d for d in rounds if d["lighting"] == light], key) for light in lights}
     ends = {end: sum(d["ended"] == end for d in rounds) for end in ROUND_ENDS}
-    times = [r["plan_ms"] / 1000 + r.get("motion_s", 0.0) for r in results if "round" in r]
-    plans = sorted(r["plan_ms"] for r in results if "round" in r)
+    times = [r.plan_ms / 1000 + (r.motion_s or 0.0) for r in results if r.round is not None]
+    plans = sorted(r.plan_ms for r in results if r.round is not None)
     return {"verdict": "physics" if key == "physics" else "geometric", **_rates(
         [r for d in rounds for r in by_round[d["round"]]], rounds, key),
             "ended": {k: v for k, v in ends.items() if v},
@@ -280,8 +283,8 @@ def round_summary(rounds: list[dict], results: list[dict]) -> dict:
             "by_lighting": by_lighting, "per_round": per_round}
 
 
-def _rates(results: list[dict], rounds: list[dict], key: str) -> dict:
-    judged = summarize(results, key)
+def _rates(results: list[CycleResult], rounds: list[dict], key: str) -> dict:
+    judged = summarize(verdicts(results, key))
     picks, success = len(results), judged.get("success", 0)
     parts, removed = sum(d["parts"] for d in rounds), sum(d["removed"] for d in rounds)
     return {"rounds": len(rounds), "picks": picks, "success": success,
@@ -302,7 +305,7 @@ def round_line(d: dict) -> str:
 
 def run_rounds(pipeline, robot, gripper, *, rounds: int, pick: PickConfig, log, seed: int = 0,
                cfg: RoundConfig | None = None, physics: PhysicsConfig | None = None, judge: bool = False,
-               echo=print, overlay_dir=None, recorder=None, done: list[dict] | None = None,
+               echo=print, overlay_dir=None, recorder=None, done: list[CycleResult] | None = None,
                described: list[dict] | None = None, size: tuple[int, int] = (640, 480)) -> list[dict]:
     """ROUNDS clutter-removal rounds (numbered 1..ROUNDS, each laid out from SEED and its number) of
     robot/loop.py's run_cycles with PIPELINE, ROBOT and GRIPPER: each round runs until its table is
@@ -311,7 +314,7 @@ def run_rounds(pipeline, robot, gripper, *, rounds: int, pick: PickConfig, log, 
     the round's recording (closed when the round ends). DONE gets each cycle's result and DESCRIBED
     each round's `describe()` as they finish (the caller's lists: still there after an interrupt);
     returns DESCRIBED."""
-    from edgepick.robot.loop import run_cycles
+    from edgepick.robot.loop import Cell, run_cycles
 
     if rounds < 1:
         raise ParameterError("{rounds}: must be at least 1", rounds=rounds)
@@ -321,9 +324,9 @@ def run_rounds(pipeline, robot, gripper, *, rounds: int, pick: PickConfig, log, 
         cell = ClutterRound(*size, seed=seed, index=index, cfg=cfg, physics=physics)
         rec = recorder(cell) if recorder is not None else None
         try:
-            run_cycles(cell, pipeline, robot, gripper, cfg=pick, cycles=cell.cap, log=log, overlay_dir=overlay_dir,
-                       echo=echo, truth_cal=cell.calibration(), recorder=rec,
-                       physics=cell.physics_judge(pick) if judge else None, done=done, after=cell.after,
+            picking = Cell(cell, pipeline, robot, gripper, log, cell.calibration(), rec,
+                           cell.physics_judge(pick) if judge else None)
+            run_cycles(picking, cfg=pick, cycles=cell.cap, overlay_dir=overlay_dir, echo=echo, done=done, after=cell.after,
                        first=len(done) + 1)
         finally:
             described.append(cell.describe())  # an interrupted round too: what it did so far

@@ -7,7 +7,8 @@ import time
 
 from edgepick.frames import Frame
 from edgepick.runtime.calibration import Calibration
-from edgepick.runtime.grasp import GraspConfig, Laps, grasp_records
+from edgepick.runtime.grasp import Laps, grasp_records
+from edgepick.runtime.grasp_config import GraspConfig
 from edgepick.runtime.pipeline import Perception, Pipeline
 
 
@@ -16,7 +17,7 @@ class TruthPipeline(Pipeline):
 
     def __init__(self, classes: list[str], calib: Calibration | None = None, cfg: GraspConfig | None = None,
                  profile: bool = False):
-        self.segmenter, self.calib, self.cfg, self.classes = None, calib, cfg or GraspConfig(), list(classes)
+        self.calib, self.cfg, self.classes = calib, cfg or GraspConfig(), list(classes)  # no segmenter: no model
         self.profile = profile
 
     def __call__(self, frame: Frame) -> Perception:

@@ -26,14 +26,16 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from edgepick.errors import ConfigError
 from edgepick.frames import Frame
 from edgepick.robot.pick import PickConfig
+from edgepick.robot.verdict import Verdict
 from edgepick.runtime.calibration import Calibration
+from edgepick.runtime.grasp_record import Grasp
 from edgepick.sim.physics_scene import FINGER_DAMPING, PhysicsConfig, Solid, solids, without_overlaps
 
 __all__ = ["PHYSICS_FAILURES", "PhysicsConfig", "PhysicsRun", "Solid", "physics_judge", "physics_run", "physics_verdict",
@@ -89,11 +91,11 @@ def steel_share(solid: Solid, centre: np.ndarray, radius: float, body_pos: np.nd
     return (_overlap(radius, outer, d) - _overlap(radius, inner, d)) / (math.pi * radius * radius)
 
 
-def _target(record: dict, world: list[Solid]) -> int | None:
-    same = [k for k, s in enumerate(world) if s.cls == record["class"]]
+def _target(record: Grasp, world: list[Solid]) -> int | None:
+    same = [k for k, s in enumerate(world) if s.cls == record.cls]
     if not same:
         return None
-    commanded = np.asarray(record["pose_robot"][:3], np.float64)
+    commanded = np.asarray(record.chosen_pose()[:3], np.float64)
     return min(same, key=lambda k: float(np.linalg.norm(world[k].top - commanded)))
 
 
@@ -107,24 +109,24 @@ def require_mujoco():
 
 
 def physics_judge(truth_cal: Calibration, pick: PickConfig, cfg: PhysicsConfig | None = None
-                  ) -> Callable[[dict, Frame], dict]:
+                  ) -> Callable[[Grasp, Frame], Verdict]:
     """run_cycles' PHYSICS for the synthetic cell: each chosen record's grasp carried out on the
     frame's truth, with the pick's place pose and grasp offset. Needs the [sim] extra (checked now)."""
     require_mujoco()
     cfg = cfg or PhysicsConfig()
 
-    def judge(record: dict, frame: Frame) -> dict:
+    def judge(record: Grasp, frame: Frame) -> Verdict:
         return physics_verdict(record, frame.truth or [], truth_cal, list(pick.place_pose), pick.grasp_offset_m, cfg,
                                hidden=frame.hidden or [])
 
     return judge
 
 
-def physics_verdict(record: dict, truth: list[dict], cal: Calibration, place_pose: list[float],
-                    grasp_offset_m: float = 0.0, cfg: PhysicsConfig | None = None, hidden: Sequence[dict] = ()) -> dict:
+def physics_verdict(record: Grasp, truth: list[dict], cal: Calibration, place_pose: list[float],
+                    grasp_offset_m: float = 0.0, cfg: PhysicsConfig | None = None, hidden: Sequence[dict] = ()) -> Verdict:
     """Carry out RECORD's grasp (its pose_robot, the chosen object) on the scene TRUTH (the true
-    calibration CAL puts it in the robot frame): {"success", "failure" (PHYSICS_FAILURES),
-    "lifted_m", "ms"}. The gripper is the class's (robot/verdict.py GRIPPER). HIDDEN: the truth of
+    calibration CAL puts it in the robot frame): its success, failure (PHYSICS_FAILURES),
+    lifted_m and ms. The gripper is the class's (robot/verdict.py GRIPPER). HIDDEN: the truth of
     objects the camera does not see, in the scene too (what rests on them) but never the target."""
     return physics_run(record, truth, cal, place_pose, grasp_offset_m, cfg, hidden).verdict
 
@@ -135,12 +137,12 @@ class PhysicsRun:
     without one are not listed), each one's base centre and rotation (robot frame, the columns its
     major axis, the axis across and up); `target`, the id of the object the hand went for."""
 
-    verdict: dict
+    verdict: Verdict
     poses: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     target: int | None = None
 
 
-def physics_run(record: dict, truth: list[dict], cal: Calibration, place_pose: list[float],
+def physics_run(record: Grasp, truth: list[dict], cal: Calibration, place_pose: list[float],
                 grasp_offset_m: float = 0.0, cfg: PhysicsConfig | None = None, hidden: Sequence[dict] = ()
                 ) -> PhysicsRun:
     """physics_verdict, with the poses the check left its objects in: what a clutter-removal round
@@ -154,30 +156,29 @@ def physics_run(record: dict, truth: list[dict], cal: Calibration, place_pose: l
     world = solids(truth, cal)
     k = _target(record, world)
     if k is None:
-        return PhysicsRun({"success": False, "failure": "false detection", "lifted_m": 0.0, "ms": 0.0})
+        return PhysicsRun(Verdict(False, "false detection", lifted_m=0.0, ms=0.0))
     world += solids(list(hidden), cal)
     # what the hand can meet on its way down, up and off: objects within NEAR_M of the target
     target = world[k]
     world = [target] + [s for s in world if s is not target and np.linalg.norm((s.base - target.base)[:2]) < NEAR_M]
     k = 0
-    magnet = GRIPPER.get(record["class"]) == "electromagnet"
+    magnet = GRIPPER.get(record.cls) == "electromagnet"
     model, data, left_out = without_overlaps(mujoco, world, magnet, cfg)
     world = [s for i, s in enumerate(world) if i not in left_out]
     sim = _Sim(mujoco, model, data, world, k, magnet, cfg)
-    yaw = math.radians(closing_yaw_deg(record["pose_robot"]))
-    grasp = np.asarray(record["pose_robot"][:3], np.float64) + [0, 0, grasp_offset_m]
+    yaw = math.radians(closing_yaw_deg(record.chosen_pose()))
+    grasp = np.asarray(record.chosen_pose()[:3], np.float64) + [0, 0, grasp_offset_m]
     verdict = sim.run(grasp, yaw, np.asarray(place_pose[:3], np.float64))
-    if not verdict["success"] and sim.settled_m > SETTLED_M:  # the scene, not the grasp, failed
-        verdict = {**verdict, "failure": "unsettled", "note": f"the scene does not stand as rendered: the "
-                   f"{target.cls} moved {1000 * sim.settled_m:.0f} mm before the hand reached it"}
+    if not verdict.success and sim.settled_m > SETTLED_M:  # the scene, not the grasp, failed
+        verdict = replace(verdict, failure="unsettled", note=f"the scene does not stand as rendered: the "
+                          f"{target.cls} moved {1000 * sim.settled_m:.0f} mm before the hand reached it")
     if data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number:  # MuJoCo reset a diverging state
-        verdict = {"success": False, "failure": "unstable", "lifted_m": 0.0,
-                   "note": "the simulation diverged; this check says nothing"}
+        verdict = Verdict(False, "unstable", lifted_m=0.0, note="the simulation diverged; this check says nothing")
     if left_out:
-        verdict["left_out"] = len(left_out)
+        verdict = replace(verdict, left_out=len(left_out))
     poses = {s.key: (data.xpos[model.body(f"obj{i}").id].copy(), data.xmat[model.body(f"obj{i}").id].reshape(3, 3).copy())
              for i, s in enumerate(world) if s.key is not None}
-    return PhysicsRun({**verdict, "ms": round(1000 * (time.perf_counter() - start), 1)}, poses, target.key)
+    return PhysicsRun(replace(verdict, ms=round(1000 * (time.perf_counter() - start), 1)), poses, target.key)
 
 
 class _Sim:
@@ -265,7 +266,7 @@ class _Sim:
         pos, rot = self.data.xpos[self.body], self.data.xmat[self.body].reshape(3, 3)
         return float(self.data.xpos[self.hand][2] - (pos + rot @ [0, 0, self.solid.dims["height"]])[2])
 
-    def run(self, grasp: np.ndarray, yaw: float, place: np.ndarray) -> dict:
+    def run(self, grasp: np.ndarray, yaw: float, place: np.ndarray) -> Verdict:
         cfg = self.cfg
         self.data.mocap_quat[0] = [math.cos(yaw / 2), 0, 0, math.sin(yaw / 2)]
         above = grasp + [0, 0, 0.08]
@@ -286,7 +287,7 @@ class _Sim:
         if landed is not None and not (self.magnet and (landed == self.solid.cls or
                                                         (landed != "table" and 0.0 <= self._gap() < cfg.magnet_reach_m))):
             what = "the table" if landed == "table" else f"a {landed}"
-            return {"success": False, "failure": "blocked", "note": f"the hand lands on {what}", "lifted_m": 0.0}
+            return Verdict(False, "blocked", note=f"the hand lands on {what}", lifted_m=0.0)
         if self.magnet:
             self.magnet_on = True
             if cfg.magnet_steel_only:
@@ -296,21 +297,20 @@ class _Sim:
             self.step(reached, 0.5, -1.0)  # close
             if self._touching() != {self.model.geom("pad_r").id, self.model.geom("pad_l").id}:
                 wide = self._across() > cfg.jaw_stroke_m
-                return {"success": False, "failure": "too wide" if wide else "missed",
-                        "note": "the object is wider than the stroke" if wide else "the fingers closed on nothing",
-                        "lifted_m": 0.0}
+                return Verdict(False, "too wide" if wide else "missed", lifted_m=0.0,
+                               note="the object is wider than the stroke" if wide else "the fingers closed on nothing")
         lifted = reached + [0, 0, cfg.lift_m]
         self.move(reached, lifted, cfg.speed_m_s)
         self.step(lifted, cfg.hold_s)
         rise = float(self.data.xpos[self.body][2]) - start_z
         if rise < cfg.lift_m - 0.03 or not self._touching():
-            return {"success": False, "failure": "missed" if rise < 0.01 else "dropped", "lifted_m": round(rise, 4)}
+            return Verdict(False, "missed" if rise < 0.01 else "dropped", lifted_m=round(rise, 4))
         carry = place + [0, 0, lifted[2] - place[2]] if place[2] < lifted[2] else place
         end, _ = self.move(lifted, carry, cfg.carry_speed_m_s)
         self.step(end, 0.3)
         rise = float(self.data.xpos[self.body][2]) - start_z
         held = bool(self._touching()) and rise > cfg.lift_m - 0.03
-        return {"success": held, "failure": None if held else "dropped", "lifted_m": round(rise, 4)}
+        return Verdict(held, None if held else "dropped", lifted_m=round(rise, 4))
 
     def _steel_only(self) -> None:
         """From now on the hand (its pole face and palm) touches only the steel parts (cfg.magnet_steel_only):

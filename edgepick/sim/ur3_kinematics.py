@@ -17,7 +17,7 @@ def forward_kinematics(q: list[float]) -> list[float]:
     T = [[1.0 if i == j else 0.0 for j in range(4)] for i in range(4)]
     for th, d, a, al in zip(q, DH_D, DH_A, DH_ALPHA):
         ct, st, ca, sa = math.cos(th), math.sin(th), math.cos(al), math.sin(al)
-        A = [[ct, -st * ca, st * sa, a * ct], [st, ct * ca, -ct * sa, a * st], [0, sa, ca, d], [0, 0, 0, 1]]
+        A = [[ct, -st * ca, st * sa, a * ct], [st, ct * ca, -ct * sa, a * st], [0.0, sa, ca, d], [0.0, 0.0, 0.0, 1.0]]
         T = [[sum(T[i][k] * A[k][j] for k in range(4)) for j in range(4)] for i in range(4)]
     return [T[0][3], T[1][3], T[2][3], *rotvec(T)]
 

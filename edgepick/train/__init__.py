@@ -14,8 +14,7 @@ _WHERE = {
     "load_model": "checkpoint", "new_model": "loop", "resume_run": "loop", "Run": "run", "train": "loop",
     "TrainConfig": "config", "TrainResult": "run"
 }
-__all__ = ["Checkpoint", "Device", "EpochRecord", "Hooks", "Run", "TrainConfig", "TrainResult", "fit",
-           "load_model", "new_model", "resume_run", "train"]
+__all__ = sorted(_WHERE)
 
 if TYPE_CHECKING:
     from edgepick.train.checkpoint import Checkpoint, load_model

@@ -3,15 +3,28 @@ the difference read against the margin, and the sections Table 5.6 gains."""
 
 from __future__ import annotations
 
+import math
+
 from edgepick.bench.compare import Measured, compare, compare_section, rounds_section
 from edgepick.intervals import clustered_difference, paired_difference
+from edgepick.robot.cycle import CycleResult
+from edgepick.robot.verdict import Verdict
+from tests.conftest import make_grasp
 
 
-def _cycles(outcomes: list[bool], physics: list[bool] | None = None) -> list[dict]:
-    out = [{"verdict": {"success": ok}} for ok in outcomes]
-    for r, ok in zip(out, physics or []):
-        r["physics"] = {"success": ok}
-    return out
+def _judged(success: bool, physics: bool | None = None, **fields) -> CycleResult:
+    """A planned cycle whose choice the geometric rule judged SUCCESS, and the physics check PHYSICS
+    (None: it did not run)."""
+    def verdict(ok: bool) -> Verdict:
+        return Verdict(True) if ok else Verdict(False, "position")
+
+    return CycleResult(1, "f", 1, {}, 1.0, "planned", chosen=make_grasp("box", (0.28, 0.0, 0.05, math.pi, 0.0, 0.0)),
+                       verdict=verdict(success), undetected=0, physics=None if physics is None else verdict(physics),
+                       **fields)
+
+
+def _cycles(outcomes: list[bool], physics: list[bool] | None = None) -> list[CycleResult]:
+    return [_judged(ok, p) for ok, p in zip(outcomes, physics or [None] * len(outcomes))]
 
 
 def test_single_scenes_pair_cycle_by_cycle():
@@ -40,10 +53,11 @@ def test_the_same_choices_on_many_scenes_are_equivalent_within_the_margin():
     assert "equivalent: within +-1 pp" in text and "different: beyond +-1 pp" in text and "1000 scenes" in text
 
 
-def _round_results(per_round: list[tuple[int, int]]) -> tuple[list[dict], list[dict]]:
-    results, rounds = [], []
+def _round_results(per_round: list[tuple[int, int]]) -> tuple[list[CycleResult], list[dict]]:
+    results: list[CycleResult] = []
+    rounds = []
     for k, (won, picks) in enumerate(per_round, start=1):
-        results += [{"verdict": {"success": i < won}, "round": {"round": k}} for i in range(picks)]
+        results += [_judged(i < won, round={"round": k}) for i in range(picks)]
         rounds.append({"round": k, "parts": picks + 1, "removed": won})
     return results, rounds
 

@@ -7,8 +7,8 @@ import dataclasses
 
 import numpy as np
 
-from edgepick.data.render import CLASSES, Placed, SceneRenderer
-from edgepick.data.shapes import make_box
+from edgepick.data.render import CLASSES, SceneRenderer
+from edgepick.data.shapes import Placed, make_box
 from edgepick.geometry import Intrinsics
 
 INTR = Intrinsics.d415(320, 240)

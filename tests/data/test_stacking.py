@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from edgepick.data.render import Placed, SceneRenderer
-from edgepick.data.shapes import MAKERS
+from edgepick.data.render import SceneRenderer
+from edgepick.data.shapes import MAKERS, Placed
 from edgepick.data.stacking import rest_height
 from edgepick.geometry import Intrinsics
 

@@ -9,8 +9,9 @@ import re
 from edgepick.data.render import CLASSES
 from edgepick.files import sha256_of
 from edgepick.reference import CARD, reference_model
+from edgepick.robot.cycle import verdicts
 from edgepick.robot.grippers import DigitalGripper
-from edgepick.robot.loop import run_cycles
+from edgepick.robot.loop import Cell, run_cycles
 from edgepick.robot.pick import CommandLog, PickConfig
 from edgepick.robot.verdict import summarize
 from edgepick.runtime.pipeline import Pipeline
@@ -35,7 +36,7 @@ def test_reference_model_picks_in_the_synthetic_cell():
     camera, robot = SynthCamera(seed=31, mount_height_m=0.7), SimRobot()
     truth = camera.calibration()
     with camera, robot:
-        results = run_cycles(camera, Pipeline(Segmenter(reference_model(), threads=2), truth), robot,
-                             DigitalGripper(robot, 0), cfg=PickConfig(), cycles=8, log=CommandLog(None),
-                             echo=lambda line: None, truth_cal=truth)
-    assert summarize(results)["success"] >= 6, [r.get("verdict") for r in results]
+        cell = Cell(camera, Pipeline(Segmenter(reference_model(), threads=2), truth), robot, DigitalGripper(robot, 0),
+                    CommandLog(None), truth)
+        results = run_cycles(cell, cfg=PickConfig(), cycles=8, echo=lambda line: None)
+    assert summarize(verdicts(results))["success"] >= 6, [r.verdict for r in results]

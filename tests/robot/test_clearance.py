@@ -14,6 +14,8 @@ from edgepick.robot.clearance import HandShape, hand_clearance
 from edgepick.robot.envelope import Envelope
 from edgepick.robot.pick import PickConfig, choose_target
 from edgepick.runtime.calibration import Calibration
+from edgepick.runtime.grasp_record import Grasp
+from tests.conftest import make_grasp
 
 INTR = Intrinsics.d415(640, 480)
 MOUNT = 0.7
@@ -40,9 +42,9 @@ def rect(half_x: float, half_y: float):
     return lambda dx, dy: (np.abs(dx) <= half_x) & (np.abs(dy) <= half_y)
 
 
-def record(cls: str, x: float, y: float, z: float, closing_yaw: float = 0.0, area: int = 1000) -> dict:
-    return {"class": cls, "pixel": [0.0, 0.0], "area_px": area, "depth_m": MOUNT - z,
-            "pose_robot": [x, y, z, math.pi * math.cos(closing_yaw / 2), math.pi * math.sin(closing_yaw / 2), 0.0]}
+def record(cls: str, x: float, y: float, z: float, closing_yaw: float = 0.0, area: int = 1000) -> Grasp:
+    return make_grasp(cls, [x, y, z, math.pi * math.cos(closing_yaw / 2), math.pi * math.sin(closing_yaw / 2), 0.0],
+                      pixel=(0.0, 0.0), area_px=area, depth_m=MOUNT - z)
 
 
 def test_a_magnet_face_over_a_taller_neighbour_is_refused():

@@ -14,8 +14,9 @@ from edgepick.robot.base import RobotError, RobotHalted, RobotUnreachable
 from edgepick.robot.grippers import DigitalGripper, RG2Gripper
 from edgepick.robot.pick import CommandLog, PickConfig, execute, plan_pick
 from edgepick.sim.robot import SimRobot
+from tests.conftest import make_grasp
 
-RECORD = {"class": "box", "area_px": 900, "depth_m": 0.62, "pose_robot": [0.3, -0.05, 0.06, math.pi, 0.0, 0.0]}
+RECORD = make_grasp("box", [0.3, -0.05, 0.06, math.pi, 0.0, 0.0])
 
 
 @pytest.fixture()

@@ -192,7 +192,7 @@ def test_overlap_reads_the_next_frame_once_the_arm_has_left_and_changes_no_decis
     approach pose, on a worker thread, and every cycle chooses, plans and is judged as without it."""
     from edgepick.data.render import CLASSES
     from edgepick.robot.grippers import DigitalGripper
-    from edgepick.robot.loop import run_cycles
+    from edgepick.robot.loop import Cell, run_cycles
     from edgepick.robot.pick import CommandLog, PickConfig
     from edgepick.sim.camera import SynthCamera
     from edgepick.sim.oracle import TruthPipeline
@@ -209,20 +209,20 @@ def test_overlap_reads_the_next_frame_once_the_arm_has_left_and_changes_no_decis
         cam.read = watched_read
         cal = cam.calibration()
         with cam, robot:
-            results = run_cycles(cam, TruthPipeline(list(CLASSES), cal), robot, DigitalGripper(robot, 0), cfg=PickConfig(),
-                                 cycles=6, log=CommandLog(None), echo=lambda line: None, truth_cal=cal, overlap=overlap)
+            cell = Cell(cam, TruthPipeline(list(CLASSES), cal), robot, DigitalGripper(robot, 0), CommandLog(None), cal)
+            results = run_cycles(cell, cfg=PickConfig(), cycles=6, echo=lambda line: None, overlap=overlap)
         return results, reads
 
     plain, plain_reads = run(False)
     ahead, ahead_reads = run(True)
     keys = ("frame", "target", "pixel", "pose_robot", "verdict", "outcome")
-    assert [{k: r.get(k) for k in keys} for r in ahead] == [{k: r.get(k) for k in keys} for r in plain]
+    assert [{k: r.to_dict().get(k) for k in keys} for r in ahead] == [{k: r.to_dict().get(k) for k in keys} for r in plain]
     assert len(ahead_reads) == len(plain_reads) == 6  # no frame read beyond the last cycle
     assert all(main for main, _ in plain_reads)
     cfg = PickConfig()
     place = [round(v, 4) for v in cfg.place_pose[:3]]
     left = [place[:2] + [round(place[2] + cfg.approach_m, 4)], place, [round(v, 4) for v in cfg.home_pose[:3]]]
     for (main, arm), result in zip(ahead_reads[1:], ahead):
-        if result["outcome"] == "done":  # the next frame was read by the worker, the arm past the place approach
+        if result.outcome == "done":  # the next frame was read by the worker, the arm past the place approach
             assert not main and arm in left
-    assert all("frame_to_frame_ms" in r for r in ahead[1:]) and any("arm_wait_ms" in r for r in ahead)
+    assert all(r.frame_to_frame_ms is not None for r in ahead[1:]) and any(r.arm_wait_ms is not None for r in ahead)

@@ -10,12 +10,13 @@ import pytest
 
 from edgepick.robot.envelope import Envelope
 from edgepick.robot.pick import BURIED, OCCLUDED, PickConfig, choose_target, plan_pick, plan_reason
+from tests.conftest import make_grasp
 
 
 @pytest.mark.parametrize("x, y, vias", [(0.28, 0.0, 0), (0.10, 0.25, 3), (0.2, 0.3, 3), (0.3, 0.15, 3)])
 def test_place_transit_goes_round_the_base_when_needed(x, y, vias):
     """Via points, at most 60 degrees apart on the transit circle, when the line passes it."""
-    record = {"pose_robot": [x, y, 0.05, math.pi, 0.0, 0.0]}
+    record = make_grasp("box", [x, y, 0.05, math.pi, 0.0, 0.0])
     cfg = PickConfig()
     plan = plan_pick(record, cfg)
     around = [s for s in plan if s.note == "around the base"]
@@ -31,8 +32,7 @@ def test_a_buried_object_is_never_chosen_and_a_partly_covered_one_last():
     """An object with a fifth or more of its rim under others is refused (lifting it would drag what
     lies on it; its visible centroid is not its own); one less covered is chosen after free ones."""
     def rec(cls, area, occluded):
-        return {"class": cls, "area_px": area, "occluded": occluded, "depth_m": 0.6,
-                "pose_robot": [0.28, 0.0, 0.05, math.pi, 0.0, 0.0]}
+        return make_grasp(cls, [0.28, 0.0, 0.05, math.pi, 0.0, 0.0], area_px=area, occluded=occluded, depth_m=0.6)
 
     covered, buried, free = rec("disk", 9000, (OCCLUDED + BURIED) / 2), rec("box", 8000, BURIED), rec("bearing", 500, 0.0)
     assert choose_target([covered, buried, free], Envelope(), PickConfig())[0] is free

@@ -243,10 +243,10 @@ def test_a_recording_stopped_by_ctrl_c_is_a_readable_file(tmp_path):
 def test_a_recording_stopped_by_a_robot_halt_is_a_readable_file(tmp_path):
     from edgepick.reference import reference_model
     from edgepick.robot.grippers import DigitalGripper
-    from edgepick.robot.loop import run_cycles
+    from edgepick.robot.loop import Cell, run_cycles
     from edgepick.robot.pick import CommandLog, PickConfig
     from edgepick.robot.recording import Recorder, pick_metadata
-    from edgepick.runtime.grasp import GraspConfig
+    from edgepick.runtime.grasp_config import GraspConfig
     from edgepick.runtime.pipeline import Pipeline
     from edgepick.runtime.session import Segmenter
     from edgepick.sim.robot import SimRobot
@@ -257,10 +257,9 @@ def test_a_recording_stopped_by_a_robot_halt_is_a_readable_file(tmp_path):
     cfg = PickConfig()
     with Recorder(tmp_path / "halt.mcap", pick_metadata("m", pipeline.classes, cfg, GraspConfig(), robot.envelope),
                   pipeline.calib) as recorder, camera, robot:
-        results = run_cycles(camera, pipeline, robot, DigitalGripper(robot, 0), cfg=cfg, cycles=5,
-                             log=CommandLog(None), echo=lambda line: None, truth_cal=camera.calibration(),
-                             recorder=recorder)
-    assert len(results) == 1 and results[0]["outcome"] == "stopped"
+        cell = Cell(camera, pipeline, robot, DigitalGripper(robot, 0), CommandLog(None), camera.calibration(), recorder)
+        results = run_cycles(cell, cfg=cfg, cycles=5, echo=lambda line: None)
+    assert len(results) == 1 and results[0].outcome == "stopped"
     counts, _, messages = read(tmp_path / "halt.mcap")
     assert counts["/pick/cycle"] == 1 and counts["/robot/tcp_command"] == 3  # approach, descent, the halted lift
     lift, halted_at = on(messages, "/robot/tcp_command")[-1], on(messages, "/robot/tcp")[-1]

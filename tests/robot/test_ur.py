@@ -22,10 +22,10 @@ from edgepick.robot.envelope import SafetyError  # noqa: E402
 from edgepick.robot.grippers import DigitalGripper  # noqa: E402
 from edgepick.robot.pick import CommandLog, PickConfig, choose_target, execute, plan_pick  # noqa: E402
 from edgepick.robot.ur import URRobot  # noqa: E402
-from tests.conftest import REPO, worker_index  # noqa: E402
+from tests.conftest import REPO, make_grasp, worker_index  # noqa: E402
 
 DOWN = [math.pi, 0.0, 0.0]
-RECORD = {"class": "box", "area_px": 900, "depth_m": 0.62, "pose_robot": [0.3, -0.05, 0.06, *DOWN]}
+RECORD = make_grasp("box", [0.3, -0.05, 0.06, *DOWN])
 _next = [20 + os.getpid() % 200]
 
 

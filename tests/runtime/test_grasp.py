@@ -33,11 +33,11 @@ def test_rotated_rectangle_centroid_and_angle(angle):
     labels = np.zeros((480, 640), np.uint8)
     rect(labels, BOX, (300.0, 250.0), (160, 70), angle)
     (r,) = grasp_records(labels, flat_depth(), INTR)
-    assert r["class"] == "box" and r["orientation_defined"]
-    assert r["pixel"] == pytest.approx([300.0, 250.0], abs=0.6)
-    diff = (r["angle_deg"] - angle + 90) % 180 - 90
-    assert abs(diff) < 1.0 and -90 < r["angle_deg"] <= 90
-    assert r["depth_m"] == pytest.approx(0.6) and r["point_camera_m"][2] == pytest.approx(0.6)
+    assert r.cls == "box" and r.orientation_defined
+    assert r.pixel == pytest.approx([300.0, 250.0], abs=0.6)
+    diff = (r.angle_deg - angle + 90) % 180 - 90
+    assert abs(diff) < 1.0 and -90 < r.angle_deg <= 90
+    assert r.depth_m == pytest.approx(0.6) and r.point_camera_m[2] == pytest.approx(0.6)
 
 
 def test_ellipse_angle_and_two_boxes_give_two_records():
@@ -46,9 +46,9 @@ def test_ellipse_angle_and_two_boxes_give_two_records():
     rect(labels, BOX, (480.0, 300.0), (100, 50), -20)
     rect(labels, BOX, (480.0, 120.0), (90, 40), 70)
     records = grasp_records(labels, flat_depth(), INTR)
-    assert sorted(r["class"] for r in records) == ["adapter", "box", "box"]
-    ell = next(r for r in records if r["class"] == "adapter")
-    assert ell["angle_deg"] == pytest.approx(25.0, abs=1.0) and ell["pixel"] == pytest.approx([200, 200], abs=0.6)
+    assert sorted(r.cls for r in records) == ["adapter", "box", "box"]
+    ell = next(r for r in records if r.cls == "adapter")
+    assert ell.angle_deg == pytest.approx(25.0, abs=1.0) and ell.pixel == pytest.approx([200, 200], abs=0.6)
 
 
 @pytest.mark.parametrize("mask", ["true", "covers the hole", "bleeds onto the table"])
@@ -68,9 +68,9 @@ def test_ring_depth_comes_from_the_ring_not_the_hole(mask):
         cv2.circle(labels, (320, 240), 55 if mask == "bleeds onto the table" else 40, BEARING, -1)
     (r,) = grasp_records(labels, depth, INTR)
     assert labels[240, 320] == (0 if mask == "true" else BEARING)  # the centroid lies in the hole
-    assert r["pixel"] == pytest.approx([320, 240], abs=0.6)
-    assert r["depth_m"] == pytest.approx(0.665)
-    assert not r["orientation_defined"] and r["angle_deg"] == 0.0
+    assert r.pixel == pytest.approx([320, 240], abs=0.6)
+    assert r.depth_m == pytest.approx(0.665)
+    assert not r.orientation_defined and r.angle_deg == 0.0
 
 
 def test_all_zero_depth_under_object_gives_a_reason_not_nan():
@@ -79,8 +79,8 @@ def test_all_zero_depth_under_object_gives_a_reason_not_nan():
     depth = flat_depth()
     depth[labels > 0] = 0
     (r,) = grasp_records(labels, depth, INTR, calib=Calibration(np.eye(3), np.zeros(3), 0.0, 4))
-    assert r["depth_m"] is None and r["point_camera_m"] is None and "depth" in r["reason"]
-    assert "pose_robot" not in r
+    assert r.depth_m is None and r.point_camera_m is None and "depth" in r.reason
+    assert r.pose_robot is None
 
 
 def test_empty_mask_and_size_mismatch():
@@ -109,8 +109,8 @@ def test_robot_pose_with_camera_rotated_about_vertical(yaw_deg):
     image_angle = 30.0
     rect(labels, BOX, (340.0, 220.0), (160, 60), image_angle)
     (r,) = grasp_records(labels, flat_depth(600), INTR, calib=cal)
-    x, yy, z, rx, ry, rz_ = r["pose_robot"]
-    assert np.allclose([x, yy, z], cal.apply(deproject(INTR, *r["pixel"], 0.6)), atol=1e-4)
+    x, yy, z, rx, ry, rz_ = r.pose_robot
+    assert np.allclose([x, yy, z], cal.apply(deproject(INTR, *r.pixel, 0.6)), atol=1e-4)
     rotvec = np.array([rx, ry, rz_])
     tool, _ = cv2.Rodrigues(rotvec)
     assert np.allclose(tool[:, 2], [0, 0, -1], atol=1e-6)  # tool z straight down
@@ -132,10 +132,10 @@ def test_random_masks_and_depth_never_raise_or_give_nan(seed, hole_fraction):
     depth[rng.random(depth.shape) < hole_fraction] = 0
     cal = Calibration(np.eye(3), np.zeros(3), 0.0, 4)
     records = grasp_records(labels, depth, INTR, calib=cal)
-    text = json.dumps(records)
+    text = json.dumps([r.to_dict() for r in records])
     assert "NaN" not in text and "Infinity" not in text
     for r in records:
-        assert -90 < r["angle_deg"] <= 90
+        assert -90 < r.angle_deg <= 90
 
 
 def test_cli_mask_mode_with_calibration_and_overlay(tmp_path):
@@ -175,7 +175,8 @@ def test_cli_refuses_size_mismatch_bad_rotation_and_8bit_depth(tmp_path):
 @given(st.integers(0, 2**31 - 1))
 @settings(max_examples=40, deadline=None)
 def test_class_masks_filtered_on_crops_equal_whole_frame_filtering(seed):
-    from edgepick.runtime.grasp import GraspConfig, filter_class_masks
+    from edgepick.runtime.grasp import filter_class_masks
+    from edgepick.runtime.grasp_config import GraspConfig
 
     rng = np.random.default_rng(seed)
     labels = np.zeros((120, 160), np.uint8)
@@ -202,7 +203,7 @@ def test_depth_is_the_surface_under_the_centroid_when_there_is_one():
     depth[labels == 2] = 660  # plate
     cv2.circle(depth, (320, 240), 30, 630, -1)  # hub, 3 cm higher
     (r,) = grasp_records(labels, depth, INTR)
-    assert r["depth_m"] == pytest.approx(0.630, abs=1e-3)
+    assert r.depth_m == pytest.approx(0.630, abs=1e-3)
 
 
 def test_axis_of_a_nearly_square_box_whose_top_has_a_depth_hole_at_a_corner():
@@ -214,7 +215,7 @@ def test_axis_of_a_nearly_square_box_whose_top_has_a_depth_hole_at_a_corner():
     corner = cv2.boxPoints(((320.0, 240.0), (100, 80), 30.0))[0]
     cv2.circle(depth, (int(corner[0]), int(corner[1])), 35, 0, -1)
     (r,) = grasp_records(labels, depth, INTR)
-    assert r["orientation_defined"] and abs(r["angle_deg"] - 30.0) < 3.0
+    assert r.orientation_defined and abs(r.angle_deg - 30.0) < 3.0
 
 
 def test_axis_of_a_black_adapter_whose_top_returns_depth_on_one_third():
@@ -229,7 +230,7 @@ def test_axis_of_a_black_adapter_whose_top_returns_depth_on_one_third():
     cv2.fillConvexPoly(seen, np.round(np.array([a, b, (a + c) / 2])).astype(np.int32), 1)
     depth[(seen > 0) & (labels == ADAPTER)] = 660
     (r,) = grasp_records(labels, depth, INTR)
-    assert r["orientation_defined"] and abs((r["angle_deg"] + 75.0 + 90.0) % 180.0 - 90.0) < 3.0
+    assert r.orientation_defined and abs((r.angle_deg + 75.0 + 90.0) % 180.0 - 90.0) < 3.0
 
 
 def test_grasp_point_is_the_top_face_centre_not_the_silhouette_centroid():
@@ -245,8 +246,8 @@ def test_grasp_point_is_the_top_face_centre_not_the_silhouette_centroid():
     wall &= labels == 0
     labels[wall > 0], depth[wall > 0] = BOX, 650
     (r,) = grasp_records(labels, depth, INTR)
-    assert r["pixel"] == pytest.approx(list(top), abs=1.0)
-    assert r["point_camera_m"] == pytest.approx(list(deproject(INTR, *top, 0.6)), abs=1.5e-3)
+    assert r.pixel == pytest.approx(list(top), abs=1.0)
+    assert r.point_camera_m == pytest.approx(list(deproject(INTR, *top, 0.6)), abs=1.5e-3)
     silhouette = cv2.moments((labels == BOX).view(np.uint8), binaryImage=True)
     assert silhouette["m10"] / silhouette["m00"] - top[0] > 6.0  # what the test guards against
 
@@ -262,7 +263,7 @@ def test_grasp_point_ignores_a_mask_spilling_onto_a_neighbour_at_the_same_height
     labels[230:250, 420:440] = BOX  # the neighbour's patch, at the box's height
     depth[230:250, 420:440] = 600
     (r,) = grasp_records(labels, depth, INTR)
-    assert r["pixel"] == pytest.approx([320.0, 240.0], abs=1.0)
+    assert r.pixel == pytest.approx([320.0, 240.0], abs=1.0)
 
 
 def test_hub_depth_when_few_pixels_near_the_centroid_have_depth():
@@ -276,16 +277,16 @@ def test_hub_depth_when_few_pixels_near_the_centroid_have_depth():
     cv2.circle(depth, (320, 240), 40, 0, -1)  # no depth on most of the shiny hub...
     cv2.circle(labels, (320, 240), 25, 0, -1)  # ... around its bore
     (r,) = grasp_records(labels, depth, INTR)
-    assert r["depth_m"] == pytest.approx(0.630, abs=1e-3)
+    assert r.depth_m == pytest.approx(0.630, abs=1e-3)
 
 
 def test_one_object_is_not_split_and_a_cut_one_is_marked_partial():
     labels = np.zeros((480, 640), np.uint8)
     rect(labels, ADAPTER, (300.0, 200.0), (200, 50), 20.0)
     cv2.circle(labels, (620, 300), 60, BEARING, -1)  # half out of the frame
-    by_class = {r["class"]: r for r in grasp_records(labels, flat_depth(), INTR)}
+    by_class = {r.cls: r for r in grasp_records(labels, flat_depth(), INTR)}
     assert set(by_class) == {"adapter", "bearing"}
-    assert by_class["adapter"]["partial"] is False and by_class["bearing"]["partial"] is True
+    assert by_class["adapter"].partial is False and by_class["bearing"].partial is True
 
 
 @pytest.mark.parametrize("case, partial", [("a mask bleeding to the border", False),
@@ -304,7 +305,7 @@ def test_only_an_object_cut_by_the_border_along_a_real_stretch_is_partial(case, 
         x = 553 if case == "a disk at the border" else 600  # 553: its rim 1 px from the edge
         cv2.circle(labels, (x, 240), 85, 2, -1)
     (r,) = grasp_records(labels, flat_depth(), INTR)
-    assert r["partial"] is partial
+    assert r.partial is partial
 
 
 def test_an_object_partly_under_another_is_marked_occluded():
@@ -319,11 +320,11 @@ def test_an_object_partly_under_another_is_marked_occluded():
     rect(labels, BOX, (390.0, 240.0), (120, 50), 0.0)  # over the disk's right edge
     depth[labels == BOX] = 590
     cal = Calibration(np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]), np.array([0.28, 0.0, 0.7]), 0, 0)
-    by_class = {r["class"]: r for r in grasp_records(labels, depth, INTR, calib=cal)}
-    assert by_class["disk"]["occluded"] > 0.1 and by_class["box"]["occluded"] == 0.0
-    assert by_class["disk"]["area_px"] > by_class["box"]["area_px"]
+    by_class = {r.cls: r for r in grasp_records(labels, depth, INTR, calib=cal)}
+    assert by_class["disk"].occluded > 0.1 and by_class["box"].occluded == 0.0
+    assert by_class["disk"].area_px > by_class["box"].area_px
     chosen, _, note = choose_target(list(by_class.values()), Envelope(), PickConfig())
-    assert chosen["class"] == "box", note
+    assert chosen.cls == "box", note
 
 
 def numpy_object_depth(depth, region, depth_scale, min_px, share=0.08, level_m=0.004):

@@ -46,7 +46,7 @@ def test_pipeline_records_match_mask_mode_and_time_every_stage(tmp_path):
     out = pipe(Frame(rgb, depth, INTR, "f"))
     assert np.array_equal(out.labels, labels)
     assert out.records == grasp_records(labels, depth, INTR, DEFAULT_CLASSES)
-    assert [r["class"] for r in out.records] == ["box", "bearing"]
+    assert [r.cls for r in out.records] == ["box", "bearing"]
     assert list(out.ms) == list(STAGES) and all(v >= 0 for v in out.ms.values())
     med = median_ms([out.ms, pipe(Frame(rgb, depth, INTR, "f")).ms])
     assert med["outside_inference"] <= med["total"] and {"total", *STAGES} <= set(med)

@@ -33,8 +33,8 @@ def test_touching_objects_of_one_class_are_split(shape):
     if shape == "boxes end to end":  # one straight-sided region: no notch, one core, one height
         assert len(records) == 1
         return
-    assert sorted(r["pixel"][0] for r in records) == pytest.approx([c[0] for c in centres], abs=2.0)
-    assert sorted(r["pixel"][1] for r in records) == pytest.approx(sorted(c[1] for c in centres), abs=1.5)
+    assert sorted(r.pixel[0] for r in records) == pytest.approx([c[0] for c in centres], abs=2.0)
+    assert sorted(r.pixel[1] for r in records) == pytest.approx(sorted(c[1] for c in centres), abs=1.5)
 
 
 def test_a_box_lying_on_a_larger_one_is_split_at_its_height():
@@ -49,8 +49,8 @@ def test_a_box_lying_on_a_larger_one_is_split_at_its_height():
     labels[upper > 0], depth[upper > 0] = BOX, 560
     records = grasp_records(labels, depth, INTR)
     assert len(records) == 2
-    top = min(records, key=lambda r: r["depth_m"])
-    assert top["pixel"] == pytest.approx([400.0, 215.0], abs=1.5) and top["depth_m"] == pytest.approx(0.560, abs=1e-3)
+    top = min(records, key=lambda r: r.depth_m)
+    assert top.pixel == pytest.approx([400.0, 215.0], abs=1.5) and top.depth_m == pytest.approx(0.560, abs=1e-3)
     disk = np.zeros_like(labels)
     cv2.circle(disk, (320, 240), 120, 2, -1)
     depth = flat_depth(700)
@@ -67,7 +67,7 @@ def test_a_notched_disk_is_not_cut_in_two():
     cv2.circle(labels, (320, 145), 30, 0, -1)
     cv2.circle(labels, (320, 335), 30, 0, -1)
     (r,) = grasp_records(labels, flat_depth(), INTR)
-    assert r["class"] == "disk"
+    assert r.cls == "disk"
 
 
 @pytest.mark.parametrize("in_the_notches", ["table", "objects lying over the rim"])
@@ -87,12 +87,12 @@ def test_a_seam_whose_mask_spills_into_one_notch_is_cut_when_the_table_shows_in_
         hull = cv2.convexHull(cv2.findNonZero(labels))
         notches = cv2.fillConvexPoly(np.zeros_like(labels), hull, 1).astype(bool) & (labels == 0)
         labels[notches], depth[notches] = BEARING, 560
-    boxes = [r for r in grasp_records(labels, depth, INTR) if r["class"] == "box"]
+    boxes = [r for r in grasp_records(labels, depth, INTR) if r.cls == "box"]
     if in_the_notches != "table":
         assert len(boxes) == 1
         return
-    assert sorted(r["pixel"][0] for r in boxes) == pytest.approx([c[0] for c in centres], abs=4.0)
-    assert sorted(r["pixel"][1] for r in boxes) == pytest.approx([c[1] for c in centres], abs=4.0)
+    assert sorted(r.pixel[0] for r in boxes) == pytest.approx([c[0] for c in centres], abs=4.0)
+    assert sorted(r.pixel[1] for r in boxes) == pytest.approx([c[1] for c in centres], abs=4.0)
 
 
 def test_a_box_is_not_split_at_pockets_of_table_or_at_its_side_wall():
@@ -108,8 +108,8 @@ def test_a_box_is_not_split_at_pockets_of_table_or_at_its_side_wall():
     wall = np.zeros_like(labels)
     cv2.rectangle(wall, (220, 180), (420, 199), 1, -1)  # a 20 px band along the top edge, 5 cm lower
     depth[(wall > 0) & (labels == BOX)] = 650
-    records = [r for r in grasp_records(labels, depth, INTR) if r["class"] == "box"]
-    assert len(records) == 1 and records[0]["depth_m"] == pytest.approx(0.600, abs=1e-3)
+    records = [r for r in grasp_records(labels, depth, INTR) if r.cls == "box"]
+    assert len(records) == 1 and records[0].depth_m == pytest.approx(0.600, abs=1e-3)
 
 
 def test_a_ring_with_objects_over_its_rim_stays_one_object():
@@ -120,8 +120,8 @@ def test_a_ring_with_objects_over_its_rim_stays_one_object():
     cv2.circle(labels, (320, 240), 35, 0, -1)
     for x in (215, 425):
         cv2.circle(labels, (x, 240), 45, BEARING, -1)
-    disks = [r for r in grasp_records(labels, flat_depth(), INTR) if r["class"] == "disk"]
-    assert len(disks) == 1 and disks[0]["pixel"] == pytest.approx([320.0, 240.0], abs=1.5)
+    disks = [r for r in grasp_records(labels, flat_depth(), INTR) if r.cls == "disk"]
+    assert len(disks) == 1 and disks[0].pixel == pytest.approx([320.0, 240.0], abs=1.5)
 
 
 def test_a_top_broken_by_depth_holes_is_one_face():
@@ -135,13 +135,13 @@ def test_a_top_broken_by_depth_holes_is_one_face():
     rect(band, 1, (320.0, 240.0), (16, 200), 20.0)
     depth[(band > 0) & (labels == BOX)] = 0
     (r,) = grasp_records(labels, depth, INTR)
-    assert r["pixel"] == pytest.approx([320.0, 240.0], abs=1.5)
+    assert r.pixel == pytest.approx([320.0, 240.0], abs=1.5)
     labels, depth = np.zeros((480, 640), np.uint8), flat_depth(700)
     for x in (250.0, 390.0):
         rect(labels, BOX, (x, 240.0), (110, 100), 0.0)
     depth[labels == BOX] = 600
     labels[200:280, 300:341] = BOX  # the mask spills over the table between them, which keeps its depth
-    assert sorted(r["pixel"][0] for r in grasp_records(labels, depth, INTR)) == pytest.approx([250.0, 390.0], abs=3.0)
+    assert sorted(r.pixel[0] for r in grasp_records(labels, depth, INTR)) == pytest.approx([250.0, 390.0], abs=3.0)
 
 
 @settings(max_examples=300, deadline=None)

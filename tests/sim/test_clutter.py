@@ -17,7 +17,7 @@ from edgepick.errors import ParameterError  # noqa: E402
 from edgepick.intervals import wilson  # noqa: E402
 from edgepick.robot.clearance import HandShape  # noqa: E402
 from edgepick.robot.grippers import DigitalGripper  # noqa: E402
-from edgepick.robot.loop import run_cycles  # noqa: E402
+from edgepick.robot.loop import Cell, run_cycles  # noqa: E402
 from edgepick.robot.messages import rotation  # noqa: E402
 from edgepick.robot.pick import CommandLog, PickConfig  # noqa: E402
 from edgepick.sim.clutter import ClutterRound, RoundConfig, round_summary, run_rounds  # noqa: E402
@@ -45,10 +45,9 @@ def _run(cell: ClutterRound, pick: PickConfig = PICK, physics: bool = True) -> t
     cell.read, cell.after = reading, settling
     robot = SimRobot()
     with robot:
-        results = run_cycles(cell, TruthPipeline(list(CLASSES), cell.calibration()), robot, DigitalGripper(robot, 0),
-                             cfg=pick, cycles=cell.cap, log=CommandLog(None), echo=lambda line: None,
-                             truth_cal=cell.calibration(), physics=cell.physics_judge(pick) if physics else None,
-                             after=settling)
+        picking = Cell(cell, TruthPipeline(list(CLASSES), cell.calibration()), robot, DigitalGripper(robot, 0),
+                       CommandLog(None), cell.calibration(), physics=cell.physics_judge(pick) if physics else None)
+        results = run_cycles(picking, cfg=pick, cycles=cell.cap, echo=lambda line: None, after=settling)
     return results, seen
 
 
@@ -92,7 +91,7 @@ def test_a_rounds_frame_after_a_pick_is_a_fresh_render_of_the_settled_table():
     cell.after = keep
     results, seen = _run(cell)
     (first, change), (second, _) = seen
-    assert results[0]["physics"]["success"] and change.removed is not None
+    assert results[0].physics.success and change.removed is not None
     assert len(change.after) == len(change.before) - 1
     assert change.removed not in [t["id"] for t in second.truth + second.hidden]
     fresh = ClutterRound(640, 480, seed=0, index=4)  # its own renderer and layout, the table set as the round left it
@@ -115,7 +114,7 @@ def test_a_round_ends_when_the_table_is_empty():
     results, seen = _run(ClutterRound(640, 480, seed=0, index=4))
     change = seen[-1][1]
     assert change.ended == "cleared" and change.after == []
-    assert results[-1]["round"] == {"round": 4, "pick": len(results), "removed": change.removed, "fell": [], "left": 0,
+    assert results[-1].round == {"round": 4, "pick": len(results), "removed": change.removed, "fell": [], "left": 0,
                                     "ended": "cleared"}
 
 
@@ -125,10 +124,10 @@ def test_a_round_ends_after_two_failures_in_a_row_or_at_its_cap():
     lacking = [c for c in CLASSES[1:] if c not in [p.model.cls for p in cell.parts]]
     results, seen = _run(cell, PickConfig(classes=lacking[:1], hand=HandShape()), physics=False)
     assert len(results) == 2 and seen[-1][1].ended == "two failures in a row"
-    assert all(r["verdict"]["failure"] == "no object seen" for r in results)
+    assert all(r.verdict.failure == "no object seen" for r in results)
     assert seen[0][1].after == seen[0][1].before  # nothing taken, nothing moved
     capped, _ = _run(ClutterRound(640, 480, seed=0, index=4, cfg=RoundConfig(max_cycles=1)))
-    assert len(capped) == 1 and capped[0]["round"]["ended"] == "cycle cap"
+    assert len(capped) == 1 and capped[0].round["ended"] == "cycle cap"
 
 
 def test_round_summary_sums_the_rounds_with_their_intervals():
@@ -189,5 +188,5 @@ def test_a_round_cannot_read_its_next_frame_ahead():
     cell = ClutterRound(640, 480, seed=0, index=1)
     robot = SimRobot()
     with pytest.raises(ParameterError, match="overlap=True"):
-        run_cycles(cell, TruthPipeline(list(CLASSES), cell.calibration()), robot, DigitalGripper(robot, 0), cfg=PICK,
-                   cycles=2, log=CommandLog(None), overlap=True, after=cell.after)
+        run_cycles(Cell(cell, TruthPipeline(list(CLASSES), cell.calibration()), robot, DigitalGripper(robot, 0),
+                        CommandLog(None)), cfg=PICK, cycles=2, overlap=True, after=cell.after)

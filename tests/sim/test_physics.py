@@ -4,6 +4,7 @@ really tolerate decides the rest; the same inputs give the same verdict."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -11,8 +12,11 @@ import pytest
 pytest.importorskip("mujoco")
 
 from edgepick.errors import ParameterError  # noqa: E402
+from edgepick.robot.verdict import Verdict  # noqa: E402
 from edgepick.runtime.calibration import Calibration  # noqa: E402
+from edgepick.runtime.grasp_record import Grasp  # noqa: E402
 from edgepick.sim.physics import PhysicsConfig, physics_verdict, solids, steel_share  # noqa: E402
+from tests.conftest import make_grasp  # noqa: E402
 
 IDENTITY = Calibration(np.eye(3), np.zeros(3), 0.0, 0)  # the tests' "camera" frame is the robot frame
 PLACE = [-0.05, -0.32, 0.10, math.pi, 0.0, 0.0]
@@ -37,13 +41,12 @@ def disk(x: float, y: float) -> dict:
                       "hat_h": 0.055}}
 
 
-def grasp(cls: str, x: float, y: float, z: float, closing_yaw: float = 0.0) -> dict:
-    """A chosen record: the TCP at (x, y, z), tool down, the fingers closing along CLOSING_YAW."""
-    return {"class": cls, "pose_robot": [x, y, z, math.pi * math.cos(closing_yaw / 2),
-                                         math.pi * math.sin(closing_yaw / 2), 0.0]}
+def grasp(cls: str, x: float, y: float, z: float, closing_yaw: float = 0.0) -> Grasp:
+    """A chosen grasp: the TCP at (x, y, z), tool down, the fingers closing along CLOSING_YAW."""
+    return make_grasp(cls, [x, y, z, math.pi * math.cos(closing_yaw / 2), math.pi * math.sin(closing_yaw / 2), 0.0])
 
 
-def verdict(record: dict, scene: list[dict], **cfg) -> dict:
+def verdict(record: Grasp, scene: list[dict], **cfg) -> Verdict:
     return physics_verdict(record, scene, IDENTITY, PLACE, cfg=PhysicsConfig(**cfg) if cfg else None)
 
 
@@ -55,43 +58,43 @@ def verdict(record: dict, scene: list[dict], **cfg) -> dict:
 ], ids=["adapter", "box", "bearing", "disk"])
 def test_a_centred_grasp_carries_each_class_to_the_place_pose(scene, record):
     v = verdict(record, scene)
-    assert v["success"] and v["failure"] is None, v
-    assert v["lifted_m"] > 0.07 and v["ms"] > 0
+    assert v.success and v.failure is None, v
+    assert v.lifted_m > 0.07 and v.ms > 0
 
 
 def test_a_jaw_centres_the_object_across_its_fingers_but_not_along_them():
     scene = [block("adapter", 0.25, 0.0, 0.0, 0.062, 0.044, 0.036)]  # the jaw closes along y, across its 44 mm
-    assert verdict(grasp("adapter", 0.25, 0.015, 0.036, math.pi / 2), scene)["success"]  # 15 mm across: pushed centre
+    assert verdict(grasp("adapter", 0.25, 0.015, 0.036, math.pi / 2), scene).success  # 15 mm across: pushed centre
     off_along = verdict(grasp("adapter", 0.25 + 0.045, 0.0, 0.036, math.pi / 2), scene)
-    assert not off_along["success"] and off_along["failure"] == "missed"  # 45 mm along: the pads miss its end
+    assert not off_along.success and off_along.failure == "missed"  # 45 mm along: the pads miss its end
 
 
 def test_a_jaw_needs_the_object_to_fit_its_stroke():
     wide = [block("box", 0.25, 0.0, 0.0, 0.20, 0.13, 0.08)]  # 130 mm across: over the RG2's 110 mm
     v = verdict(grasp("box", 0.25, 0.0, 0.08, math.pi / 2), wide)
-    assert not v["success"] and v["failure"] in ("blocked", "too wide")
-    assert verdict(grasp("box", 0.25, 0.0, 0.08, math.pi / 2), wide, jaw_stroke_m=0.16)["success"]  # an RG6's stroke
+    assert not v.success and v.failure in ("blocked", "too wide")
+    assert verdict(grasp("box", 0.25, 0.0, 0.08, math.pi / 2), wide, jaw_stroke_m=0.16).success  # an RG6's stroke
 
 
 def test_a_jaw_grips_only_when_its_fingers_reach_down_the_sides():
     scene = [block("adapter", 0.25, 0.0, 0.0, 0.062, 0.044, 0.036)]
     high = verdict(grasp("adapter", 0.25, 0.0, 0.036 + 0.02, math.pi / 2), scene)  # 20 mm above: tips above the top
-    assert not high["success"] and high["failure"] == "missed"
+    assert not high.success and high.failure == "missed"
 
 
 def test_a_magnet_holds_wherever_its_face_covers_enough_steel():
-    assert verdict(grasp("bearing", 0.25 + 0.02, 0.0, 0.035), [bearing(0.25, 0.0)])["success"]  # 20 mm off
-    assert not verdict(grasp("bearing", 0.25 + 0.09, 0.0, 0.035), [bearing(0.25, 0.0)])["success"]  # off the part
+    assert verdict(grasp("bearing", 0.25 + 0.02, 0.0, 0.035), [bearing(0.25, 0.0)]).success  # 20 mm off
+    assert not verdict(grasp("bearing", 0.25 + 0.09, 0.0, 0.035), [bearing(0.25, 0.0)]).success  # off the part
     weak = verdict(grasp("bearing", 0.25, 0.0, 0.035), [bearing(0.25, 0.0)], magnet_force_n=2.0)
-    assert not weak["success"]  # 2 N at full cover: less than the bearing's weight
+    assert not weak.success  # 2 N at full cover: less than the bearing's weight
 
 
 def test_a_magnet_comes_down_its_spring_travel_until_it_touches():
     scene = [bearing(0.25, 0.0)]
-    assert verdict(grasp("bearing", 0.25, 0.0, 0.035 + 0.008), scene)["success"]  # 8 mm high: within the 10 mm
+    assert verdict(grasp("bearing", 0.25, 0.0, 0.035 + 0.008), scene).success  # 8 mm high: within the 10 mm
     high = verdict(grasp("bearing", 0.25, 0.0, 0.035 + 0.025), scene)  # 25 mm high: its face stops 15 mm above
-    assert not high["success"] and high["failure"] == "missed"
-    assert verdict(grasp("bearing", 0.25, 0.0, 0.035 + 0.015), scene, magnet_travel_m=0.002)["failure"] == "missed"
+    assert not high.success and high.failure == "missed"
+    assert verdict(grasp("bearing", 0.25, 0.0, 0.035 + 0.015), scene, magnet_travel_m=0.002).failure == "missed"
 
 
 def test_a_magnet_that_lands_on_a_slightly_taller_neighbour_pulls_the_part_across_the_gap():
@@ -99,10 +102,10 @@ def test_a_magnet_that_lands_on_a_slightly_taller_neighbour_pulls_the_part_acros
     # mount stops there, and the pull across 4 mm lifts the bearing to the face
     scene = [bearing(0.25, 0.0), block("adapter", 0.25, 0.06, 0.0, 0.062, 0.044, 0.039)]
     v = verdict(grasp("bearing", 0.25, 0.0, 0.035), scene)
-    assert v["success"] and v["lifted_m"] > 0.07, v
+    assert v.success and v.lifted_m > 0.07, v
     beyond = [bearing(0.25, 0.0), block("adapter", 0.25, 0.06, 0.0, 0.062, 0.044, 0.035 + 0.014)]  # past its reach
     v = verdict(grasp("bearing", 0.25, 0.0, 0.035), beyond)
-    assert not v["success"] and v["failure"] == "blocked" and "adapter" in v["note"], v
+    assert not v.success and v.failure == "blocked" and "adapter" in v.note, v
 
 
 def test_steel_share_is_the_pole_face_over_the_annulus():
@@ -122,7 +125,7 @@ def test_steel_share_is_the_pole_face_over_the_annulus():
 def test_a_neighbour_under_the_hand_blocks_the_descent():
     scene = [bearing(0.25, 0.0), block("box", 0.25, 0.075, 0.0, 0.12, 0.08, 0.09)]  # a taller box 75 mm beside
     v = verdict(grasp("bearing", 0.25, 0.0, 0.035), scene)
-    assert not v["success"] and v["failure"] == "blocked" and "box" in v["note"]
+    assert not v.success and v.failure == "blocked" and "box" in v.note
 
 
 def on(item: dict, z: float) -> dict:
@@ -138,7 +141,7 @@ def test_what_the_target_rests_on_stays_when_a_nearer_neighbour_intersects_it():
     support = block("box", 0.40, 0.0, 0.0, 0.30, 0.09, 0.05)
     target = on(block("adapter", 0.285, 0.0, 0.0, 0.062, 0.044, 0.036), 0.05)
     v = verdict(grasp("adapter", 0.285, 0.0, 0.086, math.pi / 2), [target, support, bearing(0.30, 0.07)])
-    assert v["success"] and v["left_out"] == 1, v
+    assert v.success and v.left_out == 1, v
 
 
 def test_a_failure_of_a_target_that_was_not_at_rest_is_the_scenes():
@@ -146,28 +149,28 @@ def test_a_failure_of_a_target_that_was_not_at_rest_is_the_scenes():
     # the hand reaches it
     target = on(block("adapter", 0.25 + 0.10, 0.0, 0.0, 0.062, 0.044, 0.036), 0.055)
     v = verdict(grasp("adapter", 0.35, 0.0, 0.091, math.pi / 2), [target, disk(0.25, 0.0)])
-    assert not v["success"] and v["failure"] == "unsettled" and "moved" in v["note"], v
+    assert not v.success and v.failure == "unsettled" and "moved" in v.note, v
 
 
 def test_an_object_the_camera_does_not_see_still_holds_up_what_rests_on_it():
     # a bearing hidden under a box: without it in the scene, the box would fall onto the table
     target = on(block("box", 0.25, 0.0, 0.0, 0.16, 0.09, 0.06), 0.035)
     record = grasp("box", 0.25, 0.0, 0.095, math.pi / 2)
-    assert verdict(record, [target])["failure"] == "unsettled"
+    assert verdict(record, [target]).failure == "unsettled"
     v = physics_verdict(record, [target], IDENTITY, PLACE, hidden=[bearing(0.25, 0.0)])
-    assert v["success"] and v["lifted_m"] > 0.07, v
+    assert v.success and v.lifted_m > 0.07, v
 
 
 def test_a_false_detection_is_judged_without_simulating():
     v = verdict(grasp("disk", 0.25, 0.0, 0.05), [bearing(0.25, 0.0)])
-    assert v == {"success": False, "failure": "false detection", "lifted_m": 0.0, "ms": 0.0}
+    assert v.to_dict() == {"success": False, "failure": "false detection", "lifted_m": 0.0, "ms": 0.0}
 
 
 def test_the_same_inputs_give_the_same_verdict():
     scene = [block("box", 0.25, 0.05, 0.4, 0.16, 0.09, 0.08), bearing(0.2, -0.1)]
     record = grasp("box", 0.252, 0.047, 0.081, 0.4 + math.pi / 2 + 0.1)
     first, second = verdict(record, scene), verdict(record, scene)
-    assert {k: v for k, v in first.items() if k != "ms"} == {k: v for k, v in second.items() if k != "ms"}
+    assert replace(first, ms=None) == replace(second, ms=None)
 
 
 def test_a_check_says_where_it_left_the_objects_it_simulated():
@@ -178,7 +181,7 @@ def test_a_check_says_where_it_left_the_objects_it_simulated():
     scene = [{**block("adapter", 0.25, 0.0, 0.0, 0.062, 0.044, 0.036), "id": 3}, {**bearing(0.25, 0.12), "id": 8},
              bearing(0.1, -0.15)]
     run = physics_run(grasp("adapter", 0.25, 0.0, 0.036, math.pi / 2), scene, IDENTITY, PLACE)
-    assert run.verdict["success"] and run.target == 3 and set(run.poses) == {3, 8}
+    assert run.verdict.success and run.target == 3 and set(run.poses) == {3, 8}
     carried, rotation = run.poses[3]
     assert np.linalg.norm(carried[:2] - np.array(PLACE[:2])) < 0.02 and carried[2] > 0.08
     assert np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-6)
@@ -216,7 +219,7 @@ def test_a_magnet_that_holds_steel_only_leaves_a_plastic_neighbour_under_its_rim
     for steel_only, stays in ((False, False), (True, True)):
         run = physics_run(grasp("bearing", 0.25, 0.0, 0.035), scene, IDENTITY, PLACE,
                           cfg=PhysicsConfig(magnet_steel_only=steel_only))
-        assert run.verdict["success"], run.verdict
+        assert run.verdict.success, run.verdict
         moved = float(np.linalg.norm(run.poses[2][0] - [0.31, 0.0, 0.0]))
         assert (moved < 0.01) == stays, moved
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 
@@ -12,9 +13,10 @@ from edgepick.robot.grippers import DigitalGripper
 from edgepick.robot.motion import motion_time
 from edgepick.robot.pick import CommandLog, PickConfig, choose_target, execute, plan_pick
 from edgepick.sim.robot import SimRobot
+from tests.conftest import make_grasp
 
 DOWN = [math.pi, 0.0, 0.0]
-RECORD = {"class": "box", "area_px": 900, "depth_m": 0.62, "pose_robot": [0.3, -0.05, 0.06, *DOWN]}
+RECORD = make_grasp("box", [0.3, -0.05, 0.06, *DOWN])
 
 
 def test_moves_outputs_and_motion_time():
@@ -80,7 +82,7 @@ def test_a_target_beyond_the_controllers_limits_is_refused_with_nothing_sent():
         record, plan, note = choose_target([RECORD], robot.envelope, PickConfig(), limits=robot.limits_reason)
         assert record is None and note == "box: approach above the object: (0.300, -0.050, 0.140) is outside the " \
             "controller's safety limits"
-        near = {**RECORD, "pose_robot": [0.25, -0.05, 0.06, *DOWN]}
+        near = replace(RECORD, pose_robot=(0.25, -0.05, 0.06, *DOWN))
         assert choose_target([RECORD, near], robot.envelope, PickConfig(), limits=robot.limits_reason)[0] is near
 
 
@@ -99,8 +101,8 @@ def test_a_halt_names_the_controllers_safety_mode(status, problem):
 
 
 def test_target_choice_skips_unreachable_and_depthless_objects():
-    far = {**RECORD, "area_px": 5000, "pose_robot": [0.40, 0.25, 0.05, *DOWN]}
-    nodepth = {"class": "disk", "area_px": 9000, "depth_m": None, "reason": "no valid depth under the object"}
+    far = replace(RECORD, area_px=5000, pose_robot=(0.40, 0.25, 0.05, *DOWN))
+    nodepth = make_grasp("disk", None, area_px=9000, depth_m=None)
     robot = SimRobot()
     record, plan, note = choose_target([nodepth, far, RECORD], robot.envelope, PickConfig())
     assert record is RECORD
