@@ -30,7 +30,7 @@ test: $(STAMP)
 # The inner loop: lint, type-check and the tests that train no model (no training run, nothing marked slow).
 check: $(STAMP)
 	$(PY) -m ruff check edgepick benchmarks tests
-	$(PY) -m mypy edgepick/__init__.py edgepick/onnx_graph.py edgepick/train edgepick/quant edgepick/export edgepick/runtime
+	$(PY) -m mypy edgepick --exclude edgepick/cli/
 	$(PY) -m pytest -q -p no:cacheprovider -n $(TEST_WORKERS) --dist loadfile -m "not slow and not trained" --durations=10
 
 clean:
