@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from edgepick.cli.options import choice
+from edgepick.cli.options import choice, round_config
 from edgepick.data.config import Split
 from edgepick.errors import ConfigError
 from edgepick.files import check_output, output_dir
@@ -107,12 +107,4 @@ def _check_rounds(rounds: int | None, max_cycles: int | None, margin_pp: float):
     (None without it)."""
     if not (math.isfinite(margin_pp) and 0 < margin_pp < 100):
         raise ConfigError(f"--margin {margin_pp}: must be a number of percentage points in (0, 100)")
-    if rounds is None:
-        if max_cycles is not None:
-            raise ConfigError(f"--max-cycles {max_cycles}: caps the cycles of a round; it needs --rounds")
-        return None
-    if rounds < 1:
-        raise ConfigError(f"--rounds {rounds}: must be at least 1")
-    from edgepick.sim.clutter import RoundConfig
-
-    return RoundConfig(max_cycles=max_cycles)
+    return round_config(rounds, max_cycles)

@@ -149,3 +149,17 @@ def preprocessing_of(image_size: str | None, channels: str, scale: float, mean: 
     size = parse_size(image_size) if image_size else None
     return Preprocessing(size=size, channels=channels, scale=scale, mean=parse_numbers(mean, "--mean", 3),
                          std=parse_numbers(std, "--std", 3), layout=layout)
+
+
+def round_config(rounds: int | None, max_cycles: int | None) -> Any:
+    """The RoundConfig of --rounds and --max-cycles (None without --rounds), refused in one line where they
+    cannot be: pick and bench --cell take them alike."""
+    if rounds is None:
+        if max_cycles is not None:
+            raise ConfigError(f"--max-cycles {max_cycles}: caps the cycles of a round; it needs --rounds")
+        return None
+    if rounds < 1:
+        raise ConfigError(f"--rounds {rounds}: must be at least 1")
+    from edgepick.sim.clutter import RoundConfig
+
+    return RoundConfig(max_cycles=max_cycles)

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from edgepick.cli.options import choice, default_of, parse_size
+from edgepick.cli.options import choice, default_of, parse_size, round_config
 from edgepick.errors import ConfigError
 from edgepick.files import check_output, output_dir
 from edgepick.robot.envelope import Envelope
@@ -329,12 +329,9 @@ def round_records(path: str, rounds: int | None) -> list[str]:
 def _check_rounds(rounds: int | None, max_cycles: int | None, cycles: int | None, camera: str, robot_spec: str,
                   overlap: bool):
     """--rounds and --max-cycles checked before anything starts: the RoundConfig of --rounds (None without it)."""
-    if rounds is None:
-        if max_cycles is not None:
-            raise ConfigError(f"--max-cycles {max_cycles}: caps the cycles of a round; it needs --rounds")
+    config = round_config(rounds, max_cycles)
+    if config is None:
         return None
-    if rounds < 1:
-        raise ConfigError(f"--rounds {rounds}: must be at least 1")
     if cycles is not None:
         raise ConfigError(f"--cycles {cycles} with --rounds {rounds}: a round runs until its table is empty or its "
                           "picks fail; cap it with --max-cycles")
@@ -346,9 +343,7 @@ def _check_rounds(rounds: int | None, max_cycles: int | None, cycles: int | None
     if overlap:
         raise ConfigError("--overlap with --rounds: the next frame shows the table a cycle leaves behind, so it cannot "
                           "be read while the cycle goes on")
-    from edgepick.sim.clutter import RoundConfig
-
-    return RoundConfig(max_cycles=max_cycles)
+    return config
 
 
 def _check_motion(cycles: int, speed: float, acc: float, robot_spec: str) -> tuple[str, str]:
