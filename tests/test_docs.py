@@ -21,9 +21,10 @@ USER_FACING = [p for p in SOURCES if not p.is_relative_to(REPO / "tests")]
 
 
 def readme_commands() -> list[list[str]]:
-    """Each `edgepick ...` command in the README's code blocks, as tokens (continuations joined,
-    comments dropped)."""
-    blocks = re.findall(r"```(?:sh|bash|console)?\n(.*?)```", (REPO / "README.md").read_text(), re.S)
+    """Each `edgepick ...` command in the code blocks of the README and its command tour (docs/cli.md),
+    as tokens (continuations joined, comments dropped)."""
+    blocks = [b for p in (REPO / "README.md", REPO / "docs" / "cli.md")
+              for b in re.findall(r"```(?:sh|bash|console)?\n(.*?)```", p.read_text(), re.S)]
     text = "\n".join(blocks).replace("\\\n", " ")
     commands = []
     for line in text.splitlines():
@@ -53,9 +54,9 @@ def resolve(tokens: list[str]) -> tuple[click.Command, list[str]]:
 
 def test_readme_has_a_command_tour_and_the_users_sections():
     text = (REPO / "README.md").read_text()
-    for heading in ("## Install", "## Quickstart", "## Python API", "## Results"):
+    for heading in ("## Install", "## Quickstart", "## Command-line tour", "## Python API", "## Results"):
         assert heading in text, heading
-    assert len(readme_commands()) >= 20
+    assert "docs/cli.md" in text and len(readme_commands()) >= 20
 
 
 @pytest.mark.parametrize("tokens", readme_commands(), ids=lambda t: " ".join(t[:3]))
