@@ -33,10 +33,10 @@ from edgepick.data.synth import SynthConfig, synthesize  # noqa: E402
 from edgepick.geometry import Size  # noqa: E402
 from edgepick.metrics import confusion_matrix, segmentation_metrics  # noqa: E402
 from edgepick.models.deeplabv3 import LogitsNet  # noqa: E402
+from edgepick.quant.config import QuantConfig  # noqa: E402
 from edgepick.quant.pt2e.graph import as_input, convert, prepare  # noqa: E402
-from edgepick.quant.pt2e.passes import model_images  # noqa: E402
+from edgepick.quant.pt2e.images import model_images  # noqa: E402
 from edgepick.quant.pt2e.qat import calibrate_activations, to_eval  # noqa: E402
-from edgepick.quant.pt2e.quantizer import QuantConfig  # noqa: E402
 from edgepick.train.checkpoint import load_model  # noqa: E402
 from edgepick.train.data import augment  # noqa: E402
 from edgepick.train.loop import TrainConfig, train  # noqa: E402

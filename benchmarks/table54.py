@@ -42,7 +42,8 @@ from edgepick.geometry import Size  # noqa: E402
 from edgepick.machine import machine_slug, results_file  # noqa: E402
 from edgepick.models.config import Arch  # noqa: E402
 from edgepick.quant.config import DEFAULT_CALIB_IMAGES  # noqa: E402
-from edgepick.quant.pt2e.passes import folder_images, quantize_hybrid, quantize_static  # noqa: E402
+from edgepick.quant.pt2e.images import folder_images  # noqa: E402
+from edgepick.quant.pt2e.passes import quantize_hybrid, quantize_static  # noqa: E402
 from edgepick.runtime.engine import Engine  # noqa: E402
 from edgepick.runtime.session import Segmenter  # noqa: E402
 from edgepick.train.checkpoint import Checkpoint  # noqa: E402

@@ -9,8 +9,8 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from edgepick.quant.pt2e.images import folder_images, model_images  # noqa: E402
 from edgepick.quant.pt2e.inspect import compare, float_graph, inspect, quantize_accuracy_aware  # noqa: E402
-from edgepick.quant.pt2e.passes import folder_images, model_images  # noqa: E402
 from edgepick.train.checkpoint import load_model  # noqa: E402
 from tests.conftest import run_cli  # noqa: E402
 
