@@ -3,7 +3,9 @@ the options all quantize commands share are in cli/quant.py)."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -50,12 +52,12 @@ def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int,
     input_size = model_size(size)
     check_data_orientation(data_dir, input_size)
     run = run_dir or str(Path(out).with_suffix(".run"))
-    cfg = TrainConfig(data=data_dir, out=run, arch=arch, epochs=epochs, batch_size=batch_size, lr=lr,
-                      size=input_size, device=device, seed=seed, epoch_images=epoch_images,
+    cfg = TrainConfig(data=data_dir, out=run, arch=Arch(arch), epochs=epochs, batch_size=batch_size, lr=lr,
+                      size=input_size, device=Device(device), seed=seed, epoch_images=epoch_images,
                       val_images=val_images)
     check_output(run, "--run", kind="dir", inputs=(data_dir, out))
     emit(quantize_qat(cfg, out, **configs_of(weight_bits=weight_bits, keep_float=keep_float,
-                                           weight_averaging=weight_averaging)))
+                                             weight_averaging=weight_averaging)))
 
 
 @click.command("hybrid")
@@ -94,7 +96,15 @@ def quantize_hybrid_cmd(run: str, data_dir: str, qat_fraction: float, qat_run: s
     if calib_images is not None and (calib_images < 0 or (hold_ranges and not calib_images)):
         raise ConfigError("--calib-images must be 0 (off) or positive, and --hold-ranges needs it")
     configs = configs_of(weight_bits=weight_bits, keep_float=keep_float, weight_averaging=weight_averaging,
-                       freeze_at=freeze_at)
-    emit(quantize_hybrid(run, data_dir, out, qat_fraction, **configs, qat_run=qat_run,
-                         carry_optimizer=not fresh_optimizer, calib=calib_images, hold_ranges=hold_ranges,
-                         device=device))
+                         freeze_at=freeze_at)
+    emit(quantize_hybrid(run, data_dir, out, qat_fraction, _drawn(run, data_dir, calib_images), **configs, qat_run=qat_run,
+                         carry_optimizer=not fresh_optimizer, hold_ranges=hold_ranges, device=Device(device)))
+
+
+def _drawn(run: str, data: str, count: int | None) -> Iterator[Any]:
+    """--calib-images train images (0: none) drawn with RUN's seed, read only once quantize_hybrid has
+    checked the run and the settings, so that a refusal stays one line."""
+    from edgepick.quant.pt2e.images import run_images
+
+    if count != 0:
+        yield from run_images(run, data, count)

@@ -226,22 +226,23 @@ def configs_of(keep_float: str = "", **options) -> dict:
 def _quantize_checkpoint(checkpoint: str, out: str, shared: dict, configs: dict) -> None:
     """`quantize static RUN --data DATA`: static PTQ (or the accuracy-aware search) of a checkpoint."""
     configs.pop("options", None)  # its defaults: a torch model's int8 graph quantizes every activation
-    data, count = shared["data_dir"], shared["calib_images"]
+    from edgepick.quant.pt2e.images import agreement_images, check_classes, check_image_count, folder_images
+    from edgepick.train.checkpoint import Checkpoint
+
+    data, count, seed = shared["data_dir"], shared["calib_images"], shared["seed"]
+    check_image_count(data, "train", count)
     if shared["max_miou_drop"] is not None:
         from edgepick.quant.pt2e.inspect import quantize_accuracy_aware
 
-        emit(quantize_accuracy_aware(checkpoint, data, out, shared["max_miou_drop"], calib_images=count,
-                                     max_float_layers=shared["max_float_layers"], **configs))
+        emit(quantize_accuracy_aware(checkpoint, folder_images(data, "train", count, seed), data, out,
+                                     shared["max_miou_drop"], max_float_layers=shared["max_float_layers"], **configs))
         return
-    from edgepick.quant.pt2e.images import agreement_images, check_classes, check_image_count, folder_images
     from edgepick.quant.pt2e.passes import quantize_static
-    from edgepick.train.checkpoint import Checkpoint
 
-    check_image_count(data, "train", count)
     ckpt = Checkpoint.load(checkpoint)
     check_classes(ckpt, data)
-    emit(quantize_static(ckpt, folder_images(data, "train", count, shared["seed"]), out, **configs,
-                         check_images=agreement_images(data, shared["seed"])))
+    emit(quantize_static(ckpt, folder_images(data, "train", count, seed), out, **configs,
+                         check_images=agreement_images(data, seed)))
 
 
 def _budget(min_agreement: float | None, min_sqnr: float | None, max_float: int):

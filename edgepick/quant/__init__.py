@@ -28,7 +28,7 @@ _WHERE = {
     "folder_images": "pt2e.images", "folder_tensors": "onnx.inputs", "inspect": "pt2e.inspect", "prepare": "pt2e.graph",
     "quantize_accuracy_aware": "pt2e.inspect", "quantize_hybrid": "pt2e.passes",
     "quantize_module_static": "pt2e.module_static", "quantize_onnx_static": "onnx.static",
-    "quantize_qat": "pt2e.passes", "quantize_static": "pt2e.passes",
+    "quantize_qat": "pt2e.passes", "quantize_static": "pt2e.passes", "run_images": "pt2e.images",
 }
 __all__ = sorted([*_WHERE, "QuantizationError"])
 
@@ -51,7 +51,7 @@ if TYPE_CHECKING:
     from edgepick.quant.onnx.inputs import folder_tensors
     from edgepick.quant.onnx.static import quantize_onnx_static
     from edgepick.quant.pt2e.graph import calibrate, convert, prepare
-    from edgepick.quant.pt2e.images import agreement_images, folder_images
+    from edgepick.quant.pt2e.images import agreement_images, folder_images, run_images
     from edgepick.quant.pt2e.inspect import inspect, quantize_accuracy_aware
     from edgepick.quant.pt2e.module_static import quantize_module_static
     from edgepick.quant.pt2e.passes import quantize_hybrid, quantize_qat, quantize_static

@@ -95,7 +95,7 @@ def test_hybrid_qat_from_a_kept_epoch(trained_run, small_data, tmp_path):
     # the QaT phase runs where it is started (here: CPU in CI), not on the device the float run recorded
     run = _as_if_trained_on_a_gpu(trained_run, tmp_path / "float")
     calib = (rgb for rgb in folder_images(small_data, "train", 12))  # any iterable of images, at their own size
-    result = quantize_hybrid(run, small_data, tmp_path / "h.onnx", p, progress=False, calib=calib)
+    result = quantize_hybrid(run, small_data, tmp_path / "h.onnx", p, calib, progress=False)
     assert result.int8_convs == result.convs == 70 and result.observers > 0
     assert result.float_phase_s > 0 and result.qat_phase_s > 0
     assert result.agreement_vs_torch >= AGREEMENT

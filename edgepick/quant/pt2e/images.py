@@ -1,4 +1,5 @@
-"""The images the torch passes take from a native data set: calibration images drawn from a split,
+"""The images the torch passes take from a native data set: calibration images drawn from a split
+(or with a float run's own seed, for hybrid-QaT),
 the val images each pass compares onnxruntime's labels with torch's on, and the checks that a data
 set fits the request and the checkpoint."""
 
@@ -14,6 +15,7 @@ from edgepick.geometry import Size
 from edgepick.quant.config import DEFAULT_CALIB_IMAGES
 from edgepick.quant.pt2e.graph import at_input_size
 from edgepick.train.checkpoint import Checkpoint
+from edgepick.train.run import Run
 
 AGREEMENT_IMAGES = 8  # images on which each pass compares onnxruntime's labels with torch's simulation
 
@@ -59,3 +61,10 @@ def check_classes(ckpt: Checkpoint, data: str | Path) -> None:
     classes = NativeDataset.open(data, "train").classes
     if classes != list(ckpt.classes):
         raise CheckpointError(f"the checkpoint's classes {list(ckpt.classes)} differ from the data set's {classes}")
+
+
+def run_images(run: str | Path, data: str | Path, count: int | None = None) -> list[np.ndarray]:
+    """COUNT train images of DATA (None: DEFAULT_CALIB_IMAGES, or all if fewer) drawn with the float
+    RUN's own seed: hybrid-QaT's calibrated start as `quantize hybrid --calib-images` draws it."""
+    last = Checkpoint.load(Run(run).last if Path(run).is_dir() else run)
+    return folder_images(data, "train", count, last.train_config.seed if last.train_config else 0)

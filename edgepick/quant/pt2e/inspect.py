@@ -197,16 +197,18 @@ def inspect(checkpoint: str | Path | Checkpoint, calib: Iterable[np.ndarray], im
     return report
 
 
-def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str | Path, max_drop_pp: float,
-                            config: QuantConfig | None = None, methods: PtqMethods | None = None,
-                            pt2e: Pt2eOptions | None = None, calib_images: int | None = None,
-                            max_float_layers: int = MAX_FLOAT_LAYERS, progress: bool = True) -> AccuracyAwareResult:
-    """Static PTQ (CONFIG, METHODS) that keeps the layers adding the most drift in float, one at a
-    time, until the val mIoU (onnxruntime) is within MAX_DROP_PP points of the fp32 model's, or
-    MAX_FLOAT_LAYERS are float. Writes the best file found at OUT and reports every step."""
+def quantize_accuracy_aware(checkpoint: str | Path, calib: Iterable[np.ndarray], data: str | Path, out: str | Path,
+                            max_drop_pp: float, config: QuantConfig | None = None, methods: PtqMethods | None = None,
+                            pt2e: Pt2eOptions | None = None, max_float_layers: int = MAX_FLOAT_LAYERS,
+                            progress: bool = True) -> AccuracyAwareResult:
+    """Static PTQ (CONFIG, METHODS) calibrated on CALIB (HxWx3 uint8 RGB images, every step on the
+    same ones) that keeps the layers adding the most drift in float, one at a time, until the mIoU
+    on DATA's val split (onnxruntime; its labels score each step) is within MAX_DROP_PP points of
+    the fp32 model's, or MAX_FLOAT_LAYERS are float. Writes the best file found at OUT and reports
+    every step."""
     from edgepick.evaluation import evaluate
     from edgepick.export.onnx_export import export_checkpoint
-    from edgepick.quant.pt2e.images import agreement_images, check_classes, check_image_count, folder_images
+    from edgepick.quant.pt2e.images import agreement_images, check_classes, folder_images
     from edgepick.quant.pt2e.passes import quantize_static
 
     if not (math.isfinite(max_drop_pp) and max_drop_pp >= 0):
@@ -215,12 +217,13 @@ def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str |
         raise ParameterError("{max_float_layers}: must be at least 1", max_float_layers=max_float_layers)
     config, methods = config or QuantConfig(), methods or PtqMethods()
     check_onnx_out(out)
-    check_image_count(data, "train", calib_images)
     n_val = len(NativeDataset.open(data, "val"))
     ckpt = Checkpoint.load(checkpoint)
     check_classes(ckpt, data)
     check_keep_float(ckpt.build_model(), config.keep_float)
-    calib = folder_images(data, "train", calib_images)  # drawn once, for every step
+    calib = [at_input_size(rgb, ckpt.input_size) for rgb in calib]  # held, for every step
+    if not calib:
+        raise ParameterError("{calib:name}: no images; calibration needs at least one", calib=None)
     compared, check = folder_images(data, "val", min(COMPARED_IMAGES, n_val), what="val images"), agreement_images(data)
     if n_val < COMPARED_IMAGES:  # said once every input has passed its checks: a refusal stays one line
         print(f"edgepick: warning: {data}/val has {n_val} images; the val mIoU that the accuracy-aware search "

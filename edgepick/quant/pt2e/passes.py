@@ -45,7 +45,7 @@ from edgepick.quant.pt2e.graph import (
     first_of,
     prepare,
 )
-from edgepick.quant.pt2e.images import AGREEMENT_IMAGES, agreement_images, check_classes, check_image_count, folder_images
+from edgepick.quant.pt2e.images import AGREEMENT_IMAGES, agreement_images, check_classes
 from edgepick.quant.pt2e.int8_file import export_int8
 from edgepick.quant.pt2e.ptq import convert_static, measures
 from edgepick.quant.pt2e.qat import load_qat, qat_configs, train_qat
@@ -158,66 +158,45 @@ def quantize_qat(train_config: TrainConfig, out: str | Path, config: QuantConfig
     return _finish_qat(Run(train_config.out), train_config.data, out, quant, trained.graph, progress=progress)
 
 
-def _hybrid_images(run: str | Path, data: str | Path, calib: Iterable[np.ndarray] | int | None, start: Checkpoint,
-                   cfg: TrainConfig, progress: bool) -> list[np.ndarray]:
-    """Hybrid-QaT's calibration images at the model's size: CALIB itself, or drawn from DATA's train split."""
-    if calib is not None and not isinstance(calib, int):
-        images = list(calib)
-    elif calib == 0:
-        images = []
-    else:
-        stage(f"continue {run} from epoch {start.epoch} of {cfg.epochs}; draw the calibration images", progress)
-        images = folder_images(data, "train", calib, cfg.seed)
-    return [at_input_size(rgb, cfg.size) for rgb in images]
-
-
-def _check_hybrid(qat_fraction: float, data: str | Path, out: str | Path, qat_run: Path,
-                  calib: Iterable[np.ndarray] | int | None, hold_ranges: bool | None) -> None:
+def _check_hybrid(qat_fraction: float, out: str | Path, qat_run: Path) -> None:
     """Refuse hybrid-QaT's settings that cannot work, before any work."""
     if not 0.0 < qat_fraction < 1.0:
         raise ParameterError("{qat_fraction}: must be inside (0, 1)", qat_fraction=qat_fraction)
-    if isinstance(calib, int) and calib < 0:
-        raise ParameterError("{calib}: a number of calibration images must be 0 (none) or positive", calib=calib)
-    if isinstance(calib, int) and calib:
-        check_image_count(data, "train", calib)
-    if hold_ranges and isinstance(calib, int) and calib == 0:
-        raise ParameterError("{hold_ranges} needs calibration images ({calib:name})", hold_ranges=hold_ranges,
-                             calib=calib)
     check_onnx_out(out)
     if qat_run.exists() and (not qat_run.is_dir() or any(qat_run.iterdir())):
         raise ParameterError("{qat_run}: already exists and is not empty; choose a new folder", qat_run=qat_run)
 
 
 def quantize_hybrid(run: str | Path, data: str | Path, out: str | Path, qat_fraction: float,
-                    config: QuantConfig | None = None, qat: QatOptions | None = None, pt2e: Pt2eOptions | None = None,
-                    qat_run: str | Path | None = None, progress: bool = True, carry_optimizer: bool = True,
-                    calib: Iterable[np.ndarray] | int | None = None, hold_ranges: bool | None = None,
+                    calib: Iterable[np.ndarray], config: QuantConfig | None = None, qat: QatOptions | None = None,
+                    pt2e: Pt2eOptions | None = None, qat_run: str | Path | None = None, progress: bool = True,
+                    carry_optimizer: bool = True, hold_ranges: bool | None = None,
                     device: Device = Device.AUTO) -> PassResult:
     """Hybrid-QaT: of the float RUN's epoch budget E, continue from its epoch_NNN.pt at (1 - p)E
     (its weights, LR schedule and, unless carry_optimizer is False, AdamW moments) and train the
     last pE epochs on DATA with fake-quant (into QAT_RUN), observers and BN frozen after
     qat.freeze_at of the QaT steps (1.0: never), then export the int8 ONNX.
 
-    The activation ranges start from static PTQ's (config.percentile) over CALIB: HxWx3 uint8 RGB
-    images, or how many to draw from DATA's train split with the run's seed (None: 64, or all if
-    fewer; 0 or no images: the first batch's min/max, moving). HOLD_RANGES (None: yes when
-    calibrated) keeps them for the whole phase: a short phase at the tail of the learning-rate
-    schedule has little room to train moving min/max ranges back (docs/quantization.md). DEVICE is
-    this machine's choice (auto, cpu, cuda), not the float run's."""
+    The activation ranges start from static PTQ's (config.percentile) over CALIB, HxWx3 uint8 RGB
+    images (`run_images` draws them as the command line does; none: the first batch's min/max,
+    moving). HOLD_RANGES (None: yes when calibrated) keeps them for the whole phase: a short phase
+    at the tail of the learning-rate schedule has little room to train moving min/max ranges back
+    (docs/quantization.md). DEVICE is this machine's choice (auto, cpu, cuda), not the float run's."""
     config, qat, pt2e = config or QuantConfig(), qat or QatOptions(), pt2e or Pt2eOptions()
     qat_run = Path(qat_run) if qat_run else Path(out).with_suffix(".run")
-    _check_hybrid(qat_fraction, data, out, qat_run, calib, hold_ranges)
+    _check_hybrid(qat_fraction, out, qat_run)
     # load the epoch checkpoint -> prepare -> calibrate -> fit (train_qat) -> convert -> export (_finish_qat)
     start, cfg = _switch_point(Path(run), data, qat_fraction)
     start.build_model()  # weights that do not fit are refused now, not after the stage lines below
     cfg = replace(cfg, data=str(data), out=str(qat_run), keep_epochs=(), device=device)
     check_run(cfg)  # the stages below say what they do only once nothing is left to refuse
-    images = _hybrid_images(run, data, calib, start, cfg, progress)
+    images = [at_input_size(rgb, cfg.size, "calib") for rgb in calib]
     if hold_ranges and not images:
         raise ParameterError("{hold_ranges} needs calibration images ({calib:name})", hold_ranges=hold_ranges,
-                             calib=calib)
+                             calib=None)
     hold_ranges = bool(images) if hold_ranges is None else hold_ranges
-    stage("prepare the fake-quant graph (torch.export: up to a minute on a CPU), then train the QaT epochs", progress)
+    stage(f"continue {run} from epoch {start.epoch} of {cfg.epochs}: prepare the fake-quant graph (torch.export: up "
+          "to a minute on a CPU), then train the QaT epochs", progress)
     trained = train_qat(cfg, config, qat, pt2e, start=start, carry_optimizer=carry_optimizer,
                         calib_images=images or None, hold_ranges=hold_ranges, progress=progress)
     quant = QuantRecord(RecordKind.HYBRID, config, len(images) or None, qat=qat, pt2e=pt2e, qat_fraction=qat_fraction,
