@@ -22,9 +22,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import add_output, emit, machine_line  # noqa: E402
 
 from edgepick.export.onnx_export import contract_metadata, export_onnx  # noqa: E402
+from edgepick.quant.config import QuantConfig  # noqa: E402
 from edgepick.quant.pt2e.graph import as_input, convert, prepare  # noqa: E402
-from edgepick.quant.pt2e.passes import model_images  # noqa: E402
-from edgepick.quant.pt2e.quantizer import QuantConfig  # noqa: E402
+from edgepick.quant.pt2e.images import model_images  # noqa: E402
 from edgepick.train.checkpoint import load_model  # noqa: E402
 
 LEVELS = {"DISABLE_ALL": ort.GraphOptimizationLevel.ORT_DISABLE_ALL,

@@ -18,8 +18,9 @@ from _common import add_output, emit, machine_line  # noqa: E402
 
 from edgepick.evaluation import evaluate  # noqa: E402
 from edgepick.export.onnx_export import export_checkpoint  # noqa: E402
-from edgepick.quant.pt2e.passes import agreement_images, folder_images, quantize_static  # noqa: E402
-from edgepick.quant.pt2e.quantizer import QuantConfig  # noqa: E402
+from edgepick.quant.config import QuantConfig  # noqa: E402
+from edgepick.quant.pt2e.images import agreement_images, folder_images  # noqa: E402
+from edgepick.quant.pt2e.passes import quantize_static  # noqa: E402
 
 CASES = [("minmax", "7"), ("minmax", "8"), ("percentile", "7"), ("percentile", "8"), ("percentile", "first-7"),
          ("mse", "7"), ("entropy", "7")]

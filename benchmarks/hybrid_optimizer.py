@@ -19,8 +19,8 @@ from _common import add_output, emit, machine_line  # noqa: E402
 
 from edgepick.data.synth import SynthConfig, synthesize  # noqa: E402
 from edgepick.geometry import Size  # noqa: E402
+from edgepick.quant.config import QuantConfig  # noqa: E402
 from edgepick.quant.pt2e.qat import train_qat  # noqa: E402
-from edgepick.quant.pt2e.quantizer import QuantConfig  # noqa: E402
 from edgepick.train.checkpoint import Checkpoint  # noqa: E402
 from edgepick.train.loop import TrainConfig, train  # noqa: E402
 from edgepick.train.run import Run  # noqa: E402

@@ -33,10 +33,10 @@ from edgepick.data.synth import SynthConfig, synthesize  # noqa: E402
 from edgepick.geometry import Size  # noqa: E402
 from edgepick.metrics import confusion_matrix, segmentation_metrics  # noqa: E402
 from edgepick.models.deeplabv3 import LogitsNet  # noqa: E402
+from edgepick.quant.config import QuantConfig  # noqa: E402
 from edgepick.quant.pt2e.graph import as_input, convert, prepare  # noqa: E402
-from edgepick.quant.pt2e.passes import model_images  # noqa: E402
+from edgepick.quant.pt2e.images import model_images  # noqa: E402
 from edgepick.quant.pt2e.qat import calibrate_activations, to_eval  # noqa: E402
-from edgepick.quant.pt2e.quantizer import QuantConfig  # noqa: E402
 from edgepick.train.checkpoint import load_model  # noqa: E402
 from edgepick.train.data import augment  # noqa: E402
 from edgepick.train.loop import TrainConfig, train  # noqa: E402
@@ -123,18 +123,21 @@ def hybrid_ab(run: Path, data: Path, fraction: float, tmp: Path) -> dict[str, tu
     """fp32 and hybrid-QaT from each start: first-batch ranges, calibrated, calibrated and held."""
     from edgepick.evaluation import evaluate
     from edgepick.export.onnx_export import export_checkpoint
+    from edgepick.quant.pt2e.images import run_images
     from edgepick.quant.pt2e.passes import quantize_hybrid
+    from edgepick.train.config import Device
 
     def scores(path: Path) -> tuple[float, float]:
         return tuple(100 * evaluate(path, data, split, progress=False)["miou"] for split in ("val", "test"))
 
     export_checkpoint(run, tmp / "fp32.onnx")
     rows = {"fp32": (*scores(tmp / "fp32.onnx"), "")}
-    for label, kw in {"first-batch ranges, moving (--calib-images 0)": {"calib": 0},
-                      "calibrated start, 64 images": {"calib": 64, "hold_ranges": False},
-                      "calibrated start, held (the default)": {"calib": 64, "hold_ranges": True}}.items():
+    images = run_images(run, data, 64)
+    for label, (calib, hold) in {"first-batch ranges, moving (--calib-images 0)": ([], None),
+                                 "calibrated start, 64 images": (images, False),
+                                 "calibrated start, held (the default)": (images, True)}.items():
         out = tmp / f"h{len(rows)}.onnx"
-        result = quantize_hybrid(run, data, out, fraction, progress=False, device="cpu", **kw)
+        result = quantize_hybrid(run, data, out, fraction, calib, progress=False, device=Device.CPU, hold_ranges=hold)
         rows[f"hybrid, {label}"] = (*scores(out), result.qat_phase_s)
     return rows
 

@@ -135,7 +135,7 @@ def main() -> None:
     from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
 
     from edgepick.export.onnx_export import export_checkpoint
-    from edgepick.quant.pt2e.passes import agreement_images, folder_images, model_images
+    from edgepick.quant.pt2e.images import agreement_images, folder_images, model_images
     from edgepick.quant.pt2e.passes import quantize_static as edgepick_static
 
     work = Path(tempfile.mkdtemp(prefix="peers-"))

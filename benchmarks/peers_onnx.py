@@ -36,7 +36,15 @@ from _quantizers import OpenVino, Ort, nncf_quantize, ort_quantize, ort_ready  #
 
 from edgepick.errors import ParameterError  # noqa: E402
 from edgepick.geometry import Size  # noqa: E402
-from edgepick.quant.config import BiasCorrection, GeluForm, Placement, QuantConfig, WeightBits  # noqa: E402
+from edgepick.quant.config import (  # noqa: E402
+    BiasCorrection,
+    GeluForm,
+    OnnxOptions,
+    Placement,
+    PtqMethods,
+    QuantConfig,
+    WeightBits,
+)  # noqa: E402
 from edgepick.quant.fidelity import guess_task  # noqa: E402
 from edgepick.quant.onnx.inputs import folder_tensors  # noqa: E402
 from edgepick.quant.onnx.static import quantize_onnx_static  # noqa: E402
@@ -108,8 +116,9 @@ def agreement(model, reference: list[list[np.ndarray]], inputs: list[np.ndarray]
 GELU_SIGMOID = f"gelu-{GeluForm.SIGMOID.value}"
 
 
-def method_config(text: str) -> QuantConfig:
-    """An --edgepick-methods entry WEIGHT_BITS/BIAS_CORRECTION[/cle][/convs][/gelu-sigmoid] as the config of a pass."""
+def method_config(text: str) -> dict:
+    """An --edgepick-methods entry WEIGHT_BITS/BIAS_CORRECTION[/cle][/convs][/gelu-sigmoid] as the configs of a pass
+    (by the keyword quantize_onnx_static takes each as)."""
     bits, method, *extra = text.split("/")
     if (not set(extra) <= {"cle", Placement.CONVS.value, GELU_SIGMOID} or len(set(extra)) < len(extra)
             or bits not in set(WeightBits) or method not in set(BiasCorrection)):
@@ -117,8 +126,9 @@ def method_config(text: str) -> QuantConfig:
     placement = Placement.CONVS if Placement.CONVS.value in extra else Placement.ALL
     gelu = GeluForm.SIGMOID if GELU_SIGMOID in extra else GeluForm.FLOAT
     try:
-        return QuantConfig(weight_bits=bits, bias_correction=method, equalize="cle" in extra, placement=placement,
-                           gelu=gelu)
+        return {"config": QuantConfig(weight_bits=bits),
+                "methods": PtqMethods(bias_correction=method, equalize="cle" in extra),
+                "options": OnnxOptions(placement=placement, gelu=gelu)}
     except ParameterError as e:
         raise SystemExit(f"--edgepick-methods {text}: {e}") from None
 
@@ -197,9 +207,9 @@ def main() -> None:
                 ("edgepick static (onnxruntime)", Ort(Path(ours.out), t), mb(Path(ours.out))),
                 ("edgepick static (OpenVINO)", OpenVino(ov.Core().read_model(ours.out), t), mb(Path(ours.out)))]
         ort_files = {"edgepick static (onnxruntime)": Path(ours.out)}
-        for k, (text, config) in enumerate(methods.items()):
+        for k, (text, configs) in enumerate(methods.items()):
             path = work / f"edgepick-{k}.onnx"
-            quantize_onnx_static(args.onnx, calib, path, config, input_shape=shape, progress=False)
+            quantize_onnx_static(args.onnx, calib, path, **configs, input_shape=shape, progress=False)
             ort_files[f"edgepick static, {text} (onnxruntime)"] = path
             rows.append((f"edgepick static, {text} (onnxruntime)", Ort(path, t), mb(path)))
             rows.append((f"edgepick static, {text} (OpenVINO)", OpenVino(ov.Core().read_model(str(path)), t), mb(path)))

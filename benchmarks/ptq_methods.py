@@ -36,8 +36,9 @@ from _common import add_output, emit, interleaved_times, machine_line, object_ag
 from edgepick.data.native import NativeDataset  # noqa: E402
 from edgepick.export.onnx_export import export_checkpoint  # noqa: E402
 from edgepick.metrics import confusion_matrix, segmentation_metrics  # noqa: E402
-from edgepick.quant.config import BiasCorrection, CalibMethod, QuantConfig, WeightBits  # noqa: E402
-from edgepick.quant.pt2e.passes import agreement_images, folder_images, quantize_static  # noqa: E402
+from edgepick.quant.config import BiasCorrection, CalibMethod, PtqMethods, QuantConfig, WeightBits  # noqa: E402
+from edgepick.quant.pt2e.images import agreement_images, folder_images  # noqa: E402
+from edgepick.quant.pt2e.passes import quantize_static  # noqa: E402
 from edgepick.runtime.engine import Engine  # noqa: E402
 from edgepick.runtime.session import Segmenter  # noqa: E402
 
@@ -91,16 +92,17 @@ def case(text: str) -> tuple[WeightBits, BiasCorrection, str]:
 
 
 def start_case(seed: int, key: tuple[WeightBits, BiasCorrection, str], work: Path,
-               adaround_budget_s: float) -> tuple[Path, QuantConfig]:
-    """Announce case KEY for SEED on stderr; its int8 file's path in WORK and its config."""
+               adaround_budget_s: float) -> tuple[Path, dict]:
+    """Announce case KEY for SEED on stderr; its int8 file's path in WORK and its configs (by keyword)."""
     bits, method, extra = key
     print(f"-- seed {seed}, weight bits {bits}, bias correction {method} {extra}", file=sys.stderr, flush=True)
     tokens = extra.split("+")
     percentile = next((float(t[1:]) for t in tokens if t.startswith("p")), None)
-    config = QuantConfig(weight_bits=bits, bias_correction=method, equalize="cle" in tokens, adaround="ada" in tokens,
-                         adaround_budget_s=adaround_budget_s,
+    config = QuantConfig(weight_bits=bits,
                          **({"calib_method": CalibMethod.PERCENTILE, "percentile": percentile} if percentile else {}))
-    return work / f"{bits}-{method}-{extra}-{seed}.onnx", config
+    methods = PtqMethods(bias_correction=method, equalize="cle" in tokens, adaround="ada" in tokens,
+                         adaround_budget_s=adaround_budget_s)
+    return work / f"{bits}-{method}-{extra}-{seed}.onnx", {"config": config, "methods": methods}
 
 
 def seven_bit_convs(bits: WeightBits, quant: dict, int8_convs: int) -> int:
@@ -119,7 +121,7 @@ def main() -> None:
     ap.add_argument("--cases", default="7/none,8/none,first-7/none,7/fast,7/empirical,first-7/empirical,7/none/cle,"
                     "7/none/ada,7/empirical/cle,7/empirical/ada,7/empirical/cle+ada",
                     help="WEIGHT_BITS/BIAS_CORRECTION[/METHODS] cases to compare (METHODS: cle, ada, pPERCENTILE joined by +)")
-    ap.add_argument("--adaround-budget", type=float, default=QuantConfig.adaround_budget_s,
+    ap.add_argument("--adaround-budget", type=float, default=PtqMethods.adaround_budget_s,
                     help="AdaRound's time budget per pass, seconds")
     ap.add_argument("--runs", type=int, default=20, help="timed int8 calls per case (seed 0's file)")
     ap.add_argument("--openvino", action="store_true",
@@ -148,9 +150,9 @@ def main() -> None:
         for seed in seeds:
             calib = folder_images(args.data, "train", args.calib_images, seed)
             for bits, method, extra in cases:
-                out, config = start_case(seed, (bits, method, extra), work, args.adaround_budget)
+                out, configs = start_case(seed, (bits, method, extra), work, args.adaround_budget)
                 t0 = time.perf_counter()
-                r = quantize_static(args.run, calib, out, config, check_images=check, progress=False)
+                r = quantize_static(args.run, calib, out, **configs, check_images=check, progress=False)
                 pass_s = time.perf_counter() - t0
                 agree, int8_miou = scores(labels(out, frames), fp32, truth, classes)
                 if args.openvino:  # the same file on OpenVINO, against fp32 on OpenVINO

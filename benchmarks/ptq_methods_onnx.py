@@ -34,7 +34,7 @@ from _common import add_output, emit, interleaved_times, machine_line  # noqa: E
 from peers_onnx import OpenVino, Ort, add_input_options, input_tensors  # noqa: E402
 from ptq_methods import case, seven_bit_convs, spread, start_case  # noqa: E402
 
-from edgepick.quant.config import QuantConfig  # noqa: E402
+from edgepick.quant.config import PtqMethods  # noqa: E402
 from edgepick.quant.fidelity import guess_task  # noqa: E402
 from edgepick.quant.onnx.static import quantize_onnx_static  # noqa: E402
 
@@ -75,7 +75,7 @@ def main() -> None:
     ap.add_argument("--seeds", default="0,1,2", help="calibration seeds (which inputs are drawn)")
     ap.add_argument("--cases", default="7/none,8/none,first-7/none,7/empirical,first-7/empirical,7/none/ada",
                     help="WEIGHT_BITS/BIAS_CORRECTION[/METHODS] cases to compare (METHODS: cle, ada, pPERCENTILE joined by +)")
-    ap.add_argument("--adaround-budget", type=float, default=QuantConfig.adaround_budget_s,
+    ap.add_argument("--adaround-budget", type=float, default=PtqMethods.adaround_budget_s,
                     help="AdaRound's time budget per pass, seconds")
     add_input_options(ap)
     ap.add_argument("--threads", type=int, default=2)
@@ -123,8 +123,8 @@ def main() -> None:
             drawn = np.random.default_rng(seed).choice(len(pool), args.calib_count, replace=False)
             calib = [pool[i] for i in sorted(drawn)]
             for bits, method, extra in cases:
-                out, config = start_case(seed, (bits, method, extra), work, args.adaround_budget)
-                r = quantize_onnx_static(args.onnx, calib, out, config, input_shape=shape, progress=False)
+                out, configs = start_case(seed, (bits, method, extra), work, args.adaround_budget)
+                r = quantize_onnx_static(args.onnx, calib, out, **configs, input_shape=shape, progress=False)
                 foreground, every = agreement(Ort(out, args.threads), reference, held, nhwc, probability)
                 sevens = seven_bit_convs(bits, r.quant, r.int8_convs)
                 results[(bits, method, extra)].append((foreground, every, r.calib_s, sevens))

@@ -115,8 +115,9 @@ def main() -> None:
     from edgepick.evaluation import evaluate
     from edgepick.export.onnx_export import export_checkpoint
     from edgepick.geometry import Size
-    from edgepick.quant.pt2e.passes import folder_images, quantize_static
-    from edgepick.quant.pt2e.quantizer import QuantConfig
+    from edgepick.quant.config import Pt2eOptions, QuantConfig
+    from edgepick.quant.pt2e.images import folder_images
+    from edgepick.quant.pt2e.passes import quantize_static
     from edgepick.train.checkpoint import load_model
 
     work = Path(tempfile.mkdtemp(prefix="quant-speed-"))
@@ -130,7 +131,7 @@ def main() -> None:
     int8 = quantize_static(ckpt, calib, work / "int8.onnx", progress=False)
     whole = quantize_static(ckpt, calib, work / "int8_whole.onnx", progress=False,
                             export_passes=("integer_activations",))  # the same int8 model, convs whole
-    float_act = quantize_static(ckpt, calib, work / "int8_float_act.onnx", QuantConfig(hardswish_gate=False),
+    float_act = quantize_static(ckpt, calib, work / "int8_float_act.onnx", pt2e=Pt2eOptions(hardswish_gate=False),
                                 progress=False, export_passes=("crop_convs",))  # hardswish, SE, pooling in float
     model, _ = load_model(ckpt)
     depthwise = [n for n, m in model.named_modules() if isinstance(m, torch.nn.Conv2d) and m.groups > 1]

@@ -42,7 +42,8 @@ from edgepick.geometry import Size  # noqa: E402
 from edgepick.machine import machine_slug, results_file  # noqa: E402
 from edgepick.models.config import Arch  # noqa: E402
 from edgepick.quant.config import DEFAULT_CALIB_IMAGES  # noqa: E402
-from edgepick.quant.pt2e.passes import folder_images, quantize_hybrid, quantize_static  # noqa: E402
+from edgepick.quant.pt2e.images import folder_images, run_images  # noqa: E402
+from edgepick.quant.pt2e.passes import quantize_hybrid, quantize_static  # noqa: E402
 from edgepick.runtime.engine import Engine  # noqa: E402
 from edgepick.runtime.session import Segmenter  # noqa: E402
 from edgepick.train.checkpoint import Checkpoint  # noqa: E402
@@ -140,7 +141,8 @@ def train_and_quantize(work: Path, s: Setting, arch: str, seed: int, data: Path,
     out["static"] = step(here / "static.json", lambda: scored(
         lambda: quantize_static(here / "run", folder_images(data), here / "static.onnx", progress=False).to_dict()))
     out["hybrid"] = step(here / "hybrid.json", lambda: scored(
-        lambda: quantize_hybrid(here / "run", data, here / "hybrid.onnx", QAT_FRACTION, qat_run=here / "qat",
+        lambda: quantize_hybrid(here / "run", data, here / "hybrid.onnx", QAT_FRACTION, run_images(here / "run", data),
+                                qat_run=here / "qat",
                                 progress=False, device=s.device).to_dict()))
     return out
 

@@ -44,8 +44,9 @@ def main() -> None:
     from edgepick.evaluation import evaluate
     from edgepick.export.onnx_export import export_checkpoint
     from edgepick.geometry import Size
-    from edgepick.quant.pt2e.passes import agreement_images, folder_images, quantize_static
-    from edgepick.quant.pt2e.quantizer import QuantConfig
+    from edgepick.quant.config import QuantConfig
+    from edgepick.quant.pt2e.images import agreement_images, folder_images
+    from edgepick.quant.pt2e.passes import quantize_static
     from edgepick.train.checkpoint import load_model
     from edgepick.train.loop import TrainConfig, train
 

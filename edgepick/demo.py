@@ -79,17 +79,19 @@ def _run_demo(workdir: Path, scenes: int, epochs: int, size: Size) -> dict:
 def quantize_demo(workdir: Path, epochs: int) -> dict:
     """fp32 export, static int8 and hybrid-QaT int8 (last epoch with QaT); runtime eval of each."""
     from edgepick.evaluation import evaluate
-    from edgepick.export.onnx_export import export_checkpoint
-    from edgepick.quant import agreement_images, folder_images, quantize_hybrid, quantize_static
+    from edgepick.export.onnx_export import ExportResult, export_checkpoint
+    from edgepick.quant import PassResult, agreement_images, folder_images, quantize_hybrid, quantize_static, run_images
     from edgepick.train.config import Device
 
     _step("4/8 export fp32, quantize static int8 and hybrid-QaT int8 (onnxruntime QDQ)")
     models = workdir / "models"
-    files = {"fp32": export_checkpoint(workdir / "run", models / "fp32.onnx"),
+    files: dict[str, ExportResult | PassResult] = {
+             "fp32": export_checkpoint(workdir / "run", models / "fp32.onnx"),
              "static": quantize_static(workdir / "run", folder_images(workdir / "data", "train", 32),
                                        models / "static.onnx", check_images=agreement_images(workdir / "data")),
              "hybrid": quantize_hybrid(workdir / "run", workdir / "data", models / "hybrid.onnx", 1 / epochs,
-                                       qat_run=workdir / "hybrid.run", device=Device.CPU)}
+                                       run_images(workdir / "run", workdir / "data"), qat_run=workdir / "hybrid.run",
+                                       device=Device.CPU)}
     _step("5/8 evaluate the ONNX files with the runtime (onnxruntime, CPU) on the test split")
     fp32_size = files["fp32"].size_bytes
     out = {}

@@ -55,3 +55,9 @@ def progress(iterable: Iterable | None = None, desc: str = "", total: int | None
     if sys.stderr.isatty():
         return tqdm(iterable, desc=desc, total=total, unit=unit, leave=False)
     return _LogProgress(iterable, desc, total, unit, every_s)
+
+
+def stage(message: str, enabled: bool = True) -> None:
+    """A stage of a long pass on stderr: steps without a bar still say what they are doing."""
+    if enabled:
+        print(message, file=sys.stderr, flush=True)

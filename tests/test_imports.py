@@ -137,6 +137,16 @@ def test_the_onnx_pass_reaches_no_torch_and_no_pt2e_module():
         assert wrong == [], f"{start} reaches {wrong}"
 
 
+def test_the_math_both_backends_share_imports_neither():
+    """quant/'s own modules (configs, record, results, ranges, fidelity, methods) stand below both
+    backends: they import nothing of quant/pt2e, quant/onnx or torch."""
+    graph = _every_import()
+    shared = [m for m in graph if m.startswith("edgepick.quant.") and m.count(".") == 2]
+    wrong = {m: sorted(n for n in graph[m]["all"] if n.startswith(("edgepick.quant.pt2e", "edgepick.quant.onnx"))
+                       or n.split(".")[0] in ("torch", "torchao")) for m in shared}
+    assert len(shared) >= 6 and {m: w for m, w in wrong.items() if w} == {}
+
+
 def test_no_private_name_is_imported_from_another_module():
     """A name with a leading underscore stays in its module: what two modules share is public."""
     wrong = []

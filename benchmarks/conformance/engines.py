@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from _quantizers import OpenVino, Ort, nncf_quantize, ort_quantize, ort_ready
 
-from edgepick.quant.config import QuantConfig
+from edgepick.quant.config import OnnxOptions
 
 ONNXRUNTIME, OPENVINO = "onnxruntime", "openvino"
 
@@ -107,24 +107,24 @@ def _nncf(job: Job) -> Quantized:
     return Quantized(xml, (xml, xml.with_suffix(".bin")))
 
 
-def edgepick_quantizer(name: str, config: QuantConfig) -> Quantizer:
-    """edgepick's static PTQ of the fp32 file with CONFIG, through its public API."""
+def edgepick_quantizer(name: str, options: OnnxOptions) -> Quantizer:
+    """edgepick's static PTQ of the fp32 file with OPTIONS, through its public API."""
     def run(job: Job) -> Quantized:
         from edgepick.quant.fidelity import Task
         from edgepick.quant.onnx.static import quantize_onnx_static
 
         out = job.work / f"{name}.onnx"
-        result = quantize_onnx_static(job.fp32, list(job.calib), out, config, input_shape=job.input_shape,
+        result = quantize_onnx_static(job.fp32, list(job.calib), out, options=options, input_shape=job.input_shape,
                                       progress=False, task=Task.parse(job.task) if job.task else None)
         note = f"{result.int8_convs} of {result.convs} convs int8, ranges {result.quant['ranges']['rule']}"
         if "placement_choice" in result.quant:
-            note += f", placement {result.quant['placement_choice']['chosen']} (timed on {config.target})"
+            note += f", placement {result.quant['placement_choice']['chosen']} (timed on {options.target})"
         return Quantized(Path(result.out), (Path(result.out),), calib_s=result.calib_s, note=note)
     return Quantizer(name, run)
 
 
 FP32 = Quantizer("fp32", _fp32)
-EDGEPICK = edgepick_quantizer("edgepick", QuantConfig())
+EDGEPICK = edgepick_quantizer("edgepick", OnnxOptions())
 ENGINES: tuple[Engine, ...] = (
     Engine("fp32", ONNXRUNTIME, FP32),
     Engine("fp32-openvino", OPENVINO, FP32),  # what the OpenVINO engines' speed-up is measured against
@@ -134,7 +134,7 @@ ENGINES: tuple[Engine, ...] = (
     Engine("edgepick", ONNXRUNTIME, EDGEPICK),
     # the file made for OpenVINO: placement auto, the candidates timed on OpenVINO
     Engine("edgepick-openvino", OPENVINO, edgepick_quantizer("edgepick-openvino",
-                                                             QuantConfig(placement="auto", target="openvino"))),
+                                                             OnnxOptions(placement="auto", target="openvino"))),
 )
 BASELINES = {ONNXRUNTIME: "fp32", OPENVINO: "fp32-openvino"}  # the fp32 engine of each runtime
 

@@ -191,11 +191,11 @@ def run_cell(models: Sequence[str | Path], cycles: int, out_dir: str | Path, thr
     for m in models:
         seg = Segmenter(m, threads=threads, engine=engine)
         progress(f"cell: {Path(m).name}, {what} ...")
-        row, results, described = measure_row(mode_label(seg.info.metadata), str(m), Pipeline(seg, camera.calibration()),
+        row, results, described = measure_row(mode_label(seg.info), str(m), Pipeline(seg, camera.calibration()),
                                               cycles, seed, round(Path(m).stat().st_size / 1e6, 3), verdict,
                                               physics_config, rounds, round_config)
         rows.append(row)
-        measured.append(Measured(row.mode, seg.info.metadata.get("edgepick.precision", "fp32"), results, described))
+        measured.append(Measured(row.mode, seg.info.precision, results, described))
     modes = [r.mode for r in rows]
     for r, kept in zip(rows, measured[-len(rows):]):  # two models of one mode (the demo's hybrid, the reference): name the files
         if modes.count(r.mode) > 1:

@@ -4,7 +4,6 @@ records) per frame."""
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -16,6 +15,7 @@ from edgepick.errors import ParameterError
 from edgepick.evaluation import evaluate
 from edgepick.runtime.camera import FolderCamera
 from edgepick.runtime.engine import Engine
+from edgepick.runtime.model_info import ModelInfo
 from edgepick.runtime.pipeline import Pipeline
 from edgepick.runtime.session import Segmenter
 from edgepick.schema import member
@@ -61,17 +61,13 @@ class Row:
         return asdict(self)
 
 
-def mode_label(meta: dict[str, str]) -> str:
+def mode_label(info: ModelInfo) -> str:
     """The row name the thesis uses, from the model's metadata (docs/contracts.md#onnx-model)."""
-    if meta.get("edgepick.precision", "fp32") != "int8":
+    if info.precision != "int8":
         return "fp32 CPU"
-    try:
-        quant = json.loads(meta.get("edgepick.quant", "{}"))
-    except json.JSONDecodeError:
-        quant = {}
-    mode = quant.get("mode", "static")
+    mode = info.mode
     if mode == "hybrid":
-        return f"hybrid-QaT {100 * float(quant.get('qat_fraction', 0)):.3g}%"
+        return f"hybrid-QaT {100 * float(info.quant.get('qat_fraction', 0)):.3g}%"
     return {"qat": "QaT", "static": "static"}.get(mode, mode)
 
 
@@ -119,11 +115,10 @@ def bench_model(path: str | Path, data: str | Path, images: list[np.ndarray], cf
     """One row of the table for an edgepick ONNX file."""
     path = Path(path)
     seg = Segmenter(path, threads=cfg.threads, engine=cfg.engine)
-    meta = seg.info.metadata
     acc = evaluate(path, data, cfg.split, progress=False, engine=cfg.engine)
     p50, p95 = _percentiles(inference_times(seg, images, cfg))
-    row = Row(mode_label(meta), str(path), seg.info.precision, acc["pixel_acc"], acc["miou"], p50, p95,
-              float(meta["edgepick.train_time_s"]) if meta.get("edgepick.train_time_s") else None,
+    row = Row(mode_label(seg.info), str(path), seg.info.precision, acc["pixel_acc"], acc["miou"], p50, p95,
+              seg.info.train_time_s,
               round(path.stat().st_size / 1e6, 3))
     depth_there = (Path(data) / cfg.split / "depth").is_dir()
     if with_pipeline and depth_there:

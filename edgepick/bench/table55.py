@@ -85,7 +85,7 @@ def make_table55(work: str | Path, setting: Setting, device: str = "auto", comma
 
     from edgepick.data.synth import SynthConfig, synthesize
     from edgepick.export.onnx_export import export_checkpoint
-    from edgepick.quant import agreement_images, folder_images, quantize_hybrid, quantize_qat, quantize_static
+    from edgepick.quant import agreement_images, folder_images, quantize_hybrid, quantize_qat, quantize_static, run_images
     from edgepick.train.config import Device
     from edgepick.train.loop import TrainConfig, train
 
@@ -130,8 +130,9 @@ def make_table55(work: str | Path, setting: Setting, device: str = "auto", comma
     qat_tc = replace(tc, out=str(work / "qat"), keep_epochs=())
     timed("QaT from scratch", "qat", files[2], quantize_qat, qat_tc, files[2], progress=False)
     for p, f in zip(FRACTIONS, files[3:]):
-        timed(f"hybrid-QaT {p:.0%}", f"hybrid{p:.2f}", f, quantize_hybrid, work / "float", data, f, p,
-              qat_run=work / f"hybrid{p:.2f}.run", device=device, progress=False)
+        timed(f"hybrid-QaT {p:.0%}", f"hybrid{p:.2f}", f, lambda f=f, p=p, **k: quantize_hybrid(
+            work / "float", data, f, p, run_images(work / "float", data), device=member(Device, "device", device),
+            progress=False, **k), qat_run=work / f"hybrid{p:.2f}.run")
     if (only is not None and "bench" not in only) or not all(f.exists() for f in files):
         return None
     t0 = time.perf_counter()

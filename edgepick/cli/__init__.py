@@ -32,6 +32,7 @@ from edgepick.cli.data import data
 from edgepick.cli.grasp import grasp
 from edgepick.cli.model import model
 from edgepick.cli.pick import pick
+from edgepick.cli.qat import quantize_hybrid_cmd, quantize_qat_cmd
 from edgepick.cli.quant import export_cmd, quantize
 from edgepick.cli.replay import replay
 from edgepick.cli.train import demo, eval_cmd, train
@@ -65,6 +66,8 @@ def cli() -> None:
     """
 
 
+for _command in (quantize_qat_cmd, quantize_hybrid_cmd):
+    quantize.add_command(_command)
 for _command in (data, train, eval_cmd, calibrate, grasp, demo, export_cmd, quantize, model, pick, replay, bench):
     cli.add_command(_command)
 

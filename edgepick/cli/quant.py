@@ -1,7 +1,9 @@
-"""`edgepick export` and `edgepick quantize static|qat|hybrid`: thin click shells over edgepick.quant."""
+"""`edgepick export` and `edgepick quantize static|inspect`: thin click shells over edgepick.quant (the
+QaT commands are in cli/qat.py)."""
 
 from __future__ import annotations
 
+from dataclasses import fields
 from pathlib import Path
 
 import click
@@ -10,7 +12,6 @@ from edgepick.cli.options import (
     choice,
     default_of,
     emit,
-    epoch_subset,
     parse_numbers,
     preprocessing_of,
     preprocessing_options,
@@ -19,29 +20,25 @@ from edgepick.cli.options import (
 from edgepick.errors import ConfigError
 from edgepick.files import check_output
 from edgepick.geometry import Size
-from edgepick.models.config import Arch
 from edgepick.quant.config import (
     BIAS_CORRECTION_IMAGES,
     DEFAULT_CALIB_IMAGES,
-    FREEZE_AT,
     MAX_FLOAT_LAYERS,
     BiasCorrection,
     CalibMethod,
     GeluForm,
+    OnnxOptions,
     Placement,
+    PtqMethods,
+    QatOptions,
     QuantConfig,
     Target,
     WeightBits,
 )
-from edgepick.train.config import Device, TrainConfig
 
 
-def _quant_config(keep_float: str = "", **options) -> QuantConfig:
-    """The QuantConfig of a command's options (KEEP_FLOAT comma-separated; the rest by field name)."""
-    return QuantConfig(keep_float=tuple(k.strip() for k in keep_float.split(",") if k.strip()), **options)
-
-
-def _check_onnx_out(out: str, *inputs: str | None) -> None:
+def check_onnx_out_flag(out: str, *inputs: str | None) -> None:
+    """Refuse --out up front: not an .onnx file, one of the INPUTS, or in a folder that cannot be made."""
     check_output(out, "--out", suffixes=(".onnx",), inputs=inputs)
 
 
@@ -76,28 +73,21 @@ calibration = [
 
 # static PTQ's methods (quant/pt2e/ptq.py): static and inspect
 ptq_methods = [
-    click.option("--equalize/--no-equalize", default=default_of(QuantConfig, "equalize"), show_default=True,
+    click.option("--equalize/--no-equalize", default=default_of(PtqMethods, "equalize"), show_default=True,
                  help="Cross-layer equalization: rescale conv pairs joined by ReLU-like ops so that each channel has "
                       "the same weight range in both (BN folded first); exact in float, done before calibration."),
-    click.option("--adaround/--no-adaround", default=default_of(QuantConfig, "adaround"), show_default=True,
+    click.option("--adaround/--no-adaround", default=default_of(PtqMethods, "adaround"), show_default=True,
                  help=f"Learn each int8 conv's weight rounding (up or down) on the first {BIAS_CORRECTION_IMAGES} "
                       "calibration images (fewer above 320x240), so that its output stays closest to fp32's "
                       "(AdaRound)."),
-    click.option("--adaround-budget", "adaround_budget_s", default=default_of(QuantConfig, "adaround_budget_s"),
+    click.option("--adaround-budget", "adaround_budget_s", default=default_of(PtqMethods, "adaround_budget_s"),
                  show_default=True, metavar="SECONDS", help="AdaRound's time, shared by the convs."),
-    click.option("--bias-correction", default=default_of(QuantConfig, "bias_correction"), show_default=True,
+    click.option("--bias-correction", default=default_of(PtqMethods, "bias_correction"), show_default=True,
                  type=choice(BiasCorrection),
                  help=f"Shift each int8 conv's bias so that its output's per-channel mean is fp32's, on the first "
                       f"{BIAS_CORRECTION_IMAGES} calibration images (fewer above 320x240): empirical (each conv on the "
                       "int8 model's own input, layer by layer, AIMET's form; the median of the images' gaps), fast "
                       "(each conv on fp32's input, NNCF's form; not for .onnx models) or none."),
-]
-
-
-# QaT and hybrid-QaT
-qat_options = [
-    click.option("--weight-averaging", default=default_of(QuantConfig, "weight_averaging"), show_default=True,
-                 help="Moving-average constant of the QaT weight ranges; 1.0 = each step's own range."),
 ]
 
 
@@ -110,7 +100,7 @@ def export_cmd(checkpoint: str, out: str) -> None:
     uint8 `labels` out, normalisation and colour space in the graph, edgepick.* metadata."""
     from edgepick.export.onnx_export import export_checkpoint
 
-    _check_onnx_out(out, checkpoint)
+    check_onnx_out_flag(out, checkpoint)
     emit(export_checkpoint(checkpoint, out))
 
 
@@ -135,17 +125,17 @@ def quantize() -> None:
                    "images made into tensors by the preprocessing options.")
 @click.option("--input-shape", default=None, metavar="N,C,H,W",
               help="For an .onnx MODEL with dynamic input dims [default: the first calibration tensor's shape].")
-@click.option("--placement", default=default_of(QuantConfig, "placement"), show_default=True, type=choice(Placement),
+@click.option("--placement", default=default_of(OnnxOptions, "placement"), show_default=True, type=choice(Placement),
               help="For an .onnx MODEL: all (every op onnxruntime runs in int8, with edgepick's activation "
                    "rewrites: for onnxruntime), convs (only the convs and the tensors they read and write; the "
                    "model's own activations stay float as written, which OpenVINO fuses into its int8 convs), joins "
                    "(convs, matmuls, and the adds, concats and pools that join branches, as NNCF places them) or "
                    "auto (each made and timed on --target on this machine; the fastest that keeps the outputs as "
                    "close to fp32 is written, the times in its metadata).")
-@click.option("--target", default=default_of(QuantConfig, "target"), show_default=True, type=choice(Target),
+@click.option("--target", default=default_of(OnnxOptions, "target"), show_default=True, type=choice(Target),
               help="For an .onnx MODEL with --placement auto: the engine the file is timed on (openvino needs the "
                    "[peers] extra).")
-@click.option("--gelu", default=default_of(QuantConfig, "gelu"), show_default=True, type=choice(GeluForm),
+@click.option("--gelu", default=default_of(OnnxOptions, "gelu"), show_default=True, type=choice(GeluForm),
               help="For an .onnx MODEL with --placement all: float (each GELU runs as the model writes it, in float "
                    "between its Q/DQ: onnxruntime has no integer Erf) or sigmoid (written as c*x*sigmoid(alpha*x), "
                    "alpha fitted per layer, on onnxruntime's integer kernels: faster, an approximation). Time both "
@@ -173,13 +163,7 @@ def quantize() -> None:
                    "left float.")
 @with_options(common)
 @with_options(preprocessing_options)
-def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None, input_shape: str | None,
-                        placement: str, target: str, gelu: str, calib_images: int | None, calib_method: str, percentile: float,
-                        tasks: tuple[str, ...], equalize: bool,
-                        adaround: bool, adaround_budget_s: float, bias_correction: str, seed: int,
-                        max_miou_drop: float | None, min_agreement: float | None, min_sqnr: float | None,
-                        max_float_layers: int, out: str, weight_bits: str,
-                        keep_float: str, **preprocessing) -> None:
+def quantize_static_cmd(checkpoint: str, out: str, **flags) -> None:
     """Static post-training quantization of MODEL: a float RUN or checkpoint of edgepick's (BN
     folded, ranges calibrated on --calib-images train images of --data), or a float ONNX file
     from any exporter (calibrated on --calib; --keep-float then names ONNX nodes).
@@ -188,52 +172,77 @@ def quantize_static_cmd(checkpoint: str, data_dir: str | None, calib: str | None
     edgepick quantize static RUN --data DATA --out int8.onnx
     edgepick quantize static model.onnx --calib images/ --mean 0.485,0.456,0.406 --std 0.229,0.224,0.225 --out int8.onnx
     """
-    if Path(checkpoint).suffix.lower() == ".onnx":
-        if bias_correction == BiasCorrection.FAST:
-            raise ConfigError("--bias-correction fast is for a RUN or checkpoint; an .onnx MODEL takes empirical")
-        _quantize_onnx(checkpoint, calib, input_shape, calib_images, seed, max_miou_drop, data_dir, out,
-                       _quant_config(keep_float, calib_method=calib_method, percentile=percentile,
-                                     weight_bits=weight_bits, bias_correction=bias_correction, equalize=equalize,
-                                     adaround=adaround, adaround_budget_s=adaround_budget_s, placement=placement,
-                                     target=target, gelu=gelu),
-                       preprocessing, tasks, _budget(min_agreement, min_sqnr, max_float_layers))
+    onnx_model = Path(checkpoint).suffix.lower() == ".onnx"
+    _refuse_other_kinds(flags, onnx_model)
+    budget = _budget(flags.pop("min_agreement"), flags.pop("min_sqnr"), flags["max_float_layers"])
+    shared = {k: flags.pop(k) for k in ("calib_images", "max_float_layers", "seed", "max_miou_drop", "calib",
+                                        "input_shape", "tasks", "data_dir")}
+    prep = {k: flags.pop(k) for k in list(flags) if k not in _CONFIG_FIELDS}
+    if onnx_model:
+        _quantize_onnx(checkpoint, out, shared, configs_of(**flags), prep, budget)
         return
-    for flag, value in (("--min-agreement", min_agreement), ("--min-sqnr", min_sqnr)):
-        if value is not None:
-            raise ConfigError(f"{flag} is for an .onnx MODEL; a RUN or checkpoint takes --max-miou-drop")
-    if tasks:
-        raise ConfigError("--task is for an .onnx MODEL; a RUN or checkpoint's output is its labels")
-    if data_dir is None:
+    if shared["data_dir"] is None:
         raise ConfigError("--data is needed to calibrate a RUN or checkpoint (--calib is for .onnx models)")
-    for flag, value in (("--calib", calib), ("--input-shape", input_shape)):
-        if value is not None:
-            raise ConfigError(f"{flag} is for an .onnx MODEL; a RUN or checkpoint calibrates on --data")
-    if placement != Placement.ALL:
-        raise ConfigError(f"--placement {placement} is for an .onnx MODEL; a RUN or checkpoint's int8 graph "
-                          "quantizes every activation")
-    if target != Target.ONNXRUNTIME:
-        raise ConfigError(f"--target {target} is for an .onnx MODEL with --placement auto")
-    if gelu != GeluForm.FLOAT:
-        raise ConfigError(f"--gelu {gelu} is for an .onnx MODEL; a RUN or checkpoint has no GELU")
-    _check_onnx_out(out, checkpoint, data_dir)
-    if seed < 0:
-        raise ConfigError(f"--seed {seed}: must be 0 or positive")
-    cfg = _quant_config(keep_float, calib_method=calib_method, percentile=percentile, weight_bits=weight_bits,
-                        bias_correction=bias_correction, equalize=equalize, adaround=adaround,
-                        adaround_budget_s=adaround_budget_s)
-    if max_miou_drop is not None:
-        from edgepick.quant.pt2e.inspect import quantize_accuracy_aware
+    check_onnx_out_flag(out, checkpoint, shared["data_dir"])
+    if shared["seed"] < 0:
+        raise ConfigError(f"--seed {shared['seed']}: must be 0 or positive")
+    _quantize_checkpoint(checkpoint, out, shared, configs_of(**flags))
 
-        emit(quantize_accuracy_aware(checkpoint, data_dir, out, max_miou_drop, cfg, calib_images, max_float_layers))
-        return
-    from edgepick.quant.pt2e.passes import agreement_images, check_classes, check_image_count, folder_images, quantize_static
+
+# flags only one kind of MODEL takes (parameter, flag as the error names it): another value than the default
+# for the other kind is refused in one line
+_ONNX_ONLY = (("calib", "--calib"), ("input_shape", "--input-shape"), ("tasks", "--task"),
+              ("min_agreement", "--min-agreement"), ("min_sqnr", "--min-sqnr"), ("placement", "--placement {}"),
+              ("target", "--target {}"), ("gelu", "--gelu {}"))
+_RUN_ONLY = (("data_dir", "--data"), ("max_miou_drop", "--max-miou-drop"), ("seed", "--seed"))
+_CONFIGS = {"config": QuantConfig, "methods": PtqMethods, "options": OnnxOptions, "qat": QatOptions}
+_CONFIG_FIELDS = {f.name for kind in _CONFIGS.values() for f in fields(kind)}
+
+
+def _refuse_other_kinds(flags: dict, onnx_model: bool) -> None:
+    """Refuse the flags the other kind of MODEL takes (given with another value than their default)."""
+    defaults = {p.name: p.default for p in click.get_current_context().command.params}
+    for name, flag in _RUN_ONLY if onnx_model else _ONNX_ONLY:
+        value = flags[name]
+        if value != defaults[name] and value not in (None, ()):
+            kind = "a RUN or checkpoint, not an .onnx MODEL" if onnx_model else "an .onnx MODEL, not a RUN or checkpoint"
+            raise ConfigError(f"{flag.format(value)} is for {kind}")
+    if onnx_model and flags["bias_correction"] == BiasCorrection.FAST:
+        raise ConfigError("--bias-correction fast is for a RUN or checkpoint; an .onnx MODEL takes empirical")
+
+
+def configs_of(keep_float: str = "", **options) -> dict:
+    """The configs of a command's options, each made of the options that are its fields (KEEP_FLOAT
+    comma-separated), by the keyword the passes take them as."""
+    options["keep_float"] = tuple(k.strip() for k in keep_float.split(",") if k.strip())
+    found = {}
+    for key, kind in _CONFIGS.items():
+        names = {f.name for f in fields(kind)} & options.keys()
+        if names:
+            found[key] = kind(**{name: options[name] for name in names})
+    return found
+
+
+def _quantize_checkpoint(checkpoint: str, out: str, shared: dict, configs: dict) -> None:
+    """`quantize static RUN --data DATA`: static PTQ (or the accuracy-aware search) of a checkpoint."""
+    configs.pop("options", None)  # its defaults: a torch model's int8 graph quantizes every activation
+    from edgepick.quant.pt2e.images import agreement_images, check_classes, check_image_count, folder_images
     from edgepick.train.checkpoint import Checkpoint
 
-    check_image_count(data_dir, "train", calib_images)
+    data, count, seed = shared["data_dir"], shared["calib_images"], shared["seed"]
+    check_image_count(data, "train", count)
+    if shared["max_miou_drop"] is not None:
+        from edgepick.quant.pt2e.inspect import quantize_accuracy_aware
+
+        emit(quantize_accuracy_aware(checkpoint, folder_images(data, "train", count, seed), data, out,
+                                     shared["max_miou_drop"], max_float_layers=shared["max_float_layers"], **configs))
+        return
+    from edgepick.quant.pt2e.passes import quantize_static
+
     ckpt = Checkpoint.load(checkpoint)
-    check_classes(ckpt, data_dir)
-    emit(quantize_static(ckpt, folder_images(data_dir, "train", calib_images, seed), out, cfg,
-                         check_images=agreement_images(data_dir, seed)))
+    check_classes(ckpt, data)
+    emit(quantize_static(ckpt, folder_images(data, "train", count, seed), out, **configs,
+                         check_images=agreement_images(data, seed)))
 
 
 def _budget(min_agreement: float | None, min_sqnr: float | None, max_float: int):
@@ -264,22 +273,16 @@ def _task_option(values: tuple[str, ...]):
     return named or common
 
 
-def _quantize_onnx(model: str, calib: str | None, input_shape: str | None, calib_images: int | None, seed: int,
-                   max_miou_drop: float | None, data_dir: str | None, out: str, config: QuantConfig,
-                   preprocessing: dict, tasks: tuple[str, ...] = (), budget=None) -> None:
+def _quantize_onnx(model: str, out: str, shared: dict, configs: dict, preprocessing: dict, budget=None) -> None:
     """`quantize static MODEL.onnx --calib DIR`: edgepick's recipe on a float ONNX file."""
     from edgepick.export.onnx_io import image_size, load_float_onnx
     from edgepick.quant.onnx.inputs import folder_tensors
     from edgepick.quant.onnx.static import quantize_onnx_static
 
-    for flag, value in (("--data", data_dir), ("--max-miou-drop", max_miou_drop)):
-        if value is not None:
-            raise ConfigError(f"{flag} is for a RUN or checkpoint; an .onnx MODEL calibrates on --calib")
-    if seed != 0:
-        raise ConfigError("--seed is for a RUN or checkpoint; an .onnx MODEL calibrates on all of --calib")
+    calib, input_shape, calib_images = shared["calib"], shared["input_shape"], shared["calib_images"]
     if calib is None:
         raise ConfigError("--calib DIR is needed to calibrate an .onnx MODEL (.npy tensors or images)")
-    _check_onnx_out(out, model, calib)
+    check_onnx_out_flag(out, model, calib)
     prep = preprocessing_of(**preprocessing)
     shape = parse_numbers(input_shape, "--input-shape", integer=True) if input_shape else None
     if shape is not None and any(d < 1 for d in shape):
@@ -293,7 +296,8 @@ def _quantize_onnx(model: str, calib: str | None, input_shape: str | None, calib
     if calib_images is not None and calib_images < 1:
         raise ConfigError(f"--calib-images {calib_images}: must be 1 or more")
     tensors = folder_tensors(calib, prep, size, calib_images)
-    emit(quantize_onnx_static(model, tensors, out, config, input_shape=shape, task=_task_option(tasks), budget=budget))
+    emit(quantize_onnx_static(model, tensors, out, **configs, input_shape=shape, task=_task_option(shared["tasks"]),
+                              budget=budget))
 
 
 _GAIN_HEADERS = {"equalize": "CLE gain dB", "adaround": "AdaRound gain dB", "bias_correction": "bias corr. gain dB"}
@@ -316,8 +320,8 @@ def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int | Non
     --adaround or a --bias-correction other than none (empirical by default), the model is made
     again with each added in turn (in that order), and each layer says how many dB each one gained
     it. JSON on stdout."""
+    from edgepick.quant.pt2e.images import check_classes, check_image_count, folder_images
     from edgepick.quant.pt2e.inspect import inspect
-    from edgepick.quant.pt2e.passes import check_classes, check_image_count, folder_images
     from edgepick.train.checkpoint import Checkpoint
 
     if top < 0:
@@ -328,9 +332,8 @@ def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int | Non
     check_classes(ckpt, data_dir)
     report = inspect(ckpt, folder_images(data_dir, "train", calib_images),
                      folder_images(data_dir, "val", images, what="val images"),
-                     _quant_config(calib_method=calib_method, weight_bits=weight_bits, equalize=equalize,
-                                   adaround=adaround, adaround_budget_s=adaround_budget_s,
-                                   bias_correction=bias_correction))
+                     **configs_of(calib_method=calib_method, weight_bits=weight_bits, equalize=equalize,
+                                adaround=adaround, adaround_budget_s=adaround_budget_s, bias_correction=bias_correction))
     by_name = {r["layer"]: r for r in report["layers"]}
     click.echo(f"logits SQNR {report['logits_sqnr_db']} dB, labels equal to fp32: {report['label_agreement']}", err=True)
     methods = [m for m in ("equalize", "adaround", "bias_correction") if m in report]
@@ -344,80 +347,3 @@ def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int | Non
         gains = "".join(f" {row[m + '_gain_db'] if row[m + '_gain_db'] is not None else '-':>19}" for m in methods)
         click.echo(f"{name:40s} {row['sqnr_db']:8.2f} {row['added_drift_db']:15.2f}{gains}", err=True)
     emit(report)
-
-
-@quantize.command("qat")
-@click.option("--data", "data_dir", required=True, type=click.Path())
-@click.option("--run", "run_dir", default=None, type=click.Path(file_okay=False),
-              help="Folder for the QaT run's checkpoints [default: OUT with .run].")
-@click.option("--arch", default=default_of(TrainConfig, "arch"), show_default=True, type=choice(Arch))
-@click.option("--epochs", default=default_of(TrainConfig, "epochs"), show_default=True)
-@click.option("--batch-size", default=default_of(TrainConfig, "batch_size"), show_default=True)
-@click.option("--lr", default=default_of(TrainConfig, "lr"), show_default=True)
-@click.option("--size", default="640x480", show_default=True,
-              help="Model input size, WIDTHxHEIGHT (multiples of 8); images are resized to it.")
-@click.option("--device", default=default_of(TrainConfig, "device"), show_default=True, type=choice(Device))
-@click.option("--seed", default=default_of(TrainConfig, "seed"), show_default=True)
-@with_options(epoch_subset)
-@with_options(qat_options)
-@with_options(common)
-def quantize_qat_cmd(data_dir: str, run_dir: str | None, arch: str, epochs: int, batch_size: int, lr: float,
-                     size: str, device: str, seed: int, epoch_images: int, val_images: int, out: str,
-                     weight_bits: str, keep_float: str, weight_averaging: float) -> None:
-    """QaT from scratch: train with fake-quant for all epochs (GPU if there is one; fp32, no AMP),
-    observers and BN statistics frozen for the last 30% of the steps, then export the int8 model
-    of the epoch with the best val mIoU."""
-    from edgepick.cli.options import check_data_orientation, model_size
-    from edgepick.quant.pt2e.passes import quantize_qat
-
-    _check_onnx_out(out, data_dir)
-    input_size = model_size(size)
-    check_data_orientation(data_dir, input_size)
-    run = run_dir or str(Path(out).with_suffix(".run"))
-    cfg = TrainConfig(data=data_dir, out=run, arch=arch, epochs=epochs, batch_size=batch_size, lr=lr,
-                      size=input_size, device=device, seed=seed, epoch_images=epoch_images,
-                      val_images=val_images)
-    check_output(run, "--run", kind="dir", inputs=(data_dir, out))
-    emit(quantize_qat(cfg, out, _quant_config(weight_bits=weight_bits, keep_float=keep_float,
-                                               weight_averaging=weight_averaging)))
-
-
-@quantize.command("hybrid")
-@click.argument("run", metavar="RUN", type=click.Path(file_okay=False))
-@click.option("--data", "data_dir", required=True, type=click.Path())
-@click.option("--qat-fraction", required=True, type=float,
-              help="p in (0, 1): the last p of RUN's epoch budget is trained with QaT.")
-@click.option("--run", "qat_run", default=None, type=click.Path(file_okay=False),
-              help="Folder for the QaT phase's checkpoints [default: OUT with .run].")
-@click.option("--freeze-at", default=FREEZE_AT, show_default=True,
-              help="Share of the QaT steps after which observers and BN statistics are frozen (1.0: never).")
-@click.option("--fresh-optimizer", is_flag=True,
-              help="Start the QaT phase with a fresh AdamW instead of the float run's moments (for comparison).")
-@click.option("--calib-images", default=None, type=int,
-              help=f"Start the activation ranges from static PTQ's (percentile over N train images) [default: "
-                   f"{DEFAULT_CALIB_IMAGES}, or the whole train split if smaller]; 0: from the first batch's min/max.")
-@click.option("--hold-ranges/--moving-ranges", default=None,
-              help="Keep the calibrated ranges for the whole QaT phase, or let the observers move them "
-                   "[default: hold when calibrated].")
-@click.option("--device", default=default_of(TrainConfig, "device"), show_default=True, type=choice(Device),
-              help="Where the QaT phase trains (auto: the GPU if there is one), whatever device RUN used.")
-@with_options(qat_options)
-@with_options(common)
-def quantize_hybrid_cmd(run: str, data_dir: str, qat_fraction: float, qat_run: str | None, out: str,
-                        weight_bits: str, keep_float: str, freeze_at: float, fresh_optimizer: bool,
-                        calib_images: int | None, hold_ranges: bool | None, device: str,
-                        weight_averaging: float) -> None:
-    """Hybrid-QaT: continue float RUN from its epoch_NNN.pt at (1 - p) of its budget E and train
-    the last pE epochs with QaT (train RUN with --keep-epochs at the switch points, e.g. 90,95,99
-    for p = 10%, 5%, 1% of 100 epochs). Exports the QaT epoch with the best val mIoU, as export
-    takes a float RUN's best.pt. Reports the wall time of each phase."""
-    from edgepick.quant.pt2e.passes import quantize_hybrid
-
-    _check_onnx_out(out, run, data_dir)
-    check_output(qat_run or str(Path(out).with_suffix(".run")), "--run", kind="dir", inputs=(run, data_dir, out))
-    if calib_images is not None and (calib_images < 0 or (hold_ranges and not calib_images)):
-        raise ConfigError("--calib-images must be 0 (off) or positive, and --hold-ranges needs it")
-    cfg = _quant_config(weight_bits=weight_bits, keep_float=keep_float, weight_averaging=weight_averaging)
-    emit(quantize_hybrid(run, data_dir, out, qat_fraction, cfg, qat_run=qat_run, freeze_at=freeze_at,
-                          carry_optimizer=not fresh_optimizer, calib=calib_images, hold_ranges=hold_ranges,
-                          device=device))

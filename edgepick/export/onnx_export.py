@@ -7,7 +7,6 @@ the uint8 -> float cast and the ArgMax around whatever maps [0, 255] NCHW to log
 
 from __future__ import annotations
 
-import json
 import warnings
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass
@@ -26,6 +25,7 @@ from edgepick.files import atomic_path, sha256_of
 from edgepick.geometry import Size
 from edgepick.models.deeplabv3 import LogitsNet
 from edgepick.onnx_graph import Graph
+from edgepick.runtime.model_info import ModelInfo
 from edgepick.train.checkpoint import Checkpoint, load_model
 from edgepick.train.run import Run
 
@@ -73,14 +73,9 @@ def run_train_time_s(path: Path | None, train_time_s: float) -> float:
 def contract_metadata(ckpt: Checkpoint, precision: str, quant: dict | None, train_time_s: float | None = None) -> dict:
     """The edgepick.* metadata_props of docs/contracts.md#onnx-model, from a checkpoint's own description."""
     seconds = train_time_s if train_time_s is not None else run_train_time_s(ckpt.path, ckpt.train_time_s)
-    return {"edgepick.classes": json.dumps(list(ckpt.classes)),
-            "edgepick.input_size": json.dumps(list(ckpt.input_size.hw)),
-            "edgepick.colorspace": ckpt.colorspace,
-            "edgepick.precision": precision,
-            "edgepick.quant": json.dumps(quant or {"mode": "none"}),
-            "edgepick.source_sha256": sha256_of(ckpt.path) if ckpt.path else "",
-            "edgepick.train_time_s": f"{seconds:.1f}",
-            "edgepick.arch": ckpt.model_config.arch}
+    return ModelInfo(list(ckpt.classes), ckpt.input_size, ckpt.colorspace, precision, quant=quant or {"mode": "none"},
+                     source_sha256=sha256_of(ckpt.path) if ckpt.path else "", arch=ckpt.model_config.arch,
+                     train_time_s=seconds).to_metadata()
 
 
 def strip_debug_info(model) -> None:

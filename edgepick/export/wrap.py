@@ -24,6 +24,7 @@ from edgepick.export.onnx_io import fix_input_shape, graph_inputs, image_size, i
 from edgepick.files import atomic_path, sha256_of
 from edgepick.geometry import Size
 from edgepick.onnx_graph import Graph
+from edgepick.runtime.model_info import ModelInfo
 from edgepick.runtime.preprocessing import ChannelOrder, Layout, Preprocessing
 
 TAG = "edgepick_wrap"
@@ -157,11 +158,15 @@ def _metadata(proto: Any, path: Path, model: str | Path, classes: list[str], siz
     meta = {p.key: p.value for p in proto.metadata_props if not p.key.startswith("edgepick.")}
     old = {p.key: p.value for p in proto.metadata_props}
     int8 = conv_weight_report(path)["int8"] > 0
-    meta.update({"edgepick.classes": json.dumps(list(classes)), "edgepick.input_size": json.dumps(list(size.hw)),
-                 "edgepick.colorspace": "rgb", "edgepick.precision": "int8" if int8 else "fp32",
-                 "edgepick.quant": old.get("edgepick.quant", json.dumps({"mode": "foreign" if int8 else "none"})),
-                 "edgepick.source_sha256": sha256_of(Path(model)), "edgepick.arch": "foreign",
-                 "edgepick.preprocessing": json.dumps(prep.to_dict())})
+    quant = {"mode": "foreign" if int8 else "none"}
+    if "edgepick.quant" in old:
+        try:
+            quant = json.loads(old["edgepick.quant"])
+        except ValueError:
+            raise ParameterError("{model}: its edgepick.quant metadata is not JSON", model=Path(model)) from None
+    info = ModelInfo(list(classes), size, "rgb", "int8" if int8 else "fp32", quant=quant,
+                     source_sha256=sha256_of(Path(model)), arch="foreign", preprocessing=prep.to_dict())
+    meta.update(info.to_metadata())
     del proto.metadata_props[:]
     for key, value in meta.items():
         entry = proto.metadata_props.add()

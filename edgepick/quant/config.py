@@ -1,10 +1,13 @@
-"""How a model is quantized (`QuantConfig`), its calibration methods and the passes' shared
-defaults, without torch: the command line builds its options and defaults from them."""
+"""How a model is quantized: the core every pass is given (`QuantConfig`), and what only some passes
+choose (`PtqMethods`, `OnnxOptions`, `QatOptions`, `Pt2eOptions`): each pass takes the configs it
+uses and no other. Their choices and the passes' shared defaults too, without torch: the command
+line builds its options and defaults from them."""
 
 from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, fields
+from typing import Self
 
 from edgepick.errors import ParameterError
 from edgepick.schema import member, plain
@@ -103,54 +106,36 @@ class WeightBits(enum.StrEnum):
     FIRST_SEVEN = "first-7"  # static PTQ: 7-bit only on the convs measured to saturate on the calibration images
 
 
+class _Config:
+    """What the configs share: their fields as a file records them, and back."""
+
+    def to_dict(self) -> dict:
+        """The fields as ONNX metadata and QaT checkpoints record them (plain values, lists)."""
+        return {f.name: list(v) if isinstance(v := plain(getattr(self, f.name)), tuple) else v
+                for f in fields(self)}  # type: ignore[arg-type]
+
+    @classmethod
+    def from_dict(cls, record: dict) -> Self:
+        """The config of the fields RECORD has for it (a record may hold other configs' fields too)."""
+        return cls(**{f.name: record[f.name] for f in fields(cls) if f.name in record})  # type: ignore[arg-type]
+
+
 @dataclass(frozen=True)
-class QuantConfig:
-    """How a model is quantized, checked on creation; written into the ONNX metadata (`edgepick.quant`)."""
+class QuantConfig(_Config):
+    """What every pass is given: the weights' precision, how activation ranges are calibrated, and
+    what stays float. Checked on creation; written into the file's metadata (`edgepick.quant`)."""
 
     calib_method: CalibMethod = CalibMethod.AUTO  # activation ranges for static PTQ
-    percentile: float = 99.99
+    percentile: float = 99.99  # static PTQ's percentile rule; hybrid-QaT's calibrated start
     weight_bits: WeightBits = WeightBits.SEVEN
-    # QaT: moving-average constant of the per-channel weight ranges (torch.ao's default 0.01; 1.0: each step's
-    # own range). With the conv-BN fusion the quantized weight is w * gamma / sqrt(running_var + eps), which moves
-    # with the BN statistics every step: a lagging range clips it (benchmarks/results/hybrid-start/).
-    weight_averaging: float = 0.01
-    # hardswish as x * hardsigmoid(x), both quantized (rewrites.GatedHardswish): onnxruntime then runs it on integer
-    # kernels; as one quantized op it dequantizes the map and runs in float (benchmarks/quant_speed.py times both).
-    hardswish_gate: bool = True
-    # static PTQ: shift conv biases back to fp32's means; empirical was as close to fp32 as none or closer on every model
-    # measured (benchmarks/results/ptq-methods/, ptq-methods-onnx/)
-    bias_correction: BiasCorrection = BiasCorrection.EMPIRICAL
-    equalize: bool = False  # static PTQ: cross-layer equalization of conv pairs before calibration (quant/pt2e/equalize.py)
-    adaround: bool = False  # static PTQ: learn each conv's weight rounding on the calibration images (quant/pt2e/adaround.py)
-    adaround_budget_s: float = 120.0  # AdaRound's time budget, shared by the convs
-    placement: Placement = Placement.ALL  # static PTQ of an .onnx model: which tensors are int8
-    target: Target = Target.ONNXRUNTIME  # static PTQ of an .onnx model with placement auto: the engine it times
-    gelu: GeluForm = GeluForm.FLOAT  # static PTQ of an .onnx model with placement all: how a GELU is quantized
-    keep_float: tuple[str, ...] = ()  # module names (prefixes) left in float
-    skip: tuple[str, ...] = ("preprocess",)  # never quantized
+    keep_float: tuple[str, ...] = ()  # module names (prefixes), or an .onnx model's node names, left in float
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "calib_method", member(CalibMethod, "calib_method", self.calib_method))
-        object.__setattr__(self, "bias_correction", member(BiasCorrection, "bias_correction", self.bias_correction))
         object.__setattr__(self, "weight_bits", member(WeightBits, "weight_bits", str(self.weight_bits)))
-        object.__setattr__(self, "placement", member(Placement, "placement", self.placement))
-        object.__setattr__(self, "target", member(Target, "target", self.target))
-        object.__setattr__(self, "gelu", member(GeluForm, "gelu", self.gelu))
         object.__setattr__(self, "keep_float", tuple(self.keep_float))
-        object.__setattr__(self, "skip", tuple(self.skip))
-        if self.gelu != GeluForm.FLOAT and self.placement in (Placement.CONVS, Placement.JOINS):
-            raise ParameterError("{gelu}: with {placement} the GELU's own ops stay float; it needs placement all",
-                                 gelu=self.gelu, placement=self.placement)
-        if self.target != Target.ONNXRUNTIME and self.placement != Placement.AUTO:
-            raise ParameterError("{target}: the engine placement auto times the candidates on; with {placement} the "
-                                 "file is made as that placement says: give placement auto",
-                                 target=self.target, placement=self.placement)
         if not 50.0 < self.percentile <= 100.0:
             raise ParameterError("{percentile}: must be in (50, 100]", percentile=self.percentile)
-        if not self.adaround_budget_s > 0.0:
-            raise ParameterError("{adaround_budget_s}: must be positive", adaround_budget_s=self.adaround_budget_s)
-        if not 0.0 < self.weight_averaging <= 1.0:
-            raise ParameterError("{weight_averaging}: must be in (0, 1]", weight_averaging=self.weight_averaging)
 
     @property
     def reduce_range(self) -> bool:
@@ -158,13 +143,86 @@ class QuantConfig:
         return self.weight_bits == WeightBits.SEVEN
 
     @classmethod
-    def from_dict(cls, record: dict) -> QuantConfig:
+    def from_dict(cls, record: dict) -> Self:
         """A config as to_dict wrote it, also from files written before weight_bits (reduce_range: bool)."""
         record = dict(record)
         if "reduce_range" in record:
             record.setdefault("weight_bits", WeightBits.SEVEN if record.pop("reduce_range") else WeightBits.EIGHT)
-        return cls(**record)
+        return super().from_dict(record)
 
-    def to_dict(self) -> dict:
-        """The config as ONNX metadata and QaT checkpoints record it (plain values, lists)."""
-        return {f.name: list(v) if isinstance(v := plain(getattr(self, f.name)), tuple) else v for f in fields(self)}
+
+@dataclass(frozen=True)
+class PtqMethods(_Config):
+    """Static PTQ's methods on the calibration images, in the order the passes apply them (the torch
+    pass, the ONNX pass and `inspect` take them; QaT learns its weights instead)."""
+
+    equalize: bool = False  # cross-layer equalization of conv pairs before calibration
+    adaround: bool = False  # learn each conv's weight rounding on the calibration images
+    adaround_budget_s: float = 120.0  # AdaRound's time budget, shared by the convs
+    # shift conv biases back to fp32's means; empirical was as close to fp32 as none or closer on every model
+    # measured (benchmarks/results/ptq-methods/, ptq-methods-onnx/); fast is the torch pass's only
+    bias_correction: BiasCorrection = BiasCorrection.EMPIRICAL
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "bias_correction", member(BiasCorrection, "bias_correction", self.bias_correction))
+        if not self.adaround_budget_s > 0.0:
+            raise ParameterError("{adaround_budget_s}: must be positive", adaround_budget_s=self.adaround_budget_s)
+
+    @property
+    def measures(self) -> bool:
+        """Whether conversion runs the model on calibration inputs for these methods (AdaRound, bias correction)."""
+        return self.adaround or self.bias_correction != BiasCorrection.NONE
+
+
+@dataclass(frozen=True)
+class OnnxOptions(_Config):
+    """What only the ONNX pass (`quantize_onnx_static`) can choose: which tensors go on the int8 grid,
+    for which engine, and how a GELU runs."""
+
+    placement: Placement = Placement.ALL
+    target: Target = Target.ONNXRUNTIME  # with placement auto: the engine the candidates are timed on
+    gelu: GeluForm = GeluForm.FLOAT  # with placement all
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "placement", member(Placement, "placement", self.placement))
+        object.__setattr__(self, "target", member(Target, "target", self.target))
+        object.__setattr__(self, "gelu", member(GeluForm, "gelu", self.gelu))
+        if self.gelu != GeluForm.FLOAT and self.placement in (Placement.CONVS, Placement.JOINS):
+            raise ParameterError("{gelu}: with {placement} the GELU's own ops stay float; it needs placement all",
+                                 gelu=self.gelu, placement=self.placement)
+        if self.target != Target.ONNXRUNTIME and self.placement != Placement.AUTO:
+            raise ParameterError("{target}: the engine placement auto times the candidates on; with {placement} the "
+                                 "file is made as that placement says: give placement auto",
+                                 target=self.target, placement=self.placement)
+
+
+@dataclass(frozen=True)
+class QatOptions(_Config):
+    """What only QaT and hybrid-QaT choose: how the weight ranges follow training, and when the
+    observers and BatchNorm statistics freeze."""
+
+    # moving-average constant of the per-channel weight ranges (torch.ao's default 0.01; 1.0: each step's own
+    # range). With the conv-BN fusion the quantized weight is w * gamma / sqrt(running_var + eps), which moves
+    # with the BN statistics every step: a lagging range clips it (benchmarks/results/hybrid-start/).
+    weight_averaging: float = 0.01
+    freeze_at: float = FREEZE_AT  # share of the QaT steps after which observers and BN statistics freeze (1.0: never)
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.weight_averaging <= 1.0:
+            raise ParameterError("{weight_averaging}: must be in (0, 1]", weight_averaging=self.weight_averaging)
+        if not 0.0 <= self.freeze_at <= 1.0:
+            raise ParameterError("{freeze_at}: must be inside [0, 1]", freeze_at=self.freeze_at)
+
+
+@dataclass(frozen=True)
+class Pt2eOptions(_Config):
+    """How the torch passes prepare a model's graph (static PTQ of a checkpoint or an nn.Module, QaT,
+    hybrid-QaT); the ONNX pass rewrites a graph's activations itself."""
+
+    # hardswish as x * hardsigmoid(x), both quantized (rewrites.GatedHardswish): onnxruntime then runs it on integer
+    # kernels; as one quantized op it dequantizes the map and runs in float (benchmarks/quant_speed.py times both).
+    hardswish_gate: bool = True
+    skip: tuple[str, ...] = ("preprocess",)  # module names never quantized
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "skip", tuple(self.skip))

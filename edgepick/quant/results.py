@@ -3,23 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import MISSING, asdict, dataclass, fields
-
-
-@dataclass(frozen=True)
-class Int8File:
-    """An exported int8 ONNX model and the checks run on it."""
-
-    out: str
-    size_bytes: int
-    convs: int  # convs of the model (a conv split into regions counts once)
-    int8_convs: int  # of them, those whose weights are int8 in the file
-    float_convs: list[str]  # the names of the others (kept float on purpose)
-    agreement_vs_torch: float  # share of pixels where onnxruntime's labels equal torch's simulation's
+from pathlib import Path
+from typing import Any
 
 
 @dataclass(frozen=True)
 class PassResult:
-    """A pass's int8 model (the fields of Int8File), the settings written into its metadata
+    """A torch pass's int8 model (the fields of pt2e.int8_file.Int8File), the settings written into its metadata
     (`quant`: the `edgepick.quant` entry of docs/contracts.md#onnx-model) and the pass's own figures."""
 
     mode: str  # static, qat or hybrid
@@ -55,6 +45,39 @@ class AccuracyAwareResult:
     chosen: dict  # the kept step: keep_float, val_miou, drop_pp
     steps: list[dict]  # every step tried, in order
     agreement_vs_torch: float
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class OnnxPassResult:
+    """The int8 file of a model edgepick did not make (an ONNX file or an nn.Module), what was done
+    to it and how close it stays to fp32."""
+
+    out: str
+    size_bytes: int
+    input_shape: list[int]
+    opset_in: int | None  # None for an nn.Module
+    opset_out: int
+    convs: int
+    int8_convs: int
+    float_convs: list[str]
+    agreement_vs_fp32: dict[str, float]  # per output that decides something: share of equal decisions
+    fidelity: dict[str, dict]  # per output: task, sqnr_db, cosine, agreement (quant/fidelity.py)
+    rewrites: dict[str, int]  # float rewrites before quantizing, and the int8 graph passes after
+    quant: dict
+    calib_tensors: int
+    calib_s: float
+
+    @classmethod
+    def of(cls, out: Path, report: dict, fidelity: dict[str, dict], **rest: Any) -> OnnxPassResult:
+        """The result for the file OUT, its conv REPORT (export.checks.conv_weight_report) and its
+        FIDELITY per output; REST: the other fields."""
+        return cls(out=str(out), size_bytes=out.stat().st_size, convs=report["convs"], int8_convs=report["int8"],
+                   float_convs=report["float"], fidelity=fidelity,
+                   agreement_vs_fp32={n: f["agreement"] for n, f in fidelity.items() if f["agreement"] is not None},
+                   **rest)
 
     def to_dict(self) -> dict:
         return asdict(self)

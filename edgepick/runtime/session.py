@@ -14,35 +14,18 @@ import os
 import statistics
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 import onnxruntime as ort
 
-from edgepick.errors import EdgepickError
 from edgepick.files import atomic_write
 from edgepick.geometry import Size
 from edgepick.machine import cpu_model
 from edgepick.runtime.engine import Engine
-from edgepick.schema import Where, as_names, as_numbers, member
-
-
-class ModelError(EdgepickError):
-    """An ONNX file that is not an edgepick model (docs/contracts.md#onnx-model)."""
-
-
-REQUIRED_KEYS = ("edgepick.classes", "edgepick.input_size", "edgepick.colorspace", "edgepick.precision")
-
-
-@dataclass
-class ModelInfo:
-    classes: list[str]
-    input_size: Size  # the image input's, read from the [H, W] of edgepick.input_size
-    colorspace: str
-    precision: str
-    metadata: dict[str, str]
+from edgepick.runtime.model_info import ModelError, ModelInfo
+from edgepick.schema import member
 
 
 def _session(path: Path, threads: int, optimize: bool = True) -> ort.InferenceSession:
@@ -75,21 +58,10 @@ def check_model(path: str | Path) -> ModelInfo:
 
 
 def read_info(session: ort.InferenceSession, path: Path) -> ModelInfo:
-    """The checks of docs/contracts.md#onnx-model: uint8 [1,H,W,3] `image` in, uint8 [1,H,W] `labels` out,
-    edgepick metadata."""
-    meta = session.get_modelmeta().custom_metadata_map
-    missing = [k for k in REQUIRED_KEYS if k not in meta]
-    if missing:
-        raise ModelError(f"{path} is not an edgepick model: metadata {', '.join(missing)} missing")
-    where = Where(str(path))
-    try:
-        classes = json.loads(meta["edgepick.classes"])
-        size = json.loads(meta["edgepick.input_size"])
-    except ValueError:
-        raise ModelError(f"{path} has unreadable edgepick metadata (edgepick.classes and edgepick.input_size are "
-                         "JSON)") from None
-    classes = as_names(classes, where.at("edgepick.classes"), min_length=2)
-    h, w = as_numbers(size, where.at("edgepick.input_size"), 2, integer=True, minimum=1, maximum=8192)
+    """The checks of docs/contracts.md#onnx-model: edgepick metadata (ModelInfo), uint8 [1,H,W,3] `image`
+    in, uint8 [1,H,W] `labels` out."""
+    info = ModelInfo.from_metadata(session.get_modelmeta().custom_metadata_map, path)
+    h, w = info.input_size.hw
     inputs, outputs = session.get_inputs(), {o.name: o for o in session.get_outputs()}
     if len(inputs) != 1 or inputs[0].name != "image" or inputs[0].type != "tensor(uint8)" \
             or list(inputs[0].shape) != [1, h, w, 3]:
@@ -98,7 +70,7 @@ def read_info(session: ort.InferenceSession, path: Path) -> ModelInfo:
     out = outputs.get("labels")
     if out is None or out.type != "tensor(uint8)" or list(out.shape) != [1, h, w]:
         raise ModelError(f"{path} must give a uint8 output 'labels' of shape [1, {h}, {w}]")
-    return ModelInfo(list(classes), Size(w, h), meta["edgepick.colorspace"], meta["edgepick.precision"], dict(meta))
+    return info
 
 
 def openvino_config(threads: int, precision: str = "f32") -> dict[str, object]:

@@ -62,8 +62,8 @@ def test_peers_onnx_compares_every_tool_on_a_model_edgepick_did_not_make(tmp_pat
     if fastest != "edgepick static (onnxruntime)":  # the op table profiles edgepick's fastest file too
         expected.append(f"{fastest} (ms)")
     assert [c.strip() for c in header.strip("|").split("|")] == expected
-    assert peers_onnx.method_config("7/empirical/convs").placement == "convs"
-    assert peers_onnx.method_config("7/empirical/gelu-sigmoid").gelu == "sigmoid"
+    assert peers_onnx.method_config("7/empirical/convs")["options"].placement == "convs"
+    assert peers_onnx.method_config("7/empirical/gelu-sigmoid")["options"].gelu == "sigmoid"
     with pytest.raises(SystemExit, match="expected"):
         peers_onnx.method_config("7/empirical/convs/convs")
     with pytest.raises(SystemExit, match="with placement='convs'"):

@@ -20,9 +20,10 @@ from edgepick.quant.config import QuantConfig  # noqa: E402
     ("8/fast/ada+p99.9", False, True, 99.9),
 ])
 def test_a_case_names_its_methods_and_percentile(text, equalize, adaround, percentile, tmp_path):
-    out, config = ptq_methods.start_case(0, ptq_methods.case(text), tmp_path, 5.0)
-    assert (config.equalize, config.adaround, config.percentile) == (equalize, adaround, percentile)
-    assert config.weight_bits == text.split("/")[0] and config.bias_correction == text.split("/")[1]
+    out, configs = ptq_methods.start_case(0, ptq_methods.case(text), tmp_path, 5.0)
+    config, methods = configs["config"], configs["methods"]
+    assert (methods.equalize, methods.adaround, config.percentile) == (equalize, adaround, percentile)
+    assert config.weight_bits == text.split("/")[0] and methods.bias_correction == text.split("/")[1]
     assert out.parent == tmp_path
 
 

@@ -10,6 +10,7 @@ import pytest
 
 from edgepick.bench.measure import Row, mode_label, order_key
 from edgepick.bench.report import HEADER_55, HEADER_56, duration, write_reports
+from edgepick.runtime.model_info import ModelInfo
 
 
 def row(mode, p50=10.0, miou=0.5, pipeline=True, device="cpu"):
@@ -27,7 +28,8 @@ def row(mode, p50=10.0, miou=0.5, pipeline=True, device="cpu"):
      "hybrid-QaT 8.33%"),
 ])
 def test_mode_labels_follow_the_thesis(meta, label):
-    assert mode_label(meta) == label
+    required = {"edgepick.classes": '["a", "b"]', "edgepick.input_size": "[2, 2]", "edgepick.colorspace": "rgb"}
+    assert mode_label(ModelInfo.from_metadata({**required, **meta}, "m.onnx")) == label
 
 
 def test_rows_sort_in_thesis_order():

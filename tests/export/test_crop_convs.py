@@ -123,7 +123,8 @@ def test_int8_export_crops_aspp_and_keeps_labels(small_data: Path, tmp_path: Pat
 
     from edgepick.export.checks import conv_weight_report
     from edgepick.models import ModelConfig, build_model
-    from edgepick.quant.pt2e.passes import agreement_images, folder_images, quantize_static
+    from edgepick.quant.pt2e.images import agreement_images, folder_images
+    from edgepick.quant.pt2e.passes import quantize_static
     from edgepick.train.checkpoint import Checkpoint
 
     classes = json.loads((small_data / "meta.json").read_text())["classes"]

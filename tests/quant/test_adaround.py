@@ -14,7 +14,7 @@ from torch import nn
 
 from edgepick.errors import ParameterError
 from edgepick.geometry import Size
-from edgepick.quant import QuantConfig, convert, prepare, quantize_static
+from edgepick.quant import Pt2eOptions, PtqMethods, QuantConfig, convert, prepare, quantize_module_static
 from edgepick.quant.pt2e.adaround import adaround
 from edgepick.quant.pt2e.bias_correction import int8_convs
 from edgepick.quant.pt2e.graph import as_input
@@ -42,7 +42,7 @@ def inputs():
 
 
 def _graphs(inputs):
-    prepared = prepare(Small().eval(), QuantConfig(hardswish_gate=False), SIZE, qat=False)
+    prepared = prepare(Small().eval(), QuantConfig(), SIZE, qat=False, pt2e=Pt2eOptions(hardswish_gate=False))
     with torch.no_grad():
         for x in inputs:
             prepared(x)
@@ -88,17 +88,16 @@ def test_the_converted_model_follows_fp32_more_closely(inputs):
 
 
 @pytest.mark.slow
-def test_a_pass_records_it_and_qat_refuses_it(inputs, tmp_path):
-    result = quantize_static(Small().eval(), inputs, tmp_path / "a.onnx",
-                             QuantConfig(adaround=True, adaround_budget_s=2.0, equalize=True), progress=False)
+def test_a_pass_records_it(inputs, tmp_path):
+    result = quantize_module_static(Small().eval(), inputs, tmp_path / "a.onnx",
+                                    methods=PtqMethods(adaround=True, adaround_budget_s=2.0, equalize=True),
+                                    progress=False)
     quant = json.loads({p.key: p.value for p in onnx.load(str(tmp_path / "a.onnx")).metadata_props}["edgepick.quant"])
     assert quant["adaround"] and quant["equalize"] and quant["adaround_convs"] >= 1 and quant["equalized_pairs"] == 2
     assert quant["measured_images"] == len(inputs)
     assert result.int8_convs == 3
-    with pytest.raises(ParameterError, match="adaround"):
-        prepare(Small().train(), QuantConfig(adaround=True), SIZE, qat=True)
     with pytest.raises(ParameterError, match="adaround_budget_s"):
-        QuantConfig(adaround_budget_s=0)
+        PtqMethods(adaround_budget_s=0)
     with pytest.raises(ValueError, match="at least one"):
         reference, converted = _graphs(inputs)
         adaround(reference, converted, [], seconds=1.0)

@@ -15,7 +15,17 @@ from torch import nn
 
 from edgepick.errors import ParameterError
 from edgepick.geometry import Size
-from edgepick.quant import BiasCorrection, QuantConfig, calibrate, convert, prepare, quantize_static
+from edgepick.quant import (
+    BiasCorrection,
+    Pt2eOptions,
+    PtqMethods,
+    QuantConfig,
+    calibrate,
+    convert,
+    prepare,
+    quantize_module_static,
+    quantize_onnx_static,
+)
 from edgepick.quant.pt2e.bias_correction import correct_biases, int8_convs
 from edgepick.quant.pt2e.rewrites import snap_conv_biases
 
@@ -60,7 +70,7 @@ class SummedLogits(Planted):
 
 
 def _graphs(images, net=None):
-    prepared = prepare((net or Planted()).eval(), QuantConfig(hardswish_gate=False), SIZE, qat=False)
+    prepared = prepare((net or Planted()).eval(), QuantConfig(), SIZE, qat=False, pt2e=Pt2eOptions(hardswish_gate=False))
     calibrate(prepared, images)
     reference = copy.deepcopy(prepared)
     return reference, convert(prepared, snap_biases=False)
@@ -176,16 +186,16 @@ def test_none_changes_nothing_and_onnx_models_say_it_is_not_there(images, tmp_pa
     with pytest.raises(ValueError, match="at least one"):
         correct_biases(reference, converted, [], BiasCorrection.FAST)
     with pytest.raises(ParameterError, match="bias_correction"):
-        quantize_static(tmp_path / "m.onnx", [], tmp_path / "o.onnx", QuantConfig(bias_correction="fast"))
+        quantize_onnx_static(tmp_path / "m.onnx", [], tmp_path / "o.onnx", methods=PtqMethods(bias_correction="fast"))
     with pytest.raises(ParameterError, match="bias_correction"):
-        QuantConfig(bias_correction="median")
+        PtqMethods(bias_correction="median")
 
 
 def test_a_module_pass_records_its_bias_correction(images, tmp_path):
     from edgepick.quant.pt2e.graph import as_input
 
-    result = quantize_static(Planted().eval(), [as_input(rgb) for rgb in images], tmp_path / "p.onnx",
-                             QuantConfig(bias_correction=BiasCorrection.EMPIRICAL), progress=False)
+    result = quantize_module_static(Planted().eval(), [as_input(rgb) for rgb in images], tmp_path / "p.onnx",
+                                    methods=PtqMethods(bias_correction=BiasCorrection.EMPIRICAL), progress=False)
     assert result.quant["bias_correction"] == "empirical" and result.int8_convs == 3
     meta = {p.key: p.value for p in onnx.load(str(tmp_path / "p.onnx")).metadata_props}
     assert json.loads(meta["edgepick.quant"])["bias_correction"] == "empirical"

@@ -10,7 +10,7 @@ from torch import nn
 
 from edgepick.errors import ParameterError
 from edgepick.geometry import Size
-from edgepick.quant import QuantConfig, calibrate, convert, prepare
+from edgepick.quant import Pt2eOptions, QuantConfig, calibrate, convert, prepare
 from edgepick.quant.pt2e.equalize import EQUALIZED, equalization_pairs
 from edgepick.quant.pt2e.graph import as_input
 
@@ -54,7 +54,7 @@ def _conv_weight(graph, name):
 def _int8_error(equalize, images):
     """Mean squared error of the int8 model's output against the float model's."""
     model = Imbalanced().eval()
-    prepared = prepare(model, QuantConfig(hardswish_gate=False, equalize=equalize), SIZE, qat=False)
+    prepared = prepare(model, QuantConfig(), SIZE, qat=False, equalize=equalize, pt2e=Pt2eOptions(hardswish_gate=False))
     calibrate(prepared, images)
     converted = convert(prepared)
     with torch.no_grad():
@@ -64,10 +64,10 @@ def _int8_error(equalize, images):
 
 def test_a_planted_imbalance_is_equalized_without_changing_the_float_model(images):
     x = as_input(images[0])
-    plain = prepare(Imbalanced().eval(), QuantConfig(hardswish_gate=False), SIZE, qat=False)
+    plain = prepare(Imbalanced().eval(), QuantConfig(), SIZE, qat=False, pt2e=Pt2eOptions(hardswish_gate=False))
     before = _conv_weight(plain, "conv2d").abs().amax(dim=(1, 2, 3))
     assert float(before.max() / before.min()) > 30  # BN folding carried the planted gains into the conv
-    equalized = prepare(Imbalanced().eval(), QuantConfig(hardswish_gate=False, equalize=True), SIZE, qat=False)
+    equalized = prepare(Imbalanced().eval(), QuantConfig(), SIZE, qat=False, equalize=True, pt2e=Pt2eOptions(hardswish_gate=False))
     pairs = equalized.meta[EQUALIZED]
     assert pairs == [("conv2d", ["conv2d_1"]), ("conv2d_1", ["conv2d_2"])]
     after = _conv_weight(equalized, "conv2d").abs().amax(dim=(1, 2, 3))
@@ -108,7 +108,7 @@ class Blocked(nn.Module):
 def test_residual_adds_and_hardswish_end_a_chain_and_a_gate_does_not(images):
     def build(equalize):
         torch.manual_seed(0)
-        return prepare(Blocked().eval(), QuantConfig(hardswish_gate=False, equalize=equalize), SIZE, qat=False)
+        return prepare(Blocked().eval(), QuantConfig(), SIZE, qat=False, equalize=equalize, pt2e=Pt2eOptions(hardswish_gate=False))
 
     prepared = build(False)
     names = {first.name: sorted(c.name for c in after) for first, after in equalization_pairs(prepared)}
@@ -122,4 +122,4 @@ def test_residual_adds_and_hardswish_end_a_chain_and_a_gate_does_not(images):
 
 def test_qat_refuses_it():
     with pytest.raises(ParameterError, match="equalize"):
-        prepare(Imbalanced().train(), QuantConfig(equalize=True), SIZE, qat=True)
+        prepare(Imbalanced().train(), QuantConfig(), SIZE, qat=True, equalize=True)

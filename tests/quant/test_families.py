@@ -13,7 +13,8 @@ import pytest
 from edgepick.evaluation import evaluate
 from edgepick.export.onnx_export import export_checkpoint
 from edgepick.geometry import Size
-from edgepick.quant.pt2e.passes import folder_images, quantize_static
+from edgepick.quant.pt2e.images import folder_images
+from edgepick.quant.pt2e.passes import quantize_static
 from edgepick.runtime.session import Segmenter
 from edgepick.train.loop import TrainConfig, train
 

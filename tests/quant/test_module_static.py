@@ -9,7 +9,7 @@ from torch import nn
 
 from edgepick.errors import ParameterError
 from edgepick.geometry import Size
-from edgepick.quant import QuantConfig, convert, prepare, quantize_static
+from edgepick.quant import QuantConfig, convert, prepare, quantize_module_static
 from tests.quant.onnx_models import calib_tensors, run, torch_net
 
 
@@ -43,7 +43,7 @@ def test_a_module_of_ones_own_becomes_an_int8_onnx_and_stays_as_it_was(tmp_path)
     net = _net()
     before = {k: v.clone() for k, v in net.state_dict().items()}
     batches = [torch.from_numpy(x) for x in calib_tensors(8)]
-    result = quantize_static(net, batches, tmp_path / "u.onnx", QuantConfig(), input_shape=(1, 3, 64, 96),
+    result = quantize_module_static(net, batches, tmp_path / "u.onnx", QuantConfig(), input_shape=(1, 3, 64, 96),
                              progress=False)
     assert result.quant["source"] == "module" and result.calib_tensors == 8 and result.opset_in is None
     # the transposed conv stays float: edgepick's quantizer marks convs, and onnxruntime has no integer
@@ -60,12 +60,12 @@ def test_a_module_of_ones_own_becomes_an_int8_onnx_and_stays_as_it_was(tmp_path)
 def test_a_tensor_output_module_and_bad_batches(tmp_path):
     net = torch_net(out_channels=1, sigmoid=True)  # a one-channel probability map, as a tensor
     arrays = calib_tensors(4)  # numpy arrays without torch are taken too
-    result = quantize_static(net, arrays, tmp_path / "s.onnx", progress=False)
+    result = quantize_module_static(net, arrays, tmp_path / "s.onnx", progress=False)
     assert result.input_shape == [1, 3, 64, 96] and result.agreement_vs_fp32["output"] >= 0.97
     for bad, message in (([], "no batches"), ([arrays[0].astype(np.int32)], "float array"),
                          ([arrays[0], arrays[0][:, :, :32]], "batch 2 has shape")):
         with pytest.raises(ParameterError, match=message):
-            quantize_static(net, bad, tmp_path / "bad.onnx", progress=False)
+            quantize_module_static(net, bad, tmp_path / "bad.onnx", progress=False)
     assert not (tmp_path / "bad.onnx").exists()
 
 

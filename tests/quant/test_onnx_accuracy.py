@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from edgepick.errors import ParameterError
-from edgepick.quant.config import QuantConfig
+from edgepick.quant.config import PtqMethods, QuantConfig
 from edgepick.quant.onnx.accuracy import FidelityBudget
 from edgepick.quant.onnx.static import quantize_onnx_static
 from tests.quant.onnx_models import faint_channel_inputs, faint_channel_model
@@ -47,12 +47,12 @@ def faint(tmp_path_factory):
 @pytest.mark.slow
 def test_a_faint_channel_is_named_and_the_accuracy_aware_mode_leaves_it_float(faint, capsys):
     path, calib, check, reference, tmp = faint
-    plain = quantize_onnx_static(path, calib, tmp / "plain.onnx", QuantConfig(bias_correction="none"))
+    plain = quantize_onnx_static(path, calib, tmp / "plain.onnx", methods=PtqMethods(bias_correction="none"))
     assert plain.fidelity["output"]["sqnr_db"] < 10  # the faint channel is lost on the input's uint8 grid
     warning = capsys.readouterr().err.splitlines()[-1]
     assert warning.startswith("edgepick: warning: the int8 outputs are far from fp32's") and "input (+" in warning
     assert plain.quant["fidelity_warning"] in warning
-    fixed = quantize_onnx_static(path, calib, tmp / "fixed.onnx", QuantConfig(bias_correction="none"), progress=False,
+    fixed = quantize_onnx_static(path, calib, tmp / "fixed.onnx", methods=PtqMethods(bias_correction="none"), progress=False,
                                  budget=FidelityBudget(min_sqnr_db=25.0))
     record = fixed.quant["accuracy_aware"]
     assert record["float_tensors"] == ["input"] and record["met"]  # the fewest: one tensor
@@ -68,15 +68,17 @@ def test_a_faint_channel_is_named_and_the_accuracy_aware_mode_leaves_it_float(fa
 @pytest.mark.slow
 def test_keeping_a_node_float_never_lowers_fidelity_on_either_engine(faint):
     path, calib, check, reference, tmp = faint
-    config = {"bias_correction": "none", "calib_method": "minmax"}
-    plain = quantize_onnx_static(path, calib, tmp / "p.onnx", QuantConfig(**config), progress=False)
+    methods = PtqMethods(bias_correction="none")
+    plain = quantize_onnx_static(path, calib, tmp / "p.onnx", QuantConfig(calib_method="minmax"), methods,
+                                 progress=False)
     for node in ("conv", "relu", "head"):
-        kept = quantize_onnx_static(path, calib, tmp / f"{node}.onnx", QuantConfig(keep_float=(node,), **config),
-                                    progress=False)
+        kept = quantize_onnx_static(path, calib, tmp / f"{node}.onnx",
+                                    QuantConfig(calib_method="minmax", keep_float=(node,)), methods, progress=False)
         for engine in ("onnxruntime", "openvino"):
             assert _sqnr(kept.out, check, reference, engine) >= _sqnr(plain.out, check, reference, engine) - 0.05, \
                 (node, engine)
-    conv = quantize_onnx_static(path, calib, tmp / "c.onnx", QuantConfig(keep_float=("conv",), **config), progress=False)
+    conv = quantize_onnx_static(path, calib, tmp / "c.onnx", QuantConfig(calib_method="minmax", keep_float=("conv",)),
+                                methods, progress=False)
     assert conv.fidelity["output"]["sqnr_db"] > 25  # the conv reads the input's float values
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import onnx
 import pytest
 
-from edgepick.quant import QuantConfig, quantize_static
+from edgepick.quant import PtqMethods, quantize_onnx_static
 from edgepick.quant.onnx import adaround as onnx_adaround
 from edgepick.quant.onnx import static as onnx_static
 from edgepick.quant.onnx.measure import Values, qdq_convs
@@ -43,7 +43,7 @@ def test_adaround_lowers_each_convs_error_and_rounds_each_weight_down_or_up(tmp_
 
     monkeypatch.setattr(onnx_static, "adaround_onnx", spy)
     path, tensors = _export(tmp_path / "f.onnx"), _tensors()
-    quantize_static(path, tensors, tmp_path / "a.onnx", QuantConfig(adaround=True), progress=False)
+    quantize_onnx_static(path, tensors, tmp_path / "a.onnx", methods=PtqMethods(adaround=True), progress=False)
     report, nearest, learnt = seen["report"], seen["nearest"], seen["learnt"]
     assert set(report) == set(nearest) and len(report) == 3
     for name, r in report.items():
@@ -65,7 +65,7 @@ def test_the_int8_file_follows_fp32_more_closely_and_records_it(tmp_path, monkey
     error = {}
     for ada in (False, True):
         out = tmp_path / f"int8-{ada}.onnx"
-        quantize_static(path, tensors, out, QuantConfig(adaround=ada, adaround_budget_s=5.0), progress=False)
+        quantize_onnx_static(path, tensors, out, methods=PtqMethods(adaround=ada, adaround_budget_s=5.0), progress=False)
         error[ada] = sum(float(((run(out, x)[0] - run(path, x)[0]) ** 2).mean()) for x in tensors)
     assert error[True] < error[False], error
     quant = json.loads({p.key: p.value for p in onnx.load(str(tmp_path / "int8-True.onnx")).metadata_props}[

@@ -9,7 +9,7 @@ import numpy as np
 import onnx
 import pytest
 
-from edgepick.quant.config import CalibMethod, QuantConfig
+from edgepick.quant.config import CalibMethod, PtqMethods, QuantConfig
 from edgepick.quant.onnx.calibrate import (
     CalibrationMemoryError,
     Collector,
@@ -76,9 +76,8 @@ def test_the_int8_file_takes_its_input_range_from_the_last_of_33_tensors(tmp_pat
     xs = _inputs(33)
     first_32 = np.concatenate([x.ravel() for x in xs[:32]])
     xs[-1][0, 0, 0, 0] = 2 * first_32.max()  # only the last tensor reaches this far
-    result = quantize_onnx_static(path, xs, tmp_path / "int8.onnx", QuantConfig(calib_method="minmax",
-                                                                                bias_correction="none"),
-                                  progress=False)
+    result = quantize_onnx_static(path, xs, tmp_path / "int8.onnx", QuantConfig(calib_method="minmax"),
+                                  PtqMethods(bias_correction="none"), progress=False)
     assert result.calib_tensors == 33
     model = onnx.load(result.out)
     scale = next(onnx.numpy_helper.to_array(i) for i in model.graph.initializer if i.name == "input_scale")

@@ -11,7 +11,7 @@ import onnx
 import pytest
 
 from edgepick.onnx_graph import Graph
-from edgepick.quant import QuantConfig, quantize_static
+from edgepick.quant import PtqMethods, quantize_onnx_static
 from edgepick.quant.onnx.equalize import equalize_onnx
 from edgepick.quant.onnx.rewrite import conv_params
 from tests.quant.onnx_models import export_module, image_tensors, run
@@ -49,7 +49,7 @@ def test_an_equalized_onnx_model_quantizes_closer_to_fp32(tmp_path):
     error = {}
     for equalize in (False, True):
         out = tmp_path / f"int8-{equalize}.onnx"
-        result = quantize_static(path, tensors, out, QuantConfig(equalize=equalize), progress=False)
+        result = quantize_onnx_static(path, tensors, out, methods=PtqMethods(equalize=equalize), progress=False)
         error[equalize] = sum(float(((run(out, x)[0] - run(path, x)[0]) ** 2).mean()) for x in tensors)
         if equalize:
             quant = json.loads({p.key: p.value for p in onnx.load(str(out)).metadata_props}["edgepick.quant"])

@@ -10,7 +10,7 @@ import onnx
 import pytest
 
 from edgepick.errors import ParameterError
-from edgepick.quant import QuantConfig, quantize_static
+from edgepick.quant import PtqMethods, QuantConfig, quantize_onnx_static
 from edgepick.quant.onnx.lockstep import runner, segments
 from edgepick.quant.onnx.measure import Values, qdq_convs, saturating_onnx_convs
 from tests.quant.onnx_models import export_module, image_tensors
@@ -47,7 +47,7 @@ def test_empirical_correction_removes_a_planted_mean_shift(tmp_path):
     shift = {}
     for method in ("none", "empirical"):
         out = tmp_path / f"{method}.onnx"
-        result = quantize_static(path, tensors, out, QuantConfig(bias_correction=method), progress=False)
+        result = quantize_onnx_static(path, tensors, out, methods=PtqMethods(bias_correction=method), progress=False)
         assert result.int8_convs == 3
         shift[method] = float(np.abs(_conv_mean(out, "/b/Conv", tensors) - target).max())
     assert shift["empirical"] < shift["none"] / 10, shift
@@ -66,7 +66,7 @@ def test_one_tensor_clipped_hard_does_not_set_the_bias_of_the_others(tmp_path):
     path = _export(Planted(), tmp_path / "f.onnx")
     dark = [t // 2 for t in _tensors(60)]
     typical, white = dark[:5], np.full_like(dark[0], 255.0)
-    quantize_static(path, dark, tmp_path / "q.onnx", QuantConfig(bias_correction="none"), progress=False)
+    quantize_onnx_static(path, dark, tmp_path / "q.onnx", methods=PtqMethods(bias_correction="none"), progress=False)
     fp32, model = onnx.load(str(path)), onnx.load(str(tmp_path / "q.onnx"))
 
     def gaps(tensors):  # per conv, [tensors, channels]: fp32's channel means minus the int8 model's
@@ -91,7 +91,7 @@ def test_the_convs_summed_into_the_logits_are_left_alone(tmp_path):
     path = _export(SummedLogits(), tmp_path / "f.onnx")
     codes = {}
     for method in ("none", "empirical"):
-        quantize_static(path, _tensors(60), tmp_path / f"{method}.onnx", QuantConfig(bias_correction=method),
+        quantize_onnx_static(path, _tensors(60), tmp_path / f"{method}.onnx", methods=PtqMethods(bias_correction=method),
                         progress=False)
         model = onnx.load(str(tmp_path / f"{method}.onnx"))
         codes[method] = {name: Values(model)[c.bias_codes] for name, c in qdq_convs(model).items()}
@@ -126,7 +126,7 @@ def test_first_7_gives_7_bit_weights_only_where_8_bit_ones_saturate(tmp_path):
     files = {}
     for bits in ("8", "first-7", "7"):
         files[bits] = tmp_path / f"{bits}.onnx"
-        quantize_static(path, bright, files[bits], QuantConfig(weight_bits=bits), progress=False)
+        quantize_onnx_static(path, bright, files[bits], QuantConfig(weight_bits=bits), progress=False)
     eight = saturating_onnx_convs(onnx.load(str(files["8"])), bright, 32767)
     assert eight["/a/Conv"] > 0.5 and eight["/b/Conv"] == 0.0
     first = onnx.load(str(files["first-7"]))
@@ -143,9 +143,10 @@ def test_first_7_gives_7_bit_weights_only_where_8_bit_ones_saturate(tmp_path):
 def test_what_the_onnx_path_cannot_do_is_refused_in_one_line(tmp_path):
     path = _export(Planted(), tmp_path / "f.onnx")
     with pytest.raises(ParameterError, match="bias_correction.*empirical"):
-        quantize_static(path, _tensors(0, 1), tmp_path / "o.onnx", QuantConfig(bias_correction="fast"))
+        quantize_onnx_static(path, _tensors(0, 1), tmp_path / "o.onnx", methods=PtqMethods(bias_correction="fast"))
     with pytest.raises(ParameterError, match="adaround_budget_s"):
-        quantize_static(path, _tensors(0, 1), tmp_path / "o.onnx", QuantConfig(adaround=True, adaround_budget_s=-1))
+        quantize_onnx_static(path, _tensors(0, 1), tmp_path / "o.onnx", methods=PtqMethods(adaround=True,
+                                                                                       adaround_budget_s=-1))
     assert not (tmp_path / "o.onnx").exists()
 
 

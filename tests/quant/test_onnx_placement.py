@@ -8,7 +8,7 @@ import onnx
 import pytest
 
 from edgepick.errors import ParameterError
-from edgepick.quant.config import QuantConfig
+from edgepick.quant.config import OnnxOptions, PtqMethods
 from edgepick.quant.onnx.placement import PLACEMENT_FIDELITY_DB
 from edgepick.quant.onnx.static import quantize_onnx_static
 from tests.quant.onnx_models import calib_tensors, export_torch
@@ -19,7 +19,8 @@ from tests.quant.onnx_models import calib_tensors, export_torch
 def test_placement_auto_times_each_candidate_on_the_target_and_records_the_choice(tmp_path, target):
     src = export_torch(tmp_path / "net.onnx", opset=13)
     result = quantize_onnx_static(src, calib_tensors(6), tmp_path / "auto.onnx",
-                                  QuantConfig(placement="auto", target=target, bias_correction="none"), progress=False)
+                                  methods=PtqMethods(bias_correction="none"),
+                                  options=OnnxOptions(placement="auto", target=target), progress=False)
     choice = result.quant["placement_choice"]
     assert choice["target"] == target and choice["threads"] == 2 and choice["machine"]
     times = {c["placement"]: c["p50_ms"] for c in choice["candidates"]}
@@ -35,4 +36,4 @@ def test_placement_auto_times_each_candidate_on_the_target_and_records_the_choic
 
 def test_a_target_without_placement_auto_is_refused():
     with pytest.raises(ParameterError, match="^target='openvino': .*give placement auto"):
-        QuantConfig(target="openvino")
+        OnnxOptions(target="openvino")

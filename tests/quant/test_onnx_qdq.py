@@ -10,7 +10,7 @@ import numpy as np
 import onnx
 import pytest
 
-from edgepick.quant.config import QuantConfig
+from edgepick.quant.config import PtqMethods, QuantConfig
 from edgepick.quant.onnx.qdq import exact_tensors
 from edgepick.quant.onnx.static import quantize_onnx_static
 from tests.quant.onnx_models import conv_relu_model, detector_head_model, run
@@ -40,9 +40,8 @@ def test_a_detectors_rare_high_scores_are_not_clipped(tmp_path):
 
     src = detector_head_model(tmp_path / "head.onnx")
     calib, check = _head_inputs(16), _head_inputs(4, seed=9)
-    ours = quantize_onnx_static(src, calib, tmp_path / "ours.onnx", QuantConfig(calib_method="percentile",
-                                                                                bias_correction="none"),
-                                progress=False)
+    ours = quantize_onnx_static(src, calib, tmp_path / "ours.onnx", QuantConfig(calib_method="percentile"),
+                                PtqMethods(bias_correction="none"), progress=False)
 
     class Reader:
         def __init__(self):

@@ -14,7 +14,7 @@ import pytest
 
 from edgepick.errors import ParameterError
 from edgepick.export.checks import conv_weight_report
-from edgepick.quant.config import QuantConfig
+from edgepick.quant.config import OnnxOptions, QuantConfig
 from edgepick.quant.onnx.static import quantize_onnx_static
 from tests.conftest import run_cli, without_torch
 from tests.quant.onnx_models import calib_tensors, export_torch, optimized_ops, run, unused_initializers
@@ -66,7 +66,7 @@ def test_placement_convs_leaves_the_models_own_activations_float(tmp_path):
     files = {}
     for placement in ("all", "convs"):
         result = quantize_onnx_static(src, calib_tensors(8), tmp_path / f"{placement}.onnx",
-                                      QuantConfig(placement=placement), progress=False)
+                                      options=OnnxOptions(placement=placement), progress=False)
         assert result.convs == result.int8_convs == 8 and result.agreement_vs_fp32["logits"] >= 0.97
         files[placement] = Path(result.out)
         quant = json.loads(dict((p.key, p.value) for p in onnx.load(result.out).metadata_props)["edgepick.quant"])
@@ -77,14 +77,15 @@ def test_placement_convs_leaves_the_models_own_activations_float(tmp_path):
     assert ops["Clip"] == 1 and ops["HardSigmoid"] == 1 and ops["ReduceMean"] == 1, ops  # as exported
 
 
-def test_placement_convs_is_refused_for_a_torch_model():
+def test_each_kind_of_model_has_a_verb_of_its_own(tmp_path):
     import torch
 
-    from edgepick.geometry import Size
-    from edgepick.quant import prepare
+    from edgepick.quant import quantize_static
 
-    with pytest.raises(ParameterError, match="placement"):
-        prepare(torch.nn.Conv2d(3, 2, 1), QuantConfig(placement="convs"), Size(32, 24), qat=False)
+    with pytest.raises(ParameterError, match="checkpoint=.*an ONNX model; quantize_onnx_static quantizes one"):
+        quantize_static(export_torch(tmp_path / "net.onnx"), calib_tensors(2), tmp_path / "q.onnx")
+    with pytest.raises(ParameterError, match="an nn.Module; quantize_module_static quantizes one"):
+        quantize_static(torch.nn.Conv2d(3, 2, 1), calib_tensors(2), tmp_path / "q.onnx")
 
 
 def test_one_channel_sigmoid_and_two_output_models(tmp_path):

@@ -13,7 +13,7 @@ from torch import nn
 
 from edgepick.errors import ParameterError
 from edgepick.geometry import Size
-from edgepick.quant import QuantConfig, WeightBits, calibrate, prepare, quantize_static
+from edgepick.quant import PtqMethods, QuantConfig, WeightBits, calibrate, prepare, quantize_module_static
 from edgepick.quant.methods import saturated_share as numpy_share
 from edgepick.quant.pt2e.bias_correction import int8_convs
 from edgepick.quant.pt2e.graph import as_input
@@ -82,10 +82,10 @@ def bright():
 
 
 def _converted(bright, bits):
-    config = QuantConfig(weight_bits=bits, bias_correction="none")  # the weights as rounded, nothing else
+    config, methods = QuantConfig(weight_bits=bits), PtqMethods(bias_correction="none")  # the weights as rounded
     prepared = prepare(Bright().eval(), config, SIZE, qat=False)
     calibrate(prepared, bright)
-    return convert_static(prepared, lambda: [as_input(rgb) for rgb in bright], config)
+    return convert_static(prepared, lambda: [as_input(rgb) for rgb in bright], config, methods)
 
 
 def test_first_7_gives_7_bit_weights_only_where_8_bit_ones_saturate(bright):
@@ -107,7 +107,7 @@ def test_first_7_gives_7_bit_weights_only_where_8_bit_ones_saturate(bright):
 
 
 def test_first_7_is_recorded_and_refused_by_qat(bright, tmp_path):
-    result = quantize_static(Bright().eval(), [as_input(rgb) for rgb in bright], tmp_path / "b.onnx",
+    result = quantize_module_static(Bright().eval(), [as_input(rgb) for rgb in bright], tmp_path / "b.onnx",
                              QuantConfig(weight_bits="first-7"), progress=False)
     meta = json.loads({p.key: p.value for p in onnx.load(str(tmp_path / "b.onnx")).metadata_props}["edgepick.quant"])
     assert meta["weight_bits"] == "first-7" and meta["seven_bit_convs"] == ["a"] == result.quant["seven_bit_convs"]

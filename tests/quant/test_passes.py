@@ -57,7 +57,7 @@ def test_preprocessing_constants_span_the_width(onnx_files):
 def test_fp32_onnx_agrees_with_torch(onnx_files, trained_run, small_data):
     from edgepick.export.onnx_export import label_agreement
     from edgepick.models.deeplabv3 import LogitsNet
-    from edgepick.quant.pt2e.passes import model_images
+    from edgepick.quant.pt2e.images import model_images
     from edgepick.train.checkpoint import load_model
 
     model, ckpt = load_model(trained_run)
@@ -88,13 +88,14 @@ def _as_if_trained_on_a_gpu(run: Path, dest: Path) -> Path:
 
 
 def test_hybrid_qat_from_a_kept_epoch(trained_run, small_data, tmp_path):
-    from edgepick.quant.pt2e.passes import folder_images, quantize_hybrid
+    from edgepick.quant.pt2e.images import folder_images
+    from edgepick.quant.pt2e.passes import quantize_hybrid
 
     p = 1 / EPOCHS  # the last epoch with QaT, from epoch_024.pt
     # the QaT phase runs where it is started (here: CPU in CI), not on the device the float run recorded
     run = _as_if_trained_on_a_gpu(trained_run, tmp_path / "float")
     calib = (rgb for rgb in folder_images(small_data, "train", 12))  # any iterable of images, at their own size
-    result = quantize_hybrid(run, small_data, tmp_path / "h.onnx", p, progress=False, calib=calib)
+    result = quantize_hybrid(run, small_data, tmp_path / "h.onnx", p, calib, progress=False)
     assert result.int8_convs == result.convs == 70 and result.observers > 0
     assert result.float_phase_s > 0 and result.qat_phase_s > 0
     assert result.agreement_vs_torch >= AGREEMENT
@@ -121,10 +122,10 @@ def test_hybrid_qat_from_a_kept_epoch(trained_run, small_data, tmp_path):
         train(TrainConfig(data=str(small_data), out=str(tmp_path / "h.run")), resume=True)
 
     # held ranges: the QaT run ends with exactly the ranges that calibrating its start gives
+    from edgepick.quant.config import QuantConfig
     from edgepick.quant.pt2e.graph import prepare
-    from edgepick.quant.pt2e.passes import model_images
+    from edgepick.quant.pt2e.images import model_images
     from edgepick.quant.pt2e.qat import activation_fake_quants, calibrate_activations, load_qat
-    from edgepick.quant.pt2e.quantizer import QuantConfig
     from edgepick.train.checkpoint import load_model
 
     def ranges(graph) -> dict:
@@ -200,8 +201,9 @@ def test_static_takes_images_from_anywhere_at_any_size_and_keeps_layers_float(tr
     import numpy as np
 
     from edgepick.errors import ConfigError
-    from edgepick.quant.pt2e.passes import folder_images, quantize_static
-    from edgepick.quant.pt2e.quantizer import QuantConfig
+    from edgepick.quant.config import QuantConfig
+    from edgepick.quant.pt2e.images import folder_images
+    from edgepick.quant.pt2e.passes import quantize_static
 
     rng = np.random.default_rng(0)
     own = [rng.integers(0, 256, (480, 640, 3), dtype=np.uint8)]  # a camera frame, not a data set image

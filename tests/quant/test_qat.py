@@ -16,16 +16,16 @@ def fresh_qat() -> torch.fx.GraphModule:
     for the tests that only look at or train such a graph: they take a copy.deepcopy of it. A copy's
     train()/eval() act on the original: switch copies with edgepick.quant.pt2e.qat.to_eval / set_mode."""
     from edgepick.models import ModelConfig, build_model
+    from edgepick.quant.config import QuantConfig
     from edgepick.quant.pt2e.graph import prepare
-    from edgepick.quant.pt2e.quantizer import QuantConfig
 
     torch.manual_seed(0)
     return prepare(build_model(ModelConfig()), QuantConfig(), Size(96, 64), qat=True)
 
 
 def _prepared_qat(trained_run):
+    from edgepick.quant.config import QuantConfig
     from edgepick.quant.pt2e.graph import prepare
-    from edgepick.quant.pt2e.quantizer import QuantConfig
     from edgepick.train.checkpoint import load_model
 
     model, ckpt = load_model(trained_run)
@@ -40,11 +40,11 @@ def test_calibrated_start_is_where_static_ptq_is(trained_run, small_data):
     from torchao.quantization.pt2e import disable_observer
 
     from edgepick.models.deeplabv3 import LogitsNet
+    from edgepick.quant.config import QuantConfig
     from edgepick.quant.pt2e.graph import as_input, convert
     from edgepick.quant.pt2e.graph import prepare as prepare_graph
-    from edgepick.quant.pt2e.passes import model_images
+    from edgepick.quant.pt2e.images import model_images
     from edgepick.quant.pt2e.qat import activation_fake_quants, calibrate_activations, to_eval
-    from edgepick.quant.pt2e.quantizer import QuantConfig
     from edgepick.train.checkpoint import load_model
 
     prepared, size = _prepared_qat(trained_run)
@@ -103,9 +103,9 @@ def test_qat_graph_keeps_the_models_batchnorm_eps(after):
     from torchao.quantization.pt2e import disable_fake_quant, disable_observer
 
     from edgepick.models import LogitsNet, ModelConfig, build_model
+    from edgepick.quant.config import QuantConfig
     from edgepick.quant.pt2e.graph import prepare
     from edgepick.quant.pt2e.qat import to_eval
-    from edgepick.quant.pt2e.quantizer import QuantConfig
 
     torch.manual_seed(0)
     model = build_model(ModelConfig(num_classes=4))
@@ -134,10 +134,11 @@ def test_qat_graph_keeps_the_models_batchnorm_eps(after):
 def test_weight_range_averaging_reaches_the_fake_quants():
     """--weight-averaging 1.0: each QaT step quantizes the weights with that step's own range."""
     from edgepick.models import ModelConfig, build_model
+    from edgepick.quant.config import QatOptions, QuantConfig
     from edgepick.quant.pt2e.graph import prepare
-    from edgepick.quant.pt2e.quantizer import QuantConfig
 
-    prepared = prepare(build_model(ModelConfig(num_classes=4)), QuantConfig(weight_averaging=1.0), Size(96, 64), qat=True)
+    prepared = prepare(build_model(ModelConfig(num_classes=4)), QuantConfig(), Size(96, 64),
+                       qat=QatOptions(weight_averaging=1.0))
     weight_fqs = [m for m in prepared.modules() if getattr(m, "is_per_channel", False)]
     assert weight_fqs and {m.activation_post_process.averaging_constant for m in weight_fqs} == {1.0}
     x = torch.rand(2, 3, 64, 96) * 255
@@ -178,10 +179,10 @@ def test_converted_qat_graph_computes_what_qat_trained(trained_run, small_data):
     from torchao.quantization.pt2e import FakeQuantizeBase, disable_observer
 
     from edgepick.models.deeplabv3 import LogitsNet
+    from edgepick.quant.config import QuantConfig
     from edgepick.quant.pt2e.graph import as_input, convert, prepare
-    from edgepick.quant.pt2e.passes import model_images
+    from edgepick.quant.pt2e.images import model_images
     from edgepick.quant.pt2e.qat import to_eval
-    from edgepick.quant.pt2e.quantizer import QuantConfig
     from edgepick.train.checkpoint import load_model
 
     model, ckpt = load_model(trained_run)

@@ -15,8 +15,8 @@ def test_gated_hardswish_is_the_same_function_and_quantizes_both_halves():
     import torch
 
     from edgepick.models import ModelConfig, build_model
+    from edgepick.quant.config import Pt2eOptions, QuantConfig
     from edgepick.quant.pt2e.graph import prepare
-    from edgepick.quant.pt2e.quantizer import QuantConfig
     from edgepick.quant.pt2e.rewrites import GatedHardswish, gate_hardswish
 
     torch.manual_seed(0)
@@ -33,7 +33,8 @@ def test_gated_hardswish_is_the_same_function_and_quantizes_both_halves():
                                           qat=False).graph.nodes]
     assert not any("hardswish" in o for o in ops)
     assert sum("hardsigmoid" in o for o in ops) == 20 + 8  # the gates and the SE blocks
-    old = prepare(build_model(ModelConfig(num_classes=3)), QuantConfig(hardswish_gate=False), Size(96, 64), qat=False)
+    old = prepare(build_model(ModelConfig(num_classes=3)), QuantConfig(), Size(96, 64), qat=False,
+                  pt2e=Pt2eOptions(hardswish_gate=False))
     assert sum("hardswish" in str(n.target) for n in old.graph.nodes) == 20
 
 
@@ -42,9 +43,9 @@ def test_conv_biases_lie_on_onnxruntimes_int32_grid(trained_run, small_data):
     onnxruntime's QLinearConv fusion rounds it to, so that torch simulates the same sums."""
     import torch
 
+    from edgepick.quant.config import QuantConfig
     from edgepick.quant.pt2e.graph import as_input, convert, prepare
-    from edgepick.quant.pt2e.passes import model_images
-    from edgepick.quant.pt2e.quantizer import QuantConfig
+    from edgepick.quant.pt2e.images import model_images
     from edgepick.train.checkpoint import load_model
 
     model, ckpt = load_model(trained_run)

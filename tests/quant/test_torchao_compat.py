@@ -78,14 +78,14 @@ def test_patterns_of_conv_kinds_the_graph_lacks_are_not_traced(monkeypatch):
     from torchao.quantization.pt2e import utils
     from torchao.quantization.pt2e.quantize_pt2e import convert_pt2e, prepare_qat_pt2e
 
-    from edgepick.quant.config import QuantConfig
+    from edgepick.quant.config import QatOptions, QuantConfig
     from edgepick.quant.pt2e import torchao_compat
     from edgepick.quant.pt2e.quantizer import EdgeQuantizer
 
     net = torch.nn.Sequential(torch.nn.Conv2d(3, 4, 3), torch.nn.BatchNorm2d(4), torch.nn.ReLU(),
                               torch.nn.Conv2d(4, 2, 1, bias=False), torch.nn.BatchNorm2d(2))
     example = (torch.randn(2, 3, 8, 8),)
-    prepared = prepare_qat_pt2e(torch.export.export(net.train(), example).module(), EdgeQuantizer(QuantConfig(), qat=True))
+    prepared = prepare_qat_pt2e(torch.export.export(net.train(), example).module(), EdgeQuantizer(QuantConfig(), QatOptions()))
     prepared.graph.eliminate_dead_code()  # the fake-quants of BN's batch counter, as edgepick's prepare does
     prepared.recompile()
     prepared(*example)
@@ -112,13 +112,13 @@ def test_a_graph_is_not_switched_into_the_mode_it_is_in(monkeypatch):
     import torchao.quantization.pt2e as pt2e
     from torchao.quantization.pt2e.quantize_pt2e import prepare_qat_pt2e
 
-    from edgepick.quant.config import QuantConfig
+    from edgepick.quant.config import QatOptions, QuantConfig
     from edgepick.quant.pt2e.quantizer import EdgeQuantizer
     from edgepick.quant.pt2e.torchao_compat import set_mode
 
     net = torch.nn.Sequential(torch.nn.Conv2d(3, 4, 3), torch.nn.BatchNorm2d(4), torch.nn.ReLU())
     example = (torch.randn(2, 3, 8, 8),)
-    prepared = prepare_qat_pt2e(torch.export.export(net.train(), example).module(), EdgeQuantizer(QuantConfig(), qat=True))
+    prepared = prepare_qat_pt2e(torch.export.export(net.train(), example).module(), EdgeQuantizer(QuantConfig(), QatOptions()))
     calls = []
 
     def counted(name: str):

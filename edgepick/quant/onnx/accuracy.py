@@ -28,7 +28,7 @@ import numpy as np
 
 from edgepick.errors import ParameterError
 from edgepick.onnx_graph import Graph, copy_model
-from edgepick.quant.fidelity import BalancedError, OutputFidelity, Task
+from edgepick.quant.fidelity import BalancedError, OutputFidelity, Task, compare_outputs
 
 SCAN_BLOCKS = 16  # blocks of activations measured float first
 SCAN_KEEP = 4  # the best blocks (then sub-blocks) split again
@@ -156,11 +156,8 @@ class Evaluator:
     def fidelity(self, model: Any) -> dict[str, OutputFidelity]:
         """Each output's fidelity (quant/fidelity.py) of MODEL on every check tensor."""
         session = self.session(model)
-        found = {name: OutputFidelity(self.tasks[name]) for name in self.names}
-        for x, ref in zip(self.inputs, self.reference):
-            for name, r, t in zip(self.names, ref, session.run(self.names, {self.input_name: x})):
-                found[name].add(r, t, self.nhwc)
-        return found
+        pairs = ((ref, session.run(self.names, {self.input_name: x})) for x, ref in zip(self.inputs, self.reference))
+        return compare_outputs(self.names, self.tasks, pairs, self.nhwc)
 
     def error(self, model: Any, count: int | None = SCAN_TENSORS) -> float:
         """The worst output's balanced relative error (quant/fidelity.py) of MODEL on the first COUNT

@@ -27,7 +27,7 @@ import numpy as np
 from edgepick.errors import EdgepickError, ParameterError
 from edgepick.files import atomic_path
 from edgepick.machine import cpu_flags, cpu_model
-from edgepick.quant.config import GeluForm, Placement, QuantConfig, Target
+from edgepick.quant.config import GeluForm, OnnxOptions, Placement, Target
 from edgepick.quant.onnx.inputs import check_tensor
 
 PLACEMENT_CANDIDATES = (Placement.ALL, Placement.CONVS, Placement.JOINS)
@@ -66,9 +66,9 @@ def worst_sqnr(fidelity: Mapping[str, Mapping]) -> float:
 
 
 def choose_placement(quantize: Callable[..., Any], model: str | Path, calib: Iterable[np.ndarray], out: str | Path,
-                     config: QuantConfig, progress: bool, **options: Any) -> Any:
+                     options: OnnxOptions, progress: bool, **given: Any) -> Any:
     """Make MODEL's int8 file with each candidate placement (QUANTIZE: quantize_onnx_static, given
-    OPTIONS), time each on config.target, and write the fastest that keeps fidelity to OUT. Returns
+    GIVEN), time each on options.target, and write the fastest that keeps fidelity to OUT. Returns
     its result, with the choice in its quant record."""
     from edgepick.export.checks import check_onnx_out
     from edgepick.runtime.session import median_ms
@@ -80,27 +80,27 @@ def choose_placement(quantize: Callable[..., Any], model: str | Path, calib: Ite
     failed: dict[str, str] = {}
     with tempfile.TemporaryDirectory(prefix="edgepick-placement-") as tmp:
         for placement in PLACEMENT_CANDIDATES:
-            candidate = replace(config, placement=placement, target=Target.ONNXRUNTIME,
-                                gelu=config.gelu if placement == Placement.ALL else GeluForm.FLOAT)
+            candidate = replace(options, placement=placement, target=Target.ONNXRUNTIME,
+                                gelu=options.gelu if placement == Placement.ALL else GeluForm.FLOAT)
             if progress:
                 print(f"placement auto: make the {placement} file", file=sys.stderr, flush=True)
             try:
-                made[placement] = quantize(model, tensors, Path(tmp) / f"{placement}.onnx", candidate,
-                                           progress=progress, **options)
+                made[placement] = quantize(model, tensors, Path(tmp) / f"{placement}.onnx", options=candidate,
+                                           progress=progress, **given)
             except EdgepickError as exc:
                 if not made and placement == PLACEMENT_CANDIDATES[-1]:
                     raise
                 failed[placement.value] = str(exc)
         if not made:
-            raise ParameterError("{placement}: no candidate placement could be made", placement=config.placement)
+            raise ParameterError("{placement}: no candidate placement could be made", placement=options.placement)
         x = check_tensor(first, tuple(next(iter(made.values())).input_shape), "calibration tensor 1")
-        runners = {p.value: engine_runner(Path(r.out), config.target) for p, r in made.items()}
+        runners = {p.value: engine_runner(Path(r.out), options.target) for p, r in made.items()}
         ms = median_ms(runners, x, timed=20)
         sqnr = {p.value: worst_sqnr(r.fidelity) for p, r in made.items()}
         best_sqnr = max(sqnr.values())
         good = [p for p in made if sqnr[p.value] >= best_sqnr - PLACEMENT_FIDELITY_DB]
         chosen = min(good, key=lambda p: ms[p.value])
-        record = {"target": config.target.value, "chosen": chosen.value, "threads": TIMING_THREADS,
+        record = {"target": options.target.value, "chosen": chosen.value, "threads": TIMING_THREADS,
                   "machine": f"{cpu_model()} ({', '.join(cpu_flags()) or 'no int8 flags'})",
                   "candidates": [{"placement": p.value, "p50_ms": ms[p.value],
                                   "worst_sqnr_db": None if math.isinf(sqnr[p.value]) else round(sqnr[p.value], 2)}
@@ -108,7 +108,7 @@ def choose_placement(quantize: Callable[..., Any], model: str | Path, calib: Ite
                   **({"failed": failed} if failed else {})}
         if progress:
             times = ", ".join(f"{p} {ms[p]:.1f} ms" for p in ms)
-            print(f"placement auto: {chosen} on {config.target} ({times})", file=sys.stderr, flush=True)
+            print(f"placement auto: {chosen} on {options.target} ({times})", file=sys.stderr, flush=True)
         result = made[chosen]
         quant = {**result.quant, "placement_choice": record}
         _write_with(Path(result.out), Path(out), quant)

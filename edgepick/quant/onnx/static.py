@@ -12,9 +12,9 @@ write the Q/DQ pairs for those ranges, and rewrites around it (docs/quantization
   weight_bits 8 (or first-7: 7-bit only where 8-bit weights saturate, `measure`), uint8
   activations per tensor, HardSigmoid quantized as well (with placement convs: only the convs
   and the tensors they read and write, the model's own activations left float as it writes them,
-  for OpenVINO, which fuses them into its int8 convs); with gelu sigmoid, each GELU written as
-  c * x * sigmoid(alpha * x) on integer kernels (`gelu`); with config.equalize, conv pairs equalized
-  before calibration (`equalize`); with config.adaround, each conv's weight rounding learnt
+  for OpenVINO, which fuses them into its int8 convs); with options.gelu sigmoid, each GELU written as
+  c * x * sigmoid(alpha * x) on integer kernels (`gelu`); with methods.equalize, conv pairs equalized
+  before calibration (`equalize`); with methods.adaround, each conv's weight rounding learnt
   on the calibration tensors (`adaround`); with empirical bias correction, the conv biases
   shifted back to fp32's means (`measure`);
 - after: the model's outputs and the ops between its last conv and them (Resize, Sigmoid,
@@ -36,14 +36,14 @@ import json
 import tempfile
 import time
 from collections.abc import Iterable, Iterator, Mapping, Sized
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from edgepick.errors import ParameterError, QuantizationError
-from edgepick.export.checks import check_onnx_out, conv_weight_report
+from edgepick.errors import ParameterError
+from edgepick.export.checks import check_onnx_out, require_int8_convs
 from edgepick.export.crop_convs import crop_padded_convs
 from edgepick.export.int8_activations import integer_activations
 from edgepick.export.onnx_io import (
@@ -64,7 +64,9 @@ from edgepick.quant.config import (
     BiasCorrection,
     CalibMethod,
     GeluForm,
+    OnnxOptions,
     Placement,
+    PtqMethods,
     QuantConfig,
     WeightBits,
     check_inputs,
@@ -88,59 +90,24 @@ from edgepick.quant.onnx.inputs import check_tensor
 from edgepick.quant.onnx.measure import correct_onnx_biases, qdq_convs, saturating_onnx_convs, to_seven_bit_onnx
 from edgepick.quant.onnx.qdq import choose_rule, exact_tensors, float_outputs, float_tail, qdq_model, writes_float_output
 from edgepick.quant.onnx.rewrite import fold_affine_into_convs, rewrite_activations
+from edgepick.quant.record import QuantRecord, RecordKind
+from edgepick.quant.results import OnnxPassResult
 
 
 @dataclass(frozen=True)
-class OnnxPassResult:
-    """The int8 file of a model edgepick did not make (an ONNX file or an nn.Module), what was done
-    to it and how close it stays to fp32."""
+class _Calibrated:
+    """What calibration leaves: each activation's range, the first calibration tensors (kept for the
+    measurements and the fidelity check), how many there were, and the range rule's record."""
 
-    out: str
-    size_bytes: int
-    input_shape: list[int]
-    opset_in: int | None  # None for an nn.Module
-    opset_out: int
-    convs: int
-    int8_convs: int
-    float_convs: list[str]
-    agreement_vs_fp32: dict[str, float]  # per output that decides something: share of equal decisions
-    fidelity: dict[str, dict]  # per output: task, sqnr_db, cosine, agreement (quant/fidelity.py)
-    rewrites: dict[str, int]  # float rewrites before quantizing, and the int8 graph passes after
-    quant: dict
-    calib_tensors: int
-    calib_s: float
-
-    def to_dict(self) -> dict:
-        return asdict(self)
+    ranges: dict[str, tuple[float, float]]
+    kept: list[np.ndarray]
+    seen: int
+    record: dict
 
 
-def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: str | Path,
-                         config: QuantConfig | None = None, input_shape: tuple[int, ...] | None = None,
-                         progress: bool = True, task: Task | Mapping[str, Task] | None = None,
-                         budget: FidelityBudget | None = None) -> OnnxPassResult:
-    """Static PTQ of the float ONNX file MODEL with edgepick's recipe, calibrated on CALIB (the
-    model's input tensors, float, with or without the batch axis; `folder_tensors` reads a folder),
-    written to OUT. INPUT_SHAPE fixes dynamic input dims [default: the first tensor's shape].
-    config.keep_float names ONNX nodes to leave in float (their weights, inputs and outputs). TASK
-    says what the outputs decide, for the fidelity report (one Task for all, or per output name)
-    [default: guessed per output]. BUDGET: the accuracy-aware mode (quant/onnx/accuracy.py), which
-    leaves the activations that matter most float until the outputs meet it; without one, a file
-    whose worst output falls under SQNR_FLOOR_DB is written with a warning naming them."""
-    import onnx
-    import onnxruntime
-    from onnxruntime.quantization.registry import QDQRegistry, QLinearOpsRegistry
-
-    config = config or QuantConfig()
-    if config.placement == Placement.AUTO:
-        from edgepick.quant.onnx.placement import choose_placement
-
-        return choose_placement(quantize_onnx_static, model, calib, out, config, progress, input_shape=input_shape,
-                                task=task, budget=budget)
-    check_onnx_out(out, model)
-    onnxruntime.set_default_logger_severity(3)  # its sessions warn about every unused initializer of the input
-    if config.bias_correction == BiasCorrection.FAST:
-        raise ParameterError("{bias_correction}: fast is not available for ONNX models; use empirical",
-                             bias_correction=config.bias_correction)
+def _read(model: str | Path, config: QuantConfig, task: Task | Mapping[str, Task] | None) -> tuple[Any, int]:
+    """The float model, its nodes named and its Constants made initializers (how many: returned),
+    refused when keep_float or TASK names what it does not have."""
     proto = load_float_onnx(model)
     Graph(proto).name_nodes()  # the quantizer and keep_float know nodes by name
     constants = constants_to_initializers(proto)
@@ -150,6 +117,68 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
         raise ParameterError(f"{{keep_float:name}} names no node of the model: {', '.join(unknown)}",
                              keep_float=tuple(unknown))
     check_task_names(proto, task)
+    return proto, constants
+
+
+def _prepared(proto: Any, pre: Path, equalize: bool, rewrites: dict[str, int]) -> Any:
+    """PROTO pre-processed (shapes inferred, BatchNorm folded) into the file PRE, equalized when asked
+    (the pairs counted into REWRITES); returns the graph PRE holds."""
+    import onnx
+
+    _pre_process(proto, pre)
+    prepared = onnx.load(str(pre))
+    drop_unused_initializers(prepared)
+    if equalize:
+        rewrites["equalized_pairs"] = equalize_onnx(prepared)
+    onnx.save(prepared, str(pre))
+    return prepared
+
+
+def _calibrated(prepared: Any, pre: Path, first: np.ndarray, tensors: Iterator[Any], input_shape: tuple[int, ...],
+                config: QuantConfig, ops: list[str], exclude: list[str], keep: int, hold: int, total: int | None,
+                nhwc: bool, progress: bool) -> _Calibrated:
+    """Stream every calibration tensor through PREPARED into a histogram per activation that OPS read
+    or write (the first HOLD held out until the rule is chosen on them), and read the ranges off."""
+    sizes = calibrated_tensors(prepared, ops)
+    check_memory(prepared, sizes, int(np.prod(input_shape)) * 4 * keep)
+    collector = Collector(prepared, sizes, minmax_only=config.calib_method == CalibMethod.MINMAX)
+    kept, seen = _calibrate(collector, first, tensors, input_shape, keep, hold, total, progress)
+    rule, record = choose_rule(collector, pre, prepared, kept[:hold], ops, exclude, config, nhwc, progress)
+    exact = exact_tensors(prepared)
+    ranges = collector.ranges(rule, exact)
+    del collector  # its sessions, before the int8 graphs' are made
+    release_memory()
+    return _Calibrated(ranges, kept, seen, {**record, "exact_tensors": len(exact & set(sizes))})
+
+
+def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: str | Path,
+                         config: QuantConfig | None = None, methods: PtqMethods | None = None,
+                         options: OnnxOptions | None = None, input_shape: tuple[int, ...] | None = None,
+                         progress: bool = True, task: Task | Mapping[str, Task] | None = None,
+                         budget: FidelityBudget | None = None) -> OnnxPassResult:
+    """Static PTQ of the float ONNX file MODEL with edgepick's recipe, calibrated on CALIB (the
+    model's input tensors, float, with or without the batch axis; `folder_tensors` reads a folder),
+    METHODS applied on them, OPTIONS the placement and GELU form; written to OUT. INPUT_SHAPE fixes
+    dynamic input dims [default: the first tensor's shape]. config.keep_float names ONNX nodes to
+    leave in float (their weights, inputs and outputs). TASK says what the outputs decide, for the
+    fidelity report (one Task for all, or per output name) [default: guessed per output]. BUDGET:
+    the accuracy-aware mode (quant/onnx/accuracy.py), which leaves the activations that matter most
+    float until the outputs meet it; without one, a file whose worst output falls under
+    SQNR_FLOOR_DB is written with a warning naming them."""
+    import onnxruntime
+
+    config, methods, options = config or QuantConfig(), methods or PtqMethods(), options or OnnxOptions()
+    if options.placement == Placement.AUTO:
+        from edgepick.quant.onnx.placement import choose_placement
+
+        return choose_placement(quantize_onnx_static, model, calib, out, options, progress, config=config,
+                                methods=methods, input_shape=input_shape, task=task, budget=budget)
+    check_onnx_out(out, model)
+    onnxruntime.set_default_logger_severity(3)  # its sessions warn about every unused initializer of the input
+    if methods.bias_correction == BiasCorrection.FAST:
+        raise ParameterError("{bias_correction}: fast is not available for ONNX models; use empirical",
+                             bias_correction=methods.bias_correction)
+    proto, constants = _read(model, config, task)
     total = len(calib) if isinstance(calib, Sized) else None
     tensors = iter(calib)
     first, input_shape = _first_tensor(proto, next(tensors, None), input_shape)
@@ -157,67 +186,77 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
     opset_in = opset(proto)
     proto = lift_opset(proto, model)  # before the shapes are cleared: the converter needs them
     fix_input_shape(proto, tuple(input_shape))
-    every_op = config.placement == Placement.ALL
-    rewrites = {"constants_to_initializers": constants, **(rewrite_activations(proto) if every_op else {}),
+    rewrites = {"constants_to_initializers": constants,
+                **(rewrite_activations(proto) if options.placement == Placement.ALL else {}),
                 "affine_folded": fold_affine_into_convs(proto)}
     nhwc = len(input_shape) == 4 and input_shape[-1] in (1, 3, 4) and input_shape[1] not in (1, 3, 4)
     with tempfile.TemporaryDirectory(prefix="edgepick-onnx-") as tmp:
         pre = Path(tmp) / "float.onnx"
-        _pre_process(proto, pre)
-        prepared = onnx.load(str(pre))
-        drop_unused_initializers(prepared)
-        if config.equalize:
-            rewrites["equalized_pairs"] = equalize_onnx(prepared)
-        onnx.save(prepared, str(pre))
-        shapes = _output_shapes(prepared)
-        tasks = output_tasks(prepared, shapes, task, nhwc)
+        prepared = _prepared(proto, pre, methods.equalize, rewrites)
+        tasks = output_tasks(prepared, _output_shapes(prepared), task, nhwc)
         hw = input_shape[1:3] if nhwc else input_shape[-2:]
-        measured = lockstep_images(*hw) if config.bias_correction != BiasCorrection.NONE or config.adaround else 0
-        check = check_inputs(*hw)
+        measured, check = lockstep_images(*hw) if methods.measures else 0, check_inputs(*hw)
         keep = max(check, measured, SATURATION_CHECK_INPUTS if config.weight_bits == WeightBits.FIRST_SEVEN else 0)
-        ops = placement_ops(config.placement, {*QDQRegistry, *QLinearOpsRegistry})
+        ops = placement_ops(options.placement, _quantizer_registry())
         exclude = [*config.keep_float, *float_tail(prepared)]
-        sizes = calibrated_tensors(prepared, ops)
-        check_memory(prepared, sizes, int(np.prod(input_shape)) * 4 * keep)
-        collector = Collector(prepared, sizes, minmax_only=config.calib_method == CalibMethod.MINMAX)
-        hold = check if config.calib_method == CalibMethod.AUTO else 0
-        kept, seen = _calibrate(collector, first, tensors, tuple(input_shape), keep, hold, total, progress)
-        rule, ranges_record = choose_rule(collector, pre, prepared, kept[:hold], ops, exclude, config, nhwc, progress)
-        exact = exact_tensors(prepared)
-        ranges = collector.ranges(rule, exact)
-        del collector  # its sessions, before the int8 graphs' are made
-        release_memory()
-        int8 = qdq_model(pre, ranges, ops, exclude, config.reduce_range)
-        if config.gelu == GeluForm.SIGMOID:  # before the bias correction, which then measures it
+        cal = _calibrated(prepared, pre, first, tensors, tuple(input_shape), config, ops, exclude, keep,
+                          check if config.calib_method == CalibMethod.AUTO else 0, total, nhwc, progress)
+        int8 = qdq_model(pre, cal.ranges, ops, exclude, config.reduce_range)
+        if options.gelu == GeluForm.SIGMOID:  # before the bias correction, which then measures it
             rewrites["sigmoid_gelu"] = sigmoid_gelu(int8)
-        done = _measure(prepared, int8, kept, measured, config)
+        done = _measure(prepared, int8, cal.kept, measured, config, methods)
         release_memory()
-        steps = {**rewrites, "float_outputs": float_outputs(int8, float_tail(prepared))}
-        if config.keep_float:
-            steps["kept_float_tensors"] = float_tensors(int8, node_tensors(int8, config.keep_float), prepared)
-        evaluator = evaluator_for(pre, prepared, kept[:check], tasks, nhwc)
-        int8, accuracy = fidelity_first(int8, evaluator, budget, progress)
-        steps.update(**integer_activations(int8), cropped_convs=crop_padded_convs(int8))
-        steps["unused_initializers"] = drop_unused_initializers(int8)
-        quant = {"mode": "static", "source": "onnx", "calib_method": config.calib_method.value,
-                 "calib_images": seen, "percentile": config.percentile, "weight_bits": config.weight_bits.value,
-                 "placement": config.placement.value, "gelu": config.gelu.value, "equalize": config.equalize,
-                 "bias_correction": config.bias_correction.value,
-                 "adaround": config.adaround, **({"adaround_budget_s": config.adaround_budget_s} if config.adaround else {}),
-                 "keep_float": list(config.keep_float), "ranges": {**ranges_record, "exact_tensors": len(exact & set(sizes))},
-                 **done, **accuracy}
-        if config.equalize:
-            quant["equalized_pairs"] = rewrites["equalized_pairs"]
+        evaluator = evaluator_for(pre, prepared, cal.kept[:check], tasks, nhwc)
+        int8, steps, accuracy = _finished(int8, prepared, rewrites, config, evaluator, budget, progress)
+        quant = QuantRecord(RecordKind.ONNX, config, cal.seen, methods, options, ranges=cal.record, measured={
+            **done, **accuracy, **({"equalized_pairs": rewrites["equalized_pairs"]} if methods.equalize else {})}
+                            ).to_dict()
         calib_s = time.perf_counter() - t0
         with atomic_path(out) as path:
-            fidelity = _write_checked(int8, path, prepared, config, quant, evaluator)
-            report = conv_weight_report(path)
-    out = Path(out)
-    return OnnxPassResult(out=str(out), size_bytes=out.stat().st_size, input_shape=list(input_shape),
-                          opset_in=opset_in, opset_out=opset(int8), convs=report["convs"], int8_convs=report["int8"],
-                          float_convs=report["float"],
-                          agreement_vs_fp32={n: f["agreement"] for n, f in fidelity.items() if f["agreement"] is not None},
-                          fidelity=fidelity, rewrites=steps, quant=quant, calib_tensors=seen, calib_s=round(calib_s, 2))
+            fidelity, report = _write_checked(int8, path, prepared, config, quant, evaluator)
+    return OnnxPassResult.of(Path(out), report, fidelity, input_shape=list(input_shape), opset_in=opset_in,
+                             opset_out=opset(int8), rewrites=steps, quant=quant, calib_tensors=cal.seen,
+                             calib_s=round(calib_s, 2))
+
+
+def _quantizer_registry() -> set[str]:
+    """The op types onnxruntime's QDQ quantizer can put on the int8 grid."""
+    from onnxruntime.quantization.registry import QDQRegistry, QLinearOpsRegistry
+
+    return {*QDQRegistry, *QLinearOpsRegistry}
+
+
+def _finished(int8: Any, prepared: Any, rewrites: dict[str, int], config: QuantConfig, evaluator: Evaluator,
+              budget: FidelityBudget | None, progress: bool) -> tuple[Any, dict[str, int], dict]:
+    """INT8 with the float tail and keep_float's tensors float, the accuracy-aware mode or the
+    low-fidelity warning (`fidelity_first`), then export's integer activations and padding-tap crop;
+    returns it, every rewrite made, and what the accuracy step records."""
+    steps = {**rewrites, "float_outputs": float_outputs(int8, float_tail(prepared))}
+    if config.keep_float:
+        steps["kept_float_tensors"] = float_tensors(int8, node_tensors(int8, config.keep_float), prepared)
+    int8, accuracy = fidelity_first(int8, evaluator, budget, progress)
+    steps.update(**integer_activations(int8), cropped_convs=crop_padded_convs(int8))
+    steps["unused_initializers"] = drop_unused_initializers(int8)
+    return int8, steps, accuracy
+
+
+def _write_checked(int8: Any, path: Path, prepared: Any, config: QuantConfig, quant: dict,
+                   evaluator: Evaluator) -> tuple[dict[str, dict], dict]:
+    """Write INT8 with its metadata to PATH, check it (onnx's checker, every conv not kept float int8)
+    and compare its outputs with fp32's (EVALUATOR's check tensors); returns the fidelity per output,
+    also recorded in the file, and the file's conv report."""
+    import onnx
+
+    expected = sum(1 for n in prepared.graph.node if n.op_type in CONV_OPS and n.name not in config.keep_float)
+    onnx.save(int8, str(path))
+    report = require_int8_convs(path, expected)
+    fidelity = {n: f.to_dict() for n, f in evaluator.fidelity(int8).items()}
+    for key, value in (("edgepick.quant", quant), ("edgepick.fidelity", fidelity)):
+        entry = int8.metadata_props.add()
+        entry.key, entry.value = key, json.dumps(value)
+    onnx.save(int8, str(path))
+    onnx.checker.check_model(str(path), full_check=True)
+    return fidelity, report
 
 
 def _first_tensor(proto: Any, first: Any, input_shape: tuple[int, ...] | None) -> tuple[np.ndarray, tuple[int, ...]]:
@@ -261,29 +300,8 @@ def _calibrate(collector: Collector, first: np.ndarray, rest: Iterator[Any], sha
     return kept, seen
 
 
-def _write_checked(int8: Any, path: Path, prepared: Any, config: QuantConfig, quant: dict,
-                   evaluator: Evaluator) -> dict[str, dict]:
-    """Write INT8 with its metadata to PATH, check it (onnx's checker, every conv not kept float int8)
-    and compare its outputs with fp32's (EVALUATOR's check tensors); returns the fidelity per output,
-    also recorded in the file."""
-    import onnx
-
-    expected = sum(1 for n in prepared.graph.node if n.op_type in CONV_OPS and n.name not in config.keep_float)
-    onnx.save(int8, str(path))
-    report = conv_weight_report(path)
-    if report["int8"] < expected:
-        raise QuantizationError(f"only {report['int8']} of {expected} convs got int8 weights in the ONNX: "
-                                f"{', '.join(report['float'])} stayed float")
-    fidelity = {n: f.to_dict() for n, f in evaluator.fidelity(int8).items()}
-    for key, value in (("edgepick.quant", quant), ("edgepick.fidelity", fidelity)):
-        entry = int8.metadata_props.add()
-        entry.key, entry.value = key, json.dumps(value)
-    onnx.save(int8, str(path))
-    onnx.checker.check_model(str(path), full_check=True)
-    return fidelity
-
-
-def _measure(prepared: Any, int8: Any, kept: list[np.ndarray], images: int, config: QuantConfig) -> dict:
+def _measure(prepared: Any, int8: Any, kept: list[np.ndarray], images: int, config: QuantConfig,
+             methods: PtqMethods) -> dict:
     """first-7, AdaRound and empirical bias correction on the QDQ graph INT8 (in place), in that
     order, measured on KEPT (the first calibration tensors; IMAGES of them for AdaRound and the
     correction); returns what was done."""
@@ -292,13 +310,13 @@ def _measure(prepared: Any, int8: Any, kept: list[np.ndarray], images: int, conf
         share = saturating_onnx_convs(int8, kept[:SATURATION_CHECK_INPUTS], HEADROOM * INT16)
         done["seven_bit_convs"] = [name for name, s in share.items() if s > 0]
         to_seven_bit_onnx(prepared, int8, done["seven_bit_convs"])
-    if config.adaround:
+    if methods.adaround:
         seven = set(qdq_convs(int8)) if config.weight_bits == WeightBits.SEVEN else set(done.get("seven_bit_convs", []))
-        rounded = adaround_onnx(prepared, int8, kept[:images], config.adaround_budget_s, seven)
+        rounded = adaround_onnx(prepared, int8, kept[:images], methods.adaround_budget_s, seven)
         done["adaround_convs"] = sum(r["error_adaround"] < r["error_nearest"] for r in rounded.values())
-    if config.adaround or config.bias_correction == BiasCorrection.EMPIRICAL:
+    if methods.adaround or methods.bias_correction == BiasCorrection.EMPIRICAL:
         done["measured_images"] = min(images, len(kept))
-    if config.bias_correction == BiasCorrection.EMPIRICAL:
+    if methods.bias_correction == BiasCorrection.EMPIRICAL:
         correct_onnx_biases(prepared, int8, kept[:images], writes_float_output(prepared))
     return done
 

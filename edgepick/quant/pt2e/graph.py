@@ -16,9 +16,9 @@ import torch
 from edgepick.errors import ConfigError, ParameterError, QuantizationError
 from edgepick.geometry import Size, check_size
 from edgepick.models.deeplabv3 import DeepLabV3, LogitsNet, trim_dilated_convs
-from edgepick.quant.config import GeluForm, Placement, QuantConfig, WeightBits
+from edgepick.quant.config import Pt2eOptions, QatOptions, QuantConfig, WeightBits
 from edgepick.quant.fidelity import RuleScore, balanced_error
-from edgepick.quant.pt2e.equalize import equalize
+from edgepick.quant.pt2e.equalize import equalize as equalize_pairs
 from edgepick.quant.pt2e.quantizer import EdgeQuantizer, RuleObserver, count_quant_nodes, module_path, under
 from edgepick.quant.pt2e.rewrites import drop_fake_quants_after_dropout, gate_hardswish, snap_conv_biases
 from edgepick.quant.pt2e.torchao_compat import bn_folds_with_own_eps, install_train_eval, patterns_traced_once, set_mode
@@ -85,35 +85,31 @@ def check_keep_float(model: torch.nn.Module, names: tuple[str, ...]) -> None:
                              f"(see 'edgepick quantize inspect' for layer names)", keep_float=tuple(unknown))
 
 
-def prepare(model: torch.nn.Module, config: QuantConfig, size: Size, qat: bool,
-            input_shape: tuple[int, ...] | None = None) -> torch.fx.GraphModule:
-    """torch.export + pt2e prepare of MODEL (changed in place: trimmed taps, gated hardswish);
-    QAT gives a fake-quant graph with a batch dimension to train. Raises if no observer or
-    fake-quant was inserted (the silent-float trap). MODEL is edgepick's DeepLabV3 or any
-    segmentation module (a `{"out": ...}` dict or a tensor out) taking [N, 3, H, W] at SIZE, or
-    INPUT_SHAPE when given. With config.equalize (static PTQ only), conv pairs are equalized
-    (quant/pt2e/equalize.py) before any observer runs."""
+def prepare(model: torch.nn.Module, config: QuantConfig, size: Size, qat: bool | QatOptions,
+            input_shape: tuple[int, ...] | None = None, equalize: bool = False,
+            pt2e: Pt2eOptions | None = None) -> torch.fx.GraphModule:
+    """torch.export + pt2e prepare of MODEL (changed in place: trimmed taps, gated hardswish as PT2E
+    says); QAT (True, or QaT's options) gives a fake-quant graph with a batch dimension to train,
+    False an observed graph for static PTQ. Raises if no observer or fake-quant was inserted (the
+    silent-float trap). MODEL is edgepick's DeepLabV3 or any segmentation module (a `{"out": ...}`
+    dict or a tensor out) taking [N, 3, H, W] at SIZE, or INPUT_SHAPE when given. With EQUALIZE
+    (static PTQ only), conv pairs are equalized (quant/pt2e/equalize.py) before any observer runs."""
     from torchao.quantization.pt2e.quantize_pt2e import prepare_pt2e, prepare_qat_pt2e
 
+    options = QatOptions() if qat is True else qat or None
+    pt2e = pt2e or Pt2eOptions()
     check_size(size, "size")
     check_keep_float(model, config.keep_float)
-    for method in ("equalize", "adaround"):
-        if qat and getattr(config, method):
-            raise ParameterError(f"{{{method}}}: a static PTQ method; QaT learns its weights and their rounding "
-                                 f"in training", **{method: True})
-    if qat and config.weight_bits == WeightBits.FIRST_SEVEN:
+    if options and equalize:
+        raise ParameterError("{equalize}: a static PTQ method; QaT learns its weights in training", equalize=True)
+    if options and config.weight_bits == WeightBits.FIRST_SEVEN:
         raise ParameterError("{weight_bits}: first-7 is measured after static calibration; QaT trains on one weight "
                              "grid from the start: use 7 or 8", weight_bits=config.weight_bits)
-    if config.placement != Placement.ALL:
-        raise ParameterError("{placement}: for an .onnx model; a torch model's int8 graph quantizes every "
-                             "activation", placement=config.placement)
-    if config.gelu != GeluForm.FLOAT:
-        raise ParameterError("{gelu}: for an .onnx model; a torch model's GELU is quantized as torch.export "
-                             "writes it", gelu=config.gelu)
     if isinstance(model, DeepLabV3):
         trim_dilated_convs(model, size)  # exact; int8 kernels do not skip taps that only see padding
-    if config.hardswish_gate:
+    if pt2e.hardswish_gate:
         gate_hardswish(model)
+    qat = options is not None
     net = LogitsNet(model).train(qat)
     shape = tuple(input_shape) if input_shape else (1, 3, *size.hw)
     example = (torch.rand(2 if qat else shape[0], *shape[1:]) * 255,)
@@ -121,7 +117,7 @@ def prepare(model: torch.nn.Module, config: QuantConfig, size: Size, qat: bool,
         warnings.simplefilter("ignore")
         batch = torch.export.Dim("batch", min=1, max=4096)  # QaT trains on batches
         graph = torch.export.export(net, example, dynamic_shapes=({0: batch},) if qat else None).module()
-        quantizer = EdgeQuantizer(config, qat=qat, prefix=PREFIX)
+        quantizer = EdgeQuantizer(config, options, pt2e, prefix=PREFIX)
         with patterns_traced_once(graph):
             prepared = prepare_qat_pt2e(graph, quantizer) if qat else prepare_pt2e(graph, quantizer)
     # drop fake-quants nobody reads (left by the QaT conv-BN rewrite); train()/eval() would drop them
@@ -133,8 +129,8 @@ def prepare(model: torch.nn.Module, config: QuantConfig, size: Size, qat: bool,
     prepared.recompile()
     if count_quant_nodes(prepared) == 0:
         raise QuantizationError("pt2e inserted no observers: the model would stay float")
-    if config.equalize and not qat:
-        equalize(prepared)  # BN is folded and no observer has run yet
+    if equalize:
+        equalize_pairs(prepared)  # BN is folded and no observer has run yet
     install_train_eval(prepared, model, PREFIX)
     return prepared
 

@@ -30,7 +30,15 @@ from edgepick.errors import ParameterError
 from edgepick.export.onnx_export import check_onnx_out
 from edgepick.geometry import Size
 from edgepick.models.deeplabv3 import LogitsNet, trim_dilated_convs
-from edgepick.quant.config import BIAS_CORRECTION_IMAGES, MAX_FLOAT_LAYERS, BiasCorrection, CalibMethod, QuantConfig
+from edgepick.quant.config import (
+    BIAS_CORRECTION_IMAGES,
+    MAX_FLOAT_LAYERS,
+    BiasCorrection,
+    CalibMethod,
+    Pt2eOptions,
+    PtqMethods,
+    QuantConfig,
+)
 from edgepick.quant.pt2e.graph import PREFIX, as_input, at_input_size, calibrate, check_keep_float, first_of, prepare
 from edgepick.quant.pt2e.ptq import convert_static, measures
 from edgepick.quant.pt2e.quantizer import module_path
@@ -136,42 +144,43 @@ def _gain(after: float | None, before: float | None) -> float | None:
     return round(after - before, 2)
 
 
-def method_stages(config: QuantConfig) -> list[tuple[str, QuantConfig]]:
-    """CONFIG's static PTQ methods as cumulative stages in the order the pass applies them: first
-    none of them (name ""), then with equalization, AdaRound and bias correction added one by one."""
-    stage = replace(config, equalize=False, adaround=False, bias_correction=BiasCorrection.NONE)
+def method_stages(methods: PtqMethods) -> list[tuple[str, PtqMethods]]:
+    """METHODS as cumulative stages in the order the pass applies them: first none of them (name ""),
+    then with equalization, AdaRound and bias correction added one by one."""
+    stage = replace(methods, equalize=False, adaround=False, bias_correction=BiasCorrection.NONE)
     stages = [("", stage)]
     for name, changes in (("equalize", {"equalize": True}), ("adaround", {"adaround": True}),
-                          ("bias_correction", {"bias_correction": config.bias_correction})):
-        if getattr(config, name) not in (False, BiasCorrection.NONE):
+                          ("bias_correction", {"bias_correction": methods.bias_correction})):
+        if getattr(methods, name) not in (False, BiasCorrection.NONE):
             stage = replace(stage, **changes)
             stages.append((name, stage))
     return stages
 
 
 def inspect(checkpoint: str | Path | Checkpoint, calib: Iterable[np.ndarray], images: Sequence[np.ndarray],
-            config: QuantConfig | None = None, progress: bool = True) -> dict:
+            config: QuantConfig | None = None, methods: PtqMethods | None = None, pt2e: Pt2eOptions | None = None,
+            progress: bool = True) -> dict:
     """Calibrate a static int8 model (in memory) on CALIB and compare it layer by layer with fp32 on
     IMAGES (HxWx3 uint8 RGB, resized to the model's input; `folder_images` draws both from a data set).
-    With methods in CONFIG (equalize, adaround, bias_correction), the model is made again with each
-    added in turn, and each layer says how many dB of SQNR each one gained it (`<method>_gain_db`);
+    With METHODS (equalize, adaround, bias_correction), the model is made again with each added in
+    turn, and each layer says how many dB of SQNR each one gained it (`<method>_gain_db`);
     report[<method>] has the logits SQNR and label agreement after it."""
-    config = config or QuantConfig()
+    config, methods = config or QuantConfig(), methods or PtqMethods()
     if not images:
         raise ParameterError("{images}: give at least one image to compare on", images=images)
     ckpt = checkpoint if isinstance(checkpoint, Checkpoint) else Checkpoint.load(checkpoint)
     size = ckpt.input_size
     float_gm = float_graph(ckpt.build_model(), size)
     compared = [at_input_size(rgb, size, "images") for rgb in images]
-    stages = method_stages(config)
+    stages = method_stages(methods)
     calib = list(calib) if len(stages) > 1 else calib  # each stage calibrates anew
     report: dict = {}
     for name, stage in stages:
-        prepared = prepare(ckpt.build_model(), stage, size, qat=False)
+        prepared = prepare(ckpt.build_model(), config, size, qat=False, equalize=stage.equalize, pt2e=pt2e)
         kept: list[np.ndarray] = []
         calibrate(prepared, first_of(calib, BIAS_CORRECTION_IMAGES, kept), size, progress)
-        samples = [as_input(at_input_size(rgb, size)) for rgb in kept] if measures(stage) else []
-        converted, measured = convert_static(prepared, functools.partial(list, samples), stage)
+        samples = [as_input(at_input_size(rgb, size)) for rgb in kept] if measures(config, stage) else []
+        converted, measured = convert_static(prepared, functools.partial(list, samples), config, stage)
         result = compare(float_gm, converted, compared)
         if not name:
             report = {**result, "ranked": ranked(result), **measured}
@@ -184,32 +193,37 @@ def inspect(checkpoint: str | Path | Checkpoint, calib: Iterable[np.ndarray], im
         sqnr = {r["layer"]: r["sqnr_db"] for r in result["layers"]}
         report[name] = {"logits_sqnr_db": result["logits_sqnr_db"], "label_agreement": result["label_agreement"]}
         if name == "bias_correction":
-            report[name].update(method=config.bias_correction.value, images=len(kept))
+            report[name].update(method=methods.bias_correction.value, images=len(kept))
     return report
 
 
-def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str | Path, max_drop_pp: float,
-                            config: QuantConfig | None = None, calib_images: int | None = None,
-                            max_float_layers: int = MAX_FLOAT_LAYERS, progress: bool = True) -> AccuracyAwareResult:
-    """Static PTQ that keeps the layers adding the most drift in float, one at a time, until the
-    val mIoU (onnxruntime) is within MAX_DROP_PP points of the fp32 model's, or MAX_FLOAT_LAYERS
-    are float. Writes the best file found at OUT and reports every step."""
+def quantize_accuracy_aware(checkpoint: str | Path, calib: Iterable[np.ndarray], data: str | Path, out: str | Path,
+                            max_drop_pp: float, config: QuantConfig | None = None, methods: PtqMethods | None = None,
+                            pt2e: Pt2eOptions | None = None, max_float_layers: int = MAX_FLOAT_LAYERS,
+                            progress: bool = True) -> AccuracyAwareResult:
+    """Static PTQ (CONFIG, METHODS) calibrated on CALIB (HxWx3 uint8 RGB images, every step on the
+    same ones) that keeps the layers adding the most drift in float, one at a time, until the mIoU
+    on DATA's val split (onnxruntime; its labels score each step) is within MAX_DROP_PP points of
+    the fp32 model's, or MAX_FLOAT_LAYERS are float. Writes the best file found at OUT and reports
+    every step."""
     from edgepick.evaluation import evaluate
     from edgepick.export.onnx_export import export_checkpoint
-    from edgepick.quant.pt2e.passes import agreement_images, check_classes, check_image_count, folder_images, quantize_static
+    from edgepick.quant.pt2e.images import agreement_images, check_classes, folder_images
+    from edgepick.quant.pt2e.passes import quantize_static
 
     if not (math.isfinite(max_drop_pp) and max_drop_pp >= 0):
         raise ParameterError("{max_drop_pp}: must be a number of percentage points, 0 or more", max_drop_pp=max_drop_pp)
     if max_float_layers < 1:
         raise ParameterError("{max_float_layers}: must be at least 1", max_float_layers=max_float_layers)
-    config = config or QuantConfig()
+    config, methods = config or QuantConfig(), methods or PtqMethods()
     check_onnx_out(out)
-    check_image_count(data, "train", calib_images)
     n_val = len(NativeDataset.open(data, "val"))
     ckpt = Checkpoint.load(checkpoint)
     check_classes(ckpt, data)
     check_keep_float(ckpt.build_model(), config.keep_float)
-    calib = folder_images(data, "train", calib_images)  # drawn once, for every step
+    calib = [at_input_size(rgb, ckpt.input_size) for rgb in calib]  # held, for every step
+    if not calib:
+        raise ParameterError("{calib:name}: no images; calibration needs at least one", calib=None)
     compared, check = folder_images(data, "val", min(COMPARED_IMAGES, n_val), what="val images"), agreement_images(data)
     if n_val < COMPARED_IMAGES:  # said once every input has passed its checks: a refusal stays one line
         print(f"edgepick: warning: {data}/val has {n_val} images; the val mIoU that the accuracy-aware search "
@@ -225,7 +239,7 @@ def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str |
         while True:
             cfg = replace(config, keep_float=tuple(keep))
             path = work / f"step{len(steps)}.onnx"
-            res = quantize_static(ckpt, calib, path, cfg, check_images=check, progress=False)
+            res = quantize_static(ckpt, calib, path, cfg, methods, pt2e, check_images=check, progress=False)
             if config.calib_method == CalibMethod.AUTO:  # the rule auto chose holds for the steps after this one
                 config = RangeRule.parse(res.quant["ranges"]["rule"]).pinned(config)
             miou = evaluate(path, data, "val", progress=False)["miou"]
@@ -238,7 +252,8 @@ def quantize_accuracy_aware(checkpoint: str | Path, data: str | Path, out: str |
                 break
             if candidates is None:
                 # the ranking is the first stage's (no method): the stages after it would be made for nothing
-                candidates = ranked(inspect(ckpt, calib, compared, method_stages(config)[0][1], progress=progress))
+                candidates = ranked(inspect(ckpt, calib, compared, config, method_stages(methods)[0][1], pt2e,
+                                            progress=progress))
             if not candidates:
                 break
             keep.append(candidates.pop(0))

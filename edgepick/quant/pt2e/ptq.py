@@ -16,6 +16,7 @@ from edgepick.quant.config import (
     HEADROOM,
     SATURATION_CHECK_INPUTS,
     BiasCorrection,
+    PtqMethods,
     QuantConfig,
     WeightBits,
     lockstep_images,
@@ -29,11 +30,10 @@ from edgepick.quant.pt2e.quantizer import module_path
 from edgepick.quant.pt2e.rewrites import snap_conv_biases
 
 
-def measures(config: QuantConfig) -> bool:
-    """Whether CONFIG's conversion runs the model on calibration inputs (first-7, AdaRound, bias
-    correction), so that the caller keeps BIAS_CORRECTION_IMAGES of them."""
-    return (config.weight_bits == WeightBits.FIRST_SEVEN or config.adaround
-            or config.bias_correction != BiasCorrection.NONE)
+def measures(config: QuantConfig, methods: PtqMethods) -> bool:
+    """Whether conversion runs the model on calibration inputs (first-7, AdaRound, bias correction),
+    so that the caller keeps BIAS_CORRECTION_IMAGES of them."""
+    return config.weight_bits == WeightBits.FIRST_SEVEN or methods.measures
 
 
 def within_lockstep(samples: list[torch.Tensor]) -> list[torch.Tensor]:
@@ -50,18 +50,18 @@ def within_lockstep(samples: list[torch.Tensor]) -> list[torch.Tensor]:
     return kept
 
 
-def convert_static(prepared: GraphModule, inputs: Callable[[], list[torch.Tensor]],
-                   config: QuantConfig) -> tuple[GraphModule, dict]:
-    """`convert` PREPARED (calibrated); with config.weight_bits first-7, AdaRound or a bias correction,
+def convert_static(prepared: GraphModule, inputs: Callable[[], list[torch.Tensor]], config: QuantConfig,
+                   methods: PtqMethods) -> tuple[GraphModule, dict]:
+    """`convert` PREPARED (calibrated); with config.weight_bits first-7, METHODS' AdaRound or a bias correction,
     measure on INPUTS() (model input batches, called only then) against a copy of PREPARED taken before
     convert, which rewrites the graph it is given. Returns the graph and what was done:
     {"seven_bit_convs": [module paths]} for first-7, {"equalized_pairs": n} after CLE,
     {"adaround_convs": n} for the convs whose learnt rounding replaced round-to-nearest, {"measured_images": n}
     for the images AdaRound and bias correction used (`within_lockstep`)."""
     done: dict = {}
-    if config.equalize:
+    if methods.equalize:
         done["equalized_pairs"] = len(prepared.meta.get(EQUALIZED, []))
-    if not measures(config):
+    if not measures(config, methods):
         return convert(prepared), done
     reference = copy.deepcopy(prepared)
     converted = convert(prepared, snap_biases=False)
@@ -72,13 +72,13 @@ def convert_static(prepared: GraphModule, inputs: Callable[[], list[torch.Tensor
         to_seven_bit(reference, converted, names)
         paths = {n.name: module_path(n).removeprefix(PREFIX) for n in converted.graph.nodes}
         done["seven_bit_convs"] = [paths[name] for name in names]
-    if config.adaround or config.bias_correction != BiasCorrection.NONE:
+    if methods.measures:
         samples = within_lockstep(samples)
         done["measured_images"] = sum(x.shape[0] for x in samples)
-    if config.adaround:
-        rounded = adaround(reference, converted, samples, config.adaround_budget_s)
+    if methods.adaround:
+        rounded = adaround(reference, converted, samples, methods.adaround_budget_s)
         done["adaround_convs"] = sum(r["error_adaround"] < r["error_nearest"] for r in rounded.values())
-    if config.bias_correction != BiasCorrection.NONE:
-        correct_biases(reference, converted, samples, config.bias_correction)
+    if methods.bias_correction != BiasCorrection.NONE:
+        correct_biases(reference, converted, samples, methods.bias_correction)
     snap_conv_biases(converted)
     return converted, done

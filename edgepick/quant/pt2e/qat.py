@@ -23,7 +23,7 @@ import torch
 
 from edgepick.errors import CheckpointError
 from edgepick.models.zoo import build_model
-from edgepick.quant.config import FREEZE_AT, CalibMethod, QuantConfig
+from edgepick.quant.config import FREEZE_AT, CalibMethod, Pt2eOptions, QatOptions, QuantConfig
 from edgepick.quant.pt2e.graph import PREFIX, calibrate, prepare
 from edgepick.quant.pt2e.quantizer import RuleObserver
 from edgepick.quant.pt2e.torchao_compat import set_mode
@@ -112,23 +112,23 @@ def freeze(prepared: torch.fx.GraphModule) -> None:
 
 class QatHooks(Hooks):
     """A QaT graph in the training loop: it trains in fp32 (fake-quant ops reject bf16), starts from
-    static PTQ's ranges when given CALIB_IMAGES (HOLD_RANGES: and keeps them), freezes after
-    FREEZE_AT of the run's steps, validates on an eval-mode copy until then, and records its
-    QuantConfig in each checkpoint."""
+    static PTQ's ranges (config.percentile) when given CALIB_IMAGES (HOLD_RANGES: and keeps them),
+    freezes after qat.freeze_at of the run's steps, validates on an eval-mode copy until then, and
+    records its configs in each checkpoint."""
 
     bf16 = False
     param_prefix = PREFIX
 
-    def __init__(self, config: QuantConfig, freeze_at: float = FREEZE_AT, calib_images: list[np.ndarray] | None = None,
-                 hold_ranges: bool = False):
-        self.config, self.freeze_at = config, freeze_at
+    def __init__(self, config: QuantConfig, qat: QatOptions | None = None, pt2e: Pt2eOptions | None = None,
+                 calib_images: list[np.ndarray] | None = None, hold_ranges: bool = False):
+        self.config, self.qat, self.pt2e = config, qat or QatOptions(), pt2e or Pt2eOptions()
         self.calib_images, self.hold_ranges = calib_images, hold_ranges
         self.frozen, self.freeze_step, self.evaluator = False, 0, None
 
     def begin(self, model: torch.nn.Module, device: torch.device, first_step: int, last_step: int) -> None:
         if self.calib_images:
             calibrate_activations(model, self.calib_images, self.config.percentile, hold=self.hold_ranges)
-        self.freeze_step = round(first_step + (last_step - first_step) * self.freeze_at)
+        self.freeze_step = round(first_step + (last_step - first_step) * self.qat.freeze_at)
         self.evaluator = eval_copy(model)
         model.train()  # the graph's own switch: BatchNorm literals kept (torchao_compat.py)
 
@@ -148,8 +148,9 @@ class QatHooks(Hooks):
         return self.evaluator
 
     def checkpoint(self) -> dict:
-        return {"qat": {"quant": self.config.to_dict(), "freeze_at": self.freeze_at,
-                        "calib_images": len(self.calib_images or []), "hold_ranges": self.hold_ranges}}
+        quant = {**self.config.to_dict(), **self.qat.to_dict(), **self.pt2e.to_dict()}
+        return {"qat": {"quant": quant, "freeze_at": self.qat.freeze_at, "calib_images": len(self.calib_images or []),
+                        "hold_ranges": self.hold_ranges}}
 
 
 @dataclass(frozen=True)
@@ -160,23 +161,27 @@ class QatTraining:
     graph: torch.fx.GraphModule
 
 
-def train_qat(cfg: TrainConfig, config: QuantConfig, start: Checkpoint | None = None, carry_optimizer: bool = True,
-              freeze_at: float = FREEZE_AT, calib_images: list[np.ndarray] | None = None, hold_ranges: bool = False,
+def train_qat(cfg: TrainConfig, config: QuantConfig, qat: QatOptions | None = None, pt2e: Pt2eOptions | None = None,
+              start: Checkpoint | None = None, carry_optimizer: bool = True,
+              calib_images: list[np.ndarray] | None = None, hold_ranges: bool = False,
               progress: bool = True) -> QatTraining:
     """A QaT run into cfg.out: the float model (fresh, or START's weights and schedule: hybrid-QaT)
     prepared with fake-quant, then trained by edgepick.train's loop with QatHooks."""
+    qat = qat or QatOptions()
     cfg = replace(cfg, aux_loss=False)  # the deployed graph has no auxiliary head
-    graph = prepare(new_model(cfg, start), config, cfg.size, qat=True)
-    hooks = QatHooks(config, freeze_at, calib_images, hold_ranges)
+    graph = prepare(new_model(cfg, start), config, cfg.size, qat=qat, pt2e=pt2e)
+    hooks = QatHooks(config, qat, pt2e, calib_images, hold_ranges)
     result = fit(cfg, graph, hooks, start=start, carry_optimizer=carry_optimizer, progress=progress)
     return QatTraining(result, graph)
 
 
-def qat_config(checkpoint: Checkpoint) -> QuantConfig:
-    """The QuantConfig a QaT run's checkpoint was trained with."""
+def qat_configs(checkpoint: Checkpoint) -> tuple[QuantConfig, QatOptions, Pt2eOptions]:
+    """The configs a QaT run's checkpoint was trained with (also from checkpoints that recorded one
+    QuantConfig with every pass's fields)."""
     if checkpoint.qat is None:
         raise CheckpointError(f"{checkpoint.path} is not a QaT run's checkpoint")
-    return QuantConfig.from_dict(checkpoint.qat["quant"])
+    record = {**checkpoint.qat["quant"], "freeze_at": checkpoint.qat.get("freeze_at", FREEZE_AT)}
+    return QuantConfig.from_dict(record), QatOptions.from_dict(record), Pt2eOptions.from_dict(record)
 
 
 def load_qat(checkpoint: Checkpoint, graph: torch.fx.GraphModule | None = None) -> torch.fx.GraphModule:
@@ -184,7 +189,8 @@ def load_qat(checkpoint: Checkpoint, graph: torch.fx.GraphModule | None = None) 
     (moved to the CPU), or else one rebuilt from the checkpoint's model config (torch.export and
     pt2e prepare again: seconds to a minute on a CPU)."""
     if graph is None:
-        graph = prepare(build_model(checkpoint.model_config), qat_config(checkpoint), checkpoint.input_size, qat=True)
+        config, qat, pt2e = qat_configs(checkpoint)
+        graph = prepare(build_model(checkpoint.model_config), config, checkpoint.input_size, qat=qat, pt2e=pt2e)
     else:
         graph.to("cpu", memory_format=torch.contiguous_format)  # trained on a GPU: channels-last there
     load_weights(graph, checkpoint.model, checkpoint)  # strict: every entry must match

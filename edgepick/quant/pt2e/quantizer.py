@@ -7,8 +7,7 @@ a fused BN and ReLU), around elementwise add/mul, pooling, concat and activation
 uint8 affine activations and int8 per-channel symmetric weights (U8S8). Resize shares its
 input's quantization, so onnxruntime runs it on uint8 without Q/DQ around it.
 
-QuantConfig lives in edgepick/quant/config.py (no torch, for the command line) and is importable
-from here as well.
+The configs live in edgepick/quant/config.py (no torch, for the command line).
 """
 
 from __future__ import annotations
@@ -30,7 +29,7 @@ from torchao.quantization.pt2e.quantizer import (
     SharedQuantizationSpec,
 )
 
-from edgepick.quant.config import CalibMethod, QuantConfig
+from edgepick.quant.config import CalibMethod, Pt2eOptions, QatOptions, QuantConfig
 from edgepick.quant.ranges import Histogram, RangeRule
 
 aten = torch.ops.aten
@@ -82,6 +81,7 @@ class RuleObserver(HistogramObserver):
 
 
 def activation_spec(config: QuantConfig, qat: bool) -> QuantizationSpec:
+    """uint8 per-tensor activations: fake-quant for QaT, else the observer CONFIG's calibration method reads."""
     if qat:  # the fused kernel's affine scales are the observer's to the last bit (unlike its symmetric ones)
         ctr = FusedMovingAvgObsFakeQuantize.with_args(eps=2 ** -12)
     elif config.calib_method == CalibMethod.MINMAX:
@@ -92,15 +92,17 @@ def activation_spec(config: QuantConfig, qat: bool) -> QuantizationSpec:
     return QuantizationSpec(torch.uint8, ctr, 0, 255, torch.per_tensor_affine)
 
 
-def weight_spec(config: QuantConfig, qat: bool) -> QuantizationSpec:
+def weight_spec(config: QuantConfig, qat: QatOptions | None) -> QuantizationSpec:
+    """int8 per-channel symmetric weights (7-bit as CONFIG says): with QAT's options, fake-quant whose
+    ranges follow training; else the observed weights."""
     qmin, qmax = (-64, 63) if config.reduce_range else (-127, 127)
-    if qat:
+    if qat is not None:
         # Not the fused kernel: it computes its own scales (no eps floor; on CPU a channel of one sign gets an
         # asymmetric grid), while torchao 0.18's convert_pt2e deploys the observer's (pytorch/ao#4824 later made
         # convert read the kernel's). The unfused FakeQuantize trains on the very scales that are exported
         # (tests/quant/test_qat.py checks QaT-graph-vs-converted label agreement).
         ctr = FakeQuantize.with_args(observer=MovingAveragePerChannelMinMaxObserver, eps=2 ** -12,
-                                     averaging_constant=config.weight_averaging)
+                                     averaging_constant=qat.weight_averaging)
     else:
         ctr = PerChannelMinMaxObserver.with_args(eps=2 ** -12)
     return QuantizationSpec(torch.int8, ctr, qmin, qmax, torch.per_channel_symmetric, ch_axis=0)
@@ -132,17 +134,18 @@ def _single_user(node: Node) -> Node | None:
 class EdgeQuantizer(Quantizer):
     """Annotates an exported DeepLabV3 for onnxruntime's QDQ kernels (see the module doc)."""
 
-    def __init__(self, config: QuantConfig, qat: bool = False, prefix: str = ""):
+    def __init__(self, config: QuantConfig, qat: QatOptions | None = None, pt2e: Pt2eOptions | None = None,
+                 prefix: str = ""):
         super().__init__()
-        self.config = config
-        self.qat = qat
+        self.config, self.pt2e = config, pt2e or Pt2eOptions()
+        self.qat = qat is not None  # QaT (fake-quant, trained with QAT's options) or static PTQ (observers)
         self.prefix = prefix  # the wrapper attribute in front of module names (e.g. 'model.')
-        self.act = activation_spec(config, qat)
+        self.act = activation_spec(config, self.qat)
         self.weight = weight_spec(config, qat)
 
     def _skipped(self, node: Node) -> bool:
         path = module_path(node).removeprefix(self.prefix)
-        return under(path, self.config.skip) or under(path, self.config.keep_float)
+        return under(path, self.pt2e.skip) or under(path, self.config.keep_float)
 
     def annotate(self, model: GraphModule) -> GraphModule:
         for node in model.graph.nodes:
