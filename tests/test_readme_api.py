@@ -1,6 +1,6 @@
 """The Python API's walk-through (docs/python-api.md, linked from the README) runs as written: its
 first block end to end on a tiny data set (train, export, static PTQ), the runtime block on the file
-it made, and every import of the page resolves to a public name (one in its package's `__all__`).
+it made, the smaller verbs (prepare, fit, calibrate, convert) on that run, and every import of the page resolves to a public name (one in its package's `__all__`).
 The QaT passes that the page shows train for minutes; tests/quant/test_passes.py runs them."""
 
 from __future__ import annotations
@@ -64,6 +64,12 @@ def test_the_first_api_block_runs_on_a_tiny_data_set(tmp_path, monkeypatch):
     exec(compile(runtime, str(API_PAGE), "exec"), runtime_names)
     result = runtime_names["result"]
     assert result.labels.shape == (96, 128) and set(result.ms) >= {"inference"}
+
+    (verbs,) = [b for b in api_blocks() if "calibrate(observed" in b]  # the smaller verbs, on the run made above
+    small = verbs.replace("epochs=5, size=Size(320, 240)", "epochs=1, size=Size(96, 64)")
+    assert small != verbs, "the verbs block's settings moved; update this test"
+    exec(compile(small, str(API_PAGE), "exec"), names)  # its `calib`: the first block's images
+    assert (tmp_path / "my-qat.run" / "last.pt").is_file() and names["int8"] is not None
 
 
 def test_the_onnx_block_runs_on_a_model_from_another_exporter(tmp_path, monkeypatch):
