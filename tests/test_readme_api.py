@@ -1,7 +1,8 @@
 """The Python API's walk-through (docs/python-api.md, linked from the README) runs as written: its
 first block end to end on a tiny data set (train, export, static PTQ), the runtime block on the file
-it made, the smaller verbs (prepare, fit, calibrate, convert) on that run, and every import of the page resolves to a public name (one in its package's `__all__`).
-The QaT passes that the page shows train for minutes; tests/quant/test_passes.py runs them."""
+it made, the smaller verbs (prepare, fit, calibrate, convert) on that run, and every import of the
+page resolves to a public name (one in its package's `__all__`). The QaT passes that the page shows
+train for minutes; tests/quant/test_passes.py runs them."""
 
 from __future__ import annotations
 
