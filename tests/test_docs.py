@@ -57,6 +57,15 @@ def test_readme_has_a_command_tour_and_the_users_sections():
     for heading in ("## Install", "## Quickstart", "## Command-line tour", "## Python API", "## Results"):
         assert heading in text, heading
     assert "docs/cli.md" in text and len(readme_commands()) >= 20
+    for page in ("docs/cli.md", "docs/python-api.md", "docs/limits.md", "benchmarks/README.md"):
+        assert f"({page}" in text, f"the README links {page}"
+    assert len(text.splitlines()) <= 200, "the README says what edgepick is and links the rest (docs/)"
+
+
+def test_architecture_lists_every_document():
+    listed = (REPO / "docs" / "architecture.md").read_text()
+    for page in (REPO / "docs").glob("*.md"):
+        assert page.name == "architecture.md" or page.name in listed, f"docs/architecture.md does not list docs/{page.name}"
 
 
 @pytest.mark.parametrize("tokens", readme_commands(), ids=lambda t: " ".join(t[:3]))
@@ -69,7 +78,8 @@ def test_readme_command_names_real_options(tokens):
 
 
 def test_readme_benchmark_scripts_exist():
-    scripts = set(re.findall(r"benchmarks/[a-z0-9_]+\.(?:py|sh)", (REPO / "README.md").read_text()))
+    pages = (REPO / "README.md", *REPO.glob("docs/*.md"))
+    scripts = {s for p in pages for s in re.findall(r"benchmarks/[a-z0-9_]+\.(?:py|sh)", p.read_text())}
     assert scripts
     for script in scripts:
         assert (REPO / script).is_file(), script

@@ -160,7 +160,7 @@ def test_no_private_name_is_imported_from_another_module():
 
 def test_the_walk_sees_the_package():
     graph = _imports()
-    assert "edgepick.cli" in graph and "edgepick.sim.robot" in graph["edgepick.cli.pick"]["all"]
+    assert "edgepick.cli" in graph and "edgepick.sim.robot" in graph["edgepick.cli.cell"]["all"]
     assert Path(REPO / "edgepick" / "sim" / "robot.py").is_file()
 
 

@@ -12,6 +12,7 @@ import os
 import platform
 import shutil
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -77,32 +78,42 @@ def make_table55(work: str | Path, setting: Setting, device: str = "auto", comma
     """Run the phases in WORK and return the Markdown report, the PNG's path, the phase wall
     times and the bench rows. A phase whose output is already in WORK is kept (its time comes
     from WORK/phases.json), so the phases can be split over several runs or machines; ONLY
-    limits this run to some PHASES (then no report unless the bench ran). Longer than most functions
-    on purpose: the phases read top to bottom in the order they run, as the table's recipe."""
-    import onnxruntime
-    import torch
-    import torchao
-
-    from edgepick.data.synth import SynthConfig, synthesize
-    from edgepick.export.onnx_export import export_checkpoint
-    from edgepick.quant import agreement_images, folder_images, quantize_hybrid, quantize_qat, quantize_static, run_images
-    from edgepick.train.config import Device
-    from edgepick.train.loop import TrainConfig, train
-
-    s = setting
+    limits this run to some PHASES (then no report unless the bench ran). The phases read top to
+    bottom in _run_phases, in the order they run, as the table's recipe."""
     work = Path(work)
     work.mkdir(parents=True, exist_ok=True)
-    keep = sorted({round((1 - p) * s.epochs) for p in FRACTIONS})
     if command:
         _record(work, lambda st: st["commands"].append(command))
+    files = _run_phases(_Phases(work, echo, only), setting, device)
+    if (only is not None and "bench" not in only) or not all(f.exists() for f in files):
+        return None
+    t0 = time.perf_counter()
+    echo("-- bench")
+    bench = run_bench(files, work / "data", work / "bench", BenchConfig(threads=2, runs=setting.runs),
+                      gpu_checkpoint=work / "float", title="Table 5.5 / 5.6", progress=lambda line: None)
+    state = _record(work, lambda st: st["times"].update({"bench": round(time.perf_counter() - t0, 1)}))
+    return _report(setting, device, state, bench)
 
-    def timed(name: str, phase: str, output: Path, fn, *a, **k) -> None:
+
+@dataclass(frozen=True)
+class _Phases:
+    """Where the phases run (WORK), how each says it starts (ECHO), and which of them this run does
+    (ONLY; None: all)."""
+
+    work: Path
+    echo: Callable[[str], object]
+    only: set[str] | None
+
+    def run(self, name: str, phase: str, output: Path, fn: Callable, *a, **k) -> None:
+        """Run phase PHASE (NAME in the tables) unless its OUTPUT exists or ONLY leaves it out; its wall
+        time (and an int8 pass's agreement with torch) goes into WORK/phases.json."""
+        work, only = self.work, self.only
         if output.exists() or (only is not None and phase not in only and phase.rstrip("0123456789.") not in only):
             return
         for stale in {"float": [work / "float"], "qat": [work / "qat"]}.get(phase, []) + (
                 [Path(k["qat_run"])] if "qat_run" in k else []):
             shutil.rmtree(stale, ignore_errors=True)  # a run cut off earlier: start it again
-        echo(f"-- {name}")
+        self.echo(f"-- {name}")
         t0 = time.perf_counter()
         result = fn(*a, **k)
         seconds = round(time.perf_counter() - t0, 1)
@@ -114,34 +125,54 @@ def make_table55(work: str | Path, setting: Setting, device: str = "auto", comma
                 st.setdefault("agreement", {})[name] = agreement
         _record(work, update)
 
+
+def _run_phases(phases: _Phases, s: Setting, device: str) -> list[Path]:
+    """The table's recipe, phase by phase: synthetic data, the float run (keeping the hybrid-QaT switch
+    epochs), its fp32 export, static PTQ, QaT from scratch, hybrid-QaT at each fraction. Returns the
+    model files the bench compares."""
+    from edgepick.data.synth import SynthConfig, synthesize
+    from edgepick.export.onnx_export import export_checkpoint
+    from edgepick.quant import agreement_images, folder_images, quantize_hybrid, quantize_qat, quantize_static, run_images
+    from edgepick.train.config import Device
+    from edgepick.train.loop import TrainConfig, train
+
+    work = phases.work
     data, models = work / "data", work / "models"
-    timed("synth", "synth", data / "meta.json", synthesize, data,
-          SynthConfig(scenes=sum(s.splits), splits=s.splits, seed=0), progress=False)
+    phases.run("synth", "synth", data / "meta.json", synthesize, data,
+               SynthConfig(scenes=sum(s.splits), splits=s.splits, seed=0), progress=False)
     tc = TrainConfig(data=str(data), out=str(work / "float"), epochs=s.epochs, batch_size=s.batch_size, size=s.size,
-                     lr=s.lr, device=member(Device, "device", device), keep_epochs=tuple(keep), epoch_images=s.epoch_images,
-                     val_images=s.val_images)
-    timed("float training", "float", work / "float" / "done", _train_and_mark, train, tc)
+                     lr=s.lr, device=member(Device, "device", device), keep_epochs=tuple(_kept_epochs(s)),
+                     epoch_images=s.epoch_images, val_images=s.val_images)
+    phases.run("float training", "float", work / "float" / "done", _train_and_mark, train, tc)
     files = [models / "fp32.onnx", models / "static.onnx", models / "qat.onnx",
              *[models / f"hybrid{p:.2f}.onnx" for p in FRACTIONS]]
-    timed("fp32 export", "fp32", files[0], export_checkpoint, work / "float", files[0])
-    timed("static PTQ", "static", files[1], lambda: quantize_static(
+    phases.run("fp32 export", "fp32", files[0], export_checkpoint, work / "float", files[0])
+    phases.run("static PTQ", "static", files[1], lambda: quantize_static(
         work / "float", folder_images(data, "train", min(64, s.splits[0])), files[1],
         check_images=agreement_images(data), progress=False))
     qat_tc = replace(tc, out=str(work / "qat"), keep_epochs=())
-    timed("QaT from scratch", "qat", files[2], quantize_qat, qat_tc, files[2], progress=False)
+    phases.run("QaT from scratch", "qat", files[2], quantize_qat, qat_tc, files[2], progress=False)
     for p, f in zip(FRACTIONS, files[3:]):
-        timed(f"hybrid-QaT {p:.0%}", f"hybrid{p:.2f}", f, lambda f=f, p=p, **k: quantize_hybrid(
+        phases.run(f"hybrid-QaT {p:.0%}", f"hybrid{p:.2f}", f, lambda f=f, p=p, **k: quantize_hybrid(
             work / "float", data, f, p, run_images(work / "float", data), device=member(Device, "device", device),
             progress=False, **k), qat_run=work / f"hybrid{p:.2f}.run")
-    if (only is not None and "bench" not in only) or not all(f.exists() for f in files):
-        return None
-    t0 = time.perf_counter()
-    echo("-- bench")
-    bench = run_bench(files, data, work / "bench", BenchConfig(threads=2, runs=s.runs),
-                      gpu_checkpoint=work / "float", title="Table 5.5 / 5.6", progress=lambda line: None)
-    state = _record(work, lambda st: st["times"].update({"bench": round(time.perf_counter() - t0, 1)}))
-    phases = state["times"]
+    return files
 
+
+def _kept_epochs(s: Setting) -> list[int]:
+    """The float run's epochs that hybrid-QaT at each of FRACTIONS starts from."""
+    return sorted({round((1 - p) * s.epochs) for p in FRACTIONS})
+
+
+def _report(s: Setting, device: str, state: dict, bench: dict) -> dict:
+    """make_table55's result: the Markdown report (the machine, versions, setting, phase times and
+    agreement, then the bench's Table 5.5 / 5.6), the PNG's path, the phase times and the bench rows."""
+    import onnxruntime
+    import torch
+    import torchao
+
+    phases = state["times"]
+    keep = _kept_epochs(s)
     gpu = torch.cuda.is_available() and device != "cpu"
     gpu_name = torch.cuda.get_device_name() if torch.cuda.is_available() else None
     name = machine_slug(gpu_name) + ("" if s is FULL else f"-{s.name}")

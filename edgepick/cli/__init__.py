@@ -239,7 +239,10 @@ def _run(args: list[str] | None) -> int:
             cli.invoke(ctx)
     except EdgepickError as exc:
         command = getattr(exc, "command", None)
-        message = command_line_message(exc, command) if command is not None else str(exc)
+        if isinstance(exc, ParameterError) and command is not None:  # tagged by _tag_parameter_errors
+            message = command_line_message(exc, command)
+        else:
+            message = str(exc)
         return _fail(message, getattr(exc, "exit_code", EXIT_USER_ERROR))
     except click.exceptions.Abort:
         click.echo("edgepick: aborted", err=True)

@@ -49,9 +49,9 @@ from edgepick.runtime.engine import Engine
 @click.option("--engine", default=Engine.ONNXRUNTIME.value, show_default=True, type=choice(Engine),
               help="Inference engine for every row (openvino: the [peers] extra; auto: the faster one here, measured "
                    "once per model and cached).")
-def bench(models: tuple[str, ...], data: str | None, split: str, threads: int, runs: int, out_dir: str,
+def bench(models: tuple[str, ...], data: str | None, split: Split, threads: int, runs: int, out_dir: str,
           gpu_checkpoint: str | None, no_pipeline: bool, cell: int | None, seed: int, rounds: int | None,
-          max_cycles: int | None, margin_pp: float, verdict: str, engine: str) -> None:
+          max_cycles: int | None, margin_pp: float, verdict: VerdictRule, engine: Engine) -> None:
     """Thesis Tables 5.5 and 5.6 for MODEL... (ONNX): pixel accuracy, mIoU, inference p50/p95 at
     fixed threads, training time (from the model's metadata), size, and the whole pipeline per
     frame (folder frame -> labels -> grasp records). Same images for every row, one process.
@@ -86,8 +86,9 @@ def bench(models: tuple[str, ...], data: str | None, split: str, threads: int, r
             result = run_cell(list(models), cell, out_dir, threads=cfg.threads, seed=seed, engine=cfg.engine,
                               progress=lambda line: click.echo(line, err=True), verdict=verdict, rounds=rounds,
                               round_config=round_cfg, margin_pp=margin_pp)
-        rows = [CellRow(**r) for r in result["rows"]]
-        click.echo("\n".join([markdown(header(rows), table(rows)), *sections(rows, result["equivalence"])]), err=True)
+        cell_rows = [CellRow(**r) for r in result["rows"]]
+        click.echo("\n".join([markdown(header(cell_rows), table(cell_rows)), *sections(cell_rows, result["equivalence"])]),
+                   err=True)
         click.echo(json.dumps(result, indent=1))
         return
     if data is None:

@@ -8,12 +8,22 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import asdict
+from typing import TYPE_CHECKING, cast
 
 import click
 
 from edgepick.cli.options import emit, parse_size
 from edgepick.errors import ConfigError
 from edgepick.files import check_output
+
+if TYPE_CHECKING:
+    from edgepick.frames import Camera
+    from edgepick.robot.base import RobotBase
+    from edgepick.robot.envelope import Envelope
+    from edgepick.robot.handeye import CollectConfig, Collected
+    from edgepick.robot.recording import Recorder
+    from edgepick.runtime.calibration import Calibration
+    from edgepick.runtime.marker import MarkerSpec
 
 
 class _FitByDefault(click.Group):
@@ -163,27 +173,17 @@ def collect(robot_spec: str, camera: str, marker_spec: str, marker_offset: str, 
     line, end with an error and no file. Then: edgepick calibrate PAIRS --out calib.json.
     """
     from edgepick.cli.cameras import open_camera
-    from edgepick.cli.pick import check_robot
+    from edgepick.cli.cell import check_robot
     from edgepick.robot.envelope import Envelope
-    from edgepick.robot.handeye import CollectConfig, check_plan, collect_pairs, plan_positions
-    from edgepick.robot.motion import HOME_POSE
-    from edgepick.robot.recording import Recorder
-    from edgepick.runtime.calibration import kabsch, write_pairs
+    from edgepick.robot.handeye import plan_positions
+    from edgepick.runtime.calibration import write_pairs
     from edgepick.runtime.camera import FolderCamera
     from edgepick.runtime.marker import MarkerSpec
-    from edgepick.sim.camera import SynthCamera, ToolMarker
-    from edgepick.sim.robot import SimRobot
 
     spec = MarkerSpec.parse(marker_spec)
     kind, host = check_robot(robot_spec)
     envelope = Envelope()
-    if not (math.isfinite(speed) and 0 < speed <= envelope.max_speed):
-        raise ConfigError(f"--speed {speed}: must be in (0, {envelope.max_speed}] m/s")
-    cell = camera.split(":")[0] == "synth-cell"
-    if region is None and not cell:
-        raise ConfigError("--region is needed: the box of TCP positions your camera sees (robot frame, metres)")
-    cfg = CollectConfig(poses=poses, offset_m=_floats(marker_offset, 3, "--marker-offset"), settle_s=settle,
-                        speed=speed, **({"region": _floats(region, 6, "--region")} if region else {}))
+    cfg = _collect_config(camera, marker_offset, poses, region, settle, speed, envelope)
     folder = camera.partition(":")[2] if camera.startswith("dir:") else None  # the frames it reads
     check_output(out, "--out", inputs=(folder,))
     if robot_log is not None:
@@ -193,25 +193,80 @@ def collect(robot_spec: str, camera: str, marker_spec: str, marker_offset: str, 
     frame_size = parse_size(size)
     plan = plan_positions(cfg)
     if kind == "ur" and not execute:
-        check_plan(plan, HOME_POSE, envelope)  # the arm's own pose is not known without a connection
-        for i, pose in enumerate(plan, start=1):
-            click.echo(f"position {i:3d}: x {pose[0]:.3f}  y {pose[1]:.3f}  z {pose[2]:.3f}", err=True)
-        click.echo(f"plan only: nothing is sent to {host} (add --execute to move the arm)", err=True)
-        emit({"out": None, "planned": len(plan), "moved": False})
+        _print_plan(plan, host, envelope)
         return
-    if kind == "sim":
-        robot = SimRobot(envelope)
-    else:
-        from edgepick.robot.ur import URRobot
-
-        robot = URRobot(host, envelope=envelope, debug_log=robot_log)
+    robot = _open_arm(kind, host, envelope, robot_log)
     source = open_camera(camera, frame_size)
     if isinstance(source, FolderCamera) and not source.loop and len(source.names) < len(plan):
         raise ConfigError(f"--camera {camera}: {len(source.names)} frames for {len(plan)} positions; give one frame "
                           "per position (or fewer --poses)")
+    recorder = _collect_recorder(record_path, marker_spec, cfg)
+    got, cal = _collect_and_fit(robot, source, spec, plan, cfg, envelope, recorder)
+    write_pairs(out, got.camera, got.robot)
+    click.echo(f"{len(got.camera)} pairs written to {out}; their fit: RMSE {cal.rmse_m * 1000:.2f} mm", err=True)
+    emit({"out": out, "pairs": len(got.camera), "planned": len(plan), "skipped": [i for i, _ in got.skipped],
+          "rmse_mm": round(cal.rmse_m * 1000, 3)})
+
+
+def _collect_config(camera: str, marker_offset: str, poses: int, region: str | None, settle: float, speed: float,
+                    envelope: Envelope) -> CollectConfig:
+    """The CollectConfig of collect's options, checked: a speed within the envelope's cap, and a --region
+    wherever the camera is not the synthetic cell's (whose region is the default)."""
+    from edgepick.robot.handeye import CollectConfig
+
+    if not (math.isfinite(speed) and 0 < speed <= envelope.max_speed):
+        raise ConfigError(f"--speed {speed}: must be in (0, {envelope.max_speed}] m/s")
+    cell = camera.split(":")[0] == "synth-cell"
+    if region is None and not cell:
+        raise ConfigError("--region is needed: the box of TCP positions your camera sees (robot frame, metres)")
+    offset = cast("tuple[float, float, float]", _floats(marker_offset, 3, "--marker-offset"))
+    if region is None:
+        return CollectConfig(poses=poses, offset_m=offset, settle_s=settle, speed=speed)
+    box = cast("tuple[float, float, float, float, float, float]", _floats(region, 6, "--region"))
+    return CollectConfig(poses=poses, offset_m=offset, settle_s=settle, speed=speed, region=box)
+
+
+def _print_plan(plan: list[list[float]], host: str, envelope: Envelope) -> None:
+    """collect on a real arm without --execute: the plan checked from the home pose and printed, nothing sent."""
+    from edgepick.robot.handeye import check_plan
+    from edgepick.robot.motion import HOME_POSE
+
+    check_plan(plan, HOME_POSE, envelope)  # the arm's own pose is not known without a connection
+    for i, pose in enumerate(plan, start=1):
+        click.echo(f"position {i:3d}: x {pose[0]:.3f}  y {pose[1]:.3f}  z {pose[2]:.3f}", err=True)
+    click.echo(f"plan only: nothing is sent to {host} (add --execute to move the arm)", err=True)
+    emit({"out": None, "planned": len(plan), "moved": False})
+
+
+def _open_arm(kind: str, host: str, envelope: Envelope, robot_log: str | None) -> RobotBase:
+    """The arm collect moves: a SimRobot, or a UR3 at HOST (its client's messages to ROBOT_LOG)."""
+    if kind == "sim":
+        from edgepick.sim.robot import SimRobot
+
+        return SimRobot(envelope)
+    from edgepick.robot.ur import URRobot
+
+    return URRobot(host, envelope=envelope, debug_log=robot_log)
+
+
+def _collect_recorder(record_path: str | None, marker_spec: str, cfg: CollectConfig) -> Recorder | None:
+    """The Recorder of `collect --record PATH` (None without it)."""
+    if record_path is None:
+        return None
+    from edgepick.robot.recording import Recorder
+
+    return Recorder(record_path, {"command": "calibrate collect", "marker": marker_spec, **asdict(cfg)})
+
+
+def _collect_and_fit(robot: RobotBase, source: Camera, spec: MarkerSpec, plan: list[list[float]], cfg: CollectConfig,
+                     envelope: Envelope, recorder: Recorder | None) -> tuple[Collected, Calibration]:
+    """Visit PLAN with ROBOT, pair the marker's sightings and fit them: the pairs and their fit, refused in one
+    line when fewer than 4 are usable or they lie on one line. The recording (if any) is closed whatever happens."""
+    from edgepick.robot.handeye import check_plan, collect_pairs
+    from edgepick.runtime.calibration import kabsch
+    from edgepick.sim.camera import SynthCamera, ToolMarker
+
     echo = lambda line: click.echo(line, err=True)  # noqa: E731
-    recorder = Recorder(record_path, {"command": "calibrate collect", "marker": marker_spec, **asdict(cfg)}) \
-        if record_path is not None else None
     try:
         with source, robot:
             check_plan(plan, robot.tcp_pose(), envelope)
@@ -230,7 +285,4 @@ def collect(robot_spec: str, camera: str, marker_spec: str, marker_offset: str, 
     finally:
         if recorder is not None:  # also on Ctrl-C or a halt: what was recorded becomes a readable file
             recorder.close()
-    write_pairs(out, got.camera, got.robot)
-    click.echo(f"{len(got.camera)} pairs written to {out}; their fit: RMSE {cal.rmse_m * 1000:.2f} mm", err=True)
-    emit({"out": out, "pairs": len(got.camera), "planned": len(plan), "skipped": [i for i, _ in got.skipped],
-          "rmse_mm": round(cal.rmse_m * 1000, 3)})
+    return got, cal

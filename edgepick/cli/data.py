@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import click
 
@@ -36,10 +37,10 @@ def data_synth(out: str, scenes: int, splits: str | None, size: str, seed: int, 
 
     check_output(out, "OUT", kind="dir")
     image_size = parse_size(size)
-    split_counts = None
+    split_counts: tuple[int, int, int] | None = None
     if splits:
-        try:
-            split_counts = tuple(int(v) for v in splits.split(","))
+        try:  # SynthConfig refuses any other count than three
+            split_counts = cast("tuple[int, int, int]", tuple(int(v) for v in splits.split(",")))
         except ValueError:
             raise ConfigError(f"--splits must be three integers TRAIN,VAL,TEST, got {splits!r}") from None
         scenes = sum(split_counts)
@@ -53,7 +54,7 @@ def data_synth(out: str, scenes: int, splits: str | None, size: str, seed: int, 
 @click.option("--out", required=True, type=click.Path(dir_okay=False), help="PNG contact sheet to write.")
 @click.option("--split", default=Split.TRAIN.value, show_default=True, type=choice(Split))
 @click.option("--count", default=12, show_default=True, help="Scenes to draw.")
-def data_preview(data_dir: str, out: str, split: str, count: int) -> None:
+def data_preview(data_dir: str, out: str, split: Split, count: int) -> None:
     """Draw a contact sheet: RGB with mask overlays and grasp truth, and the depth map."""
     from edgepick.data.preview import contact_sheet
 
@@ -79,7 +80,7 @@ def data_preview(data_dir: str, out: str, split: str, count: int) -> None:
 @click.option("--intrinsics", default=None, type=click.Path(dir_okay=False), help="CVAT: intrinsics.json of the depth camera.")
 @click.option("--depth-scale", default=default_of(ImportConfig, "depth_scale_m"), show_default=True,
               help="CVAT: metres per unit of the depth PNGs.")
-def data_import(fmt: str, src: str, out: str, cityscapes_classes: str, splits: str, images: str | None,
+def data_import(fmt: ImportFormat, src: str, out: str, cityscapes_classes: CityscapesClasses, splits: str, images: str | None,
                 depth: str | None, intrinsics: str | None, depth_scale: float) -> None:
     """Convert a Cityscapes, BOP (e.g. LineMOD) or CVAT 'Segmentation mask 1.1' tree into the native layout.
 
@@ -94,7 +95,7 @@ def data_import(fmt: str, src: str, out: str, cityscapes_classes: str, splits: s
 
     check_output(out, "OUT", kind="dir", inputs=(src, images, depth, intrinsics))
     try:
-        fractions = tuple(float(v) for v in splits.split(","))
+        fractions = cast("tuple[float, float, float]", tuple(float(v) for v in splits.split(",")))  # ImportConfig counts them
     except ValueError:
         raise ConfigError(f"--splits must be three fractions TRAIN,VAL,TEST, got {splits!r}") from None
     cfg = ImportConfig(cityscapes_classes=cityscapes_classes, split_fractions=fractions, images=images,

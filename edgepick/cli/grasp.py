@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
@@ -12,6 +13,9 @@ from edgepick.cli.options import choice
 from edgepick.errors import ConfigError
 from edgepick.files import atomic_path, check_output
 from edgepick.runtime.engine import Engine
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 @click.command()
@@ -36,7 +40,7 @@ from edgepick.runtime.engine import Engine
               help="Print per-stage milliseconds (pre, inference, post, grasp) and the grasp step's sub-steps to stderr: "
                    "median of 5 runs after one warm-up.")
 def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, depth_path: str, intrinsics: str,
-          calib: str | None, classes: str | None, threads: int, engine: str, overlay: str | None,
+          calib: str | None, classes: str | None, threads: int, engine: Engine, overlay: str | None,
           profile: bool) -> None:
     """Grasp records (JSON list, docs/contracts.md#grasp-record) for every object in a label image or a model's output.
 
@@ -75,7 +79,7 @@ def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, d
     depth = read_depth(depth_path)
     intr = Intrinsics.load(intrinsics)
     cal = Calibration.load(calib) if calib else None
-    if model_path:
+    if model_path and rgb_path:  # model mode (--model comes with --rgb: checked above)
         from edgepick.runtime.session import Segmenter
 
         frame = Frame(read_rgb(rgb_path), depth, intr, Path(rgb_path).stem)
@@ -85,9 +89,8 @@ def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, d
         steps = [r.grasp_ms for r in runs[1:]]
         picture = frame.rgb
     else:
-        labels = cv2.imread(mask_path, cv2.IMREAD_UNCHANGED)
-        if labels is None or labels.ndim != 2 or labels.dtype != "uint8":
-            raise ConfigError(f"cannot read {mask_path} as a single-channel uint8 label image")
+        assert mask_path is not None  # mask mode: --mask is given (checked above)
+        labels = _read_labels(mask_path)
         unnamed = sorted({int(v) for v in np.unique(labels) if len(names) <= v < 255})  # 255: ignored pixels
         if unnamed:
             click.echo(f"edgepick: warning: label ids {', '.join(map(str, unnamed))} of {mask_path} have no name "
@@ -112,3 +115,13 @@ def grasp(mask_path: str | None, model_path: str | None, rgb_path: str | None, d
                    err=True)
     click.echo(json.dumps([r.to_dict() for r in records], indent=1))
 
+
+
+def _read_labels(mask_path: str) -> np.ndarray:
+    """The label image of --mask: one uint8 class id per pixel, refused in one line otherwise."""
+    import cv2
+
+    labels = cv2.imread(mask_path, cv2.IMREAD_UNCHANGED)
+    if labels is None or labels.ndim != 2 or labels.dtype != "uint8":
+        raise ConfigError(f"cannot read {mask_path} as a single-channel uint8 label image")
+    return labels

@@ -13,13 +13,16 @@ import enum
 import inspect
 import json
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from edgepick.errors import ConfigError
 from edgepick.geometry import Size
 from edgepick.train.config import TrainConfig
+
+if TYPE_CHECKING:
+    from edgepick.runtime.preprocessing import ChannelOrder, Layout, Preprocessing
 
 SIZE_HELP = "WIDTHxHEIGHT"
 
@@ -65,9 +68,25 @@ def check_data_orientation(data_dir: str, size: Size) -> None:
         check_orientation(size, Size.of(ds.rgb(ds.ids[0])))
 
 
-def choice(kind: type[enum.Enum]) -> click.Choice:
-    """A click choice of the enum KIND's values, in their order: the library's own choices."""
-    return click.Choice([str(m.value) for m in kind])
+class EnumChoice(click.Choice[Any]):
+    """A click choice of an enum's values, in their order, that hands the command the enum member
+    (`--arch unet` -> Arch.UNET): the command passes on the library's own type, and help and refusals
+    read as click's plain choice of strings."""
+
+    def __init__(self, kind: type[enum.Enum]) -> None:
+        self.kind = kind
+        self.members = {str(m.value): m for m in kind}
+        super().__init__(list(self.members))
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if isinstance(value, self.kind):
+            return value
+        return self.members[super().convert(value, param, ctx)]
+
+
+def choice(kind: type[enum.Enum]) -> EnumChoice:
+    """The option type of the enum KIND's values, which yields KIND's members: the library's own choices."""
+    return EnumChoice(kind)
 
 
 def default_of(owner: type | Callable, name: str) -> Any:
@@ -142,7 +161,8 @@ def _preprocessing_options() -> list:
 preprocessing_options = _preprocessing_options()
 
 
-def preprocessing_of(image_size: str | None, channels: str, scale: float, mean: str, std: str, layout: str):
+def preprocessing_of(image_size: str | None, channels: ChannelOrder, scale: float, mean: str, std: str,
+                     layout: Layout) -> Preprocessing:
     """The Preprocessing of the options above."""
     from edgepick.runtime.preprocessing import Preprocessing
 

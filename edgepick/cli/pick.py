@@ -6,12 +6,13 @@ import contextlib
 import json
 import math
 import signal
-from dataclasses import replace
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import click
 
+from edgepick.cli.cell import CheckedPick, PickRequest, check_gripper, check_robot, open_cell, pick_recorder
 from edgepick.cli.options import choice, default_of, parse_size, round_config
 from edgepick.errors import ConfigError
 from edgepick.files import check_output, output_dir
@@ -22,48 +23,8 @@ from edgepick.runtime.engine import Engine
 
 if TYPE_CHECKING:
     from edgepick.robot.cycle import CycleResult
-
-
-def check_gripper(spec: str, robot_host: str | None) -> tuple[str, int | str]:
-    """Parse --gripper before anything starts: ('digital' or 'tool', N) for an output the arm has
-    (the limits of RobotBase.set_digital_out), or ('rg2', HOST)."""
-    from edgepick.robot.base import output_reason
-
-    kind, _, arg = spec.partition(":")
-    if kind in ("digital", "tool"):
-        try:
-            index = int(arg)
-        except ValueError:
-            raise ConfigError(f"--gripper {spec}: the output must be a number, e.g. {kind}:0") from None
-        reason = output_reason(index, tool=kind == "tool")
-        if reason:
-            raise ConfigError(f"--gripper {spec}: the {reason}")
-        return kind, index
-    if kind == "rg2":
-        host = arg or robot_host
-        if not host:
-            raise ConfigError("--gripper rg2 needs the robot's host (rg2:HOST, or --robot ur:HOST)")
-        return kind, host
-    raise ConfigError(f"--gripper {spec}: unknown gripper; use digital:N, tool:N or rg2[:HOST]")
-
-
-def with_gripper(cfg: PickConfig, spec: tuple[str, int | str]) -> PickConfig:
-    """CFG with the hand the planner checks (robot/clearance.py) matching a checked gripper spec:
-    an RG2's jaw opens only as far as RG2Gripper opens it."""
-    if spec[0] != "rg2" or cfg.hand is None:
-        return cfg
-    from edgepick.robot.grippers import RG2Gripper
-
-    return replace(cfg, hand=replace(cfg.hand, jaw_opening_m=RG2Gripper.OPEN_WIDTH_M))
-
-
-def make_gripper(spec: tuple[str, int | str], robot):
-    """The gripper of a checked spec (check_gripper): an RG2Gripper, or a DigitalGripper that
-    drives ROBOT's output."""
-    from edgepick.robot.grippers import DigitalGripper, RG2Gripper
-
-    kind, arg = spec
-    return RG2Gripper(arg) if kind == "rg2" else DigitalGripper(robot, arg, tool=kind == "tool")
+    from edgepick.robot.loop import Cell
+    from edgepick.sim.clutter import RoundConfig
 
 
 @click.command()
@@ -121,10 +82,7 @@ def make_gripper(spec: tuple[str, int | str], robot):
               help="Read and segment the next frame while the arm places the object and returns home, so the arm "
                    "waits only for the plan (each cycle reports frame_to_frame_ms and arm_wait_ms). Only where the "
                    "camera sees neither the arm nor the part it holds once the arm is above the place pose.")
-def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: str, execute: bool, cycles: int,
-         rounds: int | None, max_cycles: int | None, classes: tuple[str, ...], choose: str, speed: float, acc: float,
-         log_path: str, robot_log: str | None, overlay_dir: str | None, record_path: str | None, verdict: str,
-         threads: int, engine: str, size: str, overlap: bool) -> None:
+def pick(**options: Any) -> None:
     """Pick and place: camera -> segmentation -> grasp records -> target -> robot.
 
     Each cycle chooses the largest (or closest) object whose whole plan passes the safety
@@ -135,139 +93,122 @@ def pick(model: str, camera: str, robot_spec: str, calib: str | None, gripper: s
     command. The JSON summary goes to stdout; if the robot halts (protective or emergency
     stop, lost link) or cannot be reached, it says so and the exit status is 3.
     """
-    from edgepick.cli.cameras import open_camera
-    from edgepick.robot.base import RobotError, RobotHalted, RobotUnreachable
-    from edgepick.robot.loop import Cell, run_cycles
-    from edgepick.robot.pick import CommandLog
-    from edgepick.runtime.calibration import Calibration
-    from edgepick.runtime.pipeline import Pipeline
-    from edgepick.runtime.session import Segmenter
-    from edgepick.sim.camera import SynthCamera
+    from edgepick.robot.base import RobotHalted, RobotUnreachable
 
+    request = PickRequest(**options)
     given = click.get_current_context().get_parameter_source("cycles") == click.core.ParameterSource.COMMANDLINE
-    round_cfg = _check_rounds(rounds, max_cycles, cycles if given else None, camera, robot_spec, overlap)
-    kind, host = _check_motion(cycles, speed, acc, robot_spec)
-    gripper_spec = check_gripper(gripper, host or None)
-    check_output(log_path, "--log", inputs=(model, calib))
-    if overlay_dir is not None:
-        check_output(overlay_dir, "--overlay-dir", kind="dir", inputs=(model, calib), reuse="pick")
-    if robot_log is not None:
-        check_output(robot_log, "--robot-log", inputs=(model, calib, log_path))
-    if record_path is not None:
-        for path in round_records(record_path, rounds):
-            check_output(path, "--record", inputs=(model, calib, log_path, robot_log))
-        from edgepick.robot.messages import schemas
-
-        schemas()  # the [record] extra, before anything starts
-    if round_cfg is not None:
-        from edgepick.sim.physics import require_mujoco
-
-        require_mujoco()  # the [sim] extra settles the rounds' parts, before anything starts
-    if verdict != VerdictRule.GEOMETRIC:
-        if not camera.startswith("synth-cell"):
-            raise ConfigError(f"--verdict {verdict}: needs the synthetic cell (--camera synth-cell), whose scenes "
-                              "know their objects")
-        from edgepick.sim.physics import require_mujoco
-
-        require_mujoco()  # the [sim] extra, before anything starts
-    frame_size = parse_size(size)
-    model = model or _reference_for(camera)
-    segmenter = Segmenter(model, threads=threads, engine=engine)
-    unknown = [c for c in classes if c not in segmenter.info.classes]
-    if unknown:
-        raise ConfigError(f"--class {unknown[0]}: not a class of {model} ({', '.join(segmenter.info.classes)})")
-    source = open_camera(camera, frame_size)
-    if calib:
-        cal = Calibration.load(calib)
-    elif isinstance(source, SynthCamera) and source.mount is not None:
-        cal = source.calibration()
-    else:
-        raise ConfigError("--calib is needed to turn camera points into robot poses")
-    pipeline = Pipeline(segmenter, cal)
-    truth_cal = source.calibration() if isinstance(source, SynthCamera) and source.mount is not None else None
-    cfg = PickConfig(classes=tuple(classes), choose=choose, speed=speed, acc=acc)
-    cfg = with_gripper(cfg, gripper_spec)
-    physics = None
-    if verdict != VerdictRule.GEOMETRIC and truth_cal is not None:
-        from edgepick.sim.physics import physics_judge
-
-        physics = physics_judge(truth_cal, cfg)
-    robot = _open_robot(kind, execute, host, robot_log)
-    grip = make_gripper(gripper_spec, robot) if robot is not None else None
-    log = CommandLog(log_path)
-    echo = lambda line: click.echo(line, err=True)  # noqa: E731
+    checked = _check_request(request, cycles_given=given)
+    cell, cfg, model = open_cell(request, checked)
     results: list[CycleResult] = []  # filled cycle by cycle: still there when an interrupt ends the loop
     described: list[dict] = []  # --rounds: each round as it ends
-    halted, unreachable, interrupt = None, False, None
-    overlays = output_dir(overlay_dir, "pick") if overlay_dir is not None else contextlib.nullcontext()
-    recorder = None if round_cfg is not None else _recorder(
-        record_path, model, segmenter.info.classes, source, cfg, pipeline, robot.envelope if robot is not None else None)
-
-    def run(arm, hand) -> None:
-        if round_cfg is None:
-            run_cycles(Cell(source, pipeline, arm, hand, log, truth_cal, recorder, physics), cfg=cfg, cycles=cycles,
-                       overlay_dir=overlay_dir, echo=echo, overlap=overlap, done=results)
-        else:
-            _run_rounds(arm, hand, rounds, round_cfg, cfg, log, source, pipeline, physics is not None, echo, overlay_dir,
-                        record_path, model, segmenter.info.classes, results, described)
-
-    try:
-        with overlays, source:
-            if robot is None:
-                run(None, None)
-            else:
-                try:
-                    grip.probe()  # a gripper that cannot be reached is found before the arm is sent anything
-                    with robot:
-                        run(robot, grip)
-                except RobotError as exc:
-                    if getattr(exc, "exit_code", 2) != 3:
-                        raise
-                    halted, unreachable = str(exc), isinstance(exc, RobotUnreachable)
-                halted = halted or robot.halted
-    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM or SIGHUP (Terminated): the summary of what was done
-        interrupt = exc
-    finally:
-        log.close()
-        if recorder is not None:  # also on Ctrl-C or a halt: what was recorded becomes a readable file
-            recorder.close()
-    summary = _summary(model, results, described, rounds, halted, interrupt, log, log_path, record_path)
+    halted, unreachable, interrupt = _drive(cell, request, checked.rounds, cfg, model, results, described)
+    summary = _summary(model, results, described, request.rounds, halted, interrupt, cell.log, request.log_path,
+                       request.record_path)
     _print_summary(summary, interrupted=interrupt is not None)
     if interrupt is not None:  # the command line says so in one line and exits 128 + the signal
         raise interrupt
     if halted:  # the command line prints the one error line and exits 3
         if unreachable:
             raise RobotUnreachable(halted)
-        raise RobotHalted(f"robot halted: {halted} ({summary['done']} of {summary['cycles'] if rounds else cycles} "
-                          "cycles done)")
+        done_of = summary["cycles"] if request.rounds else request.cycles
+        raise RobotHalted(f"robot halted: {halted} ({summary['done']} of {done_of} cycles done)")
 
 
-def _open_robot(kind: str, execute: bool, host: str, robot_log: str | None):
-    """The arm of --robot: a SimRobot, a UR3 with --execute, or None (plan only, said on stderr)."""
-    if kind == "sim":
-        from edgepick.sim.robot import SimRobot
+def _check_request(request: PickRequest, cycles_given: bool) -> CheckedPick:
+    """Every option checked before anything starts (a camera opened, a robot reached): the counts,
+    the motion and robot, the gripper, the output paths, and the extras the run will need."""
+    paths = (request.model, request.calib)
+    cycles = request.cycles if cycles_given else None
+    rounds = _check_rounds(request.rounds, request.max_cycles, cycles, request.camera, request.robot_spec, request.overlap)
+    kind, host = _check_motion(request.cycles, request.speed, request.acc, request.robot_spec)
+    gripper_spec = check_gripper(request.gripper, host or None)
+    check_output(request.log_path, "--log", inputs=paths)
+    if request.overlay_dir is not None:
+        check_output(request.overlay_dir, "--overlay-dir", kind="dir", inputs=paths, reuse="pick")
+    if request.robot_log is not None:
+        check_output(request.robot_log, "--robot-log", inputs=(*paths, request.log_path))
+    if request.record_path is not None:
+        for path in round_records(request.record_path, request.rounds):
+            check_output(path, "--record", inputs=(*paths, request.log_path, request.robot_log))
+        from edgepick.robot.messages import schemas
 
-        return SimRobot()
-    if execute:
-        from edgepick.robot.ur import URRobot
+        schemas()  # the [record] extra, before anything starts
+    if rounds is not None:
+        from edgepick.sim.physics import require_mujoco
 
-        return URRobot(host, debug_log=robot_log)
-    click.echo(f"plan only: nothing is sent to {host} (add --execute to move the arm)", err=True)
-    return None
+        require_mujoco()  # the [sim] extra settles the rounds' parts, before anything starts
+    if request.verdict != VerdictRule.GEOMETRIC:
+        if not request.camera.startswith("synth-cell"):
+            raise ConfigError(f"--verdict {request.verdict}: needs the synthetic cell (--camera synth-cell), whose "
+                              "scenes know their objects")
+        from edgepick.sim.physics import require_mujoco
+
+        require_mujoco()  # the [sim] extra, before anything starts
+    return CheckedPick(rounds, kind, host, gripper_spec, parse_size(request.size))
 
 
-def _run_rounds(arm, hand, rounds: int, round_cfg, cfg: PickConfig, log, source, pipeline, judge: bool, echo,
-                overlay_dir: str | None, record_path: str | None, model: str, classes, results: list[CycleResult],
-                described: list[dict]) -> None:
-    """`pick --rounds`: sim/clutter.py's run_rounds on SOURCE's seed and frame size, a recording per round."""
+def _drive(cell: Cell, request: PickRequest, rounds: RoundConfig | None, cfg: PickConfig, model: str,
+           results: list[CycleResult], described: list[dict]) -> tuple[str | None, bool, KeyboardInterrupt | None]:
+    """Run the cycles (or with --rounds the rounds) in CELL, the gripper probed before the arm is sent
+    anything; RESULTS and DESCRIBED fill as they finish. The log and the recording are closed however it
+    ends. Returns why the robot halted (None: it did not), whether it could not be reached, and the
+    interrupt (Ctrl-C, SIGTERM or SIGHUP) that ended the run."""
+    from edgepick.robot.base import RobotError, RobotUnreachable
+    from edgepick.robot.loop import run_cycles
+
+    echo = lambda line: click.echo(line, err=True)  # noqa: E731
+    halted, unreachable, interrupt = None, False, None
+    overlays = output_dir(request.overlay_dir, "pick") if request.overlay_dir is not None else contextlib.nullcontext()
+
+    def run() -> None:
+        if rounds is None or request.rounds is None:
+            run_cycles(cell, cfg=cfg, cycles=request.cycles, overlay_dir=request.overlay_dir, echo=echo,
+                       overlap=request.overlap, done=results)
+        else:
+            _run_rounds(cell, request, request.rounds, rounds, cfg, model, echo, results, described)
+
+    try:
+        with overlays, cell.camera:
+            if cell.robot is None or cell.gripper is None:
+                run()
+            else:
+                try:
+                    cell.gripper.probe()  # a gripper that cannot be reached is found before the arm is sent anything
+                    with cell.robot:
+                        run()
+                except RobotError as exc:
+                    if getattr(exc, "exit_code", 2) != 3:
+                        raise
+                    halted, unreachable = str(exc), isinstance(exc, RobotUnreachable)
+                halted = halted or cell.robot.halted
+    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM or SIGHUP (Terminated): the summary of what was done
+        interrupt = exc
+    finally:
+        cell.log.close()
+        if cell.recorder is not None:  # also on Ctrl-C or a halt: what was recorded becomes a readable file
+            cell.recorder.close()
+    return halted, unreachable, interrupt
+
+
+def _run_rounds(cell: Cell, request: PickRequest, count: int, rounds: RoundConfig, cfg: PickConfig, model: str,
+                echo: Callable[[str], object], results: list[CycleResult], described: list[dict]) -> None:
+    """`pick --rounds COUNT`: sim/clutter.py's run_rounds on the synthetic cell's seed and frame size, a
+    recording per round."""
+    from edgepick.sim.camera import SynthCamera
     from edgepick.sim.clutter import run_rounds
 
-    def round_recorder(cell):
-        return _recorder(round_records(record_path, rounds)[cell.round - 1], model, classes, source, cfg, pipeline,
-                         arm.envelope, {"round": cell.describe()})
+    source, record_path = cell.camera, request.record_path
+    assert isinstance(source, SynthCamera)  # --rounds needs --camera synth-cell (_check_rounds)
+    envelope = cell.robot.envelope if cell.robot is not None else None
 
-    run_rounds(pipeline, arm, hand, rounds=rounds, pick=cfg, log=log, seed=source.seed, cfg=round_cfg, judge=judge,
-               echo=echo, overlay_dir=overlay_dir, recorder=round_recorder if record_path else None, done=results,
+    def round_recorder(round_cell):
+        files = round_records(record_path, count) if record_path is not None else []
+        return pick_recorder(files[round_cell.round - 1], model, cell.pipeline.classes, source, cfg, cell.pipeline,
+                         envelope, {"round": round_cell.describe()})
+
+    run_rounds(cell.pipeline, cell.robot, cell.gripper, rounds=count, pick=cfg,
+               log=cell.log, seed=source.seed, cfg=rounds, judge=cell.physics is not None, echo=echo,
+               overlay_dir=request.overlay_dir, recorder=round_recorder if record_path else None, done=results,
                described=described, size=(source.intrinsics.width, source.intrinsics.height))
 
 
@@ -280,7 +221,7 @@ def _summary(model: str, results: list[CycleResult], described: list[dict], roun
     records = [f for f in round_records(record_path, rounds) if Path(f).exists()] if record_path else []
     summary = {"model": model, **cycles_summary(results), "halted": halted, "interrupted": _signal_name(interrupt),
                "log": log_path if log.path and log.path.exists() else None,
-               "record": records if rounds is not None else (records or [None])[0]}
+               "record": records if rounds is not None else records[0] if records else None}
     if rounds is not None:
         from edgepick.sim.clutter import round_summary
 
@@ -303,18 +244,6 @@ def _print_summary(summary: dict, interrupted: bool) -> None:
     except OSError:
         if not interrupted:
             raise
-
-
-def _recorder(path: str | None, model: str, classes, source, cfg: PickConfig, pipeline, envelope: Envelope | None,
-              extra: dict | None = None):
-    """The Recorder of `pick --record PATH` (None without it), opened before the first frame; EXTRA joins
-    its metadata (a round's: its table)."""
-    if path is None:
-        return None
-    from edgepick.robot.recording import Recorder, pick_metadata
-
-    metadata = pick_metadata(model, classes, cfg, pipeline.cfg, envelope or Envelope())
-    return Recorder(path, {**metadata, **(extra or {})}, pipeline.calib)
 
 
 def round_records(path: str, rounds: int | None) -> list[str]:
@@ -359,22 +288,3 @@ def _check_motion(cycles: int, speed: float, acc: float, robot_spec: str) -> tup
     return check_robot(robot_spec)
 
 
-def check_robot(robot_spec: str) -> tuple[str, str]:
-    """'sim' or 'ur:HOST' -> (kind, host)."""
-    kind, _, host = robot_spec.partition(":")
-    if kind not in ("sim", "ur") or (kind == "ur" and not host):
-        raise ConfigError(f"unknown robot {robot_spec!r}: use sim or ur:HOST")
-    return kind, host
-
-
-def _reference_for(camera: str) -> str:
-    """The shipped reference model, for a synthetic camera only: it has seen synthetic scenes alone."""
-    from edgepick.reference import reference_model
-
-    if not camera.startswith("synth"):
-        raise ConfigError(f"--model is needed with --camera {camera}: the shipped reference model knows only "
-                          "synthetic scenes; train one on your own data")
-    found = reference_model()
-    if found is None:
-        raise ConfigError("--model is needed: this install has no reference model (edgepick/reference/)")
-    return str(found)

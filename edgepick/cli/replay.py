@@ -18,7 +18,7 @@ from edgepick.runtime.engine import Engine
 @click.option("--threads", default=2, show_default=True, help="Inference threads (--model).")
 @click.option("--engine", default=Engine.ONNXRUNTIME.value, show_default=True, type=choice(Engine),
               help="Inference engine (--model).")
-def replay(recording: str, model: str | None, threads: int, engine: str) -> None:
+def replay(recording: str, model: str | None, threads: int, engine: Engine) -> None:
     """Rerun the grasp step on RECORDING (made by `edgepick pick --record`) and print what each cycle
     would choose now beside what it chose.
 

@@ -50,9 +50,10 @@ from edgepick.train.config import Augment, Device, TrainConfig
               help="Data loader workers; -1 = decode once into memory (4 workers on GPU when that does not fit).")
 @click.option("--seed", default=default_of(TrainConfig, "seed"), show_default=True)
 @click.option("--resume", is_flag=True, help="Continue RUN from its last.pt (losing at most one epoch).")
-def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, batch_size: int, lr: float, device: str, size: str,
-          colorspace: str, output_stride: str, aux_loss: bool, keep_epochs: str, backbone_weights: str | None,
-          augment: str, epoch_images: int, val_images: int, workers: int, seed: int, resume: bool) -> None:
+def train(data_dir: str, out: str, arch: Arch, variant: Variant, epochs: int | None, batch_size: int, lr: float,
+          device: Device, size: str, colorspace: ColorSpace, output_stride: OutputStride, aux_loss: bool,
+          keep_epochs: str, backbone_weights: str | None, augment: Augment, epoch_images: int, val_images: int,
+          workers: int, seed: int, resume: bool) -> None:
     """Train a float segmentation model on DATA (CPU, one GPU with bf16 AMP, or DDP under torchrun).
 
     \b
@@ -70,7 +71,7 @@ def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, 
 
     dist_env()  # every mistake below is found before torch is imported
     try:
-        keep = sorted({int(v) for v in keep_epochs.split(",") if v.strip()})
+        keep = tuple(sorted({int(v) for v in keep_epochs.split(",") if v.strip()}))
     except ValueError:
         raise ConfigError(f"--keep-epochs must be comma-separated integers, got {keep_epochs!r}") from None
     input_size = model_size(size)
@@ -81,10 +82,10 @@ def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, 
         result = resume_run(out, data_dir, epochs)
     else:
         cfg = TrainConfig(data=data_dir, out=out, arch=arch, variant=variant, batch_size=batch_size, lr=lr,
-                          size=input_size, colorspace=colorspace, output_stride=int(output_stride), aux_loss=aux_loss,
+                          size=input_size, colorspace=colorspace, output_stride=output_stride, aux_loss=aux_loss,
                           device=device, keep_epochs=keep, backbone_weights=backbone_weights,
                           epoch_images=epoch_images, val_images=val_images, workers=workers, seed=seed, augment=augment,
-                          **({} if epochs is None else {"epochs": epochs}))
+                          epochs=default_of(TrainConfig, "epochs") if epochs is None else epochs)
         Run(out).check_new()
         check_output(out, "--out", kind="dir", inputs=(data_dir,))
         check_data_orientation(data_dir, input_size)
@@ -100,7 +101,7 @@ def train(data_dir: str, out: str, arch: str, variant: str, epochs: int | None, 
 @click.argument("data_dir", metavar="DATA", type=click.Path())
 @click.option("--split", default=Split.TEST.value, show_default=True, type=choice(Split))
 @click.option("--out", default=None, type=click.Path(dir_okay=False), help="Also write the JSON here.")
-def eval_cmd(model: str, data_dir: str, split: str, out: str | None) -> None:
+def eval_cmd(model: str, data_dir: str, split: Split, out: str | None) -> None:
     """Pixel accuracy, per-class IoU, mIoU and confusion matrix of MODEL (checkpoint, RUN or ONNX) as JSON."""
     from edgepick.evaluation import evaluate
 

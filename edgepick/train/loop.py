@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -203,8 +203,8 @@ def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, st
     """Train MODEL (built for cfg's data and size) for cfg.epochs, writing cfg.out's checkpoints
     and metrics. START: the checkpoint MODEL's weights come from, whose epochs, history and LR
     schedule the run continues (with its AdamW moments unless carry_optimizer is False); RESUME:
-    this run's own last.pt. Returns the final summary. One function on purpose (nanoGPT's
-    train.py): the epoch, the step and the checkpoint read in one sitting."""
+    this run's own last.pt. Returns the final summary. Per epoch, in order: the steps
+    (_Steps.epoch), validation, the epoch's record and its checkpoints (_save_epoch)."""
     hooks = hooks or Hooks()
     train_ds, val_ds = check_run(cfg, resuming=resume is not None)
     rank, world, local_rank = dist_env()
@@ -212,7 +212,6 @@ def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, st
     run = Run(cfg.out)
     classes = train_ds.classes
     cuda = device.type == "cuda"
-    amp = cuda and hooks.bf16  # bf16 autocast on GPU; CPU fp32
     if world > 1 and not dist.is_initialized():
         dist.init_process_group("nccl" if cuda else "gloo")
     if cuda:
@@ -220,20 +219,16 @@ def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, st
         model = model.to(device, memory_format=torch.channels_last)
     loaders = make_loaders(cfg, train_ds, val_ds, cuda, rank, world)
     weights = class_weights(train_ds, len(classes)).to(device) if cfg.class_weighting else None
-    # on a CPU the fused AdamW kernel is several times faster per step than the multi-tensor default,
-    # whose step costs as much as the forward pass at small input sizes; a GPU keeps PyTorch's default
-    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay,
-                            fused=True if device.type == "cpu" else None)
-    steps_per_epoch = max(1, len(loaders.train))
-    sched = _schedule(opt, cfg.epochs * steps_per_epoch)
-    state = _starting_state(model, opt, sched, steps_per_epoch, start, carry_optimizer, hooks.param_prefix, resume)
+    opt, sched, per_epoch = _optimizer(cfg, model, device, len(loaders.train))
+    state = _starting_state(model, opt, sched, per_epoch, start, carry_optimizer, hooks.param_prefix, resume)
     if resume is not None:
         log(f"resuming {run.path} after epoch {state['epoch']}", rank)
     ddp = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
+    steps = _Steps(cfg, model, ddp, hooks, device, opt, sched, weights, amp=cuda and hooks.bf16)  # bf16 on GPU only
     meta: dict[str, Any] = {"model_config": model_config(cfg, classes), "classes": tuple(classes), "input_size": cfg.size,
             "train_config": cfg, "world_size": world, "data_image_size": Size.of(train_ds.rgb(train_ds.ids[0]))}
     gen = torch.Generator().manual_seed(cfg.seed * 1000 + state["epoch"] + rank)
-    hooks.begin(model, device, state["phase_start"] * steps_per_epoch, cfg.epochs * steps_per_epoch)
+    hooks.begin(model, device, state["phase_start"] * per_epoch, cfg.epochs * per_epoch)
 
     for epoch in range(state["epoch"] + 1, cfg.epochs + 1):
         if isinstance(loaders.sampler, torch.utils.data.DistributedSampler):
@@ -242,29 +237,9 @@ def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, st
         t0 = time.perf_counter()
         bar = progress_bar(loaders.train, desc=f"epoch {epoch}/{cfg.epochs}", unit="batch",
                            enabled=progress and rank == 0)
-        loss_sum, seen = 0.0, 0
-        for img, mask in bar:
-            x = img.to(device, non_blocking=True).permute(0, 3, 1, 2).float()
-            y = mask.to(device, non_blocking=True).long()
-            x, y = augment(x, y, gen, lights=cfg.augment == Augment.LIGHTS)
-            if cuda:
-                x = x.contiguous(memory_format=torch.channels_last)
-            with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
-                outputs = logits(ddp, x)
-                loss = F.cross_entropy(outputs["out"].float(), y, weight=weights, ignore_index=IGNORE)
-                if "aux" in outputs:
-                    loss = loss + 0.4 * F.cross_entropy(outputs["aux"].float(), y, weight=weights,
-                                                        ignore_index=IGNORE)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            sched.step()
-            hooks.after_step(model, sched.last_epoch)
-            loss_sum += float(loss.detach()) * len(x)
-            seen += len(x)
-            bar.set_postfix(loss=f"{loss_sum / seen:.3f}")
+        loss_sum, seen = steps.epoch(bar, gen)
         train_s = time.perf_counter() - t0
-        cm = validate(hooks.eval_model(model), loaders.val, len(classes), device, amp)
+        cm = validate(hooks.eval_model(model), loaders.val, len(classes), device, steps.amp)
         if world > 1:
             cm, loss_sum, seen = _all_reduce(cm, loss_sum, seen, device)
         record = _record(epoch, segmentation_metrics(cm, classes), loss_sum, seen, train_s,
@@ -275,16 +250,7 @@ def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, st
         log(f"epoch {epoch}/{cfg.epochs}: loss {record.loss:.4f}  val pixel acc {record.pixel_acc:.4f}  "
             f"mIoU {record.miou:.4f}  {record.epoch_s:.1f}s", rank)
         if rank == 0:
-            improved = (record.miou or 0.0) > state["best_miou"]
-            if improved:
-                state["best_miou"] = record.miou or 0.0
-            ckpt = Checkpoint(model=model.state_dict(), optimizer=opt.state_dict(), scheduler=sched.state_dict(),
-                              **meta, **{**state, "history": tuple(state["history"])}, **hooks.checkpoint())
-            _save(run, ckpt, improved, epoch in cfg.keep_epochs)
-            run.write_metrics({"epochs": epoch, "best_miou": state["best_miou"],
-                               "train_time_s": round(state["train_time_s"], 2), "device": str(device),
-                               "world_size": world, "arch": cfg.arch, "size": list(cfg.size.hw),
-                               "history": state["history"]})
+            _save_epoch(run, cfg, steps, state, record, meta, str(device), world)
         if world > 1:
             dist.barrier()
     if world > 1:
@@ -293,6 +259,81 @@ def fit(cfg: TrainConfig, model: torch.nn.Module, hooks: Hooks | None = None, st
     return TrainResult(out=str(run.path), epochs=state["epoch"], best_miou=state["best_miou"],
                        train_time_s=round(state["train_time_s"], 2),
                        last=EpochRecord(**history[-1]) if history else None)
+
+
+def _optimizer(cfg: TrainConfig, model: torch.nn.Module, device: torch.device, batches: int
+               ) -> tuple[torch.optim.Optimizer, torch.optim.lr_scheduler.LambdaLR, int]:
+    """AdamW over MODEL, its schedule over cfg.epochs of BATCHES steps, and the steps per epoch."""
+    # on a CPU the fused AdamW kernel is several times faster per step than the multi-tensor default,
+    # whose step costs as much as the forward pass at small input sizes; a GPU keeps PyTorch's default
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay,
+                            fused=True if device.type == "cpu" else None)
+    per_epoch = max(1, batches)
+    return opt, _schedule(opt, cfg.epochs * per_epoch), per_epoch
+
+
+@dataclass(frozen=True)
+class _Steps:
+    """What fit's optimizer steps use: the model and the module that trains it (its DDP wrapper on more
+    than one process), the hooks, the device, AdamW and its schedule, the loss's class weights, and
+    whether the forward pass runs under bf16 autocast (AMP)."""
+
+    cfg: TrainConfig
+    model: torch.nn.Module
+    ddp: torch.nn.Module
+    hooks: Hooks
+    device: torch.device
+    opt: torch.optim.Optimizer
+    sched: torch.optim.lr_scheduler.LambdaLR
+    weights: torch.Tensor | None
+    amp: bool
+
+    def epoch(self, batches, gen: torch.Generator) -> tuple[float, int]:
+        """One epoch's steps over BATCHES (a progress bar over the train loader), augmented with GEN;
+        returns the summed loss (per image) and the images seen."""
+        device, cuda = self.device, self.device.type == "cuda"
+        loss_sum, seen = 0.0, 0
+        for img, mask in batches:
+            x = img.to(device, non_blocking=True).permute(0, 3, 1, 2).float()
+            y = mask.to(device, non_blocking=True).long()
+            x, y = augment(x, y, gen, lights=self.cfg.augment == Augment.LIGHTS)
+            if cuda:
+                x = x.contiguous(memory_format=torch.channels_last)
+            loss = self.loss(x, y)
+            self.opt.zero_grad(set_to_none=True)
+            loss.backward()
+            self.opt.step()
+            self.sched.step()
+            self.hooks.after_step(self.model, self.sched.last_epoch)
+            loss_sum += float(loss.detach()) * len(x)
+            seen += len(x)
+            batches.set_postfix(loss=f"{loss_sum / seen:.3f}")
+        return loss_sum, seen
+
+    def loss(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        """The weighted cross-entropy of a batch (plus 0.4 of the auxiliary head's, where the model has one)."""
+        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.amp):
+            outputs = logits(self.ddp, x)
+            loss = F.cross_entropy(outputs["out"].float(), y, weight=self.weights, ignore_index=IGNORE)
+            if "aux" in outputs:
+                loss = loss + 0.4 * F.cross_entropy(outputs["aux"].float(), y, weight=self.weights,
+                                                    ignore_index=IGNORE)
+        return loss
+
+
+def _save_epoch(run: Run, cfg: TrainConfig, steps: _Steps, state: dict, record: EpochRecord, meta: dict,
+                device: str, world: int) -> None:
+    """Rank 0 after each epoch: the best mIoU so far updated, the epoch's checkpoints (_save) and metrics.json."""
+    improved = (record.miou or 0.0) > state["best_miou"]
+    if improved:
+        state["best_miou"] = record.miou or 0.0
+    ckpt = Checkpoint(model=steps.model.state_dict(), optimizer=steps.opt.state_dict(), scheduler=steps.sched.state_dict(),
+                      **meta, **{**state, "history": tuple(state["history"])}, **steps.hooks.checkpoint())
+    _save(run, ckpt, improved, record.epoch in cfg.keep_epochs)
+    run.write_metrics({"epochs": record.epoch, "best_miou": state["best_miou"],
+                       "train_time_s": round(state["train_time_s"], 2), "device": device,
+                       "world_size": world, "arch": cfg.arch, "size": list(cfg.size.hw),
+                       "history": state["history"]})
 
 
 def _all_reduce(cm: np.ndarray, loss_sum: float, seen: int, device: torch.device) -> tuple[np.ndarray, float, int]:

@@ -99,7 +99,7 @@ def test_hand_shape_refuses_what_is_not_a_size():
 
 
 def test_pick_with_an_rg2_checks_the_jaw_as_far_as_the_rg2_opens():
-    from edgepick.cli.pick import check_gripper, with_gripper
+    from edgepick.cli.cell import check_gripper, with_gripper
 
     assert with_gripper(PickConfig(), check_gripper("rg2:host", None)).hand.jaw_opening_m == 0.10
     assert with_gripper(PickConfig(), check_gripper("digital:0", None)).hand == HandShape()
