@@ -52,7 +52,7 @@ def _step(title: str) -> None:
     _steps.start(title)
 
 
-def run_demo(workdir: Path, scenes: int = 204, epochs: int = 12, size: Size = Size(256, 192)) -> dict:
+def run_demo(workdir: Path, scenes: int = 204, epochs: int = 12, size: Size = Size(192, 144)) -> dict:
     """Run the demo in WORKDIR and print a summary; returns it. WORKDIR must be new, empty or an
     earlier demo's (emptied first); an interrupted demo leaves it empty (files.output_dir)."""
     with output_dir(workdir, "demo", fresh=True):
