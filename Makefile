@@ -20,17 +20,17 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/edgepick demo --workdir $(DEMO_DIR)
 
-# Lint and type-check first (seconds; every package but the command line), then the suite; it ends with
+# Lint and type-check first (seconds), then the suite; it ends with
 # its 15 slowest tests.
 test: $(STAMP)
 	$(PY) -m ruff check edgepick benchmarks tests
-	$(PY) -m mypy edgepick --exclude edgepick/cli/
+	$(PY) -m mypy edgepick
 	$(PY) -m pytest -q -p no:cacheprovider -n $(TEST_WORKERS) --dist loadfile --durations=15
 
 # The inner loop: lint, type-check and the tests that train no model (no training run, nothing marked slow).
 check: $(STAMP)
 	$(PY) -m ruff check edgepick benchmarks tests
-	$(PY) -m mypy edgepick --exclude edgepick/cli/
+	$(PY) -m mypy edgepick
 	$(PY) -m pytest -q -p no:cacheprovider -n $(TEST_WORKERS) --dist loadfile -m "not slow and not trained" --durations=10
 
 clean:

@@ -24,9 +24,8 @@ from edgepick.bench.compare import Measured, compare, compare_section  # noqa: E
 from edgepick.bench.report import markdown  # noqa: E402
 from edgepick.intervals import wilson  # noqa: E402
 
-NOTE = ("The three models are `make demo`'s: 12 CPU epochs at 256x192 on 204 synthetic scenes (test mIoU about "
-        "0.31-0.33, demo-out/summary.json), far too weak for the cell; the true-label row is what the grasp step "
-        "does with a perfect segmentation.\n")
+NOTE = ("The three models are `make demo`'s (demo-out/summary.json says how they were trained and their test mIoU), "
+        "far too weak for the cell; the true-label row is what the grasp step does with a perfect segmentation.\n")
 DEMO = ["demo-out/models/fp32.onnx", "demo-out/models/static.onnx", "demo-out/models/hybrid.onnx"]
 
 

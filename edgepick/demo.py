@@ -25,11 +25,34 @@ CELL_CYCLES = 20  # pick cycles per model for the demo's grasp success column (b
 PICK_CYCLES = 10  # the demo's pick step
 
 
+class _Steps:
+    """The demo's numbered steps on stderr: each says how long it took when the next one begins."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}  # step number ("1/8") -> seconds
+        self._open: tuple[str, float] | None = None
+
+    def start(self, title: str) -> None:
+        self.close()
+        click.echo(click.style(f"\n== {title}", bold=True), err=True)
+        self._open = (title.split(" ", 1)[0], time.perf_counter())
+
+    def close(self) -> None:
+        if self._open is not None:
+            number, t0 = self._open
+            self.seconds[number] = round(time.perf_counter() - t0, 1)
+            click.echo(f"-- step {number} took {self.seconds[number]:.0f} s", err=True)
+            self._open = None
+
+
+_steps = _Steps()
+
+
 def _step(title: str) -> None:
-    click.echo(click.style(f"\n== {title}", bold=True), err=True)
+    _steps.start(title)
 
 
-def run_demo(workdir: Path, scenes: int = 204, epochs: int = 12, size: Size = Size(256, 192)) -> dict:
+def run_demo(workdir: Path, scenes: int = 204, epochs: int = 12, size: Size = Size(192, 144)) -> dict:
     """Run the demo in WORKDIR and print a summary; returns it. WORKDIR must be new, empty or an
     earlier demo's (emptied first); an interrupted demo leaves it empty (files.output_dir)."""
     with output_dir(workdir, "demo", fresh=True):
@@ -45,6 +68,7 @@ def _run_demo(workdir: Path, scenes: int, epochs: int, size: Size) -> dict:
     from edgepick.train.loop import TrainConfig, train
 
     t0 = time.perf_counter()
+    _steps.seconds.clear()
     _step(f"1/8 synthesize {scenes} RGB-D scenes (640x480)")
     synth = synthesize(workdir / "data", SynthConfig(scenes=scenes, seed=0))
     click.echo(f"{synth['scenes']} scenes in {synth['seconds']} s ({synth['scenes_per_s']} scenes/s), "
@@ -63,12 +87,14 @@ def _run_demo(workdir: Path, scenes: int, epochs: int, size: Size) -> dict:
     picks = pick_demo(workdir, reference or Path(int8["hybrid"]["file"]))
     table = bench_demo(workdir, [Path(int8[name]["file"]) for name in ("fp32", "static", "hybrid")], reference)
     quick = quick_table_demo(workdir)
+    _steps.close()
     summary = {
         "data": str(workdir / "data"), "preview": str(workdir / "preview.png"), "run": run.out,
         "train_time_s": run.train_time_s, "best_val_miou": run.best_miou,
         "test": {"pixel_acc": test["pixel_acc"], "miou": test["miou"],
                  "per_class_iou": {c: v["iou"] for c, v in test["per_class"].items()}},
-        "onnx": int8, "picks": picks, "bench": table, "quick_table55": quick, "total_s": round(time.perf_counter() - t0, 1),
+        "onnx": int8, "picks": picks, "bench": table, "quick_table55": quick, "step_s": dict(_steps.seconds),
+        "total_s": round(time.perf_counter() - t0, 1),
     }
     (workdir / "summary.json").write_text(json.dumps(summary, indent=1))
     click.echo(json.dumps(summary, indent=1))

@@ -5,45 +5,54 @@ single-threaded Python (torch.export, pattern matching), so one worker alone lea
 half idle. Each test file runs on one worker (`--dist loadfile`), so a module fixture is built
 once (`--dist loadgroup` would be finer, but with pytest 9.2 xdist 3.8 ignores its groups:
 pytest-dev/pytest-xdist#1386). The session fixtures are built once for all workers (under a file
-lock) and read only."""
+lock, tests/shared_builds.py), in the background from the session's start, and read only. The
+files go to the workers in the order `pytest_collection_modifyitems` leaves them: those that need
+no training run first, the heaviest first within each part (xdist's own reordering, by test count,
+is turned off), so that the run trains while the workers are busy and no file is left alone at the
+end."""
 
 from __future__ import annotations
 
 import os
-import shutil
-import subprocess
-import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 import pytest
-from filelock import FileLock
 
 from edgepick.runtime.grasp_record import NO_DEPTH, Grasp
+from tests.shared_builds import EPOCHS, run_cli, run_exports, short_run, start_in_background, synth_data  # noqa: F401
 
-# one thread per xdist worker: two workers with two OpenMP threads each would run four threads on 2 cores
-os.environ.setdefault("OMP_NUM_THREADS", "1" if "PYTEST_XDIST_WORKER" in os.environ else "2")
+# One OpenMP thread per xdist worker: two workers with two threads each would run four threads on 2 cores, and
+# OpenMP's barriers then wait on threads the kernel has descheduled: several times slower. Set, not defaulted: the
+# controller's own conftest runs first and its value would reach the workers through their environment.
+if "PYTEST_XDIST_WORKER" in os.environ:
+    os.environ["OMP_NUM_THREADS"] = "1"
+else:
+    os.environ.setdefault("OMP_NUM_THREADS", "2")
 REPO = Path(__file__).resolve().parents[1]
-EPOCHS = 25  # ~100 s on 2 cores
 
 
 TRAINED = {"trained_run", "onnx_files"}  # fixtures built on a training run: `make check` leaves their tests out
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    config.option.loadscopereorder = False  # keep the file order below (xdist's reorder goes by test count)
+
+
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Mark every test that needs the session's training run `trained` (`-m "not trained"` skips them)."""
+    """Mark every test that needs the session's training run `trained` (`-m "not trained"` skips them),
+    then order the files: those needing no run first, and within each part the files with the most
+    tests marked slow first (a stable sort: each file's own order is kept)."""
+    files: dict[Path, list[pytest.Item]] = {}
     for item in items:
         if TRAINED & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.trained)
+        files.setdefault(item.path, []).append(item)
 
-
-def run_cli(*args: str, check: bool = False, timeout: float = 600, env: dict | None = None) -> subprocess.CompletedProcess:
-    """Run `python -m edgepick ARGS` in a subprocess, as a user would."""
-    proc = subprocess.run([sys.executable, "-m", "edgepick", *args], capture_output=True, text=True, timeout=timeout,
-                          cwd=REPO, env={**os.environ, **(env or {})})
-    if check and proc.returncode != 0:
-        raise AssertionError(f"edgepick {' '.join(args)} exited {proc.returncode}\n{proc.stderr[-3000:]}")
-    return proc
+    def weight(group: list[pytest.Item]) -> tuple[bool, int]:
+        return (any(i.get_closest_marker("trained") for i in group),
+                -sum(bool(i.get_closest_marker("slow")) for i in group))
+    items[:] = [item for group in sorted(files.values(), key=weight) for item in group]
 
 
 def without_torch(folder: Path) -> dict:
@@ -69,51 +78,33 @@ def worker_index() -> int:
     return int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0)
 
 
-def shared(tmp_path_factory: pytest.TempPathFactory, name: str, make: Callable[[Path], None]) -> Path:
-    """The folder NAME that MAKE(folder) builds, once for all xdist workers of this session: the
-    first worker to ask builds it while the others wait on the lock; a `.done` file beside it says
-    it is whole (a run records its own folder, so it is built where it stays)."""
+def session_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The session's base folder, above the xdist workers' own: where the shared builds go."""
     root = tmp_path_factory.getbasetemp()
-    if "PYTEST_XDIST_WORKER" in os.environ:
-        root = root.parent  # the session's base folder, above the workers' own
-    out = root / "shared" / name
-    out.parent.mkdir(exist_ok=True)
-    done = out.with_name(name + ".done")
-    with FileLock(str(out) + ".lock"):
-        if not done.exists():
-            shutil.rmtree(out, ignore_errors=True)
-            make(out)
-            done.touch()
-    return out
+    return root.parent if "PYTEST_XDIST_WORKER" in os.environ else root
+
+
+@pytest.fixture(scope="session", autouse=True)
+def builds_in_background(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory):
+    """The first worker starts the shared builds in a process of their own when any test of the
+    session needs the training run, and waits for it at the session's end."""
+    needed = any(item.get_closest_marker("trained") for item in request.session.items)
+    proc = start_in_background(session_root(tmp_path_factory)) if needed and worker_index() == 0 else None
+    yield
+    if proc is not None:
+        proc.wait()
 
 
 @pytest.fixture(scope="session")
 def small_data(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """48 scenes at 320x240 (train 36 / val 8 / test 4)."""
-    from edgepick.data.synth import SynthConfig, synthesize
-
-    def make(out: Path) -> None:
-        synthesize(out, SynthConfig(scenes=48, width=320, height=240, seed=7, splits=(36, 8, 4)), progress=False)
-    return shared(tmp_path_factory, "synth", make)
+    return synth_data(session_root(tmp_path_factory))
 
 
 @pytest.fixture(scope="session")
 def trained_run(small_data: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A short CPU training run (MobileNetV3, 128x96) shared by the eval and quality tests."""
-    from edgepick.geometry import Size
-    from edgepick.train.loop import TrainConfig, train
-
-    def make(out: Path) -> None:
-        import torch
-
-        threads = torch.get_num_threads()
-        torch.set_num_threads(2)  # as without xdist: a worker that needs the run waits for it meanwhile
-        try:
-            train(TrainConfig(data=str(small_data), out=str(out), epochs=EPOCHS, batch_size=4, size=Size(128, 96),
-                              device="cpu", lr=2e-3, keep_epochs=[2, EPOCHS - 1]), progress=False)
-        finally:
-            torch.set_num_threads(threads)
-    return shared(tmp_path_factory, "run", make)
+    """A short CPU training run (MobileNetV3, 128x96, EPOCHS epochs) shared by the eval and quality tests."""
+    return short_run(session_root(tmp_path_factory))
 
 
 @pytest.fixture(scope="session")
@@ -123,12 +114,5 @@ def onnx_files(trained_run: Path, small_data: Path, tmp_path_factory: pytest.Tem
     "static". Built once for all workers, read only."""
     import json
 
-    def make(out: Path) -> None:
-        out.mkdir(parents=True)
-        fp32 = run_cli("export", str(trained_run), "--out", str(out / "fp32.onnx"), check=True).stdout
-        static = run_cli("quantize", "static", str(trained_run), "--data", str(small_data), "--out",
-                         str(out / "static.onnx"), "--calib-images", "16", check=True).stdout
-        (out / "fp32.json").write_text(fp32)
-        (out / "static.json").write_text(static)
-    out = shared(tmp_path_factory, "onnx", make)
+    out = run_exports(session_root(tmp_path_factory))
     return {name: json.loads((out / f"{name}.json").read_text()) for name in ("fp32", "static")}

@@ -9,6 +9,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from edgepick.quant.config import BiasCorrection, CalibMethod, PtqMethods, QuantConfig  # noqa: E402
 from edgepick.quant.pt2e.images import folder_images, model_images  # noqa: E402
 from edgepick.quant.pt2e.inspect import compare, float_graph, inspect, quantize_accuracy_aware  # noqa: E402
 from edgepick.train.checkpoint import load_model  # noqa: E402
@@ -43,15 +44,20 @@ def test_accuracy_aware_static_keeps_the_worst_layers_float(trained_run, small_d
     ranked_on = []  # the layer ranking runs only once a step misses the budget
     monkeypatch.setattr(module, "inspect", lambda *a, **k: ranked_on.append(1) or inspect(*a, **k))
     calib = folder_images(small_data, "train", 8)
+    # the search is what this test is about, so each step quantizes with one fixed rule and no bias correction
+    # (the default recipe's own steps are tested in test_passes.py)
+    recipe = {"config": QuantConfig(calib_method=CalibMethod.PERCENTILE),
+              "methods": PtqMethods(bias_correction=BiasCorrection.NONE)}
     result = quantize_accuracy_aware(trained_run, calib, small_data, tmp_path / "aa.onnx", max_drop_pp=0.0,
-                                     max_float_layers=1)
+                                     max_float_layers=1, **recipe)
     steps = result.steps
     assert [len(s["keep_float"]) for s in steps] == list(range(len(steps))) and 1 <= len(steps) <= 2
     assert all(s["drop_pp"] > 0 for s in steps[:-1])  # it only goes on while over budget
     assert result.met == (steps[-1]["drop_pp"] <= 0) and (result.met or len(steps) == 2)
     assert (tmp_path / "aa.onnx").is_file() and result.chosen["drop_pp"] == min(s["drop_pp"] for s in steps)
     assert len(ranked_on) == (len(steps) > 1)
-    easy = quantize_accuracy_aware(trained_run, iter(calib), small_data, tmp_path / "easy.onnx", max_drop_pp=100.0)
+    easy = quantize_accuracy_aware(trained_run, iter(calib), small_data, tmp_path / "easy.onnx", max_drop_pp=100.0,
+                                   **recipe)
     assert easy.met and len(easy.steps) == 1 and len(ranked_on) == (len(steps) > 1)  # met at once: no ranking
 
 

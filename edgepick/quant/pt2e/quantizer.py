@@ -80,6 +80,23 @@ class RuleObserver(HistogramObserver):
         return torch.tensor(low, dtype=self.min_val.dtype), torch.tensor(high, dtype=self.max_val.dtype)
 
 
+class WeightObserver(PerChannelMinMaxObserver):
+    """Per-channel weight ranges, observed once per weight: static PTQ's weights stay as they are while
+    it calibrates, so the min/max over every channel would be taken again on each calibration input
+    and on each rule calib_method auto measures. A weight changed in place or replaced is observed again."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self._seen: tuple[int, int] | None = None  # (id, version) of the weight last observed
+
+    def forward(self, x_orig: torch.Tensor) -> torch.Tensor:
+        key = (id(x_orig), x_orig._version)
+        if key != self._seen:
+            super().forward(x_orig)
+            self._seen = key
+        return x_orig
+
+
 def activation_spec(config: QuantConfig, qat: bool) -> QuantizationSpec:
     """uint8 per-tensor activations: fake-quant for QaT, else the observer CONFIG's calibration method reads."""
     if qat:  # the fused kernel's affine scales are the observer's to the last bit (unlike its symmetric ones)
@@ -104,7 +121,7 @@ def weight_spec(config: QuantConfig, qat: QatOptions | None) -> QuantizationSpec
         ctr = FakeQuantize.with_args(observer=MovingAveragePerChannelMinMaxObserver, eps=2 ** -12,
                                      averaging_constant=qat.weight_averaging)
     else:
-        ctr = PerChannelMinMaxObserver.with_args(eps=2 ** -12)
+        ctr = WeightObserver.with_args(eps=2 ** -12)
     return QuantizationSpec(torch.int8, ctr, qmin, qmax, torch.per_channel_symmetric, ch_axis=0)
 
 
