@@ -14,6 +14,7 @@ end."""
 from __future__ import annotations
 
 import os
+import subprocess
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -92,7 +93,10 @@ def builds_in_background(request: pytest.FixtureRequest, tmp_path_factory: pytes
     proc = start_in_background(session_root(tmp_path_factory)) if needed and worker_index() == 0 else None
     yield
     if proc is not None:
-        proc.wait()
+        try:
+            proc.wait(timeout=600)  # the builds take a few minutes at most; a stopped session must not hang here
+        except subprocess.TimeoutExpired:
+            proc.kill()
 
 
 @pytest.fixture(scope="session")

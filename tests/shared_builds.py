@@ -87,9 +87,9 @@ def run_exports(root: Path) -> Path:
 def start_in_background(root: Path) -> subprocess.Popen:
     """Build everything above under ROOT in a process of its own, one thread, output to ROOT/shared/build.log."""
     (root / "shared").mkdir(parents=True, exist_ok=True)
-    log = (root / "shared" / "build.log").open("w")
-    return subprocess.Popen([sys.executable, "-m", "tests.shared_builds", str(root)], cwd=REPO, stdout=log,
-                            stderr=subprocess.STDOUT, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    with (root / "shared" / "build.log").open("w") as log:  # the child holds its own copy of the file
+        return subprocess.Popen([sys.executable, "-m", "tests.shared_builds", str(root)], cwd=REPO, stdout=log,
+                                stderr=subprocess.STDOUT, env={**os.environ, "OMP_NUM_THREADS": "1"})
 
 
 if __name__ == "__main__":
