@@ -80,6 +80,10 @@ def make_table55(work: str | Path, setting: Setting, device: str = "auto", comma
     from WORK/phases.json), so the phases can be split over several runs or machines; ONLY
     limits this run to some PHASES (then no report unless the bench ran). The phases read top to
     bottom in _run_phases, in the order they run, as the table's recipe."""
+    import onnxruntime  # noqa: F401 - the [train] extra's absence is said before WORK is made
+    import torch  # noqa: F401
+    import torchao  # noqa: F401
+
     work = Path(work)
     work.mkdir(parents=True, exist_ok=True)
     if command:
