@@ -87,13 +87,13 @@ class WeightObserver(PerChannelMinMaxObserver):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
-        self._seen: tuple[int, int] | None = None  # (id, version) of the weight last observed
+        # the weight last observed and its in-place version: held, not its id, which a later tensor could reuse
+        self._seen: tuple[torch.Tensor, int] | None = None
 
     def forward(self, x_orig: torch.Tensor) -> torch.Tensor:
-        key = (id(x_orig), x_orig._version)
-        if key != self._seen:
+        if self._seen is None or self._seen[0] is not x_orig or self._seen[1] != x_orig._version:
             super().forward(x_orig)
-            self._seen = key
+            self._seen = (x_orig, x_orig._version)
         return x_orig
 
 
