@@ -1,5 +1,6 @@
 """Thesis Table 5.6 with its grasp success column, in the synthetic cell: `edgepick bench --cell`
-on the given models (by default the three that `make demo` leaves in demo-out/models), with the
+on the given models (by default fp32, static, QaT and hybrid-QaT 10% of those `make demo` leaves in
+demo-out/models), with the
 scenes' true labels as the first row (the grasp step's own ceiling).
 
     python benchmarks/grasp_success.py [--models A.onnx B.onnx ...] [--cycles 50] [--seed 0] [--margin 1] [--save]
@@ -24,9 +25,9 @@ from edgepick.bench.compare import Measured, compare, compare_section  # noqa: E
 from edgepick.bench.report import markdown  # noqa: E402
 from edgepick.intervals import wilson  # noqa: E402
 
-NOTE = ("The three models are `make demo`'s (demo-out/summary.json says how they were trained and their test mIoU), "
+NOTE = ("The models are `make demo`'s (demo-out/summary.json says how they were trained and their test mIoU), "
         "far too weak for the cell; the true-label row is what the grasp step does with a perfect segmentation.\n")
-DEMO = ["demo-out/models/fp32.onnx", "demo-out/models/static.onnx", "demo-out/models/hybrid.onnx"]
+DEMO = [f"demo-out/models/{name}.onnx" for name in ("fp32", "static", "qat", "hybrid0.10")]
 
 
 def parse_args(doc: str, models: list[str], spread: str) -> argparse.Namespace:

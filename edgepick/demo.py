@@ -1,35 +1,37 @@
 """`edgepick demo` / `make demo`: the main job end to end on an embedded default.
 
-Synthetic scenes -> a small CPU training run -> evaluation on the test split -> fp32 export,
-static int8 and hybrid-QaT int8 ONNX files, evaluated with the runtime -> pick cycles on the
-simulated robot from synthetic scenes with the shipped reference int8 model (edgepick/reference:
-a model trained far longer than the demo can; the demo's own 12-epoch model is too weak to pick),
-each cycle judged against the scenes' truth. Then the bench table (thesis Table 5.5 / 5.6 shape)
-of the demo's three models, Table 5.6's grasp success column for them and the reference model,
-and it ends with the quick Table 5.5 / 5.6 (edgepick/bench/table55.py: its own small float run,
-static, QaT from scratch and hybrid-QaT 1/5/10%).
+The demo is the quick Table 5.5 / 5.6 (edgepick/bench/table55.py, its QUICK setting) shown step by
+step, plus what the table does not do: synthetic scenes -> a small CPU float run -> evaluation on
+the test split -> the int8 passes from that one run (fp32 export, static PTQ, QaT from scratch,
+hybrid-QaT 1/5/10%) -> every ONNX file evaluated with the runtime -> pick cycles on the simulated
+robot with the shipped reference int8 model (edgepick/reference: a model trained far longer than
+the demo can; the demo's own models are too weak to pick), each cycle judged against the scenes'
+truth -> the bench: Table 5.5 / 5.6 of the demo's models and Table 5.6's grasp success column for
+them and the reference model. One float run serves every pass, as in the table: nothing is
+trained twice.
 """
 
 from __future__ import annotations
 
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import click
 
 from edgepick.files import output_dir
-from edgepick.geometry import Size
 
 CELL_CYCLES = 20  # pick cycles per model for the demo's grasp success column (bench --cell)
 PICK_CYCLES = 10  # the demo's pick step
+COMMAND = "edgepick demo"
 
 
 class _Steps:
     """The demo's numbered steps on stderr: each says how long it took when the next one begins."""
 
     def __init__(self) -> None:
-        self.seconds: dict[str, float] = {}  # step number ("1/8") -> seconds
+        self.seconds: dict[str, float] = {}  # step number ("1/7") -> seconds
         self._open: tuple[str, float] | None = None
 
     def start(self, title: str) -> None:
@@ -52,85 +54,91 @@ def _step(title: str) -> None:
     _steps.start(title)
 
 
-def run_demo(workdir: Path, scenes: int = 204, epochs: int = 12, size: Size = Size(192, 144)) -> dict:
+def demo_setting(scenes: int = 48, epochs: int = 100):
+    """The demo's scale: the quick table's setting with SCENES split 2:1:1 into train/val/test and
+    an epoch budget of EPOCHS (hybrid-QaT trains its last 1/5/10%)."""
+    from edgepick.bench.table55 import QUICK
+
+    train, val = scenes // 2, scenes // 4
+    return replace(QUICK, name="demo", splits=(train, val, scenes - train - val), epochs=epochs)
+
+
+def run_demo(workdir: Path, scenes: int = 48, epochs: int = 100) -> dict:
     """Run the demo in WORKDIR and print a summary; returns it. WORKDIR must be new, empty or an
     earlier demo's (emptied first); an interrupted demo leaves it empty (files.output_dir)."""
     with output_dir(workdir, "demo", fresh=True):
-        return _run_demo(workdir, scenes, epochs, size)
+        return _run_demo(workdir, demo_setting(scenes, epochs))
 
 
-def _run_demo(workdir: Path, scenes: int, epochs: int, size: Size) -> dict:
+def _run_demo(workdir: Path, setting) -> dict:
+    from edgepick.bench.table55 import make_table55
     from edgepick.data.preview import contact_sheet
-    from edgepick.data.synth import SynthConfig, synthesize
     from edgepick.evaluation import evaluate
     from edgepick.reference import reference_model
-    from edgepick.train.config import Device
-    from edgepick.train.loop import TrainConfig, train
+
+    def phases(*only: str) -> dict | None:  # the table's phases, in the demo's folder
+        return make_table55(workdir, setting, "cpu", COMMAND, echo=lambda line: click.echo(line, err=True),
+                            only=set(only) if only else None)
 
     t0 = time.perf_counter()
     _steps.seconds.clear()
-    _step(f"1/8 synthesize {scenes} RGB-D scenes (640x480)")
-    synth = synthesize(workdir / "data", SynthConfig(scenes=scenes, seed=0))
-    click.echo(f"{synth['scenes']} scenes in {synth['seconds']} s ({synth['scenes_per_s']} scenes/s), "
-               f"splits {synth['splits']}", err=True)
+    _step(f"1/7 synthesize {sum(setting.splits)} RGB-D scenes (640x480; train/val/test {list(setting.splits)})")
+    phases("synth")
     contact_sheet(workdir / "data", workdir / "preview.png", count=9)
-    _step(f"2/8 train DeepLabV3-MobileNetV3 on CPU, {epochs} epochs at {size}")
-    run = train(TrainConfig(data=str(workdir / "data"), out=str(workdir / "run"), epochs=epochs, batch_size=8,
-                            size=size, device=Device.CPU, keep_epochs=(max(1, epochs - 1),)))
-    _step("3/8 evaluate the best checkpoint on the test split")
-    test = evaluate(workdir / "run", workdir / "data", "test")
-    int8 = quantize_demo(workdir, epochs)
+    _step(f"2/7 train DeepLabV3-MobileNetV3 on CPU, {setting.epochs} epochs at {setting.size} "
+          "(keeping the epochs hybrid-QaT starts from)")
+    phases("float")
+    run = json.loads((workdir / "float" / "metrics.json").read_text())
+    _step("3/7 evaluate the best checkpoint on the test split")
+    test = evaluate(workdir / "float", workdir / "data", "test")
+    _step("4/7 the int8 passes from that run: fp32 export, static PTQ, QaT from scratch, hybrid-QaT 1/5/10% "
+          "(onnxruntime QDQ)")
+    phases("fp32", "static", "qat", "hybrid")
+    onnx = evaluate_demo(workdir)
     reference = reference_model()
     if reference is None:
         click.echo("no reference model in this install (edgepick/reference/): picking with the demo's own model",
                    err=True)
-    picks = pick_demo(workdir, reference or Path(int8["hybrid"]["file"]))
-    table = bench_demo(workdir, [Path(int8[name]["file"]) for name in ("fp32", "static", "hybrid")], reference)
-    quick = quick_table_demo(workdir)
+    picks = pick_demo(workdir, reference or Path(onnx["hybrid-QaT 10%"]["file"]))
+    bench = bench_demo(workdir, phases, [Path(f["file"]) for f in onnx.values()], reference)
     _steps.close()
     summary = {
-        "data": str(workdir / "data"), "preview": str(workdir / "preview.png"), "run": run.out,
-        "train_time_s": run.train_time_s, "best_val_miou": run.best_miou,
+        "data": str(workdir / "data"), "preview": str(workdir / "preview.png"), "run": str(workdir / "float"),
+        "train_time_s": run.get("train_time_s"), "best_val_miou": run.get("best_miou"),
         "test": {"pixel_acc": test["pixel_acc"], "miou": test["miou"],
                  "per_class_iou": {c: v["iou"] for c, v in test["per_class"].items()}},
-        "onnx": int8, "picks": picks, "bench": table, "quick_table55": quick, "step_s": dict(_steps.seconds),
+        "onnx": onnx, "picks": picks, **bench, "step_s": dict(_steps.seconds),
         "total_s": round(time.perf_counter() - t0, 1),
     }
     (workdir / "summary.json").write_text(json.dumps(summary, indent=1))
     click.echo(json.dumps(summary, indent=1))
-    click.echo(Path(quick).read_text())
+    click.echo(Path(bench["table55"]).read_text())
     return summary
 
 
-def quantize_demo(workdir: Path, epochs: int) -> dict:
-    """fp32 export, static int8 and hybrid-QaT int8 (last epoch with QaT); runtime eval of each."""
+def evaluate_demo(workdir: Path) -> dict:
+    """Every ONNX file of the passes evaluated with the runtime on the test split: size, mIoU and
+    (int8) the label agreement of onnxruntime with torch's simulation the pass measured."""
+    from edgepick.bench.table55 import FRACTIONS
     from edgepick.evaluation import evaluate
-    from edgepick.export.onnx_export import ExportResult, export_checkpoint
-    from edgepick.quant import PassResult, agreement_images, folder_images, quantize_hybrid, quantize_static, run_images
-    from edgepick.train.config import Device
 
-    _step("4/8 export fp32, quantize static int8 and hybrid-QaT int8 (onnxruntime QDQ)")
+    _step("5/7 evaluate the ONNX files with the runtime (onnxruntime, CPU) on the test split")
     models = workdir / "models"
-    files: dict[str, ExportResult | PassResult] = {
-             "fp32": export_checkpoint(workdir / "run", models / "fp32.onnx"),
-             "static": quantize_static(workdir / "run", folder_images(workdir / "data", "train", 32),
-                                       models / "static.onnx", check_images=agreement_images(workdir / "data")),
-             "hybrid": quantize_hybrid(workdir / "run", workdir / "data", models / "hybrid.onnx", 1 / epochs,
-                                       run_images(workdir / "run", workdir / "data"), qat_run=workdir / "hybrid.run",
-                                       device=Device.CPU)}
-    _step("5/8 evaluate the ONNX files with the runtime (onnxruntime, CPU) on the test split")
-    fp32_size = files["fp32"].size_bytes
+    files = {"fp32": models / "fp32.onnx", "static": models / "static.onnx", "QaT": models / "qat.onnx",
+             **{f"hybrid-QaT {p:.0%}": models / f"hybrid{p:.2f}.onnx" for p in FRACTIONS}}
+    phase_of = {"static": "static PTQ", "QaT": "QaT from scratch"}
+    agreement = json.loads((workdir / "phases.json").read_text()).get("agreement", {})
+    fp32_size = files["fp32"].stat().st_size
     out = {}
     for name, f in files.items():
-        res = evaluate(f.out, workdir / "data", "test", progress=False)
-        out[name] = {"file": f.out, "size_mb": round(f.size_bytes / 1e6, 2),
-                     "smaller_than_fp32": round(fp32_size / f.size_bytes, 2),
-                     "agreement_vs_torch": getattr(f, "agreement_vs_torch", None), "test_miou": res["miou"],
+        res = evaluate(f, workdir / "data", "test", progress=False)
+        size = f.stat().st_size
+        out[name] = {"file": str(f), "size_mb": round(size / 1e6, 2), "smaller_than_fp32": round(fp32_size / size, 2),
+                     "agreement_vs_torch": agreement.get(phase_of.get(name, name)), "test_miou": res["miou"],
                      "test_pixel_acc": res["pixel_acc"]}
-        agreement = out[name]["agreement_vs_torch"]
-        click.echo(f"{name:7s} {out[name]['size_mb']:6.2f} MB ({out[name]['smaller_than_fp32']}x smaller)  "
-                   f"test mIoU {res['miou']:.3f}  onnxruntime-vs-torch agreement {'-' if agreement is None else agreement}",
-                   err=True)
+        a = out[name]["agreement_vs_torch"]
+        click.echo(f"{name:16s} {out[name]['size_mb']:6.2f} MB ({out[name]['smaller_than_fp32']}x smaller)  "
+                   f"test mIoU {res['miou']:.3f}  onnxruntime-vs-torch agreement {'-' if a is None else a}", err=True)
     return out
 
 
@@ -144,7 +152,7 @@ def pick_demo(workdir: Path, model: Path, cycles: int = PICK_CYCLES) -> dict:
     from edgepick.sim.camera import SynthCamera
     from edgepick.sim.robot import SimRobot
 
-    _step(f"6/8 pick and place on the simulated UR3: {cycles} synthetic scenes, {model.name}")
+    _step(f"6/7 pick and place on the simulated UR3: {cycles} synthetic scenes, {model.name}")
     camera = SynthCamera(seed=100, mount_height_m=0.7)
     truth = camera.calibration()
     pipeline = Pipeline(Segmenter(model, threads=2), truth)
@@ -159,35 +167,18 @@ def pick_demo(workdir: Path, model: Path, cycles: int = PICK_CYCLES) -> dict:
             "log": str(workdir / "picks.jsonl")}
 
 
-def bench_demo(workdir: Path, models: list[Path], reference: Path | None) -> str:
-    """The quick table: Table 5.5 / 5.6 of the demo's fp32, static and hybrid-QaT models; the
-    grasp success column for them and the REFERENCE model."""
-    from edgepick.bench.measure import BenchConfig
-    from edgepick.bench.run import run_bench
-
-    _step(f"7/8 bench: thesis Table 5.5 / 5.6 for the demo's models (2 threads, same images, one process), and "
-          f"Table 5.6's grasp success over {CELL_CYCLES} cycles in the synthetic cell")
-    result = run_bench(models, workdir / "data", workdir / "bench", BenchConfig(threads=2, runs=30),
-                       title="make demo: Table 5.5 / 5.6 (CPU, 12-epoch demo model)", progress=lambda line: None)
-    text = Path(result["reports"]["md"]).read_text()
-    click.echo(text, err=True)
+def bench_demo(workdir: Path, phases, models: list[Path], reference: Path | None) -> dict:
+    """The bench: thesis Table 5.5 / 5.6 of the demo's models (the table's own bench phase), then
+    Table 5.6's grasp success column in the synthetic cell for them and the REFERENCE model."""
     from edgepick.bench.cell import run_cell
 
+    _step(f"7/7 bench: thesis Table 5.5 / 5.6 for the demo's models (2 threads, same images, one process), and "
+          f"Table 5.6's grasp success over {CELL_CYCLES} cycles in the synthetic cell")
+    table = phases()
+    assert table is not None, "make_table55 with every phase done makes the table"
+    out = workdir / "table55-quick.md"
+    out.write_text(table["markdown"])
     cell = run_cell(models + ([reference] if reference else []), CELL_CYCLES, workdir / "bench",
                     progress=lambda line: None)
     click.echo(Path(cell["reports"]["md"]).read_text(), err=True)  # Table 5.6 with grasp success
-    return result["reports"]["md"]
-
-
-def quick_table_demo(workdir: Path) -> str:
-    """The quick Table 5.5 / 5.6: every int8 mode from one small float run (minutes on 2 cores)."""
-    from edgepick.bench.table55 import QUICK, make_table55
-
-    _step(f"8/8 the quick Table 5.5 / 5.6: {QUICK.splits} scenes, {QUICK.epochs} epochs at "
-          f"{QUICK.size}: float, static, QaT from scratch, hybrid-QaT 1/5/10%")
-    table = make_table55(workdir / "table55", QUICK, "cpu", "edgepick demo (step 8)",
-                         echo=lambda line: click.echo(line, err=True))
-    assert table is not None, "make_table55 asked for every phase makes the table"
-    out = workdir / "table55-quick.md"
-    out.write_text(table["markdown"])
-    return str(out)
+    return {"table55": str(out), "cell": cell["reports"]["md"]}

@@ -1,8 +1,8 @@
 """Thesis Tables 5.5 and 5.6, regenerated in one go: synthetic data, one float run, static PTQ,
 QaT from scratch, hybrid-QaT 1/5/10% from the float run's kept epochs, then the bench.
 
-`benchmarks/table55.py` writes the result under benchmarks/results/; `make demo` ends with the
-quick setting.
+`benchmarks/table55.py` writes the result under benchmarks/results/; `make demo` runs it, step by
+step, at the quick setting.
 """
 
 from __future__ import annotations

@@ -113,6 +113,7 @@ CASES = [
     (["eval", "{MODEL}", "{D}", "--out", "{F}/e.json"], "is a file, not a folder"),
     (["eval", "{W}/none.onnx", "{D}"], "none.onnx"),
     (["demo", "--epochs", "0", "--workdir", "{W}/demo"], "--epochs 0"),
+    (["demo", "--epochs", "99", "--workdir", "{W}/demo"], "--epochs 99"),
     # calibrate
     (["calibrate", "{W}/none.csv", "--out", "{W}/c.json"], "cannot read"),
     (["calibrate", "{W}/huge.csv", "--out", "{W}/c.json"], "beyond 10 m"),

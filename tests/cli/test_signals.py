@@ -144,7 +144,7 @@ def test_train_terminated_in_its_first_epoch_leaves_no_run(tmp_path, small_data)
 
 @pytest.mark.slow
 def test_demo_terminated_removes_the_folder_it_made(tmp_path):
-    proc = _start("demo", "--workdir", str(tmp_path / "demo"), "--scenes", "30", "--epochs", "2")
+    proc = _start("demo", "--workdir", str(tmp_path / "demo"), "--scenes", "30")
     _wait_for(proc, lambda: bool(_partial(tmp_path / "demo", ".data.partial-*")), "the demo's data being written")
     status, err, _ = _stop(proc, signal.SIGTERM)
     assert status == 143, err

@@ -104,6 +104,45 @@ def test_patterns_of_conv_kinds_the_graph_lacks_are_not_traced(monkeypatch):
     assert "conv2d" in torchao_compat.graph_ops(converted) and "batch_norm" not in torchao_compat.graph_ops(converted)
 
 
+@pytest.mark.slow
+def test_per_kind_rewrites_for_conv_kinds_the_graph_lacks_are_skipped_with_the_same_result(monkeypatch):
+    """convert's conv-BN fold runs once per conv kind over the whole graph; under the workaround it
+    runs for conv2d only, and the converted graph (code and tensors) is what torchao alone makes."""
+    import copy
+
+    from torchao.quantization.pt2e import qat_utils
+    from torchao.quantization.pt2e.quantize_pt2e import convert_pt2e, prepare_qat_pt2e
+
+    from edgepick.quant.config import QatOptions, QuantConfig
+    from edgepick.quant.pt2e.quantizer import EdgeQuantizer
+
+    net = torch.nn.Sequential(torch.nn.Conv2d(3, 4, 3), torch.nn.BatchNorm2d(4), torch.nn.ReLU(),
+                              torch.nn.Conv2d(4, 2, 1, bias=False), torch.nn.BatchNorm2d(2))
+    example = (torch.randn(2, 3, 8, 8),)
+    prepared = prepare_qat_pt2e(torch.export.export(net.train(), example).module(), EdgeQuantizer(QuantConfig(), QatOptions()))
+    prepared.graph.eliminate_dead_code()
+    prepared.recompile()
+    prepared(*example)
+    alone = convert_pt2e(copy.deepcopy(prepared))
+    original, kinds = qat_utils._fold_conv_bn_qat_helper, []
+
+    def folding(m, conv_fn, *args, **kwargs):
+        kinds.append(conv_fn.__name__)
+        return original(m, conv_fn, *args, **kwargs)
+
+    monkeypatch.setattr(qat_utils, "_fold_conv_bn_qat_helper", folding)
+    with patterns_traced_once(prepared):
+        converted = convert_pt2e(prepared)
+    assert kinds == ["conv2d"]
+    def ops(graph):  # node names aside (torch.fx numbers them by what it saw before)
+        return [(n.op, str(n.target) if n.op != "get_attr" else "attr") for n in graph.graph.nodes]
+
+    assert ops(converted) == ops(alone)
+    ours, theirs = list(converted.state_dict().values()), list(alone.state_dict().values())
+    assert len(ours) == len(theirs) and all(torch.equal(a, b) for a, b in zip(ours, theirs))
+    assert torch.equal(converted(*example), alone(*example))
+
+
 def test_a_graph_is_not_switched_into_the_mode_it_is_in(monkeypatch):
     """set_mode runs torchao's train/eval rewrite (a pattern search over the whole graph) only when
     the mode changes; a deep copy keeps the mode its graph is in."""

@@ -24,12 +24,17 @@
    being rewritten does not contain (convert tries conv1d, conv2d, conv_transpose1d and
    conv_transpose2d on every graph) cannot match anything in it: it is not traced at all, a
    one-node stand-in of that conv op takes its place; a conv2d-only model's first convert traces
-   24 patterns instead of 96. Tests that fail without it:
+   24 patterns instead of 96. The fuse in prepare and the fold in convert also skip their whole
+   pass for such a kind (each pass rewrites the graph's dequantize nodes and regenerates its
+   Python code about ten times, ~0.5 s for a DeepLabV3-MobileNetV3 graph, to match nothing).
+   Tests that fail without it:
    tests/quant/test_torchao_compat.py::test_a_pattern_is_traced_once_per_flags_and_shapes_and_handed_out_as_copies
    and ::test_patterns_of_conv_kinds_the_graph_lacks_are_not_traced (what the stand-in rests on:
-   ::test_torchaos_convert_patterns_call_their_conv_op); every QaT test in tests/quant runs on
+   ::test_torchaos_convert_patterns_call_their_conv_op) and
+   ::test_per_kind_rewrites_for_conv_kinds_the_graph_lacks_are_skipped_with_the_same_result;
+   every QaT test in tests/quant runs on
    the cached patterns.
-   Delete when torchao caches its patterns and skips conv kinds a graph lacks.
+   Delete when torchao caches its patterns and skips conv kinds a graph lacks (both its fuse and fold).
 """
 
 from __future__ import annotations
@@ -212,10 +217,35 @@ def patterns_traced_once(graph: torch.fx.GraphModule | None = None) -> Iterator[
     all for conv kinds that GRAPH (the graph torchao rewrites within) lacks (workaround 2)."""
     from torchao.quantization.pt2e import qat_utils, utils
 
+    ops = None if graph is None else graph_ops(graph)
     original = utils._get_aten_graph_module_for_pattern
-    cached = _cached(original, None if graph is None else graph_ops(graph))
-    qat_utils._get_aten_graph_module_for_pattern = utils._get_aten_graph_module_for_pattern = cached
+    helpers = {name: getattr(qat_utils, name) for name in _PER_KIND_HELPERS}
+    qat_utils._get_aten_graph_module_for_pattern = utils._get_aten_graph_module_for_pattern = _cached(original, ops)
+    for name, helper in helpers.items():
+        setattr(qat_utils, name, _skipping_absent_kinds(helper, ops))
     try:
         yield
     finally:
         qat_utils._get_aten_graph_module_for_pattern = utils._get_aten_graph_module_for_pattern = original
+        for name, helper in helpers.items():
+            setattr(qat_utils, name, helper)
+
+
+# torchao's conv-BN rewrites that run once per conv kind, on the whole graph: a pass for a kind the graph
+# lacks matches nothing, but still rewrites the graph's dequantize nodes and regenerates its code about
+# ten times (torch.fx recompiles the graph after every pattern it tries).
+_PER_KIND_HELPERS = ("_fuse_conv_bn_qat_helper", "_fold_conv_bn_qat_helper")
+
+
+def _skipping_absent_kinds(helper: Callable[..., torch.fx.GraphModule],
+                           ops: frozenset[str] | None) -> Callable[..., torch.fx.GraphModule]:
+    """HELPER (m, conv_fn, example_inputs, is_cuda), returning M as it is when conv_fn's kind is one
+    the graph's OPS show it lacks."""
+    def helper_for_present_kinds(m: torch.fx.GraphModule, conv_fn: Callable, *args: Any, **kwargs: Any
+                                 ) -> torch.fx.GraphModule:
+        kind = getattr(conv_fn, "__name__", None)
+        if ops is not None and not ops & _ANY_CONV and kind in _CONV_KINDS and kind not in ops:
+            return m
+        return helper(m, conv_fn, *args, **kwargs)
+
+    return helper_for_present_kinds
