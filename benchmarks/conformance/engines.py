@@ -15,6 +15,7 @@ import numpy as np
 from _quantizers import OpenVino, Ort, nncf_quantize, ort_quantize, ort_ready
 
 from edgepick.quant.config import OnnxOptions
+from edgepick.quant.onnx.accuracy import FidelityBudget
 
 ONNXRUNTIME, OPENVINO = "onnxruntime", "openvino"
 
@@ -107,23 +108,40 @@ def _nncf(job: Job) -> Quantized:
     return Quantized(xml, (xml, xml.with_suffix(".bin")))
 
 
-def edgepick_quantizer(name: str, options: OnnxOptions) -> Quantizer:
-    """edgepick's static PTQ of the fp32 file with OPTIONS, through its public API."""
+def edgepick_quantizer(name: str, options: OnnxOptions, budget: FidelityBudget | None = None) -> Quantizer:
+    """edgepick's static PTQ of the fp32 file with OPTIONS (and the accuracy-aware mode's BUDGET),
+    through its public API."""
     def run(job: Job) -> Quantized:
         from edgepick.quant.fidelity import Task
         from edgepick.quant.onnx.static import quantize_onnx_static
 
         out = job.work / f"{name}.onnx"
         result = quantize_onnx_static(job.fp32, list(job.calib), out, options=options, input_shape=job.input_shape,
-                                      progress=False, task=Task.parse(job.task) if job.task else None)
+                                      progress=False, task=Task.parse(job.task) if job.task else None, budget=budget)
         note = f"{result.int8_convs} of {result.convs} convs int8, ranges {result.quant['ranges']['rule']}"
         if "placement_choice" in result.quant:
             note += f", placement {result.quant['placement_choice']['chosen']} (timed on {options.target})"
+        if budget is not None:
+            note += "; " + accuracy_note(result.quant["accuracy_aware"])
         return Quantized(Path(result.out), (Path(result.out),), calib_s=result.calib_s, note=note)
     return Quantizer(name, run)
 
 
+def accuracy_note(record: dict) -> str:
+    """What the accuracy-aware mode did, for the table: the activations it left float (with the SQNR
+    the scan measured each one gains), whether the budget was met, and the speed it cost."""
+    gains = {s["tensor"]: s["gain_db"] for s in record.get("scan", [])}
+    kept = record.get("float_tensors", [])
+    if not kept:
+        return "accuracy-aware: " + ("budget met all-int8" if record.get("met") else "no float activation helped")
+    listed = ", ".join(f"{t} (+{gains[t]:.1f} dB alone)" if t in gains else t for t in kept)
+    speed = record.get("speed", {})
+    cost = f", {speed['slowdown']:.2f}x the all-int8 file's time" if "slowdown" in speed else ""
+    return f"accuracy-aware: {len(kept)} float: {listed}; budget {'met' if record.get('met') else 'not met'}{cost}"
+
+
 FP32 = Quantizer("fp32", _fp32)
+ACCURACY_BUDGET = FidelityBudget(min_sqnr_db=30.0, max_float=6)  # edgepick-aa's
 EDGEPICK = edgepick_quantizer("edgepick", OnnxOptions())
 ENGINES: tuple[Engine, ...] = (
     Engine("fp32", ONNXRUNTIME, FP32),
@@ -132,6 +150,8 @@ ENGINES: tuple[Engine, ...] = (
     Engine("ort-best", ONNXRUNTIME, Quantizer("ort-best", _ort(best=True))),
     Engine("nncf", OPENVINO, Quantizer("nncf", _nncf)),
     Engine("edgepick", ONNXRUNTIME, EDGEPICK),
+    # the accuracy-aware mode: activations left float, most sensitive first, until every output is within the budget
+    Engine("edgepick-aa", ONNXRUNTIME, edgepick_quantizer("edgepick-aa", OnnxOptions(), ACCURACY_BUDGET)),
     # the file made for OpenVINO: placement auto, the candidates timed on OpenVINO
     Engine("edgepick-openvino", OPENVINO, edgepick_quantizer("edgepick-openvino",
                                                              OnnxOptions(placement="auto", target="openvino"))),

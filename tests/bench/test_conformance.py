@@ -17,11 +17,13 @@ pytest.importorskip("onnx")
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 from conformance import cli, decoders  # noqa: E402
 from conformance.detectors import Boxes  # noqa: E402
-from conformance.engines import EDGEPICK, FP32, ONNXRUNTIME, Engine, Quantizer  # noqa: E402
+from conformance.engines import EDGEPICK, FP32, ONNXRUNTIME, Engine, Quantizer, edgepick_quantizer  # noqa: E402
 from conformance.fetch import FetchError, fetch, sha256  # noqa: E402
 from conformance.metrics import PIXELS, TOP1, box_f1, char_accuracy  # noqa: E402
 from conformance.spec import Entry, Reference, Sample, Source  # noqa: E402
 
+from edgepick.quant.config import OnnxOptions  # noqa: E402
+from edgepick.quant.onnx.accuracy import FidelityBudget  # noqa: E402
 from tests.quant.onnx_models import helper_model  # noqa: E402
 
 SHAPE = (1, 3, 16, 16)
@@ -86,6 +88,9 @@ def cannot(job) -> None:
 
 
 ENGINES = (Engine("fp32", ONNXRUNTIME, FP32), Engine("edgepick", ONNXRUNTIME, EDGEPICK),
+           # a budget out of reach: the accuracy-aware mode leaves its two best activations float
+           Engine("edgepick-aa", ONNXRUNTIME, edgepick_quantizer("edgepick-aa", OnnxOptions(),
+                                                                 FidelityBudget(min_sqnr_db=90.0, max_float=2))),
            Engine("broken", ONNXRUNTIME, Quantizer("broken", cannot)))
 
 
@@ -109,6 +114,9 @@ def test_a_run_writes_its_report_records_failures_and_fails_on_a_regression(tmp_
     assert seg["edgepick"]["metric"] > 0.9 and seg["edgepick"]["calib_s"] > 0 and seg["edgepick"]["quantize_s"] > 0
     assert seg["edgepick"]["sqnr_db"]["map"] > 10 and seg["edgepick"]["regressed"] and seg["edgepick"]["minimum"] == 1.4
     assert seg["broken"]["failure"].startswith("quantize: RuntimeError") and seg["broken"]["metric"] is None
+    aa = seg["edgepick-aa"]
+    assert "accuracy-aware: " in aa["note"] and "budget not met" in aa["note"] and "x the all-int8 file's time" in aa["note"]
+    assert aa["sqnr_db"]["map"] >= seg["edgepick"]["sqnr_db"]["map"]  # a float activation never lowers fidelity
     cls_fp32 = record["models"][1]["engines"][0]
     assert cls_fp32["truth"] is not None and cls_fp32["metric"] == 1.0
     rows = out.with_suffix(".csv").read_text().splitlines()
@@ -149,3 +157,15 @@ def test_task_metrics():
     probs = np.zeros((1, 5, 4), np.float32)
     probs[0, [0, 1, 2, 3, 4], [1, 1, 0, 2, 1]] = 1  # a a - b a
     assert decoders.greedy_ctc(probs[0], ["blank", "a", "b", "c"]) == "aba"
+
+
+def test_the_accuracy_aware_note_names_the_float_activations_their_gain_the_budget_and_the_cost():
+    from conformance.engines import accuracy_note
+
+    record = {"float_tensors": ["conv_3.out", "sigmoid_1.out"], "met": True,
+              "scan": [{"tensor": "conv_3.out", "gain_db": 9.44}, {"tensor": "add_2.out", "gain_db": 3.1}],
+              "speed": {"all_int8_ms": 2.0, "kept_float_ms": 2.3, "slowdown": 1.15, "threads": 2}}
+    assert accuracy_note(record) == ("accuracy-aware: 2 float: conv_3.out (+9.4 dB alone), sigmoid_1.out; "
+                                     "budget met, 1.15x the all-int8 file's time")
+    assert accuracy_note({"float_tensors": [], "met": True}) == "accuracy-aware: budget met all-int8"
+    assert accuracy_note({"float_tensors": [], "met": False}) == "accuracy-aware: no float activation helped"
