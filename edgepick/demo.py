@@ -75,6 +75,7 @@ def _run_demo(workdir: Path, setting) -> dict:
     from edgepick.data.preview import contact_sheet
     from edgepick.evaluation import evaluate
     from edgepick.reference import reference_model
+    from edgepick.train.run import Run
 
     def phases(*only: str) -> dict | None:  # the table's phases, in the demo's folder
         return make_table55(workdir, setting, "cpu", COMMAND, echo=lambda line: click.echo(line, err=True),
@@ -88,7 +89,7 @@ def _run_demo(workdir: Path, setting) -> dict:
     _step(f"2/7 train DeepLabV3-MobileNetV3 on CPU, {setting.epochs} epochs at {setting.size} "
           "(keeping the epochs hybrid-QaT starts from)")
     phases("float")
-    run = json.loads((workdir / "float" / "metrics.json").read_text())
+    run = json.loads(Run(workdir / "float").metrics.read_text())
     _step("3/7 evaluate the best checkpoint on the test split")
     test = evaluate(workdir / "float", workdir / "data", "test")
     _step("4/7 the int8 passes from that run: fp32 export, static PTQ, QaT from scratch, hybrid-QaT 1/5/10% "

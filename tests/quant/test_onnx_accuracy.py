@@ -88,3 +88,31 @@ def test_a_budget_is_checked_on_creation():
                             ({"min_sqnr_db": 20, "max_float": 0}, "max_float=0")):
         with pytest.raises(ParameterError, match=message):
             FidelityBudget(**kwargs)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("helps_both_halves", [True, False])
+def test_a_float_activation_is_kept_only_when_it_brings_both_halves_of_the_check_tensors_closer(faint, helps_both_halves):
+    """The accuracy-aware mode keeps the faint model's input float (the scan's best) only where that
+    lowers the error on each half of the check tensors; a gain on one half alone is not taken."""
+    import onnx
+
+    from edgepick.quant.fidelity import Task, TaskKind
+    from edgepick.quant.onnx.accuracy import Evaluator, evaluator_for, quantized_activations, restore_fidelity
+
+    path, calib, check, _, tmp = faint
+    plain = quantize_onnx_static(path, calib, tmp / "halves.onnx", methods=PtqMethods(bias_correction="none"),
+                                 progress=False)
+    float_model = onnx.load(str(path))
+    real = evaluator_for(path, float_model, check, {"output": Task(TaskKind.RAW)}, nhwc=False)
+
+    class Scripted(Evaluator):
+        def half_errors(self, model):
+            if "input" in quantized_activations(model):
+                return 0.5, 0.5  # all int8
+            return (0.01, 0.02) if helps_both_halves else (0.01, 0.9)
+
+    evaluator = Scripted(**{f: getattr(real, f) for f in ("float_model", "reference", "inputs", "names", "tasks", "nhwc")})
+    _, record = restore_fidelity(onnx.load(plain.out), evaluator, FidelityBudget(min_sqnr_db=25.0))
+    assert record["scan"][0]["tensor"] == "input"
+    assert record["float_tensors"] == (["input"] if helps_both_halves else [])

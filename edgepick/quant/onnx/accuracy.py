@@ -12,7 +12,8 @@ The scan measures, on the real int8 graph, how much output SQNR keeping each act
 gains: the activations are split into blocks in graph order, each block is measured float at
 once, the best blocks are split again, down to single tensors (a few dozen graphs instead of one
 per tensor). The accuracy-aware mode then keeps the best-ranked tensors float one at a time until
-the task fidelity meets the budget, skipping any that would lower it.
+the task fidelity meets the budget, skipping any that would not bring the outputs closer on both
+halves of the check tensors (a gain on their sum alone can be one input's noise).
 """
 
 from __future__ import annotations
@@ -169,6 +170,21 @@ class Evaluator:
                 error.add(r, t)
         return max(e.value for e in errors)
 
+    def half_errors(self, model: Any) -> tuple[float, ...]:
+        """`error` of MODEL on each half of the check tensors (one value for a single tensor): a change
+        the accuracy-aware mode keeps must bring the outputs closer on both, not only on their sum."""
+        session = self.session(model)
+        half = max(1, len(self.inputs) // 2)
+        groups = [(self.inputs[:half], self.reference[:half]), (self.inputs[half:], self.reference[half:])]
+        values = []
+        for inputs, reference in (g for g in groups if g[0]):
+            errors = [BalancedError(self.nhwc) for _ in self.names]
+            for x, ref in zip(inputs, reference):
+                for error, r, t in zip(errors, ref, session.run(self.names, {self.input_name: x})):
+                    error.add(r, t)
+            values.append(max(e.value for e in errors))
+        return tuple(values)
+
 
 
 def _db(error: float) -> float:
@@ -241,17 +257,17 @@ def restore_fidelity(model: Any, evaluator: Evaluator, budget: FidelityBudget,
     progress("scan which activations to leave float")
     ranked = rank_tensors(model, evaluator, quantized_activations(model))
     record["scan"] = [{"tensor": t, "gain_db": round(g, 2)} for t, g in ranked[:20]]
-    best_error = evaluator.error(model, None)
+    best = evaluator.half_errors(model)
     kept: list[str] = []
     for name, value in ranked:
         if len(kept) >= budget.max_float or value <= 0:
             break
         trial = copy_model(model)
         float_tensors(trial, [*kept, name], evaluator.float_model)
-        error = evaluator.error(trial, None)
-        if error >= best_error:
-            continue  # leaving it float would not bring the outputs closer
-        kept, best_error, model = [*kept, name], error, trial
+        errors = evaluator.half_errors(trial)
+        if any(e >= b for e, b in zip(errors, best)):
+            continue  # leaving it float would not bring the outputs closer on both halves of the check tensors
+        kept, best, model = [*kept, name], errors, trial
         fidelity = evaluator.fidelity(model)
         progress(f"{len(kept)} float: {name}")
         if budget.met(fidelity):
