@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from _quantizers import OpenVino, Ort, nncf_quantize, ort_quantize, ort_ready
 
-from edgepick.quant.config import OnnxOptions
+from edgepick.quant.config import OnnxOptions, PtqMethods
 from edgepick.quant.onnx.accuracy import FidelityBudget
 
 ONNXRUNTIME, OPENVINO = "onnxruntime", "openvino"
@@ -108,16 +108,18 @@ def _nncf(job: Job) -> Quantized:
     return Quantized(xml, (xml, xml.with_suffix(".bin")))
 
 
-def edgepick_quantizer(name: str, options: OnnxOptions, budget: FidelityBudget | None = None) -> Quantizer:
-    """edgepick's static PTQ of the fp32 file with OPTIONS (and the accuracy-aware mode's BUDGET),
-    through its public API."""
+def edgepick_quantizer(name: str, options: OnnxOptions, budget: FidelityBudget | None = None,
+                       methods: PtqMethods | None = None) -> Quantizer:
+    """edgepick's static PTQ of the fp32 file with OPTIONS (and the accuracy-aware mode's BUDGET, the
+    PTQ METHODS other than the defaults), through its public API."""
     def run(job: Job) -> Quantized:
         from edgepick.quant.fidelity import Task
         from edgepick.quant.onnx.static import quantize_onnx_static
 
         out = job.work / f"{name}.onnx"
-        result = quantize_onnx_static(job.fp32, list(job.calib), out, options=options, input_shape=job.input_shape,
-                                      progress=False, task=Task.parse(job.task) if job.task else None, budget=budget)
+        result = quantize_onnx_static(job.fp32, list(job.calib), out, options=options, methods=methods,
+                                      input_shape=job.input_shape, progress=False,
+                                      task=Task.parse(job.task) if job.task else None, budget=budget)
         note = f"{result.int8_convs} of {result.convs} convs int8, ranges {result.quant['ranges']['rule']}"
         if "placement_choice" in result.quant:
             note += f", placement {result.quant['placement_choice']['chosen']} (timed on {options.target})"
@@ -152,6 +154,9 @@ ENGINES: tuple[Engine, ...] = (
     Engine("edgepick", ONNXRUNTIME, EDGEPICK),
     # the accuracy-aware mode: activations left float, most sensitive first, until every output is within the budget
     Engine("edgepick-aa", ONNXRUNTIME, edgepick_quantizer("edgepick-aa", OnnxOptions(), ACCURACY_BUDGET)),
+    # AdaRound on top of the defaults (`--adaround`), its budget halved to bound the run
+    Engine("edgepick-ada", ONNXRUNTIME, edgepick_quantizer("edgepick-ada", OnnxOptions(),
+                                                           methods=PtqMethods(adaround=True, adaround_budget_s=60.0))),
     # the file made for OpenVINO: placement auto, the candidates timed on OpenVINO
     Engine("edgepick-openvino", OPENVINO, edgepick_quantizer("edgepick-openvino",
                                                              OnnxOptions(placement="auto", target="openvino"))),
