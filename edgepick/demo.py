@@ -15,12 +15,17 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from edgepick.files import output_dir
+
+if TYPE_CHECKING:
+    from edgepick.bench.table55 import Setting
 
 CELL_CYCLES = 20  # pick cycles per model for the demo's grasp success column (bench --cell)
 PICK_CYCLES = 10  # the demo's pick step
@@ -54,7 +59,7 @@ def _step(title: str) -> None:
     _steps.start(title)
 
 
-def demo_setting(scenes: int = 48, epochs: int = 100):
+def demo_setting(scenes: int = 48, epochs: int = 100) -> Setting:
     """The demo's scale: the quick table's setting with SCENES split 2:1:1 into train/val/test and
     an epoch budget of EPOCHS (hybrid-QaT trains its last 1/5/10%)."""
     from edgepick.bench.table55 import QUICK
@@ -70,7 +75,7 @@ def run_demo(workdir: Path, scenes: int = 48, epochs: int = 100) -> dict:
         return _run_demo(workdir, demo_setting(scenes, epochs))
 
 
-def _run_demo(workdir: Path, setting) -> dict:
+def _run_demo(workdir: Path, setting: Setting) -> dict:
     from edgepick.bench.table55 import make_table55
     from edgepick.data.preview import contact_sheet
     from edgepick.evaluation import evaluate
@@ -118,24 +123,22 @@ def _run_demo(workdir: Path, setting) -> dict:
 
 
 def evaluate_demo(workdir: Path) -> dict:
-    """Every ONNX file of the passes evaluated with the runtime on the test split: size, mIoU and
-    (int8) the label agreement of onnxruntime with torch's simulation the pass measured."""
-    from edgepick.bench.table55 import FRACTIONS
+    """Every ONNX file of the passes evaluated with the runtime on the test split, by its phase's
+    name: size, mIoU and (int8) the label agreement of onnxruntime with torch's simulation that the
+    pass measured."""
+    from edgepick.bench.table55 import model_files
     from edgepick.evaluation import evaluate
 
     _step("5/7 evaluate the ONNX files with the runtime (onnxruntime, CPU) on the test split")
-    models = workdir / "models"
-    files = {"fp32": models / "fp32.onnx", "static": models / "static.onnx", "QaT": models / "qat.onnx",
-             **{f"hybrid-QaT {p:.0%}": models / f"hybrid{p:.2f}.onnx" for p in FRACTIONS}}
-    phase_of = {"static": "static PTQ", "QaT": "QaT from scratch"}
+    files = model_files(workdir)
     agreement = json.loads((workdir / "phases.json").read_text()).get("agreement", {})
-    fp32_size = files["fp32"].stat().st_size
+    fp32_size = files["fp32 export"].stat().st_size
     out = {}
     for name, f in files.items():
         res = evaluate(f, workdir / "data", "test", progress=False)
         size = f.stat().st_size
         out[name] = {"file": str(f), "size_mb": round(size / 1e6, 2), "smaller_than_fp32": round(fp32_size / size, 2),
-                     "agreement_vs_torch": agreement.get(phase_of.get(name, name)), "test_miou": res["miou"],
+                     "agreement_vs_torch": agreement.get(name), "test_miou": res["miou"],
                      "test_pixel_acc": res["pixel_acc"]}
         a = out[name]["agreement_vs_torch"]
         click.echo(f"{name:16s} {out[name]['size_mb']:6.2f} MB ({out[name]['smaller_than_fp32']}x smaller)  "
@@ -168,7 +171,8 @@ def pick_demo(workdir: Path, model: Path, cycles: int = PICK_CYCLES) -> dict:
             "log": str(workdir / "picks.jsonl")}
 
 
-def bench_demo(workdir: Path, phases, models: list[Path], reference: Path | None) -> dict:
+def bench_demo(workdir: Path, phases: Callable[..., dict | None], models: list[Path],
+               reference: Path | None) -> dict:
     """The bench: thesis Table 5.5 / 5.6 of the demo's models (the table's own bench phase), then
     Table 5.6's grasp success column in the synthetic cell for them and the REFERENCE model."""
     from edgepick.bench.cell import run_cell

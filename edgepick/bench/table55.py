@@ -141,15 +141,14 @@ def _run_phases(phases: _Phases, s: Setting, device: str) -> list[Path]:
     from edgepick.train.loop import TrainConfig, train
 
     work = phases.work
-    data, models = work / "data", work / "models"
+    data = work / "data"
     phases.run("synth", "synth", data / "meta.json", synthesize, data,
                SynthConfig(scenes=sum(s.splits), splits=s.splits, seed=0), progress=False)
     tc = TrainConfig(data=str(data), out=str(work / "float"), epochs=s.epochs, batch_size=s.batch_size, size=s.size,
                      lr=s.lr, device=member(Device, "device", device), keep_epochs=tuple(_kept_epochs(s)),
                      epoch_images=s.epoch_images, val_images=s.val_images)
     phases.run("float training", "float", work / "float" / "done", _train_and_mark, train, tc)
-    files = [models / "fp32.onnx", models / "static.onnx", models / "qat.onnx",
-             *[models / f"hybrid{p:.2f}.onnx" for p in FRACTIONS]]
+    files = list(model_files(work).values())
     phases.run("fp32 export", "fp32", files[0], export_checkpoint, work / "float", files[0])
     phases.run("static PTQ", "static", files[1], lambda: quantize_static(
         work / "float", folder_images(data, "train", min(64, s.splits[0])), files[1],
@@ -161,6 +160,15 @@ def _run_phases(phases: _Phases, s: Setting, device: str) -> list[Path]:
             work / "float", data, f, p, run_images(work / "float", data), device=member(Device, "device", device),
             progress=False, **k), qat_run=work / f"hybrid{p:.2f}.run")
     return files
+
+
+def model_files(work: Path) -> dict[str, Path]:
+    """The model file each phase writes in WORK, by the phase's name in the tables (phases.json),
+    in the order the bench compares them."""
+    models = work / "models"
+    return {"fp32 export": models / "fp32.onnx", "static PTQ": models / "static.onnx",
+            "QaT from scratch": models / "qat.onnx",
+            **{f"hybrid-QaT {p:.0%}": models / f"hybrid{p:.2f}.onnx" for p in FRACTIONS}}
 
 
 def _kept_epochs(s: Setting) -> list[int]:
