@@ -163,28 +163,21 @@ class Evaluator:
     def error(self, model: Any, count: int | None = SCAN_TENSORS) -> float:
         """The worst output's balanced relative error (quant/fidelity.py) of MODEL on the first COUNT
         tensors, summed one input at a time."""
-        session = self.session(model)
-        errors = [BalancedError(self.nhwc) for _ in self.names]
-        for x, ref in zip(self.inputs[:count], self.reference):
-            for error, r, t in zip(errors, ref, session.run(self.names, {self.input_name: x})):
-                error.add(r, t)
-        return max(e.value for e in errors)
+        return self._worst_error(self.session(model), self.inputs[:count], self.reference)
 
     def half_errors(self, model: Any) -> tuple[float, ...]:
         """`error` of MODEL on each half of the check tensors (one value for a single tensor): a change
         the accuracy-aware mode keeps must bring the outputs closer on both, not only on their sum."""
-        session = self.session(model)
-        half = max(1, len(self.inputs) // 2)
-        groups = [(self.inputs[:half], self.reference[:half]), (self.inputs[half:], self.reference[half:])]
-        values = []
-        for inputs, reference in (g for g in groups if g[0]):
-            errors = [BalancedError(self.nhwc) for _ in self.names]
-            for x, ref in zip(inputs, reference):
-                for error, r, t in zip(errors, ref, session.run(self.names, {self.input_name: x})):
-                    error.add(r, t)
-            values.append(max(e.value for e in errors))
-        return tuple(values)
+        session, half = self.session(model), max(1, len(self.inputs) // 2)
+        halves = [(self.inputs[:half], self.reference[:half]), (self.inputs[half:], self.reference[half:])]
+        return tuple(self._worst_error(session, inputs, reference) for inputs, reference in halves if inputs)
 
+    def _worst_error(self, session: Any, inputs: Sequence[np.ndarray], reference: Sequence[list[np.ndarray]]) -> float:
+        errors = [BalancedError(self.nhwc) for _ in self.names]
+        for x, ref in zip(inputs, reference):
+            for error, r, t in zip(errors, ref, session.run(self.names, {self.input_name: x})):
+                error.add(r, t)
+        return max(e.value for e in errors)
 
 
 def _db(error: float) -> float:
