@@ -56,6 +56,9 @@ def test_a_faint_channel_is_named_and_the_accuracy_aware_mode_leaves_it_float(fa
                                  budget=FidelityBudget(min_sqnr_db=25.0))
     record = fixed.quant["accuracy_aware"]
     assert record["float_tensors"] == ["input"] and record["met"]  # the fewest: one tensor
+    # AdaRound was tried first: no weight rounding brings back a channel lost on the input's grid
+    tried = fixed.quant["adaround_first"]
+    assert isinstance(tried["kept"], bool) and len(tried["error_before"]) == len(tried["error_after"]) == 2
     assert fixed.fidelity["output"]["sqnr_db"] >= 25.0
     assert fixed.int8_convs == fixed.convs == 2  # the convs keep int8 weights; only the input stays float
     speed = record["speed"]
