@@ -124,6 +124,9 @@ def edgepick_quantizer(name: str, options: OnnxOptions, budget: FidelityBudget |
         if "placement_choice" in result.quant:
             note += f", placement {result.quant['placement_choice']['chosen']} (timed on {options.target})"
         if budget is not None:
+            tried = result.quant.get("adaround_first")
+            if tried is not None:
+                note += f"; AdaRound first: {'kept' if tried['kept'] else 'not kept'}"
             note += "; " + accuracy_note(result.quant["accuracy_aware"])
         return Quantized(Path(result.out), (Path(result.out),), calib_s=result.calib_s, note=note)
     return Quantizer(name, run)
