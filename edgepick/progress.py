@@ -2,16 +2,24 @@
 
 On a terminal: a tqdm bar on stderr. When stderr is a pipe or a file (CI, `2> log`, `| tee`),
 tqdm would print nothing (or carriage returns); instead a plain line every `every_s` seconds,
-"epoch 3/12: 40/120 batch, 12 s", so a long command never looks hung in a log.
+"epoch 3/12: 40/120 batch, 12 s", so a long command never looks hung in a log. The interval is
+10 s unless the environment sets EDGEPICK_PROGRESS_S (seconds, e.g. 60 for a quieter CI log).
 """
 
 from __future__ import annotations
 
+import math
+import os
 import sys
 import time
 from collections.abc import Iterable, Iterator, Sized
 
 from tqdm import tqdm
+
+from edgepick.errors import ConfigError
+
+EVERY_S = 10.0  # a log line's default interval
+EVERY_S_VARIABLE = "EDGEPICK_PROGRESS_S"
 
 
 class _LogProgress:
@@ -46,15 +54,29 @@ class _LogProgress:
         pass
 
 
+def log_interval_s() -> float:
+    """Seconds between two progress lines in a log: EDGEPICK_PROGRESS_S, else EVERY_S."""
+    text = os.environ.get(EVERY_S_VARIABLE)
+    if text is None:
+        return EVERY_S
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value >= 0):
+        raise ConfigError(f"{EVERY_S_VARIABLE}={text!r}: must be a number of seconds, 0 or more")
+    return value
+
+
 def progress(iterable: Iterable | None = None, desc: str = "", total: int | None = None, unit: str = "it",
-             enabled: bool = True, every_s: float = 10.0):
+             enabled: bool = True, every_s: float | None = None):
     """A progress bar over ITERABLE (or one to update() by hand): tqdm on a terminal, a line
-    every EVERY_S seconds otherwise, nothing when not ENABLED."""
+    every EVERY_S seconds otherwise (None: log_interval_s()), nothing when not ENABLED."""
     if not enabled:
         return tqdm(iterable, total=total, disable=True)
     if sys.stderr.isatty():
         return tqdm(iterable, desc=desc, total=total, unit=unit, leave=False)
-    return _LogProgress(iterable, desc, total, unit, every_s)
+    return _LogProgress(iterable, desc, total, unit, log_interval_s() if every_s is None else every_s)
 
 
 def stage(message: str, enabled: bool = True) -> None:

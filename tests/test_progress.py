@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import time
 
+import pytest
+
 from edgepick.progress import progress
 
 
@@ -25,3 +27,29 @@ def test_updates_by_hand_and_postfix(capsys):
 def test_disabled_is_silent(capsys):
     assert list(progress(range(3), desc="x", enabled=False)) == [0, 1, 2]
     assert capsys.readouterr().err == ""
+
+
+def test_the_log_interval_comes_from_the_environment(monkeypatch, capsys):
+    from edgepick.errors import ConfigError
+    from edgepick.progress import EVERY_S, log_interval_s
+
+    monkeypatch.delenv("EDGEPICK_PROGRESS_S", raising=False)
+    assert log_interval_s() == EVERY_S
+    monkeypatch.setenv("EDGEPICK_PROGRESS_S", "0")
+    bar = progress(total=2, desc="synth", unit="scene")  # no every_s: the environment's
+    bar.update()
+    assert capsys.readouterr().err.startswith("synth: 1/2 scene")
+    for bad in ("soon", "-1", "nan"):
+        monkeypatch.setenv("EDGEPICK_PROGRESS_S", bad)
+        with pytest.raises(ConfigError, match="EDGEPICK_PROGRESS_S"):
+            log_interval_s()
+
+
+def test_a_bad_interval_is_refused_in_one_line_before_any_work(monkeypatch, capsys, tmp_path):
+    from edgepick.cli import run
+
+    monkeypatch.setenv("EDGEPICK_PROGRESS_S", "soon")
+    assert run(["data", "synth", str(tmp_path / "data"), "--scenes", "30"]) == 2
+    assert list(tmp_path.iterdir()) == []
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("edgepick: error: EDGEPICK_PROGRESS_S='soon'") and len(err.splitlines()) == 1

@@ -37,6 +37,7 @@ from edgepick.cli.quant import export_cmd, quantize
 from edgepick.cli.replay import replay
 from edgepick.cli.train import demo, eval_cmd, train
 from edgepick.errors import EdgepickError, ParameterError, Terminated, python_name
+from edgepick.progress import log_interval_s
 
 EXIT_USER_ERROR = 2
 EXIT_ROBOT_HALTED = 3
@@ -63,7 +64,10 @@ def cli() -> None:
     `edgepick demo` runs the main job end to end on synthetic data.
     Exit status: 0 done, 2 a mistake in the input (one line on stderr), 3 the robot halted
     or its link failed, 130 interrupted (143 on SIGTERM), 1 a bug (with its traceback).
+    In a log (stderr not a terminal) long work prints a progress line every 10 s, or every
+    EDGEPICK_PROGRESS_S seconds when the environment sets it.
     """
+    log_interval_s()  # a bad EDGEPICK_PROGRESS_S is refused before any work, not when the first bar starts
 
 
 for _command in (quantize_qat_cmd, quantize_hybrid_cmd):

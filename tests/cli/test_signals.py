@@ -26,6 +26,7 @@ START_S = 240  # a loaded 2-core machine starts Python and torch slowly
 def _start(*args: str, cwd: Path = REPO) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "edgepick", *args], cwd=cwd, stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            env={**os.environ, "EDGEPICK_PROGRESS_S": "1"},  # a progress line within a second
                             # a shell that runs the suite in the background ignores SIGINT, and children
                             # inherit that: give the child the default disposition, as a terminal would
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
