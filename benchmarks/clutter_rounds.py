@@ -4,7 +4,8 @@ scenes' true labels; grasp success and clearance with their 95% intervals, per l
 each int8 file against the fp32 one on the same tables (docs/contracts.md#clutter-removal-rounds).
 
     python benchmarks/clutter_rounds.py [--rounds 100] [--run reference-run/models] [--models A.onnx ...]
-                                        [--seed 0] [--verdict physics] [--margin 1] [--out FILE.md | --save]
+                                        [--seed 0] [--verdict physics] [--margin 1] [--finger-room MM]
+                                        [--out FILE.md | --save]
 
 The models: the shipped int8 file (edgepick/reference/), and beside it the fp32 and hybrid files of
 `bash benchmarks/reference_model.sh` where --run holds them (edgepick ships only the int8 file);
@@ -30,6 +31,7 @@ from _common import add_output, emit, machine_line  # noqa: E402
 from edgepick.bench.cell import run_cell  # noqa: E402
 from edgepick.bench.report import markdown  # noqa: E402
 from edgepick.reference import reference_model  # noqa: E402
+from edgepick.robot.clearance import HandShape  # noqa: E402
 from edgepick.robot.verdict import VerdictRule  # noqa: E402
 
 SUCCESS, CLEARANCE, PER_LIGHT, HALF_WIDTH = 0.95, 0.95, 0.90, 0.03  # the targets (this script's docstring)
@@ -101,6 +103,9 @@ def main() -> None:
     ap.add_argument("--verdict", default=VerdictRule.PHYSICS.value, choices=[v.value for v in VerdictRule])
     ap.add_argument("--max-cycles", type=int, default=None)
     ap.add_argument("--margin", type=float, default=1.0, help="int8 against fp32: the equivalence margin, percentage points")
+    ap.add_argument("--finger-room", type=float, default=None,
+                    help="mm beside the part for each finger when the jaw opens [default: HandShape's]; "
+                         "a large value opens the whole stroke")
     add_output(ap)
     args = ap.parse_args()
     models = models_of(args)
@@ -115,8 +120,10 @@ def main() -> None:
         print(line, file=sys.stderr)
 
     with tempfile.TemporaryDirectory() as tmp:
+        hand = None if args.finger_room is None else HandShape(finger_room_m=args.finger_room / 1000)
         cell = run_cell(models, 1, tmp, seed=args.seed, progress=progress, verdict=VerdictRule(args.verdict),
-                        rounds=args.rounds, round_config=RoundConfig(max_cycles=args.max_cycles), margin_pp=args.margin)
+                        rounds=args.rounds, round_config=RoundConfig(max_cycles=args.max_cycles), margin_pp=args.margin,
+                        hand=hand)
         end = time.perf_counter()
         body = (Path(tmp) / "cell.md").read_text().split("\n", 1)[1]
     walls = [later - at for (_, at), (_, later) in zip(marks, [*marks[1:], ("", end)])]

@@ -11,7 +11,7 @@ import csv
 import json
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from itertools import cycle
 from pathlib import Path
 
@@ -75,9 +75,10 @@ def cell_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: int, 
 
 def measure_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: int, size_mb: float | None,
                 verdict: VerdictRule = VerdictRule.GEOMETRIC, physics_config=None, rounds: int | None = None,
-                round_config=None) -> tuple[CellRow, list[CycleResult], list[dict] | None]:
+                round_config=None, hand: HandShape | None = None) -> tuple[CellRow, list[CycleResult], list[dict] | None]:
     """cell_row, with the cycles' results; with ROUNDS, that many clutter-removal rounds (sim/clutter.py,
-    ROUND_CONFIG) in place of CYCLES single scenes, and the rounds' `describe()`."""
+    ROUND_CONFIG) in place of CYCLES single scenes, and the rounds' `describe()`. HAND: the hand the
+    planner checks and opens (robot/clearance.py; its stroke is the physics check's)."""
     camera = SynthCamera(640, 480, seed=seed, mount_height_m=MOUNT_M)
     truth = camera.calibration()
     robot = SimRobot()
@@ -89,8 +90,8 @@ def measure_row(mode: str, model: str, pipeline: Pipeline, cycles: int, seed: in
         from edgepick.sim.physics import PhysicsConfig, physics_judge
 
         physics_config = physics_config or PhysicsConfig()
+        pick = PickConfig(hand=replace(hand or HandShape(), jaw_opening_m=physics_config.jaw_stroke_m))
         physics = physics_judge(truth, pick, physics_config)
-        pick = PickConfig(hand=HandShape(jaw_opening_m=physics_config.jaw_stroke_m))
     described = None
     results: list[CycleResult] = []
     with camera, robot:
@@ -168,12 +169,13 @@ def by_lighting(results: list[CycleResult]) -> dict[str, dict]:
 def run_cell(models: Sequence[str | Path], cycles: int, out_dir: str | Path, threads: int = 2, seed: int = 0,
              engine: Engine = Engine.ONNXRUNTIME, progress=print, verdict: VerdictRule = VerdictRule.GEOMETRIC,
              physics_config=None, rounds: int | None = None, round_config=None, margin_pp: float = 1.0,
-             measured: list[Measured] | None = None) -> dict:
+             measured: list[Measured] | None = None, hand: HandShape | None = None) -> dict:
     """The true-label row, then each model's, over the same CYCLES scenes (with ROUNDS: that many
     clutter-removal rounds, sim/clutter.py, laid out alike for every row); each int8 row against the
     fp32 row on those scenes, with its paired interval read against +-MARGIN_PP percentage points
     (bench/compare.py, "equivalence"); writes cell.md/.csv/.json and success-latency.png in OUT_DIR.
-    MEASURED, when given, gets each row's cycles as they ran (to compare over several runs)."""
+    MEASURED, when given, gets each row's cycles as they ran (to compare over several runs). HAND:
+    measure_row's."""
     if not (math.isfinite(margin_pp) and 0 < margin_pp < 100):
         raise ParameterError("{margin_pp}: must be a number of percentage points in (0, 100)", margin_pp=margin_pp)
     if rounds is not None and rounds < 1:
@@ -184,7 +186,7 @@ def run_cell(models: Sequence[str | Path], cycles: int, out_dir: str | Path, thr
     what = f"{cycles} cycles" if rounds is None else f"{rounds} rounds"
     progress(f"cell: true labels, {what} ...")
     row, results, described = measure_row("true labels", "-", TruthPipeline(list(CLASSES), camera.calibration()),
-                                          cycles, seed, None, verdict, physics_config, rounds, round_config)
+                                          cycles, seed, None, verdict, physics_config, rounds, round_config, hand)
     measured = [] if measured is None else measured
     rows = [row]
     measured.append(Measured(row.mode, "-", results, described))
@@ -193,7 +195,7 @@ def run_cell(models: Sequence[str | Path], cycles: int, out_dir: str | Path, thr
         progress(f"cell: {Path(m).name}, {what} ...")
         row, results, described = measure_row(mode_label(seg.info), str(m), Pipeline(seg, camera.calibration()),
                                               cycles, seed, round(Path(m).stat().st_size / 1e6, 3), verdict,
-                                              physics_config, rounds, round_config)
+                                              physics_config, rounds, round_config, hand)
         rows.append(row)
         measured.append(Measured(row.mode, seg.info.precision, results, described))
     modes = [r.mode for r in rows]

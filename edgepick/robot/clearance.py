@@ -1,11 +1,13 @@
 """Is the hand's way down to a grasp clear? Checked on the frame's depth before a target is chosen.
 
 The grasp step finds where an object's top is; the hand is larger than that point. A 100 mm
-magnet face over a bearing lands on a taller adapter beside it; a parallel jaw opened to its
-stroke puts its fingers down on a neighbour's top, or on the object itself when it is wider than
-the opening. Either way the descent stops short (docs/contracts.md#physics-verdict: blocked, too
-wide). This module looks at the surface under the hand's footprint, from the depth readings
-deprojected into the robot frame (no parallax: a tall neighbour leans outward in the image), and
+magnet face over a bearing lands on a taller adapter beside it; a parallel jaw puts its fingers
+down on a neighbour's top, or on the object itself when it is wider than the opening. Either way
+the descent stops short (docs/contracts.md#physics-verdict: blocked, too wide). The jaw opens
+only as far as the part needs (`jaw_opening_m`: its width plus room for each finger), as an RG2
+is told a width, so that two parts side by side leave each other's fingers room. This module
+looks at the surface under the hand's footprint, from the depth readings deprojected into the
+robot frame (no parallax: a tall neighbour leans outward in the image), and
 names what is in the way, so that `choose_target` picks another object first.
 """
 
@@ -28,10 +30,11 @@ REACH_ABOVE_M = 0.2  # surfaces higher than this above a grasp point are not loo
 
 @dataclass(frozen=True)
 class HandShape:
-    """The hand's footprint, checked on creation. The defaults are an RG2-like jaw opened to its
-    110 mm stroke and a 100 mm electro-holding magnet, as sim/physics.py simulates them."""
+    """The hand's footprint, checked on creation. The defaults are an RG2-like jaw with a 110 mm
+    stroke and a 100 mm electro-holding magnet, as sim/physics.py simulates them."""
 
-    jaw_opening_m: float = 0.110  # between the fingers' inner faces, open
+    jaw_opening_m: float = 0.110  # between the fingers' inner faces, opened as far as it goes (the stroke)
+    finger_room_m: float = 0.015  # beside the part for each finger: the jaw opens to its width plus twice this
     finger_thickness_m: float = 0.010  # across: each finger's pad beyond the opening
     finger_width_m: float = 0.024  # along the object
     finger_depth_m: float = 0.015  # the fingertips below the commanded point
@@ -44,6 +47,17 @@ class HandShape:
             value = getattr(self, f.name)
             if not (math.isfinite(value) and value >= 0):
                 raise ParameterError(f"{{{f.name}}}: must be 0 or more", **{f.name: value})
+
+
+def jaw_opening_m(record: Grasp, shape: HandShape | None = None) -> float:
+    """How far the jaw opens for RECORD's part: its width (the grasp record's `width_m`) plus
+    shape.finger_room_m on each side, at most the stroke; the stroke for a part with no width.
+    Room for the grasp point's own error (up to 10 mm in the cell's criterion) beside each finger,
+    and the fingers no farther out than they need to be."""
+    shape = shape or HandShape()
+    if record.width_m is None:
+        return shape.jaw_opening_m
+    return round(min(shape.jaw_opening_m, record.width_m + 2 * shape.finger_room_m), 4)
 
 
 def hand_clearance(depth: np.ndarray, intr: Intrinsics, calib: Calibration,
@@ -59,8 +73,8 @@ def hand_clearance(depth: np.ndarray, intr: Intrinsics, calib: Calibration,
             return None
         grasp = np.asarray(pose[:3], np.float64)
         magnet = GRIPPER[record.cls] == "electromagnet"
-        reach = shape.pole_radius_m if magnet else \
-            math.hypot(shape.jaw_opening_m / 2 + shape.finger_thickness_m, shape.finger_width_m / 2)
+        half = jaw_opening_m(record, shape) / 2
+        reach = shape.pole_radius_m if magnet else math.hypot(half + shape.finger_thickness_m, shape.finger_width_m / 2)
         points = _surface_near(depth, intr, calib, inverse, grasp, reach + shape.margin_m)
         if points is None:
             return None
@@ -72,8 +86,7 @@ def hand_clearance(depth: np.ndarray, intr: Intrinsics, calib: Calibration,
             yaw = math.radians(closing_yaw_deg(pose))
             across = np.abs(xy @ [math.cos(yaw), math.sin(yaw)])
             along = np.abs(xy @ [-math.sin(yaw), math.cos(yaw)])
-            under = (across >= shape.jaw_opening_m / 2 - shape.margin_m) & \
-                (across <= shape.jaw_opening_m / 2 + shape.finger_thickness_m + shape.margin_m) & \
+            under = (across >= half - shape.margin_m) & (across <= half + shape.finger_thickness_m + shape.margin_m) & \
                 (along <= shape.finger_width_m / 2 + shape.margin_m)
             floor, what = grasp[2] - shape.finger_depth_m, "a finger"
         high = points[under, 2] > floor + shape.margin_m

@@ -32,7 +32,8 @@ class DigitalGripper:
     def probe(self) -> None:
         """Nothing to ask: the output exists (checked above) and is driven through the arm's own link."""
 
-    def open(self) -> None:
+    def open(self, width_m: float | None = None) -> None:
+        """Off (WIDTH_M is a jaw's; an output has no width)."""
         self.robot.set_digital_out(self.index, False, self.tool)
 
     def grip(self) -> None:
@@ -89,8 +90,9 @@ class RG2Gripper:
         """Ask the RG2 its opening: raises RobotUnreachable when nothing answers."""
         self.width_m()
 
-    def open(self) -> None:
-        self._grip(self.open_width_m)
+    def open(self, width_m: float | None = None) -> None:
+        """Open to WIDTH_M (a part's width and room for the fingers), at most open_width_m; None: open_width_m."""
+        self._grip(self.open_width_m if width_m is None else min(width_m, self.open_width_m))
 
     def grip(self) -> None:
         self._grip(0.0)  # close until the force is reached

@@ -18,7 +18,7 @@ from typing import IO
 
 from edgepick.errors import ParameterError
 from edgepick.robot.base import RobotBase, RobotError
-from edgepick.robot.clearance import HandShape
+from edgepick.robot.clearance import HandShape, jaw_opening_m
 from edgepick.robot.envelope import Envelope, SafetyError
 from edgepick.robot.motion import HOME_POSE
 from edgepick.runtime.grasp_record import Grasp
@@ -68,6 +68,7 @@ class Step:
     target: list[float] | None
     note: str
     clears_view: bool = False  # once done, the arm and what it holds have left the pick area: the next frame may be taken
+    width_m: float | None = None  # open: how far a jaw opens (robot/clearance.py jaw_opening_m); a magnet ignores it
 
 
 def _above(pose: list[float], dz: float) -> list[float]:
@@ -92,12 +93,13 @@ def _around_the_base(a: list[float], b: list[float], cfg: PickConfig) -> list[li
 
 
 def plan_pick(record: Grasp, cfg: PickConfig) -> list[Step]:
-    """The cycle's steps for one grasp with a robot pose."""
+    """The cycle's steps for one grasp with a robot pose: a jaw opens to the part's width and room
+    for its fingers (jaw_opening_m), and all the way when it lets go."""
     grasp = list(record.chosen_pose())
     grasp[2] += cfg.grasp_offset_m
     place = list(cfg.place_pose)
     return [Step("moveL", _above(grasp, cfg.approach_m), "approach above the object"),
-            Step("open", None, "open / magnet off"),
+            Step("open", None, "open / magnet off", width_m=jaw_opening_m(record, cfg.hand)),
             Step("moveL", grasp, "descend to the grasp point"),
             Step("grip", None, "close / magnet on"),
             Step("moveL", _above(grasp, cfg.lift_m), "lift"),
@@ -213,6 +215,8 @@ def execute(plan: list[Step], robot: RobotBase, gripper, log: CommandLog, cycle:
         try:
             if step.target is not None:  # a moveL
                 robot.move_l(step.target, cfg.speed, cfg.acc)
+            elif step.command == "open":
+                gripper.open(step.width_m)
             else:
                 getattr(gripper, step.command)()
         except (RobotError, SafetyError) as exc:

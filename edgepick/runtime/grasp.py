@@ -280,9 +280,11 @@ def _grasp(region: np.ndarray, x: int, y: int, c: int, labels: np.ndarray, depth
     depth_m: float | None = None
     point: tuple[float, ...] | None = None
     pose: tuple[float, ...] | None = None
+    width: float | None = None
     occluded = 0.0
     if z is not None:
         depth_m, point = round(z, 5), tuple(round(float(v), 5) for v in deproject(intr, cx, cy, z))
+        width = minor_width_m(own, angle, z, intr) if defined else None
         pose = tuple(top_down_pose(calib, intr, cx, cy, z, angle, defined)) if calib is not None else None
         lap("3d")
         occluded = occluded_fraction(region, labels[y:y + h, x:x + w], depth[y:y + h, x:x + w], z, intr.depth_scale)
@@ -290,7 +292,20 @@ def _grasp(region: np.ndarray, x: int, y: int, c: int, labels: np.ndarray, depth
     # cut by the image border: its centroid is that of the part in view
     partial = border_contact(region, x, y, labels.shape) >= cfg.partial_contact * math.sqrt(area)
     return Grasp(classes[c], (round(cx, 2), round(cy, 2)), angle, defined, area, depth_m, point, pose, occluded,
-                 partial, None if z is not None else NO_DEPTH)
+                 partial, None if z is not None else NO_DEPTH, width)
+
+
+def minor_width_m(pixels: np.ndarray, angle_deg: float, z: float, intr: Intrinsics) -> float | None:
+    """The extent of PIXELS (the object's own mask) across the major axis at ANGLE_DEG, in metres at
+    depth Z: the width the jaw closes on, seen from above (side walls in view only widen it). None
+    for an empty mask."""
+    ys, xs = np.nonzero(pixels)
+    if not len(xs):
+        return None
+    a = math.radians(angle_deg)
+    across = ys * math.cos(a) - xs * math.sin(a)  # along the minor axis, (-sin a, cos a) in the image
+    metres_per_px = z * math.hypot(math.sin(a) / intr.fx, math.cos(a) / intr.fy)
+    return round(float(across.max() - across.min() + 1) * metres_per_px, 4)
 
 
 def occluded_fraction(region: np.ndarray, labels: np.ndarray, depth: np.ndarray, z: float, depth_scale: float,

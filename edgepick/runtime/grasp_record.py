@@ -29,6 +29,7 @@ class Grasp:
     occluded: float = 0.0  # the share of its rim under nearer objects
     partial: bool = False  # cut by the image border
     reason: str | None = None  # why there is no depth
+    width_m: float | None = None  # across the major axis, where the jaw closes; None: no depth, or no defined axis
 
     def __post_init__(self) -> None:
         for name, size in (("pixel", 2), ("point_camera_m", 3), ("pose_robot", 6)):
@@ -46,6 +47,10 @@ class Grasp:
             raise ParameterError("{reason}: says why there is no depth, and only then", reason=self.reason)
         if not 0.0 <= self.occluded <= 1.0:
             raise ParameterError("{occluded}: must be in [0, 1]", occluded=self.occluded)
+        if self.width_m is not None and not (math.isfinite(self.width_m) and self.width_m > 0 and
+                                             self.depth_m is not None and self.orientation_defined):
+            raise ParameterError("{width_m}: a positive width, of an object with a depth and a defined axis",
+                                 width_m=self.width_m)
 
     def chosen_pose(self) -> tuple[float, ...]:
         """`pose_robot` of a grasp the pick may choose, which always has one (a ValueError otherwise)."""
@@ -64,6 +69,7 @@ class Grasp:
         else:
             if self.pose_robot is not None:
                 out["pose_robot"] = list(self.pose_robot)
+            out["width_m"] = self.width_m
             out["occluded"] = self.occluded
         out["partial"] = self.partial
         return out
@@ -73,4 +79,4 @@ class Grasp:
         """A grasp from its record (to_dict's inverse)."""
         return cls(record["class"], record["pixel"], record["angle_deg"], record["orientation_defined"],
                    record["area_px"], record["depth_m"], record["point_camera_m"], record.get("pose_robot"),
-                   record.get("occluded", 0.0), record["partial"], record.get("reason"))
+                   record.get("occluded", 0.0), record["partial"], record.get("reason"), record.get("width_m"))

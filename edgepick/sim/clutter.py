@@ -29,6 +29,7 @@ from edgepick.data.shapes import ObjectModel, Placed
 from edgepick.errors import ParameterError
 from edgepick.frames import Frame
 from edgepick.intervals import rounded, wilson
+from edgepick.robot.clearance import jaw_opening_m
 from edgepick.robot.cycle import CycleResult, verdicts
 from edgepick.robot.pick import PickConfig
 from edgepick.robot.recording import SceneChange
@@ -204,7 +205,7 @@ class ClutterRound(SynthCamera):
 
         def judge(record: Grasp, frame: Frame) -> Verdict:
             self._run = physics_run(record, frame.truth or [], truth_cal, list(pick.place_pose), pick.grasp_offset_m,
-                                    self.physics_cfg, hidden=frame.hidden or [])
+                                    self.physics_cfg, hidden=frame.hidden or [], opening_m=jaw_opening_m(record, pick.hand))
             return self._run.verdict
 
         return judge

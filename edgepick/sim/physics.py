@@ -30,8 +30,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from edgepick.errors import ConfigError
+from edgepick.errors import ConfigError, ParameterError
 from edgepick.frames import Frame
+from edgepick.robot.clearance import jaw_opening_m
 from edgepick.robot.pick import PickConfig
 from edgepick.robot.verdict import Verdict
 from edgepick.runtime.calibration import Calibration
@@ -117,18 +118,20 @@ def physics_judge(truth_cal: Calibration, pick: PickConfig, cfg: PhysicsConfig |
 
     def judge(record: Grasp, frame: Frame) -> Verdict:
         return physics_verdict(record, frame.truth or [], truth_cal, list(pick.place_pose), pick.grasp_offset_m, cfg,
-                               hidden=frame.hidden or [])
+                               hidden=frame.hidden or [], opening_m=jaw_opening_m(record, pick.hand))
 
     return judge
 
 
 def physics_verdict(record: Grasp, truth: list[dict], cal: Calibration, place_pose: list[float],
-                    grasp_offset_m: float = 0.0, cfg: PhysicsConfig | None = None, hidden: Sequence[dict] = ()) -> Verdict:
+                    grasp_offset_m: float = 0.0, cfg: PhysicsConfig | None = None, hidden: Sequence[dict] = (),
+                    opening_m: float | None = None) -> Verdict:
     """Carry out RECORD's grasp (its pose_robot, the chosen object) on the scene TRUTH (the true
     calibration CAL puts it in the robot frame): its success, failure (PHYSICS_FAILURES),
-    lifted_m and ms. The gripper is the class's (robot/verdict.py GRIPPER). HIDDEN: the truth of
-    objects the camera does not see, in the scene too (what rests on them) but never the target."""
-    return physics_run(record, truth, cal, place_pose, grasp_offset_m, cfg, hidden).verdict
+    lifted_m and ms. The gripper is the class's (robot/verdict.py GRIPPER); a jaw opens to
+    OPENING_M (the plan's, robot/clearance.py jaw_opening_m; None: its whole stroke). HIDDEN: the
+    truth of objects the camera does not see, in the scene too (what rests on them) but never the target."""
+    return physics_run(record, truth, cal, place_pose, grasp_offset_m, cfg, hidden, opening_m).verdict
 
 
 @dataclass
@@ -143,8 +146,8 @@ class PhysicsRun:
 
 
 def physics_run(record: Grasp, truth: list[dict], cal: Calibration, place_pose: list[float],
-                grasp_offset_m: float = 0.0, cfg: PhysicsConfig | None = None, hidden: Sequence[dict] = ()
-                ) -> PhysicsRun:
+                grasp_offset_m: float = 0.0, cfg: PhysicsConfig | None = None, hidden: Sequence[dict] = (),
+                opening_m: float | None = None) -> PhysicsRun:
     """physics_verdict, with the poses the check left its objects in: what a clutter-removal round
     (sim/clutter.py) goes on from. The poses are read once the check ends (the part carried, or the
     hand where it stopped)."""
@@ -168,7 +171,10 @@ def physics_run(record: Grasp, truth: list[dict], cal: Calibration, place_pose: 
     sim = _Sim(mujoco, model, data, world, k, magnet, cfg)
     yaw = math.radians(closing_yaw_deg(record.chosen_pose()))
     grasp = np.asarray(record.chosen_pose()[:3], np.float64) + [0, 0, grasp_offset_m]
-    verdict = sim.run(grasp, yaw, np.asarray(place_pose[:3], np.float64))
+    opening = cfg.jaw_stroke_m if opening_m is None else opening_m
+    if not 0 < opening <= cfg.jaw_stroke_m:
+        raise ParameterError(f"{{opening_m}}: must be in (0, {cfg.jaw_stroke_m}], the jaw's stroke", opening_m=opening_m)
+    verdict = sim.run(grasp, yaw, np.asarray(place_pose[:3], np.float64), opening)
     if not verdict.success and sim.settled_m > SETTLED_M:  # the scene, not the grasp, failed
         verdict = replace(verdict, failure="unsettled", note=f"the scene does not stand as rendered: the "
                           f"{target.cls} moved {1000 * sim.settled_m:.0f} mm before the hand reached it")
@@ -266,16 +272,20 @@ class _Sim:
         pos, rot = self.data.xpos[self.body], self.data.xmat[self.body].reshape(3, 3)
         return float(self.data.xpos[self.hand][2] - (pos + rot @ [0, 0, self.solid.dims["height"]])[2])
 
-    def run(self, grasp: np.ndarray, yaw: float, place: np.ndarray) -> Verdict:
+    def run(self, grasp: np.ndarray, yaw: float, place: np.ndarray, opening: float) -> Verdict:
         cfg = self.cfg
         self.data.mocap_quat[0] = [math.cos(yaw / 2), 0, 0, math.sin(yaw / 2)]
         above = grasp + [0, 0, 0.08]
         hand_q = self.model.jnt_qposadr[self.model.body_jntadr[self.hand]]
         self.data.qpos[hand_q:hand_q + 7] = [*above, *self.data.mocap_quat[0]]  # start at the approach pose
         self.data.mocap_pos[0] = above
-        # the objects settle and the jaw opens (its fingers' damping: FINGER_DAMPING)
-        opening = 0.1 + cfg.jaw_stroke_m / 2 * FINGER_DAMPING / cfg.jaw_force_n
-        self.step(above, 0.3, None) if self.magnet else self.step(above, opening, 1.0)
+        # the objects settle and the jaw opens to OPENING, as an RG2 told a width (each finger's travel
+        # ends there: its joint's limit), at the speed its fingers' damping allows (FINGER_DAMPING)
+        if not self.magnet:
+            for finger in ("jr", "jl"):
+                self.model.jnt_range[self.model.joint(finger).id, 1] = opening / 2
+        seconds = 0.1 + opening / 2 * FINGER_DAMPING / cfg.jaw_force_n
+        self.step(above, 0.3, None) if self.magnet else self.step(above, seconds, 1.0)
         start_z = float(self.data.xpos[self.body][2])
         self.settled_m = float(np.linalg.norm(self.data.xpos[self.body] - self.solid.base))
         # a magnet on its spring mount comes down until its face touches, at most its travel below the
@@ -296,9 +306,9 @@ class _Sim:
         else:
             self.step(reached, 0.5, -1.0)  # close
             if self._touching() != {self.model.geom("pad_r").id, self.model.geom("pad_l").id}:
-                wide = self._across() > cfg.jaw_stroke_m
+                wide = self._across() > opening
                 return Verdict(False, "too wide" if wide else "missed", lifted_m=0.0,
-                               note="the object is wider than the stroke" if wide else "the fingers closed on nothing")
+                               note="the object is wider than the opening" if wide else "the fingers closed on nothing")
         lifted = reached + [0, 0, cfg.lift_m]
         self.move(reached, lifted, cfg.speed_m_s)
         self.step(lifted, cfg.hold_s)

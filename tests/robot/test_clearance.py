@@ -4,13 +4,14 @@ taller neighbour, or a jaw too narrow for its object, is refused before the targ
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from edgepick.errors import ParameterError
 from edgepick.geometry import Intrinsics
-from edgepick.robot.clearance import HandShape, hand_clearance
+from edgepick.robot.clearance import HandShape, hand_clearance, jaw_opening_m
 from edgepick.robot.envelope import Envelope
 from edgepick.robot.pick import PickConfig, choose_target
 from edgepick.runtime.calibration import Calibration
@@ -67,6 +68,19 @@ def test_a_jaw_needs_its_opening_to_reach_past_the_object():
     reason = hand_clearance(depth_of([box]), INTR, CAL)(across_y)
     assert reason is not None and "finger" in reason  # the 110 mm jaw's fingers land on its top
     assert hand_clearance(depth_of([box]), INTR, CAL, HandShape(jaw_opening_m=0.16))(across_y) is None
+
+
+def test_a_jaw_opened_to_the_parts_width_clears_a_twin_that_the_whole_stroke_lands_on():
+    adapter = (0.28, 0.0, 0.036, rect(0.022, 0.031))  # 44 mm across x
+    twin = (0.28 + 0.077, 0.0, 0.036, rect(0.022, 0.031))  # another one beside it, 33 mm away
+    clear = hand_clearance(depth_of([adapter, twin]), INTR, CAL)
+    whole = record("adapter", 0.28, 0.0, 0.036, closing_yaw=0.0, area=2000)  # no width: the jaw opens all the way
+    assert jaw_opening_m(whole) == HandShape().jaw_opening_m and "finger" in clear(whole)
+    fitted = replace(whole, width_m=0.044)
+    assert jaw_opening_m(fitted) == pytest.approx(0.044 + 2 * HandShape().finger_room_m)
+    assert clear(fitted) is None  # its fingers come down in the 33 mm between the two
+    assert jaw_opening_m(replace(whole, width_m=0.2)) == HandShape().jaw_opening_m  # never past the stroke
+    assert "finger" in hand_clearance(depth_of([adapter, twin]), INTR, CAL, HandShape(finger_room_m=0.04))(fitted)
 
 
 def test_a_finger_over_a_taller_neighbour_is_refused_and_another_object_chosen():

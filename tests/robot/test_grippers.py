@@ -54,6 +54,19 @@ def test_rg2_open_and_grip_send_millimetres_and_newtons(rg2_service):
     assert isinstance(calls[0][0], float) and isinstance(calls[0][1], float)  # the URCap wants floats
 
 
+def test_a_pick_opens_the_rg2_to_the_parts_width_and_lets_go_all_the_way(rg2_service):
+    port, calls, _ = rg2_service
+    record = make_grasp("adapter", [0.3, -0.05, 0.036, math.pi, 0.0, 0.0], width_m=0.044)
+    plan = plan_pick(record, PickConfig())
+    assert [s.width_m for s in plan if s.command == "open"] == [pytest.approx(0.074)]  # 44 mm and 15 mm a finger
+    with SimRobot() as robot:
+        assert execute(plan, robot, RG2Gripper("127.0.0.1", port=port), CommandLog(None), 1, PickConfig()) is None
+    assert [width for width, *_ in calls] == [pytest.approx(74.0), 0.0, 100.0]  # open, grip, release
+    calls.clear()
+    RG2Gripper("127.0.0.1", port=port, open_width_m=0.06).open(0.074)  # never past its own setting
+    assert calls[0][0] == pytest.approx(60.0)
+
+
 def test_rg2_that_does_not_answer_is_a_clear_error():
     silent = socket.socket()
     silent.bind(("127.0.0.1", 0))

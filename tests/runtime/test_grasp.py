@@ -38,6 +38,8 @@ def test_rotated_rectangle_centroid_and_angle(angle):
     diff = (r.angle_deg - angle + 90) % 180 - 90
     assert abs(diff) < 1.0 and -90 < r.angle_deg <= 90
     assert r.depth_m == pytest.approx(0.6) and r.point_camera_m[2] == pytest.approx(0.6)
+    px = 0.6 / INTR.fx  # metres per pixel at 0.6 m
+    assert r.width_m == pytest.approx(70 * px, abs=3 * px)  # across its major axis: where the jaw closes
 
 
 def test_ellipse_angle_and_two_boxes_give_two_records():
@@ -70,7 +72,7 @@ def test_ring_depth_comes_from_the_ring_not_the_hole(mask):
     assert labels[240, 320] == (0 if mask == "true" else BEARING)  # the centroid lies in the hole
     assert r.pixel == pytest.approx([320, 240], abs=0.6)
     assert r.depth_m == pytest.approx(0.665)
-    assert not r.orientation_defined and r.angle_deg == 0.0
+    assert not r.orientation_defined and r.angle_deg == 0.0 and r.width_m is None  # the jaw opens all the way
 
 
 def test_all_zero_depth_under_object_gives_a_reason_not_nan():

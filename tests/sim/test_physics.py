@@ -76,6 +76,20 @@ def test_a_jaw_needs_the_object_to_fit_its_stroke():
     assert verdict(grasp("box", 0.25, 0.0, 0.08, math.pi / 2), wide, jaw_stroke_m=0.16).success  # an RG6's stroke
 
 
+def test_a_jaw_opened_to_the_parts_width_grips_it_beside_a_twin_the_whole_stroke_lands_on():
+    # two adapters side by side, 33 mm apart across their 44 mm: the jaw closing across them
+    scene = [block("adapter", 0.25, 0.0, 0.0, 0.062, 0.044, 0.036), block("adapter", 0.25, 0.077, 0.0, 0.062, 0.044, 0.036)]
+    record = grasp("adapter", 0.25, 0.0, 0.036, math.pi / 2)
+    whole = physics_verdict(record, scene, IDENTITY, PLACE)  # opened to its 110 mm: a pad comes down on the twin
+    assert not whole.success and whole.failure == "blocked" and "adapter" in whole.note, whole
+    fitted = physics_verdict(record, scene, IDENTITY, PLACE, opening_m=0.044 + 2 * 0.015)
+    assert fitted.success, fitted
+    narrow = physics_verdict(record, scene, IDENTITY, PLACE, opening_m=0.040)  # narrower than the part
+    assert not narrow.success and narrow.failure in ("blocked", "too wide"), narrow
+    with pytest.raises(ParameterError, match="opening_m"):
+        physics_verdict(record, scene, IDENTITY, PLACE, opening_m=0.2)
+
+
 def test_a_jaw_grips_only_when_its_fingers_reach_down_the_sides():
     scene = [block("adapter", 0.25, 0.0, 0.0, 0.062, 0.044, 0.036)]
     high = verdict(grasp("adapter", 0.25, 0.0, 0.036 + 0.02, math.pi / 2), scene)  # 20 mm above: tips above the top
