@@ -59,6 +59,12 @@ def shown(path: str) -> str:
     return str(full.relative_to(repo)) if full.is_relative_to(repo) else path
 
 
+def hand_line(hand: HandShape) -> str:
+    """How the planner opened the jaw (robot/clearance.py jaw_opening_m), in the report's words."""
+    return (f"a jaw opened to the part's width plus {1000 * hand.finger_room_m:.0f} mm a finger, at most its "
+            f"{1000 * hand.jaw_opening_m:.0f} mm stroke")
+
+
 def targets(rows: list[dict], equivalence: list[dict], margin: float) -> list[list[str]]:
     """Each target the rounds are held to, what was measured, and whether it holds."""
     out = []
@@ -134,7 +140,8 @@ def main() -> None:
     report = (f"# Clutter removal in the physics cell: {args.rounds} rounds per model\n\n"
               f"Command: `python benchmarks/clutter_rounds.py {' '.join(sys.argv[1:])}`  \n"
               f"{machine_line()}; onnxruntime {ort.__version__}, opencv {cv2.__version__}, numpy {np.__version__}, "
-              f"mujoco {mujoco.__version__}\n\nModels: {', '.join(f'`{shown(m)}`' for m in models)}\n"
+              f"mujoco {mujoco.__version__}\n\nModels: {', '.join(f'`{shown(m)}`' for m in models)}  \n"
+              f"Hand: {hand_line(hand or HandShape())}\n"
               f"{body}\n## Targets\n\n{held}\n\n## Time\n\nWall time of each row on this machine (rendering, "
               f"inference, the physics check and the settling):\n\n{timing}\n")
     emit(report, args)
