@@ -219,3 +219,25 @@ def faint_channel_inputs(count: int, seed: int = 0) -> list[np.ndarray]:
         x[0, 2] = rng.uniform(0.495, 0.505, (16, 16))
         out.append(x)
     return out
+
+
+def strided_projection_model(path: Path) -> Path:
+    """A ResNet stage's first block made small: a residual sum read by two 1x1 convs with stride 2
+    (the projection and the next conv), then a 3x3 head; input (1, 3, 64, 96), in [0, 1]."""
+    import torch
+
+    class Block(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.stem = torch.nn.Conv2d(3, 16, 3, padding=1)
+            self.a, self.b = torch.nn.Conv2d(16, 16, 3, padding=1), torch.nn.Conv2d(16, 16, 3, padding=1)
+            self.proj, self.down = torch.nn.Conv2d(16, 32, 1, stride=2), torch.nn.Conv2d(16, 32, 1, stride=2)
+            self.head = torch.nn.Conv2d(32, 4, 3, padding=1, stride=2)
+
+        def forward(self, x):
+            x = torch.relu(self.stem(x))
+            x = torch.relu(x + self.b(torch.relu(self.a(x))))
+            return self.head(torch.relu(self.proj(x) + self.down(x)))
+
+    torch.manual_seed(0)
+    return export_module(Block(), path, shape=(1, 3, 64, 96))

@@ -8,8 +8,8 @@ import pytest
 from onnx import TensorProto, helper, numpy_helper
 
 from edgepick.export.onnx_io import fix_input_shape, input_dims, lift_opset, load_float_onnx, opset
-from edgepick.quant.onnx.rewrite import fold_affine_into_convs, rewrite_activations
-from tests.quant.onnx_models import calib_tensors, export_torch, run
+from edgepick.quant.onnx.rewrite import fold_affine_into_convs, rewrite_activations, subsample_before_strided_pointwise_convs
+from tests.quant.onnx_models import calib_tensors, export_torch, run, strided_projection_model
 
 
 def _ops(model) -> list[str]:
@@ -91,3 +91,14 @@ def test_a_lone_batchnorm_becomes_an_exact_mul_and_add(tmp_path):
     onnx.save(model, tmp_path / "affine.onnx")
     x = rng.normal(size=(1, 3, 4, 4)).astype(np.float32)
     np.testing.assert_allclose(run(tmp_path / "affine.onnx", x)[0], run(src, x)[0], rtol=1e-5, atol=1e-5)
+
+
+def test_a_strided_pointwise_conv_subsampled_first_computes_the_same(tmp_path):
+    src = strided_projection_model(tmp_path / "block.onnx")
+    model = onnx.load(str(src))
+    assert subsample_before_strided_pointwise_convs(model) == 2  # the two 1x1 convs, not the strided 3x3 head
+    assert _ops(model).count("MaxPool") == 2
+    onnx.save(model, str(tmp_path / "subsampled.onnx"))
+    for x in calib_tensors(2):
+        for a, b in zip(run(src, x), run(tmp_path / "subsampled.onnx", x)):
+            np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5)

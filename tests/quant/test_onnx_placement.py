@@ -11,7 +11,7 @@ from edgepick.errors import ParameterError
 from edgepick.quant.config import OnnxOptions, PtqMethods
 from edgepick.quant.onnx.placement import PLACEMENT_FIDELITY_DB
 from edgepick.quant.onnx.static import quantize_onnx_static
-from tests.quant.onnx_models import calib_tensors, export_torch
+from tests.quant.onnx_models import calib_tensors, export_torch, strided_projection_model
 
 
 @pytest.mark.slow
@@ -37,3 +37,30 @@ def test_placement_auto_times_each_candidate_on_the_target_and_records_the_choic
 def test_a_target_without_placement_auto_is_refused():
     with pytest.raises(ParameterError, match="^target='openvino': .*give placement auto"):
         OnnxOptions(target="openvino")
+
+
+@pytest.mark.slow
+def test_for_openvino_a_strided_pointwise_conv_keeps_its_int8_kernel(tmp_path):
+    """OpenVINO moves a 1x1 conv's stride onto its dequantized input as an f32 pooling and runs the
+    conv in f32; the file made for it subsamples in the float graph first (quant/onnx/rewrite.py)."""
+    ov = pytest.importorskip("openvino")
+    import edgepick.quant.onnx.placement as placement
+    from edgepick.runtime.session import openvino_config
+
+    src = strided_projection_model(tmp_path / "block.onnx")
+
+    def conv_precisions(path) -> list[str]:
+        compiled = ov.Core().compile_model(str(path), "CPU", openvino_config(2))
+        return sorted(op.get_rt_info()["runtimePrecision"].astype(str) for op in compiled.get_runtime_model().get_ordered_ops()
+                      if op.get_rt_info()["layerType"].astype(str) == "Convolution")
+
+    made = {}
+    for name, forms in (("with", placement.openvino_forms), ("without", lambda model, tmp: (model, {}))):
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(placement, "openvino_forms", forms)
+            made[name] = quantize_onnx_static(src, calib_tensors(6), tmp_path / f"{name}.onnx",
+                                              methods=PtqMethods(bias_correction="none"),
+                                              options=OnnxOptions(placement="auto", target="openvino"), progress=False)
+    assert made["with"].quant["placement_choice"]["subsampled_pointwise_convs"] == 2  # not the 3x3 head
+    assert conv_precisions(made["with"].out) == ["u8"] * 6
+    assert "f32" in conv_precisions(made["without"].out)  # what the rewrite is for: this OpenVINO still does it

@@ -8,7 +8,8 @@ QuantizeLinear, while OpenVINO fuses the float activations it recognises into it
 is timed on the target engine in alternating blocks (p50, the engine's own threads), and the
 fastest whose worst output stays within PLACEMENT_FIDELITY_DB of the closest candidate's SQNR is
 kept. The choice, every candidate's time and fidelity and the machine go into the file's
-metadata.
+metadata. For OpenVINO the candidates are made from the float model with the forms its CPU plugin
+needs to keep int8 kernels (`openvino_forms`), how many of each recorded with the choice.
 """
 
 from __future__ import annotations
@@ -79,13 +80,14 @@ def choose_placement(quantize: Callable[..., Any], model: str | Path, calib: Ite
     made: dict[Placement, Any] = {}
     failed: dict[str, str] = {}
     with tempfile.TemporaryDirectory(prefix="edgepick-placement-") as tmp:
+        source, forms = (openvino_forms(model, Path(tmp)) if options.target == Target.OPENVINO else (model, {}))
         for placement in PLACEMENT_CANDIDATES:
             candidate = replace(options, placement=placement, target=Target.ONNXRUNTIME,
                                 gelu=options.gelu if placement == Placement.ALL else GeluForm.FLOAT)
             if progress:
                 print(f"placement auto: make the {placement} file", file=sys.stderr, flush=True)
             try:
-                made[placement] = quantize(model, tensors, Path(tmp) / f"{placement}.onnx", options=candidate,
+                made[placement] = quantize(source, tensors, Path(tmp) / f"{placement}.onnx", options=candidate,
                                            progress=progress, **given)
             except EdgepickError as exc:
                 if not made and placement == PLACEMENT_CANDIDATES[-1]:
@@ -105,7 +107,7 @@ def choose_placement(quantize: Callable[..., Any], model: str | Path, calib: Ite
                   "candidates": [{"placement": p.value, "p50_ms": ms[p.value],
                                   "worst_sqnr_db": None if math.isinf(sqnr[p.value]) else round(sqnr[p.value], 2)}
                                  for p in made],
-                  **({"failed": failed} if failed else {})}
+                  **({"failed": failed} if failed else {}), **forms}
         if progress:
             times = ", ".join(f"{p} {ms[p]:.1f} ms" for p in ms)
             print(f"placement auto: {chosen} on {options.target} ({times})", file=sys.stderr, flush=True)
@@ -113,6 +115,24 @@ def choose_placement(quantize: Callable[..., Any], model: str | Path, calib: Ite
         quant = {**result.quant, "placement_choice": record}
         _write_with(Path(result.out), Path(out), quant)
     return replace(result, out=str(out), size_bytes=Path(out).stat().st_size, quant=quant)
+
+
+def openvino_forms(model: str | Path, tmp: Path) -> tuple[str | Path, dict[str, int]]:
+    """MODEL with the float rewrites that keep OpenVINO's int8 kernels (quant/onnx/rewrite.py
+    subsample_before_strided_pointwise_convs), written under TMP by its own name when there was
+    any to make; and how many were made, for the record."""
+    import onnx
+
+    from edgepick.quant.onnx.rewrite import subsample_before_strided_pointwise_convs
+
+    proto = onnx.load(str(model))
+    count = subsample_before_strided_pointwise_convs(proto)
+    if not count:
+        return model, {}
+    path = tmp / "openvino-forms" / Path(model).name
+    path.parent.mkdir()
+    onnx.save(proto, str(path))
+    return path, {"subsampled_pointwise_convs": count}
 
 
 def _write_with(source: Path, out: Path, quant: dict) -> None:

@@ -16,6 +16,9 @@ forms that onnxruntime runs on integer kernels once quantized:
 the result is exactly the same function (PP-LCNetV3's learnable affine blocks, Caffe-style scale
 layers): each one folded is a full pass over a feature map that the int8 model no longer makes.
 
+`subsample_before_strided_pointwise_convs` writes a 1x1 conv's stride as a subsampling of its
+input, for the files made for OpenVINO (quant/onnx/placement.py).
+
 Each rewrite computes the same function in float; each function says how many it made.
 """
 
@@ -279,3 +282,29 @@ def _bypass(g: Graph, node: Any, x: str) -> None:
     else:
         g.redirect(out, x)
     g.remove(node)
+
+
+def subsample_before_strided_pointwise_convs(model: Any) -> int:
+    """Rewrite, in place, each 1x1 conv with a stride and no padding as MaxPool(1x1, that stride)
+    then the conv with stride 1: the same function. OpenVINO's CPU plugin moves such a stride onto
+    the conv's input as a pooling; on a dequantized input that pooling runs in f32 and the conv
+    loses its int8 kernel (the strided projections of a ResNet: 6 of open-nsfw's 53 convs,
+    benchmarks/results/conformance/). Written in the float graph, the subsampled map is quantized
+    for the conv like any other input. Returns how many convs it rewrote."""
+    import onnx
+
+    g = Graph(model)
+    done = 0
+    for conv in list(g.nodes):
+        a = attrs(conv)
+        strides, pad = list(a.get("strides", [])), a.get("auto_pad", b"NOTSET")
+        if conv.op_type != "Conv" or list(a.get("kernel_shape", [])) != [1, 1] or max(strides, default=1) == 1 \
+                or any(a.get("pads", [])) or (pad.decode() if isinstance(pad, bytes) else pad) not in ("NOTSET", "VALID"):
+            continue
+        tag = f"{conv.name or conv.output[0]}_subsample"
+        g.insert_before(conv, [onnx.helper.make_node("MaxPool", [conv.input[0]], [tag], name=tag, kernel_shape=[1, 1],
+                                                     strides=strides)])
+        g.set_input(conv, 0, tag)
+        next(x for x in conv.attribute if x.name == "strides").ints[:] = [1] * len(strides)
+        done += 1
+    return done
