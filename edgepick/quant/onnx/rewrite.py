@@ -288,9 +288,9 @@ def subsample_before_strided_pointwise_convs(model: Any) -> int:
     """Rewrite, in place, each 1x1 conv with a stride and no padding as MaxPool(1x1, that stride)
     then the conv with stride 1: the same function. OpenVINO's CPU plugin moves such a stride onto
     the conv's input as a pooling; on a dequantized input that pooling runs in f32 and the conv
-    loses its int8 kernel (the strided projections of a ResNet: 6 of open-nsfw's 53 convs,
-    benchmarks/results/conformance/). Written in the float graph, the subsampled map is quantized
-    for the conv like any other input. Returns how many convs it rewrote."""
+    loses its int8 kernel (a ResNet's strided projections, open-nsfw's among them). Written in the
+    float graph, the subsampled map is quantized for the conv like any other input. Returns how
+    many convs it rewrote."""
     import onnx
 
     g = Graph(model)
