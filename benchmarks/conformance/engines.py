@@ -132,6 +132,30 @@ def edgepick_quantizer(name: str, options: OnnxOptions, budget: FidelityBudget |
     return Quantizer(name, run)
 
 
+def openvino_placement_quantizer(placement: str) -> Quantizer:
+    """One of the candidates `--placement auto --target openvino` chooses among, made as it makes
+    them (the float model in OpenVINO's forms, then PLACEMENT), to show what the choice left."""
+    def run(job: Job) -> Quantized:
+        from edgepick.quant.fidelity import Task
+        from edgepick.quant.onnx.placement import openvino_forms
+        from edgepick.quant.onnx.static import quantize_onnx_static
+
+        name = f"edgepick-openvino-{placement}"
+        forms = job.work / f"{name}-forms"
+        forms.mkdir()
+        source, made = openvino_forms(job.fp32, forms)
+        result = quantize_onnx_static(source, list(job.calib), job.work / f"{name}.onnx",
+                                      options=OnnxOptions(placement=placement), input_shape=job.input_shape,
+                                      progress=False, task=Task.parse(job.task) if job.task else None)
+        worst = min((f["sqnr_db"] for f in result.fidelity.values() if f.get("sqnr_db") is not None), default=None)
+        note = f"placement {placement}; worst SQNR on the check tensors {worst:.1f} dB" if worst is not None else \
+            f"placement {placement}"
+        if made:
+            note += f"; {made['subsampled_pointwise_convs']} strided 1x1 convs subsampled first"
+        return Quantized(Path(result.out), (Path(result.out),), calib_s=result.calib_s, note=note)
+    return Quantizer(f"edgepick-openvino-{placement}", run)
+
+
 def accuracy_note(record: dict) -> str:
     """What the accuracy-aware mode did, for the table: the activations it left float (with the SQNR
     the scan measured each one gains), whether the budget was met, and the speed it cost."""
@@ -163,6 +187,8 @@ ENGINES: tuple[Engine, ...] = (
     # the file made for OpenVINO: placement auto, the candidates timed on OpenVINO
     Engine("edgepick-openvino", OPENVINO, edgepick_quantizer("edgepick-openvino",
                                                              OnnxOptions(placement="auto", target="openvino"))),
+    # the candidates it chose among, each on its own: what the choice left
+    *(Engine(f"edgepick-openvino-{p}", OPENVINO, openvino_placement_quantizer(p)) for p in ("all", "convs", "joins")),
 )
 BASELINES = {ONNXRUNTIME: "fp32", OPENVINO: "fp32-openvino"}  # the fp32 engine of each runtime
 

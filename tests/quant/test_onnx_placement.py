@@ -9,7 +9,7 @@ import pytest
 
 from edgepick.errors import ParameterError
 from edgepick.quant.config import OnnxOptions, PtqMethods
-from edgepick.quant.onnx.placement import PLACEMENT_FIDELITY_DB
+from edgepick.quant.onnx.placement import PLACEMENT_ENOUGH_DB, PLACEMENT_FIDELITY_DB, fidelity_threshold_db
 from edgepick.quant.onnx.static import quantize_onnx_static
 from tests.quant.onnx_models import calib_tensors, export_torch, strided_projection_model
 
@@ -26,7 +26,7 @@ def test_placement_auto_times_each_candidate_on_the_target_and_records_the_choic
     times = {c["placement"]: c["p50_ms"] for c in choice["candidates"]}
     sqnr = {c["placement"]: c["worst_sqnr_db"] for c in choice["candidates"]}
     assert set(times) == {"all", "convs", "joins"} and min(times.values()) > 0
-    close = [p for p in times if sqnr[p] >= max(sqnr.values()) - PLACEMENT_FIDELITY_DB]
+    close = [p for p in times if sqnr[p] >= fidelity_threshold_db(sqnr.values())]
     assert choice["chosen"] == min(close, key=times.get) == result.quant["placement"]
     assert result.out == str(tmp_path / "auto.onnx") and sorted(p.name for p in tmp_path.iterdir()) == ["auto.onnx",
                                                                                                           "net.onnx"]
@@ -64,3 +64,9 @@ def test_for_openvino_a_strided_pointwise_conv_keeps_its_int8_kernel(tmp_path):
     assert made["with"].quant["placement_choice"]["subsampled_pointwise_convs"] == 2  # not the 3x3 head
     assert conv_precisions(made["with"].out) == ["u8"] * 6
     assert "f32" in conv_precisions(made["without"].out)  # what the rewrite is for: this OpenVINO still does it
+
+
+def test_a_candidate_is_close_enough_within_a_db_of_the_best_or_at_the_enough_level():
+    assert fidelity_threshold_db([20.0, 18.0]) == 20.0 - PLACEMENT_FIDELITY_DB  # a low-SQNR model: the best's db
+    assert fidelity_threshold_db([50.1, 39.8, 42.4]) == PLACEMENT_ENOUGH_DB  # all close enough to fp32
+    assert fidelity_threshold_db([35.5, 30.0]) == 35.5 - PLACEMENT_FIDELITY_DB
