@@ -130,8 +130,9 @@ def quantize() -> None:
                    "rewrites: for onnxruntime), convs (only the convs and the tensors they read and write; the "
                    "model's own activations stay float as written, which OpenVINO fuses into its int8 convs), joins "
                    "(convs, matmuls, and the adds, concats and pools that join branches, as NNCF places them) or "
-                   "auto (each made and timed on --target on this machine; the fastest that keeps the outputs as "
-                   "close to fp32 is written, the times in its metadata).")
+                   "auto (each made and timed on --target on this machine; the fastest whose outputs stay within "
+                   "1 dB SQNR of the closest candidate's, or at 35 dB or more, is written, the times in its "
+                   "metadata).")
 @click.option("--target", default=default_of(OnnxOptions, "target"), show_default=True, type=choice(Target),
               help="For an .onnx MODEL with --placement auto: the engine the file is timed on (openvino needs the "
                    "[peers] extra).")
