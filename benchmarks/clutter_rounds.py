@@ -62,7 +62,8 @@ def shown(path: str) -> str:
 def hand_line(hand: HandShape) -> str:
     """How the planner opened the jaw (robot/clearance.py jaw_opening_m), in the report's words."""
     return (f"a jaw opened to the part's width plus {1000 * hand.finger_room_m:.0f} mm a finger, at most its "
-            f"{1000 * hand.jaw_opening_m:.0f} mm stroke")
+            f"{1000 * hand.jaw_opening_m:.0f} mm stroke; turned to close on the part's ends, opened all the way, "
+            "where its sides are crowded")
 
 
 def targets(rows: list[dict], equivalence: list[dict], margin: float) -> list[list[str]]:

@@ -12,7 +12,7 @@ import json
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import IO
 
@@ -21,6 +21,7 @@ from edgepick.robot.base import RobotBase, RobotError
 from edgepick.robot.clearance import HandShape, jaw_opening_m
 from edgepick.robot.envelope import Envelope, SafetyError
 from edgepick.robot.motion import HOME_POSE
+from edgepick.robot.verdict import GRIPPER, closing_yaw_deg
 from edgepick.runtime.grasp_record import Grasp
 from edgepick.schema import member
 
@@ -144,7 +145,8 @@ def choose_target(records: list[Grasp], envelope: Envelope, cfg: PickConfig, sta
     pose], passes the envelope and LIMITS (see plan_reason); its plan, and a note. An object cut
     by the image border is not chosen (its centroid is that of the part in view, not of the
     object), nor one with BURIED or more of its rim under other objects, nor one where CLEAR
-    (robot/clearance.py: the hand's footprint on the frame's depth) says the hand cannot come down."""
+    (robot/clearance.py: the hand's footprint on the frame's depth) says the hand cannot come down,
+    across the part or, for a jaw, along it (along_its_length)."""
     start = list(cfg.home_pose) if start is None else start
     candidates = [r for r in records if not cfg.classes or r.cls in cfg.classes]
     if not candidates:
@@ -167,6 +169,10 @@ def choose_target(records: list[Grasp], envelope: Envelope, cfg: PickConfig, sta
             reasons.append(f"{r.cls}: {r.reason or 'no robot pose (no calibration?)'}")
             continue
         blocked = clear(r) if clear is not None else None
+        if blocked and clear is not None and GRIPPER.get(r.cls) == "two-finger" and r.orientation_defined:
+            turned = along_its_length(r)  # its sides are crowded: try its ends
+            if clear(turned) is None:
+                r, blocked = turned, None
         if blocked:
             reasons.append(f"{r.cls}: {blocked}")
             continue
@@ -176,6 +182,17 @@ def choose_target(records: list[Grasp], envelope: Envelope, cfg: PickConfig, sta
             return r, plan, "ok"
         reasons.append(f"{r.cls}: {reason}")
     return None, [], "; ".join(reasons)
+
+
+def along_its_length(record: Grasp) -> Grasp:
+    """RECORD's grasp turned a quarter turn about the vertical, the jaw opened all the way: it closes
+    on the part's ends instead of its sides. For a part short enough for the stroke whose sides are
+    crowded (two adapters side by side); choose_target tries it where the hand cannot come down
+    across the part, and the clearance check refuses it for a part longer than the stroke."""
+    yaw = math.radians(closing_yaw_deg(record.chosen_pose()) + 90.0)
+    yaw = (yaw + math.pi / 2) % math.pi - math.pi / 2
+    pose = (*record.chosen_pose()[:3], math.pi * math.cos(yaw / 2), math.pi * math.sin(yaw / 2), 0.0)
+    return replace(record, pose_robot=tuple(round(float(v), 6) for v in pose), width_m=None)
 
 
 class CommandLog:

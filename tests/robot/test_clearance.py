@@ -13,7 +13,8 @@ from edgepick.errors import ParameterError
 from edgepick.geometry import Intrinsics
 from edgepick.robot.clearance import HandShape, hand_clearance, jaw_opening_m
 from edgepick.robot.envelope import Envelope
-from edgepick.robot.pick import PickConfig, choose_target
+from edgepick.robot.pick import PickConfig, along_its_length, choose_target
+from edgepick.robot.verdict import closing_yaw_deg, yaw_difference_deg
 from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.grasp_record import Grasp
 from tests.conftest import make_grasp
@@ -83,8 +84,8 @@ def test_a_jaw_opened_to_the_parts_width_clears_a_twin_that_the_whole_stroke_lan
     assert "finger" in hand_clearance(depth_of([adapter, twin]), INTR, CAL, HandShape(finger_room_m=0.04))(fitted)
 
 
-def test_a_finger_over_a_taller_neighbour_is_refused_and_another_object_chosen():
-    adapter = (0.28, 0.0, 0.036, rect(0.022, 0.031))  # 44 mm across x
+def test_a_finger_over_a_taller_neighbour_is_refused_then_the_jaw_turned_to_the_parts_ends():
+    adapter = (0.28, 0.0, 0.036, rect(0.022, 0.031))  # 44 mm across x, 62 mm along y
     tall = (0.28 + 0.065, 0.0, 0.09, rect(0.02, 0.05))  # a box beside it, where a finger of the open jaw goes
     depth = depth_of([adapter, tall])
     clear = hand_clearance(depth, INTR, CAL)
@@ -92,11 +93,34 @@ def test_a_finger_over_a_taller_neighbour_is_refused_and_another_object_chosen()
     along_y = record("adapter", 0.28, 0.0, 0.036, closing_yaw=math.pi / 2, area=2000)
     assert "finger" in clear(across_x)
     assert clear(along_y) is None  # closing the other way the fingers miss the box
+    chosen, plan, note = choose_target([across_x], Envelope(), PickConfig(), clear=clear)
+    assert chosen == along_its_length(across_x) and note == "ok"
+    assert yaw_difference_deg(closing_yaw_deg(chosen.chosen_pose()), 90.0) < 1e-6  # a quarter turn, at the same point
+    assert chosen.pose_robot[:3] == across_x.pose_robot[:3]
+    assert [s.width_m for s in plan if s.command == "open"] == [HandShape().jaw_opening_m]  # all the way: its length
+
+
+def test_a_part_crowded_on_its_sides_and_its_ends_is_refused_and_another_object_chosen():
+    adapter = (0.28, 0.0, 0.036, rect(0.022, 0.031))
+    beside = (0.28 + 0.065, 0.0, 0.09, rect(0.02, 0.05))
+    beyond = (0.28, 0.075, 0.09, rect(0.05, 0.02))  # and one past its end, where the turned jaw's finger goes
+    clear = hand_clearance(depth_of([adapter, beside, beyond]), INTR, CAL)
+    across_x = record("adapter", 0.28, 0.0, 0.036, closing_yaw=0.0, area=2000)
+    assert clear(along_its_length(across_x)) is not None
     other = record("box", 0.345, 0.0, 0.09, closing_yaw=0.0, area=1500)
     chosen, _, note = choose_target([across_x, other], Envelope(), PickConfig(), clear=clear)
     assert chosen is other, note
     chosen, _, note = choose_target([across_x], Envelope(), PickConfig(), clear=clear)
     assert chosen is None and "adapter: a finger would land" in note
+
+
+def test_a_box_longer_than_the_stroke_is_not_turned():
+    box = (0.28, 0.0, 0.08, rect(0.045, 0.08))  # 90 mm across x, 160 mm along y
+    beside = (0.28 + 0.085, 0.0, 0.12, rect(0.02, 0.05))  # a taller one where the jaw's finger goes
+    clear = hand_clearance(depth_of([box, beside]), INTR, CAL)
+    across_x = replace(record("box", 0.28, 0.0, 0.08, closing_yaw=0.0), width_m=0.09)
+    assert "finger" in clear(across_x) and "finger" in clear(along_its_length(across_x))  # its own top, the 2nd time
+    assert choose_target([across_x], Envelope(), PickConfig(), clear=clear)[0] is None
 
 
 def test_pick_config_carries_the_hand_and_reads_it_back_from_a_recording():
