@@ -156,6 +156,9 @@ def physics_run(record: Grasp, truth: list[dict], cal: Calibration, place_pose: 
 
     start = time.perf_counter()
     cfg = cfg or PhysicsConfig()
+    opening = cfg.jaw_stroke_m if opening_m is None else opening_m
+    if not 0 < opening <= cfg.jaw_stroke_m:
+        raise ParameterError(f"{{opening_m}}: must be in (0, {cfg.jaw_stroke_m}], the jaw's stroke", opening_m=opening_m)
     world = solids(truth, cal)
     k = _target(record, world)
     if k is None:
@@ -171,9 +174,6 @@ def physics_run(record: Grasp, truth: list[dict], cal: Calibration, place_pose: 
     sim = _Sim(mujoco, model, data, world, k, magnet, cfg)
     yaw = math.radians(closing_yaw_deg(record.chosen_pose()))
     grasp = np.asarray(record.chosen_pose()[:3], np.float64) + [0, 0, grasp_offset_m]
-    opening = cfg.jaw_stroke_m if opening_m is None else opening_m
-    if not 0 < opening <= cfg.jaw_stroke_m:
-        raise ParameterError(f"{{opening_m}}: must be in (0, {cfg.jaw_stroke_m}], the jaw's stroke", opening_m=opening_m)
     verdict = sim.run(grasp, yaw, np.asarray(place_pose[:3], np.float64), opening)
     if not verdict.success and sim.settled_m > SETTLED_M:  # the scene, not the grasp, failed
         verdict = replace(verdict, failure="unsettled", note=f"the scene does not stand as rendered: the "
