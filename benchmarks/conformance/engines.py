@@ -7,6 +7,7 @@ edgepick-openvino is the file `--placement auto --target openvino` makes.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -137,7 +138,7 @@ def openvino_placement_quantizer(placement: str) -> Quantizer:
     them (the float model in OpenVINO's forms, then PLACEMENT), to show what the choice left."""
     def run(job: Job) -> Quantized:
         from edgepick.quant.fidelity import Task
-        from edgepick.quant.onnx.placement import openvino_forms
+        from edgepick.quant.onnx.placement import openvino_forms, worst_sqnr
         from edgepick.quant.onnx.static import quantize_onnx_static
 
         name = f"edgepick-openvino-{placement}"
@@ -147,9 +148,9 @@ def openvino_placement_quantizer(placement: str) -> Quantizer:
         result = quantize_onnx_static(source, list(job.calib), job.work / f"{name}.onnx",
                                       options=OnnxOptions(placement=placement), input_shape=job.input_shape,
                                       progress=False, task=Task.parse(job.task) if job.task else None)
-        worst = min((f["sqnr_db"] for f in result.fidelity.values() if f.get("sqnr_db") is not None), default=None)
-        note = f"placement {placement}; worst SQNR on the check tensors {worst:.1f} dB" if worst is not None else \
-            f"placement {placement}"
+        worst = worst_sqnr(result.fidelity)
+        note = f"placement {placement}; worst SQNR on the check tensors " + \
+            ("exact" if math.isinf(worst) else f"{worst:.1f} dB")
         if made:
             note += f"; {made['subsampled_pointwise_convs']} strided 1x1 convs subsampled first"
         return Quantized(Path(result.out), (Path(result.out),), calib_s=result.calib_s, note=note)
