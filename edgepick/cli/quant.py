@@ -156,8 +156,9 @@ def quantize() -> None:
 @click.option("--min-agreement", default=None, type=float, metavar="SHARE",
               help="For an .onnx MODEL, accuracy-aware: where the file misses the budget, try AdaRound first (kept "
                    "when it brings the outputs closer), then leave the activations whose float values bring the "
-                   "outputs closest to fp32 float, one at a time, until every output that decides something agrees "
-                   "with fp32 on at least SHARE (0-1) of its decisions on the check tensors.")
+                   "outputs closest to fp32 float, one at a time, then whole regions of the graph (with a large "
+                   "enough --max-float-layers), until every output that decides something agrees with fp32 on at "
+                   "least SHARE (0-1) of its decisions on the check tensors.")
 @click.option("--min-sqnr", default=None, type=float, metavar="DB",
               help="For an .onnx MODEL, accuracy-aware: ... until every output's SQNR against fp32 is at least DB.")
 @click.option("--max-float-layers", default=MAX_FLOAT_LAYERS, show_default=True,

@@ -101,7 +101,8 @@ def test_a_float_activation_is_kept_only_when_it_brings_both_halves_of_the_check
     import onnx
 
     from edgepick.quant.fidelity import Task, TaskKind
-    from edgepick.quant.onnx.accuracy import Evaluator, evaluator_for, quantized_activations, restore_fidelity
+    from edgepick.quant.onnx.accuracy import Evaluator, evaluator_for, restore_fidelity
+    from edgepick.quant.onnx.floating import quantized_activations
 
     path, calib, check, _, tmp = faint
     plain = quantize_onnx_static(path, calib, tmp / "halves.onnx", methods=PtqMethods(bias_correction="none"),
@@ -119,3 +120,59 @@ def test_a_float_activation_is_kept_only_when_it_brings_both_halves_of_the_check
     _, record = restore_fidelity(onnx.load(plain.out), evaluator, FidelityBudget(min_sqnr_db=25.0))
     assert record["scan"][0]["tensor"] == "input"
     assert record["float_tensors"] == (["input"] if helps_both_halves else [])
+
+
+@pytest.mark.slow
+def test_where_single_activations_are_not_enough_whole_regions_go_float_with_their_convs_weights(tmp_path):
+    """A budget past what any few activations give (the net's own int8 SQNR + 8 dB): the mode goes
+    on region by region, the convs that then read nothing on the uint8 grid get their float weights,
+    the file counts them as float convs, and its outputs are closer to fp32's than all-int8."""
+    from tests.quant.onnx_models import calib_tensors, export_torch
+
+    path, calib = export_torch(tmp_path / "net.onnx"), calib_tensors(16)
+    plain = quantize_onnx_static(path, calib, tmp_path / "plain.onnx", progress=False)
+    budget = FidelityBudget(min_sqnr_db=plain.fidelity["logits"]["sqnr_db"] + 8, max_float=100)
+    wide = quantize_onnx_static(path, calib, tmp_path / "wide.onnx", progress=False, budget=budget)
+    record = wide.quant["accuracy_aware"]
+    singles = {s["tensor"] for s in record["scan"] if s["gain_db"] > 0}
+    assert set(record["float_tensors"]) - singles  # tensors the scan never ranked alone: a region's
+    assert record["float_weight_convs"] and wide.int8_convs == wide.convs - len(record["float_weight_convs"])
+    assert wide.fidelity["logits"]["sqnr_db"] > plain.fidelity["logits"]["sqnr_db"]
+
+
+def test_the_region_search_takes_the_region_that_meets_the_budget_then_its_shortest_half(tmp_path, monkeypatch):
+    """The search itself (`_widen`), on a scripted evaluator: no region but the third brings the
+    error under the budget's, and only its first half is needed."""
+    import math
+
+    import onnx
+
+    from edgepick.quant.fidelity import OutputFidelity, Task, TaskKind
+    from edgepick.quant.onnx import accuracy
+    from tests.quant.onnx_models import faint_channel_model
+
+    model = onnx.load(str(faint_channel_model(tmp_path / "faint.onnx")))
+    needed = {"t8", "t9"}  # of the third region, t8..t11
+
+    class Scripted:  # the float tensors of a graph: what the stand-in float_tensors wrote into it
+        float_model = model
+
+        def measure(self, graph):
+            floated = set(graph.doc_string.split(","))
+            error = 0.001 if needed <= floated else 0.5 - 0.01 * len(floated)
+            return {"output": OutputFidelity(Task(TaskKind.RAW), signal=1.0, noise=error)}, error
+
+        def half_errors(self, graph):
+            return (self.measure(graph)[1],) * 2
+
+    def float_tensors(graph, names, float_model, weights=False):
+        graph.doc_string = ",".join(names)
+        return len(names)
+
+    rest = [f"t{k}" for k in range(64)]  # 16 regions of 4
+    budget = FidelityBudget(min_sqnr_db=20.0, max_float=100)
+    monkeypatch.setattr(accuracy, "float_tensors", float_tensors)
+    found = accuracy._widen(model, [], rest, Scripted(), budget, (0.4, 0.4), lambda _: None)
+    assert found is not None
+    _, names, fidelity = found
+    assert names == ["t8", "t9"] and math.isclose(fidelity["output"].sqnr_db, 30.0)

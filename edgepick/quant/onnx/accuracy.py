@@ -1,19 +1,16 @@
-"""Fidelity first, for any ONNX model: which activations to leave float, found by measuring.
-
-A tensor is left float by taking the Q -> DQ pair off it: the ops that read it then read the
-float values, and the op that writes it writes them float; onnxruntime runs both in float, and
-OpenVINO the same. That is how a node is kept float too (`QuantConfig.keep_float`): its weights,
-the tensors it reads and the tensors it writes, so that it computes what fp32 computes from what
-the int8 graph gives it. (Leaving only its weights float, with its input still on the uint8
-grid, can lower fidelity: the int8 graph's errors no longer meet the rounding they were measured
-with.)
+"""Fidelity first, for any ONNX model: which activations to leave float, found by measuring
+(how a tensor goes float: quant/onnx/floating.py).
 
 The scan measures, on the real int8 graph, how much output SQNR keeping each activation float
 gains: the activations are split into blocks in graph order, each block is measured float at
 once, the best blocks are split again, down to single tensors (a few dozen graphs instead of one
 per tensor). The accuracy-aware mode then keeps the best-ranked tensors float one at a time until
 the task fidelity meets the budget, skipping any that would not bring the outputs closer on both
-halves of the check tensors (a gain on their sum alone can be one input's noise).
+halves of the check tensors (a gain on their sum alone can be one input's noise). Where single
+tensors are not enough (an error spread over dozens of activations, as in a text recogniser),
+whole regions of the graph go float, the one that brings the outputs closest first, with the
+weights of the ops that then read nothing on the uint8 grid: mixed tensor by tensor, float and
+int8 can end further from fp32 than either.
 """
 
 from __future__ import annotations
@@ -28,8 +25,9 @@ from typing import Any
 import numpy as np
 
 from edgepick.errors import ParameterError
-from edgepick.onnx_graph import Graph, copy_model
+from edgepick.onnx_graph import copy_model
 from edgepick.quant.fidelity import BalancedError, OutputFidelity, Task, compare_outputs
+from edgepick.quant.onnx.floating import float_tensors, float_weight_convs, quantized_activations
 
 SCAN_BLOCKS = 16  # blocks of activations measured float first
 SCAN_KEEP = 4  # the best blocks (then sub-blocks) split again
@@ -37,97 +35,6 @@ SCAN_TENSORS = 4  # check tensors the scan measures on (the budget is checked on
 # an output's SQNR under this is int8 far from fp32 (segmentation logits and text maps measure 15-25 dB): the
 # file is written with a warning naming the activations to leave float
 SQNR_FLOOR_DB = 10.0
-
-
-def quantized_activations(model: Any) -> list[str]:
-    """The activations of the QDQ MODEL on the uint8 grid (what a QuantizeLinear reads, weights not),
-    in graph order."""
-    weights = {i.name for i in model.graph.initializer}
-    return list(dict.fromkeys(n.input[0] for n in model.graph.node
-                              if n.op_type == "QuantizeLinear" and n.input[0] not in weights))
-
-
-REMOVABLE_OPS = ("Relu", "Clip")  # onnxruntime's QDQ writer drops them after a quantized op: the uint8 grid clamps
-
-
-def float_tensors(model: Any, names: Sequence[str], float_model: Any) -> int:
-    """Take the Q -> DQ pairs off the tensors NAMES of MODEL (in place): their readers get the float
-    tensor. Where onnxruntime's writer dropped a Relu or Clip that wrote the tensor in FLOAT_MODEL
-    (the uint8 grid clamped for it), the op is put back. Returns how many pairs went."""
-    g, fg = Graph(model), Graph(float_model)
-    outputs = g.outputs
-    dropped = 0
-    for name in names:
-        made_by, writer = fg.producer(name), g.producer(name)
-        restore = (made_by is not None and made_by.op_type in REMOVABLE_OPS and writer is not None
-                   and writer.op_type != made_by.op_type)
-        for q in [n for n in g.consumers(name) if n.op_type == "QuantizeLinear"]:
-            dqs = [n for n in g.consumers(q.output[0]) if n.op_type == "DequantizeLinear"]
-            if len(dqs) != len(g.consumers(q.output[0])) or any(dq.output[0] in outputs for dq in dqs):
-                continue  # a reader takes the uint8 codes themselves, or a DQ is the graph's output: leave it
-            for dq in dqs:
-                readers = g.consumers(dq.output[0])
-                g.redirect(dq.output[0], name)
-                for reader in readers:
-                    if reader.op_type in ("Conv", "ConvTranspose"):
-                        _float_bias(g, reader, fg)
-                g.remove(dq)
-            g.remove(q)
-            dropped += 1
-            if restore:
-                assert made_by is not None and writer is not None
-                _restore_activation(g, made_by, writer, fg)
-                restore = False
-    return dropped
-
-
-def _float_bias(g: Graph, conv: Any, fg: Graph) -> None:
-    """Give CONV its float bias back (FG: the float graph): onnxruntime quantizes a conv's bias to
-    int32 on the input's scale times the weight's, which is coarse where the input had a wide range,
-    and a float input no longer needs it."""
-    if len(conv.input) < 3 or not conv.input[2]:
-        return
-    dq = g.producer(conv.input[2])
-    bias = fg.initializer(conv.input[2])
-    if dq is None or dq.op_type != "DequantizeLinear" or bias is None:
-        return
-    if not g.is_initializer(conv.input[2]):
-        g.add_tensor(bias)
-    if len(g.consumers(conv.input[2])) == 1:
-        g.remove(dq)
-
-
-def _restore_activation(g: Graph, activation: Any, writer: Any, fg: Graph) -> None:
-    """Put the float model's ACTIVATION (a Relu or Clip) back between WRITER and the tensor it wrote."""
-    import onnx
-
-    name = activation.output[0]
-    before = f"{name}_before_{activation.op_type.lower()}"
-    g.set_output(writer, name, before)
-    node = onnx.NodeProto()
-    node.CopyFrom(activation)
-    node.input[0] = before
-    for bound in [i for i in fg.graph.initializer if i.name in node.input[1:] and not g.is_initializer(i.name)]:
-        g.add_tensor(bound)
-    constants = {n.output[0]: n for n in fg.nodes if n.op_type == "Constant"}
-    g.append([constants[i] for i in node.input[1:] if i in constants])
-    g.append([node])
-    g.sort()
-
-
-def node_tensors(model: Any, nodes: Sequence[str]) -> list[str]:
-    """The float tensors the nodes NODES of the QDQ MODEL read and write, as the float graph names
-    them (a DequantizeLinear's output traced back to what its QuantizeLinear read)."""
-    g = Graph(model)
-    found: list[str] = []
-    for node in (n for n in g.nodes if n.name in set(nodes)):
-        for name in node.input:
-            dq = g.producer(name)
-            q = g.producer(dq.input[0]) if dq is not None and dq.op_type == "DequantizeLinear" else None
-            if q is not None and q.op_type == "QuantizeLinear":
-                found.append(q.input[0])
-        found.extend(o for o in node.output if any(c.op_type == "QuantizeLinear" for c in g.consumers(o)))
-    return list(dict.fromkeys(found))
 
 
 @dataclass
@@ -159,6 +66,17 @@ class Evaluator:
         session = self.session(model)
         pairs = ((ref, session.run(self.names, {self.input_name: x})) for x, ref in zip(self.inputs, self.reference))
         return compare_outputs(self.names, self.tasks, pairs, self.nhwc)
+
+    def measure(self, model: Any) -> tuple[dict[str, OutputFidelity], float]:
+        """`fidelity` and `error` of MODEL on every check tensor, from one run of each."""
+        session = self.session(model)
+        outputs = [session.run(self.names, {self.input_name: x}) for x in self.inputs]
+        errors = [BalancedError(self.nhwc) for _ in self.names]
+        for ref, got in zip(self.reference, outputs):
+            for error, r, t in zip(errors, ref, got):
+                error.add(r, t)
+        return compare_outputs(self.names, self.tasks, zip(self.reference, outputs), self.nhwc), \
+            max(e.value for e in errors)
 
     def error(self, model: Any, count: int | None = SCAN_TENSORS) -> float:
         """The worst output's balanced relative error (quant/fidelity.py) of MODEL on the first COUNT
@@ -239,9 +157,10 @@ class FidelityBudget:
 
 def restore_fidelity(model: Any, evaluator: Evaluator, budget: FidelityBudget,
                      progress: Callable[[str], None] = lambda _: None) -> tuple[Any, dict]:
-    """MODEL (a QDQ graph) with the fewest activations left float, in the scan's order, that meets
-    BUDGET (or the best found within budget.max_float); a tensor whose float values would lower
-    the measured fidelity is not kept. Returns the graph and what was done."""
+    """MODEL (a QDQ graph) with the fewest activations left float that meets BUDGET (or the best
+    found within budget.max_float). First the scan's best single tensors one at a time, a tensor
+    kept only when it brings the outputs closer on both halves of the check tensors; where that is
+    not enough, whole regions of the graph (`_widen`). Returns the graph and what was done."""
     fidelity = evaluator.fidelity(model)
     record: dict = {"before": {n: f.to_dict() for n, f in fidelity.items()}, "float_tensors": []}
     if budget.met(fidelity):
@@ -265,11 +184,74 @@ def restore_fidelity(model: Any, evaluator: Evaluator, budget: FidelityBudget,
         progress(f"{len(kept)} float: {name}")
         if budget.met(fidelity):
             break
+    if not budget.met(fidelity) and len(kept) < budget.max_float:
+        rest = [t for t in quantized_activations(original) if t not in kept]
+        widened = _widen(original, kept, rest, evaluator, budget, best, progress)
+        if widened is not None:
+            model, kept, fidelity = widened
+            before = set(float_weight_convs(original))
+            record["float_weight_convs"] = [n for n in float_weight_convs(model) if n not in before]
     record.update(float_tensors=kept, after={n: f.to_dict() for n, f in fidelity.items()}, met=budget.met(fidelity),
                   graphs_measured=evaluator.graphs)
     if kept:
         record["speed"] = speed_cost(original, model, evaluator.inputs[0])
     return model, record
+
+
+def _summary(fidelity: dict[str, OutputFidelity]) -> str:
+    """The worst output SQNR and the lowest agreement of FIDELITY, for a progress line."""
+    agreements = [f.agreement for f in fidelity.values() if f.agreement is not None]
+    worst = min(f.sqnr_db for f in fidelity.values())
+    return f"worst SQNR {worst:.1f} dB" + (f", agreement {100 * min(agreements):.2f}%" if agreements else "")
+
+
+def _widen(original: Any, kept: list[str], rest: list[str], evaluator: Evaluator, budget: FidelityBudget,
+           best: tuple[float, ...], progress: Callable[[str], None]) -> tuple[Any, list[str], dict] | None:
+    """ORIGINAL with KEPT and whole regions of REST (activations in graph order, SCAN_BLOCKS
+    stretches of it) left float, one region at a time, each time the one that brings the outputs
+    closest, until BUDGET is met; the last region is then halved while a half still meets it.
+    Regions, not single tensors: float and int8 mixed tensor by tensor can end further from fp32
+    than either (the int8 parts were calibrated on what fp32 gives them). Taken only if it brings
+    the outputs closer than BEST on both halves of the check tensors; else None."""
+    room = budget.max_float - len(kept)
+    regions = [list(b) for b in np.array_split(np.array(rest, dtype=object), min(SCAN_BLOCKS, len(rest))) if len(b)]
+
+    def trial(names: list[str]) -> tuple[Any, dict[str, OutputFidelity], float]:
+        graph = copy_model(original)
+        float_tensors(graph, [*kept, *names], evaluator.float_model, weights=True)
+        return graph, *evaluator.measure(graph)
+
+    chosen: list[str] = []
+    found: tuple[Any, dict[str, OutputFidelity], float] | None = None
+    while regions:
+        fits = [r for r in regions if len(chosen) + len(r) <= room]
+        if not fits:
+            break
+        closest: tuple[Any, dict[str, OutputFidelity], float] = (None, {}, math.inf)
+        region = fits[0]
+        for candidate in fits:  # the closest, one graph held at a time
+            measured = trial([*chosen, *candidate])
+            if measured[2] < closest[2]:
+                closest, region = measured, candidate
+        graph, fidelity, error = closest
+        if found is not None and error >= found[2]:
+            break  # no region brings the outputs closer
+        regions.remove(region)
+        if budget.met(fidelity):
+            while len(region) > 1:  # the shortest half of the region that still meets the budget
+                halves = [list(h) for h in np.array_split(np.array(region, dtype=object), 2)]
+                met = [(t, h) for t, h in ((trial([*chosen, *h]), h) for h in halves) if budget.met(t[1])]
+                if not met:
+                    break
+                (graph, fidelity, error), region = met[0]
+            chosen, found = [*chosen, *region], (graph, fidelity, error)
+            progress(f"{len(kept) + len(chosen)} float: {_summary(fidelity)}, budget met")
+            break
+        chosen, found = [*chosen, *region], (graph, fidelity, error)
+        progress(f"{len(kept) + len(chosen)} float: {_summary(fidelity)}, budget not met")
+    if found is None or any(e >= b for e, b in zip(evaluator.half_errors(found[0]), best)):
+        return None  # not closer to fp32 on both halves of the check tensors: kept as it was
+    return found[0], [*kept, *chosen], found[1]
 
 
 def speed_cost(int8: Any, kept_float: Any, x: np.ndarray, threads: int = 2) -> dict:

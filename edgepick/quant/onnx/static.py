@@ -75,17 +75,11 @@ from edgepick.quant.config import (
 )
 from edgepick.quant.fidelity import Task, check_task_names, output_tasks
 from edgepick.quant.methods import INT16
-from edgepick.quant.onnx.accuracy import (
-    Evaluator,
-    FidelityBudget,
-    evaluator_for,
-    fidelity_first,
-    float_tensors,
-    node_tensors,
-)
+from edgepick.quant.onnx.accuracy import Evaluator, FidelityBudget, evaluator_for, fidelity_first
 from edgepick.quant.onnx.adaround import adaround_onnx
 from edgepick.quant.onnx.calibrate import Collector, calibrated_tensors, check_memory, release_memory
 from edgepick.quant.onnx.equalize import equalize_onnx
+from edgepick.quant.onnx.floating import float_tensors, node_tensors
 from edgepick.quant.onnx.gelu import sigmoid_gelu
 from edgepick.quant.onnx.inputs import check_tensor
 from edgepick.quant.onnx.measure import correct_onnx_biases, qdq_convs, saturating_onnx_convs, to_seven_bit_onnx
@@ -272,7 +266,9 @@ def _write_checked(int8: Any, path: Path, prepared: Any, config: QuantConfig, qu
     also recorded in the file, and the file's conv report."""
     import onnx
 
-    expected = sum(1 for n in prepared.graph.node if n.op_type in CONV_OPS and n.name not in config.keep_float)
+    # every conv int8 but those kept float and those the accuracy-aware mode gave float weights
+    made_float = {*config.keep_float, *quant.get("accuracy_aware", {}).get("float_weight_convs", [])}
+    expected = sum(1 for n in prepared.graph.node if n.op_type in CONV_OPS and n.name not in made_float)
     onnx.save(int8, str(path))
     report = require_int8_convs(path, expected)
     fidelity = {n: f.to_dict() for n, f in evaluator.fidelity(int8).items()}
