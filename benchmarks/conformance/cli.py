@@ -62,6 +62,8 @@ def main(argv: Sequence[str] | None = None, table: Sequence[Entry] = MODELS,
     ap.add_argument("--calib", type=int, default=32, help="calibration inputs per model")
     ap.add_argument("--test", type=int, default=16, help="test inputs per model (other inputs than the calibration's)")
     ap.add_argument("--runs", type=int, default=20, help="timed runs per engine")
+    ap.add_argument("--repeats", type=int, default=1, help="time every engine this many times, one timing after "
+                    "another: the report gives the median p50 and speed-up and the speed-ups' range (default 1)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--out", type=Path, default=None, help="also write the report to this .md (and its .csv, .json, .png)")
     ap.add_argument("--save", action="store_true", help="also write it under benchmarks/results/conformance/")
@@ -70,6 +72,8 @@ def main(argv: Sequence[str] | None = None, table: Sequence[Entry] = MODELS,
     if args.list:
         print(listing(table))
         return 0
+    if args.repeats < 1:
+        ap.error(f"--repeats: {args.repeats}; give 1 or more")
     names = [n for n in args.only.split(",") if n]
     unknown = [n for n in names if n not in {e.name for e in table}]
     if unknown:
@@ -77,13 +81,13 @@ def main(argv: Sequence[str] | None = None, table: Sequence[Entry] = MODELS,
     chosen = [e for e in table if not names or e.name in names]
     settings = Settings(engines=engine_table.select([n for n in args.engines.split(",") if n] or None, engines),
                         cache=args.cache or default_cache(), calib=args.calib, test=args.test, runs=args.runs,
-                        threads=args.threads)
+                        threads=args.threads, repeats=args.repeats)
     log = lambda text: print(text, file=sys.stderr, flush=True)  # noqa: E731
     t0 = time.perf_counter()
     results = [run_model(entry, settings, log) for entry in chosen]
     command = "python benchmarks/conformance.py " + shlex.join(argv if argv is not None else sys.argv[1:])
     header = Header(command=command.strip(), machine=machine_line(), versions=versions(), calib=args.calib,
-                    test=args.test, runs=args.runs, threads=args.threads,
+                    test=args.test, runs=args.runs, threads=args.threads, repeats=args.repeats,
                     date=f"{date.today().isoformat()}, {time.perf_counter() - t0:.0f} s wall")
     targets = [args.out] if args.out else []
     if args.save:

@@ -33,6 +33,7 @@ class Header:
     runs: int
     threads: int
     date: str
+    repeats: int = 1
 
 
 def percent(v: float | None) -> str:
@@ -43,6 +44,14 @@ def percent(v: float | None) -> str:
 def number(v: float | None, digits: int = 2, suffix: str = "") -> str:
     """V with DIGITS decimals and SUFFIX, '-' when there is none."""
     return "-" if v is None else f"{v:.{digits}f}{suffix}"
+
+
+def speedup_text(e: EngineResult) -> str:
+    """The speed-up, with its range over the repeats where it was timed more than once."""
+    if e.speedup is None:
+        return "-"
+    low_high = f" [{e.speedup_range[0]:.2f}, {e.speedup_range[1]:.2f}]" if e.speedup_range else ""
+    return f"{e.speedup:.2f}x{low_high}"
 
 
 def sqnr_text(e: EngineResult) -> str:
@@ -69,14 +78,16 @@ def markdown(results: list[ModelResult], header: Header, figure: str | None = No
              "own decision (boxes, strings, classes, masks) from each engine's outputs against fp32's on "
              "onnxruntime; 'vs truth' scores it against what the inputs were made to show, where they know it. "
              f"p50 over {header.runs} timed runs per engine, all engines of a model in one process in "
-             "alternating blocks of 5; speed-up against fp32 on the same runtime.", "",
+             "alternating blocks of 5; speed-up against fp32 on the same runtime" +
+             (f"; the timing done {header.repeats} times, one after another: the median p50 and speed-up, "
+              "the speed-ups' lowest and highest in brackets." if header.repeats > 1 else "."), "",
              "## Summary", "", "Task metric against fp32 (%) and speed-up, per engine:", "",
              "| " + " | ".join(["model", "family", "metric", "fp32 vs truth (%)", *engines]) + " |",
              "|---|---|---|---|" + "---|" * len(engines)]
     for m in results:
         by = {e.engine: e for e in m.engines}
         fp32 = by.get(BASELINES["onnxruntime"])
-        cells = [("failed" if by[n].failure else f"{percent(by[n].metric)}, {number(by[n].speedup)}x")
+        cells = [("failed" if by[n].failure else f"{percent(by[n].metric)}, {speedup_text(by[n])}")
                  if n in by else "-" for n in engines]
         cells = cells if not m.failure else ["model failed: " + m.failure]
         lines.append("| " + " | ".join([m.name, m.family, m.metric, percent(fp32.truth) if fp32 else "-", *cells]) + " |")
@@ -98,7 +109,7 @@ def markdown(results: list[ModelResult], header: Header, figure: str | None = No
             if e.regressed:
                 status = "**regressed** " + status
             lines.append(f"| {e.engine} ({e.runtime}) | {percent(e.metric)} | {percent(e.truth)} | {percent(e.minimum)} | "
-                         f"{sqnr_text(e)} | {number(e.p50_ms)} | {number(e.speedup, suffix='x')} | {number(e.size_mb)} | "
+                         f"{sqnr_text(e)} | {number(e.p50_ms)} | {speedup_text(e)} | {number(e.size_mb)} | "
                          f"{number(e.quantize_s, 1)} | {number(e.calib_s, 1)} | {number(e.peak_mb, 0)} | {status} |")
         also = [f"{e.engine}: " + ", ".join(f"{k} {percent(v)}%" for k, v in e.also.items()) for e in m.engines if e.also]
         if also:
@@ -120,7 +131,8 @@ def markdown(results: list[ModelResult], header: Header, figure: str | None = No
 def write_csv(results: list[ModelResult], path: Path) -> None:
     """One row per model and engine, the lowest SQNR over the outputs."""
     fields = ["model", "family", "engine", "runtime", "metric_name", "metric", "truth", "min_sqnr_db", "p50_ms",
-              "speedup", "size_mb", "quantize_s", "calib_s", "peak_mb", "minimum", "regressed", "failure", "note"]
+              "speedup", "speedup_low", "speedup_high", "size_mb", "quantize_s", "calib_s", "peak_mb", "minimum",
+              "regressed", "failure", "note"]
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(fields)
@@ -128,8 +140,9 @@ def write_csv(results: list[ModelResult], path: Path) -> None:
             for e in m.engines:
                 sqnr = [v for v in e.sqnr_db.values() if v is not None]
                 w.writerow([m.name, m.family, e.engine, e.runtime, m.metric, e.metric, e.truth,
-                            min(sqnr) if sqnr else "", e.p50_ms, e.speedup, e.size_mb, e.quantize_s, e.calib_s,
-                            e.peak_mb, e.minimum, e.regressed, e.failure or "", e.note])
+                            min(sqnr) if sqnr else "", e.p50_ms, e.speedup, *(e.speedup_range or ("", "")),
+                            e.size_mb, e.quantize_s, e.calib_s, e.peak_mb, e.minimum, e.regressed, e.failure or "",
+                            e.note])
 
 
 def write_json(results: list[ModelResult], header: Header, path: Path) -> None:

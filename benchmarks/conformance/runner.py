@@ -37,6 +37,7 @@ class Settings:
     test: int = 16  # test inputs, seed 1
     runs: int = 20  # timed calls per engine
     threads: int = 2
+    repeats: int = 1  # timings of every engine, one after another; the report gives their median and range
 
 
 @dataclass(frozen=True)
@@ -50,7 +51,8 @@ class EngineResult:
     truth: float | None = None  # the task metric against the inputs' own truth, where they have one
     sqnr_db: dict[str, float | None] = field(default_factory=dict)  # per output against fp32; None: exact
     p50_ms: float | None = None
-    speedup: float | None = None  # fp32's p50 on the same runtime over this engine's
+    speedup: float | None = None  # fp32's p50 on the same runtime over this engine's (median over the repeats)
+    speedup_range: tuple[float, float] | None = None  # the lowest and highest speed-up over the repeats (2 or more)
     size_mb: float | None = None
     quantize_s: float | None = None  # wall time of the quantizer call
     calib_s: float | None = None  # the quantizer's own calibration time, where it reports one
@@ -273,17 +275,28 @@ def _score(entry: Entry, engine: Engine, run, test: list[np.ndarray], reference:
 def _time(results: dict[str, EngineResult], runners: dict, test: list[np.ndarray], settings: Settings,
           log: Callable[[str], None], name: str) -> None:
     """p50 of every engine that ran, timed in one process in alternating blocks, and its speed-up
-    against fp32 on the same runtime (in RESULTS, in place)."""
+    against fp32 on the same runtime (in RESULTS, in place). With settings.repeats, the timing is
+    done that many times: the median p50 and speed-up (each speed-up a ratio within one timing),
+    and the speed-ups' range."""
     if not runners or settings.runs < 1:
         return
-    log(f"{name}: timing {len(runners)} engines, {settings.runs} runs each")
+    log(f"{name}: timing {len(runners)} engines, {settings.runs} runs each" +
+        (f", {settings.repeats} times" if settings.repeats > 1 else ""))
     names = list(runners)
-    times = interleaved_times([lambda i, r=runners[n]: r(test[i % len(test)]) for n in names], settings.runs)
-    p50 = {n: statistics.median(t) for n, t in zip(names, times)}
+    p50s: dict[str, list[float]] = {n: [] for n in names}
+    speedups: dict[str, list[float]] = {n: [] for n in names}
+    for _ in range(settings.repeats):
+        times = interleaved_times([lambda i, r=runners[n]: r(test[i % len(test)]) for n in names], settings.runs)
+        p50 = {n: statistics.median(t) for n, t in zip(names, times)}
+        for n in names:
+            p50s[n].append(p50[n])
+            base = p50.get(BASELINES[results[n].runtime])
+            if base:
+                speedups[n].append(base / p50[n])
     for n in names:
-        base = p50.get(BASELINES[results[n].runtime])
-        results[n] = replace(results[n], p50_ms=round(p50[n], 2),
-                             speedup=round(base / p50[n], 3) if base else None)
+        spread = (round(min(speedups[n]), 3), round(max(speedups[n]), 3)) if len(speedups[n]) > 1 else None
+        results[n] = replace(results[n], p50_ms=round(statistics.median(p50s[n]), 2), speedup_range=spread,
+                             speedup=round(statistics.median(speedups[n]), 3) if speedups[n] else None)
 
 
 def _judge(entry: Entry, result: EngineResult) -> EngineResult:

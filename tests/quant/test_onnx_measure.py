@@ -41,17 +41,27 @@ def _conv_mean(path, conv, tensors):
 
 
 def test_empirical_correction_removes_a_planted_mean_shift(tmp_path):
+    """The correction itself (the pass then keeps it only where the outputs come closer, below)."""
+    from edgepick.onnx_graph import copy_model
+    from edgepick.quant.onnx.measure import correct_onnx_biases
+    from edgepick.quant.onnx.qdq import writes_float_output
+
     path = _export(Planted(), tmp_path / "f.onnx")
     tensors = _tensors(60)
     target = _conv_mean(path, "/b/Conv", tensors)
-    shift = {}
-    for method in ("none", "empirical"):
-        out = tmp_path / f"{method}.onnx"
-        result = quantize_onnx_static(path, tensors, out, methods=PtqMethods(bias_correction=method), progress=False)
-        assert result.int8_convs == 3
-        shift[method] = float(np.abs(_conv_mean(out, "/b/Conv", tensors) - target).max())
+    result = quantize_onnx_static(path, tensors, tmp_path / "none.onnx", methods=PtqMethods(bias_correction="none"),
+                                  progress=False)
+    assert result.int8_convs == 3
+    fp32, plain = onnx.load(str(path)), onnx.load(str(tmp_path / "none.onnx"))
+    corrected = copy_model(plain)
+    correct_onnx_biases(fp32, corrected, tensors, writes_float_output(fp32))
+    onnx.save(corrected, str(tmp_path / "empirical.onnx"))
+    shift = {m: float(np.abs(_conv_mean(tmp_path / f"{m}.onnx", "/b/Conv", tensors) - target).max())
+             for m in ("none", "empirical")}
     assert shift["empirical"] < shift["none"] / 10, shift
-    quant = _quant(tmp_path / "empirical.onnx")
+    quantize_onnx_static(path, tensors, tmp_path / "pass.onnx", methods=PtqMethods(bias_correction="empirical"),
+                         progress=False)
+    quant = _quant(tmp_path / "pass.onnx")
     assert quant["bias_correction"] == "empirical" and quant["measured_images"] == len(tensors)
     logits = {m: qdq_convs(onnx.load(str(tmp_path / f"{m}.onnx")))["/logits/Conv"] for m in ("none", "empirical")}
     codes = {m: Values(onnx.load(str(tmp_path / f"{m}.onnx")))[c.bias_codes] for m, c in logits.items()}
@@ -88,16 +98,42 @@ def test_one_tensor_clipped_hard_does_not_set_the_bias_of_the_others(tmp_path):
 
 
 def test_the_convs_summed_into_the_logits_are_left_alone(tmp_path):
+    from edgepick.onnx_graph import copy_model
+    from edgepick.quant.onnx.measure import correct_onnx_biases
+    from edgepick.quant.onnx.qdq import writes_float_output
+
     path = _export(SummedLogits(), tmp_path / "f.onnx")
-    codes = {}
-    for method in ("none", "empirical"):
-        quantize_onnx_static(path, _tensors(60), tmp_path / f"{method}.onnx", methods=PtqMethods(bias_correction=method),
-                        progress=False)
-        model = onnx.load(str(tmp_path / f"{method}.onnx"))
-        codes[method] = {name: Values(model)[c.bias_codes] for name, c in qdq_convs(model).items()}
+    quantize_onnx_static(path, _tensors(60), tmp_path / "none.onnx", methods=PtqMethods(bias_correction="none"),
+                         progress=False)
+    fp32, plain = onnx.load(str(path)), onnx.load(str(tmp_path / "none.onnx"))
+    corrected = copy_model(plain)
+    correct_onnx_biases(fp32, corrected, _tensors(60), writes_float_output(fp32))
+    codes = {m: {name: Values(model)[c.bias_codes] for name, c in qdq_convs(model).items()}
+             for m, model in (("none", plain), ("empirical", corrected))}
     assert sorted(codes["none"]) == ["/a/Conv", "/b/Conv", "/logits/Conv", "/low/Conv"]
     changed = {name for name in codes["none"] if not np.array_equal(codes["none"][name], codes["empirical"][name])}
     assert changed == {"/a/Conv", "/b/Conv"}, changed
+
+
+def test_a_correction_that_brings_the_outputs_no_closer_is_not_kept(tmp_path):
+    """The pass keeps empirical bias correction only where the outputs come closer to fp32's on both
+    halves of its check tensors; the record says which, and a file whose correction was dropped has
+    the uncorrected file's biases (on these two small nets, with these weights, it is dropped)."""
+    import torch
+
+    for make, name in ((Planted, "planted"), (SummedLogits, "summed")):
+        torch.manual_seed(0)
+        path = _export(make(), tmp_path / f"{name}.onnx")
+        files = {m: tmp_path / f"{name}-{m}.onnx" for m in ("none", "empirical")}
+        for method, out in files.items():
+            quantize_onnx_static(path, _tensors(60), out, methods=PtqMethods(bias_correction=method), progress=False)
+        record = _quant(files["empirical"])["bias_correction_kept"]
+        before, after = record["error_before"], record["error_after"]
+        assert record["kept"] == all(a < b for a, b in zip(after, before)) and len(before) == 2
+        models = {m: onnx.load(str(f)) for m, f in files.items()}
+        same = all(np.array_equal(Values(models["none"])[c.bias_codes], Values(models["empirical"])[c.bias_codes])
+                   for c in qdq_convs(models["empirical"]).values())
+        assert same != record["kept"], name
 
 
 def test_convs_are_corrected_in_waves_after_everything_they_read(tmp_path):
