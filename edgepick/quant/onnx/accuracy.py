@@ -234,7 +234,7 @@ def _widen(original: Any, kept: list[str], rest: list[str], evaluator: Evaluator
             if measured[2] < closest[2]:
                 closest, region = measured, candidate
         graph, fidelity, error = closest
-        if found is not None and error >= found[2]:
+        if graph is None or (found is not None and error >= found[2]):
             break  # no region brings the outputs closer
         regions.remove(region)
         if budget.met(fidelity):
