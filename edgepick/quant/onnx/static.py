@@ -201,11 +201,18 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
             if options.gelu == GeluForm.SIGMOID:  # before the bias correction, which then measures it
                 rewrites["sigmoid_gelu"] = sigmoid_gelu(int8)
             return int8, _measure(prepared, int8, cal.kept, measured or lockstep_images(*hw), config, with_methods,
-                                  evaluator)
+                                  checker)
 
-        evaluator = evaluator_for(pre, prepared, cal.kept[:check], tasks, nhwc)
+        made: list[Evaluator] = []
+
+        def checker() -> Evaluator:  # fp32's outputs on the check tensors, held from the first check on
+            if not made:
+                release_memory()  # the lockstep pass's, before they are made
+                made.append(evaluator_for(pre, prepared, cal.kept[:check], tasks, nhwc))
+            return made[0]
+
         int8, done = build(methods)
-        release_memory()
+        evaluator = checker()
         if budget is not None and not methods.adaround:
             int8, done = adaround_first(int8, done, build, methods, evaluator, budget, progress)
         int8, steps, accuracy = _finished(int8, prepared, rewrites, config, evaluator, budget, progress)
@@ -323,11 +330,11 @@ def _calibrate(collector: Collector, first: np.ndarray, rest: Iterator[Any], sha
 
 
 def _measure(prepared: Any, int8: Any, kept: list[np.ndarray], images: int, config: QuantConfig,
-             methods: PtqMethods, evaluator: Evaluator) -> dict:
+             methods: PtqMethods, checker: Callable[[], Evaluator]) -> dict:
     """first-7, AdaRound and empirical bias correction on the QDQ graph INT8 (in place), in that
     order, measured on KEPT (the first calibration tensors; IMAGES of them for AdaRound and the
     correction); the correction is kept only where it brings the outputs closer to fp32's on both
-    halves of EVALUATOR's check tensors (on a table-cell detector at 1024x1024 it took two of four
+    halves of the check tensors (CHECKER gives their Evaluator) (on a table-cell detector at 1024x1024 it took two of four
     outputs 10 dB further from fp32; docs/quantization.md). Returns what was done."""
     done: dict = {}
     if config.weight_bits == WeightBits.FIRST_SEVEN:
@@ -343,6 +350,7 @@ def _measure(prepared: Any, int8: Any, kept: list[np.ndarray], images: int, conf
     if methods.bias_correction == BiasCorrection.EMPIRICAL:
         uncorrected = copy_model(int8)
         correct_onnx_biases(prepared, int8, kept[:images], writes_float_output(prepared))
+        evaluator = checker()
         before, after = evaluator.half_errors(uncorrected), evaluator.half_errors(int8)
         closer = all(a < b for a, b in zip(after, before))
         done["bias_correction_kept"] = {"kept": closer, "error_before": [round(e, 6) for e in before],
