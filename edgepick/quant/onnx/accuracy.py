@@ -90,6 +90,13 @@ class Evaluator:
         halves = [(self.inputs[:half], self.reference[:half]), (self.inputs[half:], self.reference[half:])]
         return tuple(self._worst_error(session, inputs, reference) for inputs, reference in halves if inputs)
 
+    def closer(self, before: Any, after: Any) -> dict:
+        """Whether the graph AFTER brings the outputs closer to fp32's than BEFORE on both halves of
+        the check tensors (the rule an optional step of the recipe is kept by), with both errors."""
+        errors_before, errors_after = self.half_errors(before), self.half_errors(after)
+        return {"kept": all(a < b for a, b in zip(errors_after, errors_before)),
+                "error_before": [round(e, 6) for e in errors_before], "error_after": [round(e, 6) for e in errors_after]}
+
     def _worst_error(self, session: Any, inputs: Sequence[np.ndarray], reference: Sequence[list[np.ndarray]]) -> float:
         errors = [BalancedError(self.nhwc) for _ in self.names]
         for x, ref in zip(inputs, reference):

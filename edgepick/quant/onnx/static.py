@@ -239,11 +239,8 @@ def adaround_first(int8: Any, done: dict, build: Callable[[PtqMethods], tuple[An
     if progress:
         print("accuracy-aware: the budget is not met; trying AdaRound first", file=sys.stderr, flush=True)
     rounded, rounded_done = build(replace(methods, adaround=True))
-    before, after = evaluator.half_errors(int8), evaluator.half_errors(rounded)
-    kept = all(a < b for a, b in zip(after, before))
-    record = {"adaround_first": {"kept": kept, "error_before": [round(e, 6) for e in before],
-                                 "error_after": [round(e, 6) for e in after]}}
-    return (rounded, {**rounded_done, **record}) if kept else (int8, {**done, **record})
+    record = {"adaround_first": evaluator.closer(int8, rounded)}
+    return (rounded, {**rounded_done, **record}) if record["adaround_first"]["kept"] else (int8, {**done, **record})
 
 
 def _quantizer_registry() -> set[str]:
@@ -350,12 +347,8 @@ def _measure(prepared: Any, int8: Any, kept: list[np.ndarray], images: int, conf
     if methods.bias_correction == BiasCorrection.EMPIRICAL:
         uncorrected = copy_model(int8)
         correct_onnx_biases(prepared, int8, kept[:images], writes_float_output(prepared))
-        evaluator = checker()
-        before, after = evaluator.half_errors(uncorrected), evaluator.half_errors(int8)
-        closer = all(a < b for a, b in zip(after, before))
-        done["bias_correction_kept"] = {"kept": closer, "error_before": [round(e, 6) for e in before],
-                                        "error_after": [round(e, 6) for e in after]}
-        if not closer:
+        done["bias_correction_kept"] = checker().closer(uncorrected, int8)
+        if not done["bias_correction_kept"]["kept"]:
             int8.CopyFrom(uncorrected)
     return done
 
