@@ -331,8 +331,8 @@ def _measure(prepared: Any, int8: Any, kept: list[np.ndarray], images: int, conf
     """first-7, AdaRound and empirical bias correction on the QDQ graph INT8 (in place), in that
     order, measured on KEPT (the first calibration tensors; IMAGES of them for AdaRound and the
     correction); the correction is kept only where it brings the outputs closer to fp32's on both
-    halves of the check tensors (CHECKER gives their Evaluator) (on a table-cell detector at 1024x1024 it took two of four
-    outputs 10 dB further from fp32; docs/quantization.md). Returns what was done."""
+    halves of the check tensors (CHECKER gives their Evaluator): on a table-cell detector at
+    1024x1024 it took every output 7-11 dB further from fp32 (docs/quantization.md). Returns what was done."""
     done: dict = {}
     if config.weight_bits == WeightBits.FIRST_SEVEN:
         share = saturating_onnx_convs(int8, kept[:SATURATION_CHECK_INPUTS], HEADROOM * INT16)
