@@ -38,6 +38,9 @@ class Camera:
     """Base of the frame sources: `with source: frame = source.read()`, or iterate."""
 
     intrinsics: Intrinsics
+    # the frames show one table picked from in turn (a live camera over the cell, a clutter-removal round),
+    # so a part still seen where a pick went failed there; False: each frame is a scene of its own
+    same_table: bool = False
 
     def open(self) -> Camera:
         return self

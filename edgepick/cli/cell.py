@@ -136,13 +136,14 @@ def open_robot(kind: str, execute: bool, host: str, robot_log: str | None) -> Ro
 def pick_recorder(path: str | None, model: str, classes, source, cfg: PickConfig, pipeline, envelope: Envelope | None,
                   extra: dict | None = None) -> Recorder | None:
     """The Recorder of `pick --record PATH` (None without it), opened before the first frame; EXTRA joins
-    its metadata (a round's: its table)."""
+    its metadata (a round's: its table). Its `same_table` (the camera's) tells replay that a pick's place
+    was remembered (robot/pick.py choose_target's TRIED)."""
     if path is None:
         return None
     from edgepick.robot.recording import Recorder, pick_metadata
 
     metadata = pick_metadata(model, classes, cfg, pipeline.cfg, envelope or Envelope())
-    return Recorder(path, {**metadata, **(extra or {})}, pipeline.calib)
+    return Recorder(path, {**metadata, "same_table": source.same_table, **(extra or {})}, pipeline.calib)
 
 
 def check_gripper(spec: str, robot_host: str | None) -> tuple[str, int | str]:

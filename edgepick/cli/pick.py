@@ -204,7 +204,7 @@ def _run_rounds(cell: Cell, request: PickRequest, count: int, rounds: RoundConfi
     def round_recorder(round_cell):
         files = round_records(record_path, count) if record_path is not None else []
         return pick_recorder(files[round_cell.round - 1], model, cell.pipeline.classes, source, cfg, cell.pipeline,
-                         envelope, {"round": round_cell.describe()})
+                         envelope, {"round": round_cell.describe(), "same_table": round_cell.same_table})
 
     run_rounds(cell.pipeline, cell.robot, cell.gripper, rounds=count, pick=cfg,
                log=cell.log, seed=source.seed, cfg=rounds, judge=cell.physics is not None, echo=echo,

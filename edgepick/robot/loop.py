@@ -157,6 +157,7 @@ class _Loop:
         self.limits = cell.robot.limits_reason if cell.robot is not None else None  # plan only: no controller to ask
         self.previous_frame: float | None = None
         self.arm_free: float | None = None
+        self.tried: list[tuple[float, ...]] = []  # on one table: where the carried-out picks went (choose_target's TRIED)
         if overlay_dir:
             Path(overlay_dir).mkdir(parents=True, exist_ok=True)
 
@@ -174,6 +175,8 @@ class _Loop:
             steps: list[StepDone] = []
             result = self.choose(cycle, frame, t0, seen, start)
             result = self.act(result, t0, steps, read_ahead=cycle < cycles[-1])
+            if result.chosen is not None and result.carried_out and self.cell.camera.same_table:
+                self.tried.append(result.chosen.chosen_pose()[:3])
             result, change = self.judge(result, frame)
             self.report(result, frame, t0, seen, start, steps, change, results)
             if robot is not None and robot.halted:
@@ -198,11 +201,12 @@ class _Loop:
     def choose(self, cycle: int, frame: Frame, t0: float, seen: Perception, start: list[float] | None) -> CycleResult:
         """The preferred grasp whose plan from START passes the envelope and the controller's limits
         (robot/pick.py) and leaves the hand room to come down, timed from the frame's read (T0), and
-        what the scene's truth says of it."""
+        what the scene's truth says of it. On one table (the camera's same_table), a part still seen
+        where an earlier pick went comes after the rest: that pick failed there."""
         cell, cfg = self.cell, self.cfg
         clear = hand_clearance(frame.depth, frame.intrinsics, cell.pipeline.calib, cfg.hand) \
             if cfg.hand is not None and cell.pipeline.calib is not None else None
-        record, plan, note = choose_target(seen.records, self.envelope, cfg, start, self.limits, clear)
+        record, plan, note = choose_target(seen.records, self.envelope, cfg, start, self.limits, clear, self.tried)
         t_plan = time.perf_counter()
         result = CycleResult(cycle, frame.name, len(seen.records), seen.ms, round(1000 * (t_plan - t0), 2),
                              "skipped" if record is None else "planned", note if record is None else None, frame.scene,

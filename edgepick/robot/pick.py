@@ -11,7 +11,7 @@ import enum
 import json
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import IO
@@ -51,6 +51,9 @@ class PickConfig:
     acc: float = 1.2  # moveL, m/s^2
     transit_radius_m: float = 0.18  # lift -> place passes the base no closer than this (via points on this circle)
     hand: HandShape | None = HandShape()  # the footprint checked on the frame's depth (robot/clearance.py); None: not checked
+    # on one table picked from in turn: a part still seen this close to where an earlier pick went is tried after
+    # the others (that pick failed there, and the same plan would fail again); 0: no memory
+    retry_elsewhere_m: float = 0.03
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "choose", member(Choose, "choose", self.choose))
@@ -61,6 +64,8 @@ class PickConfig:
         for name in ("speed", "acc"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise ParameterError(f"{{{name}}}: must be a positive number", **{name: getattr(self, name)})
+        if not (math.isfinite(self.retry_elsewhere_m) and self.retry_elsewhere_m >= 0):
+            raise ParameterError("{retry_elsewhere_m}: must be 0 or more metres", retry_elsewhere_m=self.retry_elsewhere_m)
 
 
 @dataclass
@@ -138,15 +143,24 @@ def plan_reason(plan: list[Step], envelope: Envelope, cfg: PickConfig, start: li
     return None
 
 
+def _tried_here(record: Grasp, tried: Sequence[Sequence[float]], radius_m: float) -> bool:
+    """Whether RECORD's grasp point lies within RADIUS_M of a point in TRIED (robot frame)."""
+    if record.pose_robot is None or radius_m <= 0:
+        return False
+    return any(math.dist(record.pose_robot[:3], point[:3]) <= radius_m for point in tried)
+
+
 def choose_target(records: list[Grasp], envelope: Envelope, cfg: PickConfig, start: list[float] | None = None,
                   limits: Callable[[list[float]], str | None] | None = None,
-                  clear: Callable[[Grasp], str | None] | None = None) -> tuple[Grasp | None, list[Step], str]:
+                  clear: Callable[[Grasp], str | None] | None = None,
+                  tried: Sequence[Sequence[float]] = ()) -> tuple[Grasp | None, list[Step], str]:
     """The preferred record whose whole plan, from the arm's pose `start` [default: the home
     pose], passes the envelope and LIMITS (see plan_reason); its plan, and a note. An object cut
     by the image border is not chosen (its centroid is that of the part in view, not of the
     object), nor one with BURIED or more of its rim under other objects, nor one where CLEAR
     (robot/clearance.py: the hand's footprint on the frame's depth) says the hand cannot come down,
-    across the part or, for a jaw, along it (along_its_length)."""
+    across the part or, for a jaw, along it (along_its_length). TRIED: the robot points earlier picks
+    on the same table went to; a record within cfg.retry_elsewhere_m of one comes after the rest."""
     start = list(cfg.home_pose) if start is None else start
     candidates = [r for r in records if not cfg.classes or r.cls in cfg.classes]
     if not candidates:
@@ -157,6 +171,7 @@ def choose_target(records: list[Grasp], envelope: Envelope, cfg: PickConfig, sta
         candidates.sort(key=lambda r: -r.area_px)
     # objects with nothing on top first: a partly hidden object's centroid is that of its visible part
     candidates.sort(key=lambda r: r.occluded > OCCLUDED)
+    candidates.sort(key=lambda r: _tried_here(r, tried, cfg.retry_elsewhere_m))
     reasons = []
     for r in candidates:
         if r.partial:

@@ -168,6 +168,8 @@ def replay(recording: Recording, segmenter: Segmenter | None = None) -> Iterator
     pick_cfg = _config(PickConfig, meta["pick_config"])
     grasp_cfg = _config(GraspConfig, meta["grasp_config"])
     envelope = _config(Envelope, meta["envelope"])
+    same_table = bool(meta.get("same_table", False))
+    tried: list[list[float]] = []  # where the recorded picks went, on one table (choose_target's TRIED)
     for rc in recorded_cycles(recording):
         labels = rc.labels
         if segmenter is not None:
@@ -175,7 +177,9 @@ def replay(recording: Recording, segmenter: Segmenter | None = None) -> Iterator
         records = grasp_records(labels, rc.depth, recording.intrinsics, classes, recording.calibration, grasp_cfg)
         clear = hand_clearance(rc.depth, recording.intrinsics, recording.calibration, pick_cfg.hand) \
             if pick_cfg.hand is not None and recording.calibration is not None else None
-        chosen, _, note = choose_target(records, envelope, pick_cfg, rc.start_pose, clear=clear)
+        chosen, _, note = choose_target(records, envelope, pick_cfg, rc.start_pose, clear=clear, tried=tried)
+        if same_table and rc.result.get("pose_robot") and rc.result.get("outcome") in ("done", "stopped"):
+            tried.append(rc.result["pose_robot"][:3])
         recorded = {"target": rc.result.get("target"), "pixel": rc.result.get("pixel")}
         now = {"target": None, "pixel": None, "reason": note} if chosen is None else \
             {"target": chosen.cls, "pixel": list(chosen.pixel), "pose_robot": list(chosen.chosen_pose())}

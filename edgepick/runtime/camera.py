@@ -66,6 +66,8 @@ class RealSenseCamera(Camera):
     """Intel RealSense D415/D435 through pyrealsense2: colour + depth aligned to colour,
     intrinsics from the device's colour stream, depth scale from its depth sensor."""
 
+    same_table = True  # it looks at the cell: a part a pick failed on is still there in the next frame
+
     def __init__(self, width: int = 640, height: int = 480, fps: int = 30, serial: str | None = None,
                  timeout_ms: int = 5000):
         self.width, self.height, self.fps, self.serial, self.timeout_ms = width, height, fps, serial, timeout_ms

@@ -287,7 +287,8 @@ def _grasp(region: np.ndarray, x: int, y: int, c: int, labels: np.ndarray, depth
         width = minor_width_m(own, angle, z, intr) if defined else None
         pose = tuple(top_down_pose(calib, intr, cx, cy, z, angle, defined)) if calib is not None else None
         lap("3d")
-        occluded = occluded_fraction(region, labels[y:y + h, x:x + w], depth[y:y + h, x:x + w], z, intr.depth_scale)
+        occluded = occluded_fraction(region, labels[y:y + h, x:x + w], depth[y:y + h, x:x + w], z, intr.depth_scale,
+                                     own=own)
         lap("occlusion")
     # cut by the image border: its centroid is that of the part in view
     partial = border_contact(region, x, y, labels.shape) >= cfg.partial_contact * math.sqrt(area)
@@ -309,14 +310,21 @@ def minor_width_m(pixels: np.ndarray, angle_deg: float, z: float, intr: Intrinsi
 
 
 def occluded_fraction(region: np.ndarray, labels: np.ndarray, depth: np.ndarray, z: float, depth_scale: float,
-                      step_m: float = 0.005) -> float:
+                      step_m: float = 0.005, own: np.ndarray | None = None) -> float:
     """Share of the region's rim where another object lies nearer the camera than this one (by
-    STEP_M): an object partly under another, whose visible centroid is not its own."""
+    STEP_M): an object partly under another, whose visible centroid is not its own, or one that
+    carries another (lifting it would drop what lies on it). Nearer than its top (Z), or, with OWN
+    (its own pixels), than its own surface beside the rim: a part lying on a brake disk's low ring
+    stands no higher than the hub the grasp point is on, but well above the ring it lies on."""
     ys, xs = np.nonzero(cv2.dilate(region, np.ones((5, 5), np.uint8)) > region)  # the rim
     if ys.size == 0:
         return 0.0
     d = depth[ys, xs]
-    above = (labels[ys, xs] != 0) & (d > 0) & (d * depth_scale < z - step_m)
+    surface = np.full(ys.size, z)
+    if own is not None:  # the farthest of its own readings within 5 px: the rim lies that close to its pixels
+        beside = cv2.dilate(np.where(own, depth, 0).astype(depth.dtype), np.ones((11, 11), np.uint8))[ys, xs]
+        surface = np.maximum(surface, beside * depth_scale)
+    above = (labels[ys, xs] != 0) & (d > 0) & (d * depth_scale < surface - step_m)
     return round(int(above.sum()) / ys.size, 3)
 
 

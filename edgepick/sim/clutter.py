@@ -113,6 +113,8 @@ class ClutterRound(SynthCamera):
     """One round as the cell's camera: `read` draws the table as it stands; `after` (run_cycles' hook)
     takes the picked part off and lets the rest settle; `physics_judge` is run_cycles' PHYSICS."""
 
+    same_table = True
+
     def __init__(self, width: int = 640, height: int = 480, seed: int = 0, index: int = 0,
                  cfg: RoundConfig | None = None, mount_height_m: float = 0.7, physics: PhysicsConfig | None = None):
         super().__init__(width, height, seed=seed, mount_height_m=mount_height_m)

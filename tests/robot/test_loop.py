@@ -226,3 +226,29 @@ def test_overlap_reads_the_next_frame_once_the_arm_has_left_and_changes_no_decis
         if result.outcome == "done":  # the next frame was read by the worker, the arm past the place approach
             assert not main and arm in left
     assert all(r.frame_to_frame_ms is not None for r in ahead[1:]) and any(r.arm_wait_ms is not None for r in ahead)
+
+
+@pytest.mark.parametrize("same_table", [True, False], ids=["one-table", "fresh-scenes"])
+def test_on_one_table_a_part_still_there_after_its_pick_is_tried_after_the_others(same_table):
+    """A camera over one table whose picks all fail (every frame shows the table as it was): each cycle
+    goes to another part while others are left. A camera of fresh scenes (same_table False) remembers
+    nothing: the same frame gets the same choice."""
+    from edgepick.data.render import CLASSES
+    from edgepick.robot.grippers import DigitalGripper
+    from edgepick.robot.loop import Cell, run_cycles
+    from edgepick.robot.pick import CommandLog, PickConfig
+    from edgepick.sim.camera import SynthCamera
+    from edgepick.sim.oracle import TruthPipeline
+    from edgepick.sim.robot import SimRobot
+
+    cam, robot = SynthCamera(640, 480, seed=6, mount_height_m=0.7), SimRobot()
+    frame = cam.read()  # a box and an adapter the hand can come down on, among others
+    cam.read = lambda: frame
+    cam.same_table = same_table
+    cal = cam.calibration()
+    with robot:
+        cell = Cell(cam, TruthPipeline(list(CLASSES), cal), robot, DigitalGripper(robot, 0), CommandLog(None), cal)
+        results = run_cycles(cell, cfg=PickConfig(), cycles=2, echo=lambda line: None)
+    points = [tuple(round(v, 3) for v in r.chosen.chosen_pose()[:3]) for r in results]
+    assert len(points) == 2 and all(r.outcome == "done" for r in results)
+    assert len(set(points)) == (2 if same_table else 1), points

@@ -8,6 +8,7 @@ import math
 
 import pytest
 
+from edgepick.errors import ParameterError
 from edgepick.robot.envelope import Envelope
 from edgepick.robot.pick import BURIED, OCCLUDED, PickConfig, choose_target, plan_pick, plan_reason
 from tests.conftest import make_grasp
@@ -39,3 +40,19 @@ def test_a_buried_object_is_never_chosen_and_a_partly_covered_one_last():
     assert choose_target([covered, buried], Envelope(), PickConfig())[0] is covered
     chosen, plan, note = choose_target([buried], Envelope(), PickConfig())
     assert chosen is None and plan == [] and "box: under other objects (20% of its rim)" in note
+
+
+def test_a_part_still_where_an_earlier_pick_went_comes_after_the_others():
+    """On one table picked from in turn, a part seen within retry_elsewhere_m of a point an earlier pick
+    went to is still there: that pick failed, and it is tried again only once the others are refused;
+    retry_elsewhere_m 0 forgets."""
+    big = make_grasp("disk", [0.28, 0.0, 0.05, math.pi, 0.0, 0.0], area_px=9000)
+    small = make_grasp("bearing", [0.22, 0.10, 0.05, math.pi, 0.0, 0.0], area_px=500)
+    went = [(0.29, 0.01, 0.05)]  # 14 mm from the disk's grasp point
+    assert choose_target([big, small], Envelope(), PickConfig())[0] is big
+    assert choose_target([big, small], Envelope(), PickConfig(), tried=went)[0] is small
+    assert choose_target([big], Envelope(), PickConfig(), tried=went)[0] is big  # the only one: tried again
+    assert choose_target([big, small], Envelope(), PickConfig(retry_elsewhere_m=0.01), tried=went)[0] is big
+    assert choose_target([big, small], Envelope(), PickConfig(retry_elsewhere_m=0), tried=went)[0] is big
+    with pytest.raises(ParameterError, match="retry_elsewhere_m"):
+        PickConfig(retry_elsewhere_m=-0.01)

@@ -329,6 +329,28 @@ def test_an_object_partly_under_another_is_marked_occluded():
     assert chosen.cls == "box", note
 
 
+def test_a_part_lying_on_a_disks_low_ring_marks_the_disk_occluded():
+    """A bearing on a brake disk's ring, inside its outline: its top stands no higher than the disk's hub,
+    where the grasp point is, but 30 mm above the ring it lies on. The disk carries it (lifting the
+    disk would drop it on the way), so the disk counts as occluded and the bearing is chosen first."""
+    from edgepick.robot.envelope import Envelope
+    from edgepick.robot.pick import OCCLUDED, PickConfig, choose_target
+
+    labels, depth = np.zeros((480, 640), np.uint8), flat_depth(700)
+    cv2.circle(labels, (300, 240), 120, 2, -1)  # disk: ring 20 mm above the table, hub 40 mm
+    depth[labels == 2] = 680
+    cv2.circle(depth, (300, 240), 40, 660, -1)
+    cv2.circle(labels, (380, 240), 30, 1, -1)  # a bearing on the ring, its top level with the hub
+    depth[labels == 1] = 662
+    cal = Calibration(np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]), np.array([0.28, 0.0, 0.7]), 0, 0)
+    by_class = {r.cls: r for r in grasp_records(labels, depth, INTR, calib=cal)}
+    disk = by_class["disk"]
+    assert abs(disk.depth_m - 0.660) < 0.003  # the grasp point is on the hub
+    assert disk.occluded > OCCLUDED and by_class["bearing"].occluded == 0.0
+    chosen, _, note = choose_target(list(by_class.values()), Envelope(), PickConfig(hand=None))
+    assert chosen.cls == "bearing", note
+
+
 def numpy_object_depth(depth, region, depth_scale, min_px, share=0.08, level_m=0.004):
     """object_depth as first written, on every pixel's value with numpy's own histogram, median and
     percentile: the reference the counting version must match to the last bit."""
