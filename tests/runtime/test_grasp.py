@@ -331,7 +331,7 @@ def test_an_object_partly_under_another_is_marked_occluded():
 
 def test_a_part_lying_on_a_disks_low_ring_marks_the_disk_occluded():
     """A bearing on a brake disk's ring, inside its outline: its top stands no higher than the disk's hub,
-    where the grasp point is, but 30 mm above the ring it lies on. The disk carries it (lifting the
+    where the grasp point is, but 18 mm above the ring it lies on. The disk carries it (lifting the
     disk would drop it on the way), so the disk counts as occluded and the bearing is chosen first."""
     from edgepick.robot.envelope import Envelope
     from edgepick.robot.pick import OCCLUDED, PickConfig, choose_target
