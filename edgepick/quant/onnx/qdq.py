@@ -15,6 +15,7 @@ itself.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -22,10 +23,10 @@ from typing import Any
 import numpy as np
 
 from edgepick.export.onnx_io import CONV_OPS
-from edgepick.onnx_graph import Graph
+from edgepick.onnx_graph import Graph, copy_model
 from edgepick.quant.config import QuantConfig
 from edgepick.quant.fidelity import RuleScore
-from edgepick.quant.onnx.accuracy import evaluator_for
+from edgepick.quant.onnx.accuracy import Evaluator, evaluator_for
 from edgepick.quant.onnx.calibrate import Collector
 from edgepick.quant.onnx.measure import adjusted_ranges, requantize_activations
 from edgepick.quant.ranges import RangeRule, candidate_rules
@@ -34,6 +35,8 @@ from edgepick.quant.ranges import RangeRule, candidate_rules
 FLOAT_TAIL_OPS = ("Resize", "Upsample", "Sigmoid", "Softmax", "LogSoftmax", "Transpose", "Reshape", "Identity",
                   "Squeeze", "Unsqueeze", "Flatten", "Slice", "Cast")
 LOGIT_SUMS = ("Add", "Sub")  # between the logits convs and the float tail, they keep a conv's output the logits
+# dB of output SQNR the outputs on the uint8 grid may lose against float outputs and still stay on it (outputs_on_grid)
+OUTPUT_GRID_DB = 0.5
 COMPUTE_OPS = ("Conv", "ConvTranspose", "MatMul", "Gemm", "LSTM", "GRU", "RNN", "Einsum", "Attention")
 
 
@@ -126,6 +129,26 @@ def float_outputs(model: Any, tail: list[str]) -> int:
         g.set_output(made, source, name)
         freed += 1
     return freed
+
+
+def outputs_on_grid(int8: Any, tail: list[str], evaluator: Evaluator) -> tuple[Any, int, dict]:
+    """INT8 with its outputs (and the inputs of the TAIL ops before them) on the uint8 grid, as
+    onnxruntime's quantizer leaves them, where that takes no output more than OUTPUT_GRID_DB further
+    from fp32 on EVALUATOR's check tensors and no decision moves off fp32's (uint8 logits can tie
+    in an ArgMax or at a threshold); else with those Q/DQ pairs dropped (`float_outputs`). On the
+    grid the convs that write the outputs run as integer convs: without it onnxruntime runs them
+    in float after dequantizing their inputs, 1.15x a table-cell detector's time
+    (docs/quantization.md). Returns the graph, how many pairs were dropped and the record."""
+    floated = copy_model(int8)
+    dropped = float_outputs(floated, tail)
+    if not dropped:
+        return int8, 0, {}
+    on_grid, off_grid = evaluator.fidelity(int8), evaluator.fidelity(floated)
+    kept = all(on_grid[n].sqnr_db >= off_grid[n].sqnr_db - OUTPUT_GRID_DB and
+               (off_grid[n].agreement is None or on_grid[n].agreement >= off_grid[n].agreement) for n in on_grid)
+    record = {"kept": kept, **{key: {n: None if math.isinf(f[n].sqnr_db) else round(f[n].sqnr_db, 2) for n in f}
+                               for key, f in (("sqnr_db_on_grid", on_grid), ("sqnr_db_float", off_grid))}}
+    return (int8, 0, record) if kept else (floated, dropped, record)
 
 
 def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np.ndarray], ops: list[str],

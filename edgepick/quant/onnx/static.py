@@ -17,10 +17,9 @@ write the Q/DQ pairs for those ranges, and rewrites around it (docs/quantization
   before calibration (`equalize`); with methods.adaround, each conv's weight rounding learnt
   on the calibration tensors (`adaround`); with empirical bias correction, the conv biases
   shifted back to fp32's means (`measure`);
-- after: the model's outputs and the ops between its last conv and them (Resize, Sigmoid,
-  Softmax, ...) in float, as edgepick's own logits are (uint8 logits tie in an ArgMax or a
-  threshold); the integer activations and the padding-tap crop of `edgepick.export`; initializers
-  no node reads dropped.
+- after: the ops between the last conv and the outputs (Resize, Sigmoid, ...) float, the outputs
+  on the uint8 grid unless that costs fidelity (`qdq.outputs_on_grid`); export's integer
+  activations and padding-tap crop; initializers no node reads dropped.
 
 The file is checked before it is kept: every conv not named in keep_float has int8 weights, and
 onnxruntime's int8 outputs are compared with its fp32 outputs (quant/fidelity.py: SQNR and
@@ -83,7 +82,7 @@ from edgepick.quant.onnx.floating import float_tensors, node_tensors
 from edgepick.quant.onnx.gelu import sigmoid_gelu
 from edgepick.quant.onnx.inputs import check_tensor
 from edgepick.quant.onnx.measure import correct_onnx_biases, qdq_convs, saturating_onnx_convs, to_seven_bit_onnx
-from edgepick.quant.onnx.qdq import choose_rule, exact_tensors, float_outputs, float_tail, qdq_model, writes_float_output
+from edgepick.quant.onnx.qdq import choose_rule, exact_tensors, float_tail, outputs_on_grid, qdq_model, writes_float_output
 from edgepick.quant.onnx.rewrite import fold_affine_into_convs, rewrite_activations
 from edgepick.quant.record import QuantRecord, RecordKind
 from edgepick.quant.results import OnnxPassResult
@@ -200,8 +199,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
             int8 = qdq_model(pre, cal.ranges, ops, exclude, config.reduce_range)
             if options.gelu == GeluForm.SIGMOID:  # before the bias correction, which then measures it
                 rewrites["sigmoid_gelu"] = sigmoid_gelu(int8)
-            return int8, _measure(prepared, int8, cal.kept, measured or lockstep_images(*hw), config, with_methods,
-                                  checker)
+            return int8, _measure(prepared, int8, cal.kept, measured or lockstep_images(*hw), config, with_methods, checker)
 
         made: list[Evaluator] = []
 
@@ -252,13 +250,15 @@ def _quantizer_registry() -> set[str]:
 
 def _finished(int8: Any, prepared: Any, rewrites: dict[str, int], config: QuantConfig, evaluator: Evaluator,
               budget: FidelityBudget | None, progress: bool) -> tuple[Any, dict[str, int], dict]:
-    """INT8 with the float tail and keep_float's tensors float, the accuracy-aware mode or the
-    low-fidelity warning (`fidelity_first`), then export's integer activations and padding-tap crop;
-    returns it, every rewrite made, and what the accuracy step records."""
-    steps = {**rewrites, "float_outputs": float_outputs(int8, float_tail(prepared))}
+    """INT8 with the float tail, the outputs on the grid or not, keep_float's tensors float, the accuracy-aware
+    mode or the low-fidelity warning, export's integer activations and padding-tap crop; returns it, every
+    rewrite made, and what the accuracy step records."""
+    int8, dropped, grid = outputs_on_grid(int8, float_tail(prepared), evaluator)
+    steps = {**rewrites, "float_outputs": dropped}
     if config.keep_float:
         steps["kept_float_tensors"] = float_tensors(int8, node_tensors(int8, config.keep_float), prepared)
     int8, accuracy = fidelity_first(int8, evaluator, budget, progress)
+    accuracy.update({"outputs_on_grid": grid} if grid else {})
     steps.update(**integer_activations(int8), cropped_convs=crop_padded_convs(int8))
     steps["unused_initializers"] = drop_unused_initializers(int8)
     return int8, steps, accuracy
