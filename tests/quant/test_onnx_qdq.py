@@ -11,9 +11,9 @@ import onnx
 import pytest
 
 from edgepick.quant.config import PtqMethods, QuantConfig
-from edgepick.quant.onnx.qdq import exact_tensors
+from edgepick.quant.onnx.qdq import OUTPUT_GRID_DB, exact_tensors
 from edgepick.quant.onnx.static import quantize_onnx_static
-from tests.quant.onnx_models import conv_relu_model, detector_head_model, run
+from tests.quant.onnx_models import calib_tensors, conv_relu_model, detector_head_model, export_torch, optimized_ops, run
 
 
 def _head_inputs(count: int, size: int = 64, seed: int = 0) -> list[np.ndarray]:
@@ -79,3 +79,30 @@ def test_auto_measures_every_rule_on_held_out_tensors_and_keeps_the_closest(tmp_
     assert scores[ranges["rule"]] == max(scores.values())
     recorded = json.loads({p.key: p.value for p in onnx.load(result.out).metadata_props}["edgepick.quant"])
     assert recorded["ranges"] == ranges
+
+
+def test_the_outputs_stay_on_the_uint8_grid_only_where_that_costs_no_fidelity(tmp_path):
+    """A one-channel map behind a Sigmoid is as close to fp32 on the uint8 grid as in float: it stays
+    there, and the conv that writes it runs as an integer conv. A three-class logits map loses more
+    than OUTPUT_GRID_DB on the grid: its Q/DQ pair is dropped and that conv runs in float. A Concat
+    of boxes and scores is never put on one grid (the scores would round away)."""
+    sig = quantize_onnx_static(export_torch(tmp_path / "sig.onnx", opset=13, out_channels=1, sigmoid=True),
+                               calib_tensors(8), tmp_path / "sig8.onnx", progress=False)
+    grid = sig.quant["outputs_on_grid"]
+    assert grid["kept"] and sig.rewrites["float_outputs"] == 0
+    assert grid["channel_sqnr_db_on_grid"]["logits"] >= grid["channel_sqnr_db_float"]["logits"] - OUTPUT_GRID_DB
+    ops = optimized_ops(Path(sig.out))
+    assert "Conv" not in ops and ops["Sigmoid"] == 1, ops  # the head conv integer, the Sigmoid after it float
+    recorded = json.loads({p.key: p.value for p in onnx.load(sig.out).metadata_props}["edgepick.quant"])
+    assert recorded["outputs_on_grid"] == grid
+
+    logits = quantize_onnx_static(export_torch(tmp_path / "net.onnx", opset=13), calib_tensors(8),
+                                  tmp_path / "net8.onnx", progress=False)
+    grid = logits.quant["outputs_on_grid"]
+    assert not grid["kept"] and logits.rewrites["float_outputs"] == 1
+    assert grid["channel_sqnr_db_on_grid"]["logits"] < grid["channel_sqnr_db_float"]["logits"] - OUTPUT_GRID_DB
+    assert optimized_ops(Path(logits.out))["Conv"] == 1
+
+    head = quantize_onnx_static(detector_head_model(tmp_path / "head.onnx"), _head_inputs(8), tmp_path / "head8.onnx",
+                                progress=False)
+    assert "outputs_on_grid" not in head.quant and head.rewrites["float_outputs"] == 1

@@ -25,7 +25,7 @@ import numpy as np
 from edgepick.export.onnx_io import CONV_OPS
 from edgepick.onnx_graph import Graph, copy_model
 from edgepick.quant.config import QuantConfig
-from edgepick.quant.fidelity import RuleScore
+from edgepick.quant.fidelity import RuleScore, compare_outputs
 from edgepick.quant.onnx.accuracy import Evaluator, evaluator_for
 from edgepick.quant.onnx.calibrate import Collector
 from edgepick.quant.onnx.measure import adjusted_ranges, requantize_activations
@@ -35,8 +35,10 @@ from edgepick.quant.ranges import RangeRule, candidate_rules
 FLOAT_TAIL_OPS = ("Resize", "Upsample", "Sigmoid", "Softmax", "LogSoftmax", "Transpose", "Reshape", "Identity",
                   "Squeeze", "Unsqueeze", "Flatten", "Slice", "Cast")
 LOGIT_SUMS = ("Add", "Sub")  # between the logits convs and the float tail, they keep a conv's output the logits
-# dB of output SQNR the outputs on the uint8 grid may lose against float outputs and still stay on it (outputs_on_grid)
-OUTPUT_GRID_DB = 0.5
+# what the outputs on the uint8 grid may lose against float outputs and still stay on it (outputs_on_grid): dB of
+# SQNR, on the whole output and on its worst channel, and the share of its decisions
+OUTPUT_GRID_DB, OUTPUT_GRID_AGREEMENT = 0.5, 0.001
+GRID_OPS = ("Conv", "MatMul", "Gemm")  # onnxruntime runs them as integer kernels only when their output is quantized
 COMPUTE_OPS = ("Conv", "ConvTranspose", "MatMul", "Gemm", "LSTM", "GRU", "RNN", "Einsum", "Attention")
 
 
@@ -109,10 +111,10 @@ def writes_float_output(model: Any) -> set[str]:
     return convs
 
 
-def float_outputs(model: Any, tail: list[str]) -> int:
+def float_outputs(model: Any, tail: list[str], keep: Sequence[str] = ()) -> int:
     """Drop the Q -> DQ pair in front of each graph output and of each TAIL node (the float ops
-    before the outputs), so that they get the float tensor the last quantized node makes; returns
-    how many pairs it dropped."""
+    before the outputs), so that they get the float tensor the last quantized node makes, but where
+    an op of a type in KEEP writes it; returns how many pairs it dropped."""
     g = Graph(model)
     into_tail = [n.input[0] for n in g.nodes if n.name in tail]
     freed = 0
@@ -123,7 +125,7 @@ def float_outputs(model: Any, tail: list[str]) -> int:
             continue
         source = q.input[0]
         made = g.producer(source)
-        if made is None or len(g.consumers(source)) != 1 or len(g.consumers(name)) > 1:
+        if made is None or made.op_type in keep or len(g.consumers(source)) != 1 or len(g.consumers(name)) > 1:
             continue
         g.remove(q, dq)
         g.set_output(made, source, name)
@@ -132,23 +134,49 @@ def float_outputs(model: Any, tail: list[str]) -> int:
 
 
 def outputs_on_grid(int8: Any, tail: list[str], evaluator: Evaluator) -> tuple[Any, int, dict]:
-    """INT8 with its outputs (and the inputs of the TAIL ops before them) on the uint8 grid, as
-    onnxruntime's quantizer leaves them, where that takes no output more than OUTPUT_GRID_DB further
-    from fp32 on EVALUATOR's check tensors and no decision moves off fp32's (uint8 logits can tie
-    in an ArgMax or at a threshold); else with those Q/DQ pairs dropped (`float_outputs`). On the
-    grid the convs that write the outputs run as integer convs: without it onnxruntime runs them
-    in float after dequantizing their inputs, 1.15x a table-cell detector's time
-    (docs/quantization.md). Returns the graph, how many pairs were dropped and the record."""
+    """INT8 with the outputs written by convs and matmuls (and such inputs of the TAIL ops before the
+    outputs) on the uint8 grid, as onnxruntime's quantizer leaves them, where that takes no output,
+    and none of its channels, more than OUTPUT_GRID_DB further from fp32 on EVALUATOR's check tensors
+    and moves no more than OUTPUT_GRID_AGREEMENT of its decisions off fp32's (uint8 logits can tie in
+    an ArgMax or at a threshold); every other output pair dropped (`float_outputs`). On the grid
+    those convs run as integer convs: in float after dequantizing their inputs, a table-cell
+    detector's four output convs made it 1.15x onnxruntime's best file's time (docs/quantization.md).
+    A Concat of boxes and scores stays float: one uint8 grid over both would round the scores away.
+    Returns the graph, how many pairs were dropped and the record."""
     floated = copy_model(int8)
     dropped = float_outputs(floated, tail)
-    if not dropped:
-        return int8, 0, {}
-    on_grid, off_grid = evaluator.fidelity(int8), evaluator.fidelity(floated)
+    mixed = copy_model(int8)
+    partly = float_outputs(mixed, tail, keep=GRID_OPS)
+    if partly == dropped:
+        return floated, dropped, {}
+    (on_grid, grid_channels), (off_grid, float_channels) = _fidelity(evaluator, mixed), _fidelity(evaluator, floated)
     kept = all(on_grid[n].sqnr_db >= off_grid[n].sqnr_db - OUTPUT_GRID_DB and
-               (off_grid[n].agreement is None or on_grid[n].agreement >= off_grid[n].agreement) for n in on_grid)
-    record = {"kept": kept, **{key: {n: None if math.isinf(f[n].sqnr_db) else round(f[n].sqnr_db, 2) for n in f}
-                               for key, f in (("sqnr_db_on_grid", on_grid), ("sqnr_db_float", off_grid))}}
-    return (int8, 0, record) if kept else (floated, dropped, record)
+               grid_channels[n] >= float_channels[n] - OUTPUT_GRID_DB and
+               (off_grid[n].agreement is None or on_grid[n].agreement >= off_grid[n].agreement - OUTPUT_GRID_AGREEMENT)
+               for n in on_grid)
+    record = {"kept": kept, **{key: {n: None if math.isinf(v) else round(v, 2) for n, v in values.items()}
+                               for key, values in (("channel_sqnr_db_on_grid", grid_channels),
+                                                   ("channel_sqnr_db_float", float_channels))}}
+    return (mixed, partly, record) if kept else (floated, dropped, record)
+
+
+def _fidelity(evaluator: Evaluator, model: Any) -> tuple[dict, dict[str, float]]:
+    """MODEL's fidelity per output on EVALUATOR's check tensors, and each output's lowest SQNR over
+    its channels (axis 1), from one run."""
+    session = evaluator.session(model)
+    got = [session.run(evaluator.names, {evaluator.input_name: x}) for x in evaluator.inputs]
+    signal: dict[str, Any] = {n: 0.0 for n in evaluator.names}
+    noise: dict[str, Any] = {n: 0.0 for n in evaluator.names}
+    for ref, out in zip(evaluator.reference, got):
+        for name, r, t in zip(evaluator.names, ref, out):
+            r64 = r.astype(np.float64)
+            axes = tuple(a for a in range(r.ndim) if a != 1) if r.ndim > 1 else None
+            signal[name] = signal[name] + (r64 ** 2).sum(axis=axes)
+            noise[name] = noise[name] + ((r64 - t) ** 2).sum(axis=axes)
+    channels = {n: float(np.min(np.where(noise[n] > 0, 10 * np.log10(np.maximum(signal[n], 1e-30) /
+                                                                    np.maximum(noise[n], 1e-300)), np.inf)))
+                for n in evaluator.names}
+    return compare_outputs(evaluator.names, evaluator.tasks, zip(evaluator.reference, got), evaluator.nhwc), channels
 
 
 def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np.ndarray], ops: list[str],
