@@ -13,6 +13,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from edgepick.machine import machine_line, results_file  # noqa: E402,F401 - machine_line for the scripts
+from edgepick.runtime.session import interleaved_times  # noqa: E402,F401 - one timing rule for every script
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -68,21 +69,3 @@ def object_agreement(ours, reference) -> float:
     return same / max(total, 1)
 
 
-def interleaved_times(calls: list, runs: int, block: int = 5) -> list[list[float]]:
-    """Milliseconds per call of each CALLS[k](i), RUNS timed calls each, in alternating blocks of BLOCK
-    after one untimed call: a shared machine's load drifts over all models alike, and no timed call
-    starts while the previous model's thread pool is still spinning (timing models one call each in
-    turn put 25-40 ms on every call here, onnxruntime sessions on 2 cores)."""
-    import time
-
-    times: list[list[float]] = [[] for _ in calls]
-    i = 0
-    while any(len(t) < runs for t in times):
-        for call, t in zip(calls, times):
-            call(i)
-            for _ in range(min(block, runs - len(t))):
-                i += 1
-                t0 = time.perf_counter()
-                call(i)
-                t.append(1000 * (time.perf_counter() - t0))
-    return times

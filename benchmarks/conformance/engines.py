@@ -122,6 +122,9 @@ def edgepick_quantizer(name: str, options: OnnxOptions, budget: FidelityBudget |
                                       input_shape=job.input_shape, progress=False,
                                       task=Task.parse(job.task) if job.task else None, budget=budget)
         note = f"{result.int8_convs} of {result.convs} convs int8, ranges {result.quant['ranges']['rule']}"
+        grid = result.quant.get("outputs_on_grid")
+        if grid:
+            note += ", outputs on the uint8 grid" if grid["kept"] else ", outputs float (closer than on the grid)"
         if "placement_choice" in result.quant:
             note += f", placement {result.quant['placement_choice']['chosen']} (timed on {options.target})"
         if budget is not None:

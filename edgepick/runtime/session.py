@@ -103,20 +103,40 @@ def _cache_file() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "edgepick" / "engines.json"
 
 
+# between blocks of different models: onnxruntime's worker threads spin for tens of milliseconds after a run, and on
+# 2 cores a session timed while another's still spin runs at a fraction of its speed (a 2.1 ms classifier measured
+# 3-8 ms after other sessions, 2.1 ms after this pause; docs/benchmarks.md#timing)
+SWITCH_PAUSE_S = 0.1
+
+
+def interleaved_times(calls: list[Callable[[int], object]], runs: int, block: int = 5) -> list[list[float]]:
+    """Milliseconds per call of each CALLS[k](i), RUNS timed calls each, in alternating blocks of BLOCK,
+    each block after SWITCH_PAUSE_S (where there are several calls) and one untimed call: a shared
+    machine's load drifts over all models alike, and no timed call runs beside the previous model's
+    spinning thread pool."""
+    times: list[list[float]] = [[] for _ in calls]
+    i = 0
+    while any(len(t) < runs for t in times):
+        for call, t in zip(calls, times):
+            if len(calls) > 1:
+                time.sleep(SWITCH_PAUSE_S)
+            call(i)
+            for _ in range(min(block, runs - len(t))):
+                i += 1
+                t0 = time.perf_counter()
+                call(i)
+                t.append(1000 * (time.perf_counter() - t0))
+    return times
+
+
 def median_ms(runs: dict[str, Callable[[np.ndarray], object]], image: np.ndarray, timed: int = 10, block: int = 5) -> dict[str, float]:
-    """Median milliseconds of each runner on IMAGE, timed in alternating blocks after 3 warm-up calls
-    (so that a shared machine's load drifts over both alike)."""
-    times: dict[str, list[float]] = {name: [] for name in runs}
+    """Median milliseconds of each runner on IMAGE, timed in alternating blocks (`interleaved_times`)
+    after 3 warm-up calls each."""
     for run in runs.values():
         for _ in range(3):
             run(image)
-    while any(len(t) < timed for t in times.values()):
-        for name, run in runs.items():
-            for _ in range(block):
-                t0 = time.perf_counter()
-                run(image)
-                times[name].append(1000 * (time.perf_counter() - t0))
-    return {name: round(statistics.median(t), 3) for name, t in times.items()}
+    times = interleaved_times([lambda i, run=run: run(image) for run in runs.values()], timed, block)
+    return {name: round(statistics.median(t), 3) for name, t in zip(runs, times)}
 
 
 def choose_engine(path: Path, threads: int, ort_run: Callable[[np.ndarray], object],

@@ -106,3 +106,16 @@ def test_the_outputs_stay_on_the_uint8_grid_only_where_that_costs_no_fidelity(tm
     head = quantize_onnx_static(detector_head_model(tmp_path / "head.onnx"), _head_inputs(8), tmp_path / "head8.onnx",
                                 progress=False)
     assert "outputs_on_grid" not in head.quant and head.rewrites["float_outputs"] == 1
+
+
+def test_a_relu_the_writer_left_out_before_a_float_output_is_put_back(tmp_path):
+    """onnxruntime's writer drops a Relu after a quantized conv (the uint8 grid clamps for it); where
+    the output then goes float, the Relu must come back, or the output keeps the conv's negative
+    half (an output SQNR of -2.6 dB on a plain conv + Relu stack before it did)."""
+    path, _, _ = conv_relu_model(tmp_path / "m.onnx")
+    xs = [np.random.default_rng(k).normal(0, 1, (1, 2, 32, 32)).astype(np.float32) for k in range(8)]
+    result = quantize_onnx_static(path, xs, tmp_path / "int8.onnx", progress=False)
+    assert result.rewrites["float_outputs"] == 1
+    out = run(Path(result.out), xs[0])[0]
+    assert out.min() >= 0.0 and result.fidelity["output"]["sqnr_db"] > 30, result.fidelity
+    assert "Relu" in {n.op_type for n in onnx.load(result.out).graph.node}

@@ -148,3 +148,23 @@ def test_openvino_engine_runs_float_parts_in_f32(tmp_path, monkeypatch, precisio
     ((config, model),) = compiled
     assert config["INFERENCE_PRECISION_HINT"] == "f32"
     assert model.get_property("INFERENCE_PRECISION_HINT") == ov.Type.f32
+
+
+def test_alternating_blocks_wait_before_each_block_when_several_models_are_timed():
+    """Each block of an alternating timing starts SWITCH_PAUSE_S after the previous model's last
+    call, so that no timed call shares the cores with another session's spinning threads; one model
+    alone is timed without pauses."""
+    import time
+
+    from edgepick.runtime.session import SWITCH_PAUSE_S, interleaved_times, median_ms
+
+    log: list[tuple[str, float]] = []
+    calls = [lambda i, name=name: log.append((name, time.perf_counter())) for name in "ab"]
+    times = interleaved_times(calls, runs=4, block=2)
+    assert [len(t) for t in times] == [4, 4]
+    switches = [(t1 - t0) for (a, t0), (b, t1) in zip(log, log[1:]) if a != b]
+    assert len(switches) == 3 and min(switches) >= SWITCH_PAUSE_S
+    log.clear()
+    t0 = time.perf_counter()
+    median_ms({"a": lambda x: log.append(("a", time.perf_counter()))}, np.zeros(1), timed=10, block=5)
+    assert time.perf_counter() - t0 < SWITCH_PAUSE_S and len(log) == 3 + 2 + 10

@@ -58,7 +58,7 @@ def float_tensors(model: Any, names: Sequence[str], float_model: Any, weights: b
             dropped += 1
             if restore:
                 assert made_by is not None and writer is not None
-                _restore_activation(g, made_by, writer, fg)
+                restore_activation(g, made_by, writer, fg)
                 restore = False
     return dropped
 
@@ -107,7 +107,7 @@ def _float_bias(g: Graph, conv: Any, fg: Graph) -> None:
         g.remove(dq)
 
 
-def _restore_activation(g: Graph, activation: Any, writer: Any, fg: Graph) -> None:
+def restore_activation(g: Graph, activation: Any, writer: Any, fg: Graph) -> None:
     """Put the float model's ACTIVATION (a Relu or Clip) back between WRITER and the tensor it wrote."""
     import onnx
 

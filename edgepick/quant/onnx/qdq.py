@@ -28,6 +28,7 @@ from edgepick.quant.config import QuantConfig
 from edgepick.quant.fidelity import RuleScore, compare_outputs
 from edgepick.quant.onnx.accuracy import Evaluator, evaluator_for
 from edgepick.quant.onnx.calibrate import Collector
+from edgepick.quant.onnx.floating import REMOVABLE_OPS, restore_activation
 from edgepick.quant.onnx.measure import adjusted_ranges, requantize_activations
 from edgepick.quant.ranges import RangeRule, candidate_rules
 
@@ -111,11 +112,12 @@ def writes_float_output(model: Any) -> set[str]:
     return convs
 
 
-def float_outputs(model: Any, tail: list[str], keep: Sequence[str] = ()) -> int:
+def float_outputs(model: Any, tail: list[str], float_model: Any, keep: Sequence[str] = ()) -> int:
     """Drop the Q -> DQ pair in front of each graph output and of each TAIL node (the float ops
     before the outputs), so that they get the float tensor the last quantized node makes, but where
-    an op of a type in KEEP writes it; returns how many pairs it dropped."""
-    g = Graph(model)
+    an op of a type in KEEP writes it; a Relu or Clip onnxruntime's writer left out there (the uint8
+    grid clamped for it) is put back from FLOAT_MODEL. Returns how many pairs it dropped."""
+    g, fg = Graph(model), Graph(float_model)
     into_tail = [n.input[0] for n in g.nodes if n.name in tail]
     freed = 0
     for name in [*(o.name for o in model.graph.output), *into_tail]:
@@ -129,6 +131,9 @@ def float_outputs(model: Any, tail: list[str], keep: Sequence[str] = ()) -> int:
             continue
         g.remove(q, dq)
         g.set_output(made, source, name)
+        activation = fg.producer(name)
+        if activation is not None and activation.op_type in REMOVABLE_OPS and made.op_type != activation.op_type:
+            restore_activation(g, activation, made, fg)
         freed += 1
     return freed
 
@@ -144,9 +149,9 @@ def outputs_on_grid(int8: Any, tail: list[str], evaluator: Evaluator) -> tuple[A
     A Concat of boxes and scores stays float: one uint8 grid over both would round the scores away.
     Returns the graph, how many pairs were dropped and the record."""
     floated = copy_model(int8)
-    dropped = float_outputs(floated, tail)
+    dropped = float_outputs(floated, tail, evaluator.float_model)
     mixed = copy_model(int8)
-    partly = float_outputs(mixed, tail, keep=GRID_OPS)
+    partly = float_outputs(mixed, tail, evaluator.float_model, keep=GRID_OPS)
     if partly == dropped:
         return floated, dropped, {}
     (on_grid, grid_channels), (off_grid, float_channels) = _fidelity(evaluator, mixed), _fidelity(evaluator, floated)
@@ -156,7 +161,9 @@ def outputs_on_grid(int8: Any, tail: list[str], evaluator: Evaluator) -> tuple[A
                for n in on_grid)
     record = {"kept": kept, **{key: {n: None if math.isinf(v) else round(v, 2) for n, v in values.items()}
                                for key, values in (("channel_sqnr_db_on_grid", grid_channels),
-                                                   ("channel_sqnr_db_float", float_channels))}}
+                                                   ("channel_sqnr_db_float", float_channels))},
+              "agreement_on_grid": {n: f.agreement for n, f in on_grid.items()},
+              "agreement_float": {n: f.agreement for n, f in off_grid.items()}}
     return (mixed, partly, record) if kept else (floated, dropped, record)
 
 
@@ -197,7 +204,7 @@ def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np
     tail, exact = float_tail(float_model), exact_tensors(float_model)
     # one graph written, its qparams set for each rule in turn: the graph does not depend on the ranges
     written = qdq_model(pre, collector.ranges(rules[0], exact), ops, exclude, config.reduce_range)
-    float_outputs(written, tail)
+    float_outputs(written, tail, float_model)
     scores = []
     for rule in progress_bar(rules, desc="choose ranges", unit="rule", enabled=progress):
         requantize_activations(written, float_model, adjusted_ranges(float_model, collector.ranges(rule, exact)))
