@@ -103,9 +103,8 @@ def _cache_file() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "edgepick" / "engines.json"
 
 
-# between blocks of different models: onnxruntime's worker threads spin for tens of milliseconds after a run, and on
-# 2 cores a session timed while another's still spin runs at a fraction of its speed (a 2.1 ms classifier measured
-# 3-8 ms after other sessions, 2.1 ms after this pause; docs/benchmarks.md#timing)
+# between blocks of different models: onnxruntime's worker threads keep spinning after a run, and on 2 cores a
+# session timed while another's still spin runs at a fraction of its speed (benchmarks/results/session-switch/)
 SWITCH_PAUSE_S = 0.1
 
 
