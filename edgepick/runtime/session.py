@@ -134,7 +134,10 @@ def median_ms(runs: dict[str, Callable[[np.ndarray], object]], image: np.ndarray
     for run in runs.values():
         for _ in range(3):
             run(image)
-    times = interleaved_times([lambda i, run=run: run(image) for run in runs.values()], timed, block)
+    def on_image(run: Callable[[np.ndarray], object]) -> Callable[[int], object]:
+        return lambda i: run(image)
+
+    times = interleaved_times([on_image(run) for run in runs.values()], timed, block)
     return {name: round(statistics.median(t), 3) for name, t in zip(runs, times)}
 
 
