@@ -79,16 +79,18 @@ def main(argv: list[str] | None = None) -> int:
             calib = [np.random.default_rng(k).random((1, 3, 112, 112), dtype=np.float32) for k in range(8)]
             paths = [fp32, Path(quantize_onnx_static(fp32, calib, Path(tmp) / "int8.onnx", progress=False).out)]
         rows, pause = [], session.SWITCH_PAUSE_S
-        for setting in ["alone", *pauses]:
-            calls = [runner(p, args.threads) for p in paths]
-            if setting == "alone":  # each model in one stretch of runs, then the other
-                p50 = [statistics.median(session.interleaved_times([c], args.runs)[0]) for c in calls]
-            else:
-                session.SWITCH_PAUSE_S = setting
-                p50 = [statistics.median(t) for t in session.interleaved_times(calls, args.runs)]
-            del calls
-            rows.append((setting, p50))
-        session.SWITCH_PAUSE_S = pause
+        try:
+            for setting in ["alone", *pauses]:
+                calls = [runner(p, args.threads) for p in paths]
+                if setting == "alone":  # each model in one stretch of runs, then the other
+                    p50 = [statistics.median(session.interleaved_times([c], args.runs)[0]) for c in calls]
+                else:
+                    session.SWITCH_PAUSE_S = setting
+                    p50 = [statistics.median(t) for t in session.interleaved_times(calls, args.runs)]
+                del calls
+                rows.append((setting, p50))
+        finally:  # every other timing in this process keeps edgepick's pause
+            session.SWITCH_PAUSE_S = pause
     names = [p.name for p in paths]
     lines = ["# Alternating timing blocks: the pause between two onnxruntime sessions", "",
              f"Command: `python benchmarks/session_switch.py {' '.join(argv if argv is not None else sys.argv[1:])}`".rstrip()
