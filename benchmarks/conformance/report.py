@@ -114,6 +114,7 @@ def markdown(results: list[ModelResult], header: Header, figure: str | None = No
         also = [f"{e.engine}: " + ", ".join(f"{k} {percent(v)}%" for k, v in e.also.items()) for e in m.engines if e.also]
         if also:
             lines += ["", "Also: " + "; ".join(also) + "."]
+    lines += quantize_times(results)
     failures = [(m.name, "(model)", m.failure) for m in results if m.failure]
     failures += [(m.name, e.engine, e.failure) for m in results if not m.failure for e in m.engines if e.failure]
     lines += ["", "## Failures", ""] + ([f"- {n} / {e}: {f}" for n, e, f in failures] or ["None."])
@@ -126,6 +127,31 @@ def markdown(results: list[ModelResult], header: Header, figure: str | None = No
     if unpinned:
         lines += ["", f"No pinned references yet: {', '.join(unpinned)}."]
     return "\n".join(lines) + "\n"
+
+
+def quantize_times(results: list[ModelResult], peer: str = "ort-best") -> list[str]:
+    """The markdown section comparing each int8 engine's quantize time with PEER's (onnxruntime's
+    quantize_static at its best settings, pre-processing included) on the same model: per model and
+    engine the ratio, and its median and range over the models (none when PEER did not run)."""
+    ratios: dict[str, list[tuple[str, float]]] = {}
+    for m in results:
+        by = {e.engine: e for e in m.engines if not e.failure and e.quantize_s}
+        if peer not in by:
+            continue
+        for e in by.values():
+            if e.engine != peer:
+                ratios.setdefault(e.engine, []).append((m.name, e.quantize_s / by[peer].quantize_s))
+    if not ratios:
+        return []
+    lines = ["", f"## Quantize time against {peer}", "",
+             f"Each engine's quantize time (the call, pre-processing included) over {peer}'s on the same model "
+             "and calibration tensors, in the same process:", "", "| engine | median | lowest | highest | per model |",
+             "|---|---|---|---|---|"]
+    for engine, values in ratios.items():
+        times = [v for _, v in values]
+        per = ", ".join(f"{n} {v:.2f}x" for n, v in values)
+        lines.append(f"| {engine} | {np.median(times):.2f}x | {min(times):.2f}x | {max(times):.2f}x | {per} |")
+    return lines
 
 
 def write_csv(results: list[ModelResult], path: Path) -> None:

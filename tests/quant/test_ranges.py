@@ -101,3 +101,36 @@ def test_a_large_tensor_is_counted_at_evenly_spaced_places_with_its_exact_extrem
     ref = np.percentile(values, [0.1, 99.9])
     slack = 2 * hist.width  # the bins span the one extreme value: each is wide
     assert abs(low - ref[0]) < 0.05 * abs(ref[0]) + slack and abs(high - ref[1]) < 0.05 * ref[1] + slack
+
+
+def _divergence_by_loop(counts: np.ndarray, start: int, stop: int) -> float:
+    """TensorRT's entropy calibration written out for one clip: the clipped counts against them spread
+    over 256 levels, each level's count shared by its non-empty bins."""
+    window = counts[start:stop]
+    p = window.copy()
+    p[-1] += counts[stop:].sum()
+    bounds = np.linspace(0, len(window), 257).astype(int)[:-1]
+    mass = np.add.reduceat(window, bounds)
+    used = np.add.reduceat((window > 0).astype(np.float64), bounds)
+    q = np.repeat(mass / np.maximum(used, 1.0), np.diff(np.append(bounds, len(window)))) * (window > 0)
+    p, q = p / p.sum(), q / max(q.sum(), 1e-12)
+    mask = p > 0
+    return float(np.sum(p[mask] * np.log(p[mask] / np.maximum(q[mask], 1e-12))))
+
+
+@pytest.mark.parametrize("kind", ["normal", "heavy tail", "outliers", "sparse"])
+def test_the_entropy_clip_is_the_one_a_loop_over_every_clip_finds(kind):
+    from edgepick.quant.ranges import _closest_clip
+
+    rng = np.random.default_rng(3)
+    values = {"normal": lambda: rng.standard_normal(100_000),
+              "heavy tail": lambda: np.abs(rng.standard_cauchy(50_000)),
+              "outliers": lambda: np.concatenate([rng.exponential(1, 50_000), rng.uniform(0, 50, 20)]),
+              "sparse": lambda: np.round(rng.standard_normal(20_000) * 3)}[kind]()
+    for start in (0, 300):
+        counts = np.histogram(values, bins=BINS)[0].astype(np.float64)
+        counts[rng.integers(0, BINS, 200)] = 0  # empty bins inside the window too
+        divergences = {stop: _divergence_by_loop(counts, start, stop) for stop in range(start + 256, BINS + 1, 16)}
+        least = min(divergences.values())
+        first = next(stop for stop, d in divergences.items() if d <= least + 1e-9 * abs(least) + 1e-15)
+        assert _closest_clip(counts, start) == first

@@ -31,6 +31,8 @@ from edgepick.quant.methods import bias_shift, saturated_share
 from edgepick.quant.onnx.lockstep import channel_means, image_means, runner, segment_session, segments
 
 SEVEN_BIT = 64  # onnxruntime's reduce-range int8 weight grid: -64..64, scale = max |w| / 64
+BIASED_OPS = ("Conv", "ConvTranspose", "Gemm")  # their int32 bias's scale is the input's times the weight's
+BIAS_SCALE_ROOM = 1.01
 
 
 @dataclass(frozen=True)
@@ -107,18 +109,21 @@ def adjusted_ranges(float_model: Any, ranges: dict[str, tuple[float, float]]) ->
     return adjusted
 
 
-def requantize_activations(model: Any, float_model: Any, ranges: dict[str, tuple[float, float]]) -> None:
+def requantize_activations(model: Any, float_model: Any, ranges: dict[str, tuple[float, float]]) -> bool:
     """Set the uint8 qparams of MODEL's activations (QDQ, as onnxruntime wrote it from FLOAT_MODEL) to
     those of RANGES, as its writer computes them, and the int32 bias codes of its Convs and Gemms to
     the new input scales: the graph calib_method auto measures each candidate rule with, without
     writing it again.
     (onnxruntime's writer may also widen a weight's scale where a bias would overflow int32; here
-    such a bias clips, so a candidate's measure can differ from its written file's in that case.)"""
+    such a bias clips, so a candidate's measure can differ from its written file's in that case.)
+    Returns whether MODEL is now what the writer writes for RANGES: every activation's qparams and
+    every int32 bias set, and no bias scale, before or after, near the limit where it widens."""
     from onnxruntime.quantization.quant_utils import compute_scale_zp
 
     values = Values(model)
     weights = {i.name for i in float_model.graph.initializer}
     done: set[str] = set()
+    exact = True
     for q in values.graph.nodes:
         if q.op_type != "QuantizeLinear" or q.input[0] in weights or len(q.input) < 3 or q.input[1] in done:
             continue
@@ -130,6 +135,7 @@ def requantize_activations(model: Any, float_model: Any, ranges: dict[str, tuple
         tensor = owner if owner in ranges else q.input[0]
         zero_point = values[q.input[2]]
         if tensor not in ranges or zero_point.dtype != np.uint8:
+            exact = False
             continue
         done.add(q.input[1])
         low, high = ranges[tensor]
@@ -138,14 +144,35 @@ def requantize_activations(model: Any, float_model: Any, ranges: dict[str, tuple
         values[q.input[1]] = np.asarray(scale, np.float32).reshape(values[q.input[1]].shape)
         values[q.input[2]] = np.asarray(zero, np.uint8).reshape(zero_point.shape)
     floats, by_name = Values(float_model), {n.name: n for n in float_model.graph.node}
-    for name, c in qdq_convs(model, ("Conv", "Gemm")).items():
+    biases = 0
+    for name, c in qdq_convs(model, BIASED_OPS).items():
         source = by_name.get(name)
         if c.bias_codes is None or c.bias_scale is None or source is None or len(source.input) < 3:
             continue
         scale = (values[c.input_scale].astype(np.float64) * values[c.weight_scale]).astype(np.float32)
         bias = floats[source.input[2]].astype(np.float64)
+        exact = exact and _clear_of_int32(bias, values[c.bias_scale]) and _clear_of_int32(bias, scale)
         values[c.bias_codes] = np.clip(np.round(bias / scale), -2 ** 31, 2 ** 31 - 1).astype(np.int32)
         values[c.bias_scale] = scale.reshape(values[c.bias_scale].shape)
+        biases += 1
+    return exact and biases == _int32_biases(values.graph)
+
+
+def _clear_of_int32(bias: np.ndarray, scale: np.ndarray) -> bool:
+    """Whether BIAS on the grid of SCALE (per channel, or one for all) stays clear of the int32 limit
+    at which onnxruntime's writer widens the weight's scale (its _adjust_weight_scale_for_int32_bias:
+    1.0001 * 2|b| / (2^32 - 2)), with a margin of BIAS_SCALE_ROOM."""
+    flat = np.asarray(scale, np.float64).reshape(-1)
+    need = 1.0001 * 2.0 * (np.abs(bias).reshape(-1) if flat.size > 1 else np.abs(bias).max(initial=0.0)) / (2.0 ** 32 - 2)
+    return bool(np.all(flat >= need * BIAS_SCALE_ROOM))
+
+
+def _int32_biases(g: Graph) -> int:
+    """How many DequantizeLinears of GRAPH read int32 initializers (the biases its writer quantized)."""
+    from onnx import TensorProto
+
+    return sum(1 for n in g.nodes if n.op_type == "DequantizeLinear" and (c := g.initializer(n.input[0])) is not None
+               and c.data_type == TensorProto.INT32)
 
 
 def saturating_onnx_convs(model: Any, tensors: list[np.ndarray], limit: float) -> dict[str, float]:

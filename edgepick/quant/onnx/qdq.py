@@ -16,7 +16,7 @@ itself.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +26,7 @@ from edgepick.export.onnx_io import CONV_OPS
 from edgepick.onnx_graph import Graph, copy_model
 from edgepick.quant.config import QuantConfig
 from edgepick.quant.fidelity import RuleScore, compare_outputs
-from edgepick.quant.onnx.accuracy import Evaluator, evaluator_for
+from edgepick.quant.onnx.accuracy import Evaluator
 from edgepick.quant.onnx.calibrate import Collector
 from edgepick.quant.onnx.floating import REMOVABLE_OPS, restore_activation
 from edgepick.quant.onnx.measure import adjusted_ranges, requantize_activations
@@ -186,32 +186,49 @@ def _fidelity(evaluator: Evaluator, model: Any) -> tuple[dict, dict[str, float]]
     return compare_outputs(evaluator.names, evaluator.tasks, zip(evaluator.reference, got), evaluator.nhwc), channels
 
 
-def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np.ndarray], ops: list[str],
-                exclude: list[str], config: QuantConfig, nhwc: bool, progress: bool) -> tuple[RangeRule, dict]:
+def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np.ndarray], ops: list[str], exclude: list[str],
+                config: QuantConfig, evaluator: Callable[[list[np.ndarray]], Evaluator], progress: bool,
+                ) -> tuple[RangeRule, dict, Any | None]:
     """The range rule: config's own, or with auto the candidate whose int8 outputs on the HELD tensors
-    (held out of COLLECTOR until now, unless fewer others were counted) stay closest to fp32's. HELD
-    is counted into COLLECTOR on the way. Returns the rule and what was measured."""
+    (held out of COLLECTOR until now, unless fewer others were counted; EVALUATOR gives fp32's
+    outputs on tensors) of the float file PRE stay closest to fp32's. HELD is counted into COLLECTOR on the way. Returns
+    the rule, what was measured and the QDQ graph the candidates were measured on, as written
+    (None when there was one rule: nothing written), which `qdq_for` takes again."""
     rules = candidate_rules(config)
     held_out = bool(held) and collector.seen >= len(held)
     if not held_out:
         for x in held:
             collector.add(x)
     if len(rules) == 1:
-        return rules[0], {"rule": str(rules[0])}
+        return rules[0], {"rule": str(rules[0])}, None
     from edgepick.progress import progress as progress_bar
 
-    evaluator = evaluator_for(pre, float_model, held, {}, nhwc)
+    check = evaluator(held)
     tail, exact = float_tail(float_model), exact_tensors(float_model)
     # one graph written, its qparams set for each rule in turn: the graph does not depend on the ranges
-    written = qdq_model(pre, collector.ranges(rules[0], exact), ops, exclude, config.reduce_range)
+    pristine = qdq_model(pre, collector.ranges(rules[0], exact), ops, exclude, config.reduce_range)
+    written = copy_model(pristine)
     float_outputs(written, tail, float_model)
     scores = []
     for rule in progress_bar(rules, desc="choose ranges", unit="rule", enabled=progress):
         requantize_activations(written, float_model, adjusted_ranges(float_model, collector.ranges(rule, exact)))
-        scores.append(RuleScore(rule, evaluator.error(written, None)))
+        scores.append(RuleScore(rule, check.error(written, None)))
     best = min(scores, key=lambda s: s.error)
     if held_out:
         for x in held:
             collector.add(x)
     return best.rule, {"rule": str(best.rule), "held_out": len(held) if held_out else 0,
-                       "candidates": [s.to_dict() for s in scores]}
+                       "candidates": [s.to_dict() for s in scores]}, pristine
+
+
+def qdq_for(written: Any | None, prepared: Path, float_model: Any, ranges: dict[str, tuple[float, float]],
+            op_types: Sequence[str], exclude: Sequence[str], reduce_range: bool) -> Any:
+    """`qdq_model` for RANGES: a copy of WRITTEN (the writer's graph of the same float model for
+    other ranges) with the qparams of RANGES where that is what the writer writes
+    (`requantize_activations` says so), else written afresh. onnxruntime's writer takes about as
+    long as a calibration pass on a small model."""
+    if written is not None:
+        model = copy_model(written)
+        if requantize_activations(model, float_model, adjusted_ranges(float_model, ranges)):
+            return model
+    return qdq_model(prepared, ranges, op_types, exclude, reduce_range)

@@ -28,8 +28,6 @@ cosine per output, and the share of agreeing decisions where the output decides 
 
 from __future__ import annotations
 
-import contextlib
-import io
 import itertools
 import json
 import sys
@@ -82,21 +80,28 @@ from edgepick.quant.onnx.floating import float_tensors, node_tensors
 from edgepick.quant.onnx.gelu import sigmoid_gelu
 from edgepick.quant.onnx.inputs import check_tensor
 from edgepick.quant.onnx.measure import correct_onnx_biases, qdq_convs, saturating_onnx_convs, to_seven_bit_onnx
-from edgepick.quant.onnx.qdq import choose_rule, exact_tensors, float_tail, outputs_on_grid, qdq_model, writes_float_output
+from edgepick.quant.onnx.preprocess import pre_process
+from edgepick.quant.onnx.qdq import choose_rule, exact_tensors, float_tail, outputs_on_grid, qdq_for, writes_float_output
 from edgepick.quant.onnx.rewrite import fold_affine_into_convs, rewrite_activations
 from edgepick.quant.record import QuantRecord, RecordKind
 from edgepick.quant.results import OnnxPassResult
+
+# fp32's outputs on the check tensors are kept from choosing the rule to the fidelity check when no larger (made
+# again otherwise: held through bias correction, a 2048x1024 segmentation model's would raise its peak)
+HELD_REFERENCE_BYTES = 64 << 20
 
 
 @dataclass(frozen=True)
 class _Calibrated:
     """What calibration leaves: each activation's range, the first calibration tensors (kept for the
-    measurements and the fidelity check), how many there were, and the range rule's record."""
+    measurements and the fidelity check), how many there were, the range rule's record and the graph
+    it was chosen on."""
 
     ranges: dict[str, tuple[float, float]]
     kept: list[np.ndarray]
     seen: int
     record: dict
+    written: Any | None  # the QDQ graph the rule was chosen on (qdq.qdq_for), None when not chosen
 
 
 def _read(model: str | Path, config: QuantConfig, task: Task | Mapping[str, Task] | None) -> tuple[Any, int]:
@@ -119,7 +124,7 @@ def _prepared(proto: Any, pre: Path, equalize: bool, rewrites: dict[str, int]) -
     (the pairs counted into REWRITES); returns the graph PRE holds."""
     import onnx
 
-    _pre_process(proto, pre)
+    pre_process(proto, pre)
     prepared = onnx.load(str(pre))
     drop_unused_initializers(prepared)
     if equalize:
@@ -130,19 +135,41 @@ def _prepared(proto: Any, pre: Path, equalize: bool, rewrites: dict[str, int]) -
 
 def _calibrated(prepared: Any, pre: Path, first: np.ndarray, tensors: Iterator[Any], input_shape: tuple[int, ...],
                 config: QuantConfig, ops: list[str], exclude: list[str], keep: int, hold: int, total: int | None,
-                nhwc: bool, progress: bool) -> _Calibrated:
+                evaluator: Callable[[list[np.ndarray]], Evaluator], progress: bool) -> _Calibrated:
     """Stream every calibration tensor through PREPARED into a histogram per activation that OPS read
-    or write (the first HOLD held out until the rule is chosen on them), and read the ranges off."""
+    or write (the first HOLD held out until the rule is chosen on them, EVALUATOR's check tensors),
+    and read the ranges off."""
     sizes = calibrated_tensors(prepared, ops)
     check_memory(prepared, sizes, int(np.prod(input_shape)) * 4 * keep)
     collector = Collector(prepared, sizes, minmax_only=config.calib_method == CalibMethod.MINMAX)
     kept, seen = _calibrate(collector, first, tensors, input_shape, keep, hold, total, progress)
-    rule, record = choose_rule(collector, pre, prepared, kept[:hold], ops, exclude, config, nhwc, progress)
+    rule, record, written = choose_rule(collector, pre, prepared, kept[:hold], ops, exclude, config, evaluator, progress)
     exact = exact_tensors(prepared)
     ranges = collector.ranges(rule, exact)
     del collector  # its sessions, before the int8 graphs' are made
     release_memory()
-    return _Calibrated(ranges, kept, seen, {**record, "exact_tensors": len(exact & set(sizes))})
+    return _Calibrated(ranges, kept, seen, {**record, "exact_tensors": len(exact & set(sizes))}, written)
+
+
+class _CheckOutputs:
+    """fp32's outputs on the check tensors (an Evaluator of the float file PRE), made when first asked
+    for and kept for every later check: choosing the rule, the measurements' checks, the fidelity."""
+
+    def __init__(self, pre: Path, prepared: Any, tasks: dict[str, Task], nhwc: bool):
+        self.pre, self.prepared, self.tasks, self.nhwc = pre, prepared, tasks, nhwc
+        self.made: Evaluator | None = None
+
+    def __call__(self, tensors: list[np.ndarray]) -> Evaluator:
+        if self.made is None:
+            release_memory()  # the step before's, before they are made
+            self.made = evaluator_for(self.pre, self.prepared, tensors, self.tasks, self.nhwc)
+        return self.made
+
+    def release_if_large(self) -> None:
+        """Let the outputs go when they are larger than HELD_REFERENCE_BYTES: they are made again after
+        the measurements, whose peak they would raise."""
+        if self.made is not None and sum(a.nbytes for out in self.made.reference for a in out) > HELD_REFERENCE_BYTES:
+            self.made = None
 
 
 def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: str | Path,
@@ -193,21 +220,19 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
         keep = max(check, measured, SATURATION_CHECK_INPUTS if config.weight_bits == WeightBits.FIRST_SEVEN else 0)
         ops = placement_ops(options.placement, _quantizer_registry())
         exclude = [*config.keep_float, *float_tail(prepared)]
+        checks = _CheckOutputs(pre, prepared, tasks, nhwc)
         cal = _calibrated(prepared, pre, first, tensors, tuple(input_shape), config, ops, exclude, keep,
-                          check if config.calib_method == CalibMethod.AUTO else 0, total, nhwc, progress)
+                          check if config.calib_method == CalibMethod.AUTO else 0, total, checks, progress)
+        checks.release_if_large()
+
+        def checker() -> Evaluator:
+            return checks(cal.kept[:check])
+
         def build(with_methods: PtqMethods) -> tuple[Any, dict]:
-            int8 = qdq_model(pre, cal.ranges, ops, exclude, config.reduce_range)
+            int8 = qdq_for(cal.written, pre, prepared, cal.ranges, ops, exclude, config.reduce_range)
             if options.gelu == GeluForm.SIGMOID:  # before the bias correction, which then measures it
                 rewrites["sigmoid_gelu"] = sigmoid_gelu(int8)
             return int8, _measure(prepared, int8, cal.kept, measured or lockstep_images(*hw), config, with_methods, checker)
-
-        made: list[Evaluator] = []
-
-        def checker() -> Evaluator:  # fp32's outputs on the check tensors, held from the first check on
-            if not made:
-                release_memory()  # the lockstep pass's, before they are made
-                made.append(evaluator_for(pre, prepared, cal.kept[:check], tasks, nhwc))
-            return made[0]
 
         int8, done = build(methods)
         evaluator = checker()
@@ -364,37 +389,3 @@ def placement_ops(placement: Placement, registry: set[str]) -> list[str]:
     if placement == Placement.JOINS:
         return sorted({*CONV_OPS, *JOIN_OPS})
     return sorted(CONV_OPS)
-
-
-def _pre_process(proto: Any, out: Path) -> None:
-    """onnxruntime's pre-processing (shapes inferred, BatchNorm folded, graph optimised) of PROTO into
-    OUT. Its symbolic shape inference asserts on some graphs (a Concat of an LSTM's outputs, among
-    them): then onnx's own shape inference does, and what still fails is refused in one line. It
-    reads PROTO from a file: given a ModelProto, it moves the weights out of it (to a placeholder
-    file) before its shape inference reads them."""
-    import onnx
-    from onnxruntime.quantization import quant_pre_process
-
-    source = out.with_name(f"{out.stem}-in.onnx")
-    onnx.save(proto, str(source))
-    try:
-        with _quiet():
-            quant_pre_process(str(source), str(out))
-        return
-    except Exception:  # noqa: BLE001 - its shape inference raises AssertionError and others
-        pass
-    try:
-        with _quiet():
-            quant_pre_process(str(source), str(out), skip_symbolic_shape=True)
-    except Exception as exc:  # noqa: BLE001
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
-        raise ParameterError(f"{{model:name}}: onnxruntime's pre-processing (shape inference, optimisation) fails "
-                             f"on this graph: {first}", model=None) from None
-
-
-@contextlib.contextmanager
-def _quiet() -> Iterator[None]:
-    """onnxruntime's quantizer prints its steps to stdout, where edgepick's commands print their
-    JSON; edgepick's own progress bar says what it is doing."""
-    with contextlib.redirect_stdout(io.StringIO()):
-        yield
