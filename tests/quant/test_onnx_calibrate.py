@@ -121,3 +121,38 @@ def test_a_large_feature_map_is_fetched_as_a_strided_sample_with_its_exact_extre
         hist = collector.histograms[name]
         assert hist.total == 3 * 512 * 512
         assert hist.min == pytest.approx(acts[name].min(), abs=1e-4) and hist.max == pytest.approx(acts[name].max(), abs=1e-4)
+
+
+def test_the_conv_output_means_are_counted_on_the_first_inputs_whole_or_sampled(tmp_path):
+    """Bias correction's fp32 side comes from the calibration pass: per channel, the mean of the whole
+    conv output (not of its strided sample), on the inputs numbered below mean_inputs."""
+    path, w, b = conv_relu_model(tmp_path / "big.onnx", shape=(1, 2, 1024, 1024))
+    model = onnx.shape_inference.infer_shapes(onnx.load(str(path)))
+    collector = Collector(model, calibrated_tensors(model, ["Conv", "Relu"]), means=["conv_out"], mean_inputs=2)
+    assert collector.steps["conv_out"] == 2
+    rng = np.random.default_rng(1)
+    xs = [rng.normal(0.5 * k, 1, (1, 2, 1024, 1024)).astype(np.float32) for k in range(3)]
+    for k in (1, 2, 0):  # the held-out first one last, as calib_method auto counts them
+        collector.add(xs[k], k)
+    got = collector.channel_means(2)
+    assert list(got) == ["conv_out"] and len(got["conv_out"]) == 2
+    for k in range(2):
+        want = _activations([xs[k]], w, b)["conv_out"].reshape(3, -1).mean(axis=1)
+        np.testing.assert_allclose(got["conv_out"][k][0], want, rtol=1e-4, atol=1e-4)
+    assert collector.channel_means(3) == {}  # the third was counted past mean_inputs
+
+
+def test_bias_correction_from_the_calibration_pass_gives_the_file_its_own_pass_gives(tmp_path, monkeypatch):
+    path, _, _ = conv_relu_model(tmp_path / "m.onnx")
+    xs = _inputs(12)
+    with monkeypatch.context() as patched:
+        patched.setattr("edgepick.quant.onnx.measure.channel_means", lambda *a: pytest.fail("fp32 run again"))
+        quantize_onnx_static(path, xs, tmp_path / "counted.onnx", progress=False)
+    monkeypatch.setattr(Collector, "channel_means", lambda self, count: {})  # bias correction runs fp32 itself
+    quantize_onnx_static(path, xs, tmp_path / "own.onnx", progress=False)
+    counted, own = (onnx.load(str(tmp_path / f"{n}.onnx")) for n in ("counted", "own"))
+    biases = [i for i in counted.graph.initializer if i.data_type == onnx.TensorProto.INT32]
+    assert biases and json.loads(dict((p.key, p.value) for p in counted.metadata_props)["edgepick.quant"]
+                                 )["measured_images"] > 0
+    for mine, theirs in zip(counted.graph.initializer, own.graph.initializer, strict=True):
+        assert onnx.numpy_helper.to_array(mine).tobytes() == onnx.numpy_helper.to_array(theirs).tobytes(), mine.name

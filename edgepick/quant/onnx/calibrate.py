@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Iterable
+from collections.abc import Container, Iterable, Mapping
 from typing import Any
 
 import numpy as np
@@ -24,6 +24,7 @@ import numpy as np
 from edgepick.errors import ParameterError
 from edgepick.onnx_graph import Graph, copy_model
 from edgepick.quant.config import CalibMethod
+from edgepick.quant.onnx.lockstep import mean_node, tensor_ranks
 from edgepick.quant.ranges import CHUNK, SAMPLED, Histogram, RangeRule
 
 OUTPUT_BUDGET = 512 << 20  # bytes of extra outputs one calibration run may fetch at once
@@ -145,10 +146,12 @@ def _sampled(g: Graph, name: str, step: int, k: int) -> tuple[list[Any], list[st
     return nodes, [f"{name}_sample", f"{name}_min", f"{name}_max"]
 
 
-def _with_samples(model: Any, group: list[str], steps: dict[str, int]) -> tuple[Any, list[str]]:
+def _with_samples(model: Any, group: list[str], steps: dict[str, int], means: Container[str] = (),
+                  ranks: Mapping[str, int] | None = None) -> tuple[Any, list[str]]:
     """A copy of MODEL whose graph outputs are GROUP's tensors, a feature map of step > 1 as its
-    sample, min and max; the sampling nodes right after the node that makes their tensor, so that
-    onnxruntime, which runs nodes in the order given, frees the whole map as early as without them."""
+    sample, min and max, and those named in MEANS (of RANKS) also as their per-channel means; the
+    sampling nodes right after the node that makes their tensor, so that onnxruntime, which runs
+    nodes in the order given, frees the whole map as early as without them."""
     import onnx
 
     part = copy_model(model)
@@ -157,11 +160,12 @@ def _with_samples(model: Any, group: list[str], steps: dict[str, int]) -> tuple[
     fetch: list[str] = []
     after: dict[str, list[Any]] = {}
     for k, name in enumerate(group):
-        if steps[name] == 1:
-            fetch.append(name)
-            continue
-        nodes, names = _sampled(g, name, steps[name], k)
-        after[name] = nodes
+        nodes, names = ([], [name]) if steps[name] == 1 else _sampled(g, name, steps[name], k)
+        if name in means:
+            nodes.append(mean_node(part, g, name, (ranks or {}).get(name, 4)))
+            names.append(nodes[-1].output[0])
+        if nodes:
+            after[name] = nodes
         fetch.extend(names)
     g.insert_after_producers(after)
     part.graph.output.extend(onnx.ValueInfoProto(name=n) for n in fetch)
@@ -179,10 +183,13 @@ class Collector:
     alive to its end, fetched or not."""
 
     def __init__(self, model: Any, sizes: dict[str, int], budget: int = OUTPUT_BUDGET, threads: int = 0,
-                 minmax_only: bool = False):
+                 minmax_only: bool = False, means: Iterable[str] = (), mean_inputs: int = 0):
         import onnxruntime as ort
 
         self.names = list(sizes)
+        # per-channel means of these tensors on the inputs numbered below MEAN_INPUTS (bias correction's fp32 side)
+        self.mean_inputs = mean_inputs
+        self.means: dict[str, dict[int, np.ndarray]] = {n: {} for n in means if n in sizes} if mean_inputs else {}
         self.histograms = {name: Histogram() for name in self.names}
         inputs = {i.name for i in model.graph.input}
         self.inputs = [n for n in self.names if n in inputs]  # counted from the tensor itself
@@ -201,21 +208,24 @@ class Collector:
         if threads:
             opts.intra_op_num_threads = threads
         self.sessions, self.fetches = [], []
+        ranks = tensor_ranks(model)
         for group in self.groups:
-            part, fetch = _with_samples(model, group, self.steps)
+            part, fetch = _with_samples(model, group, self.steps, self.means, ranks)
             self.fetches.append(fetch)
             self.sessions.append(ort.InferenceSession(part.SerializeToString(), opts, providers=["CPUExecutionProvider"]))
         self.input = Graph(model).inputs[0]
         self.seen = 0
         self.counts = not minmax_only  # minmax reads the extremes alone: no histogram to fill
 
-    def add(self, x: np.ndarray) -> None:
-        """Count one input tensor in."""
+    def add(self, x: np.ndarray, index: int | None = None) -> None:
+        """Count one input tensor in (the INDEX-th calibration tensor, for the means)."""
         for name in self.inputs:
             self.histograms[name].update(x, self.counts)
         for group, fetch, session in zip(self.groups, self.fetches, self.sessions):
             values = dict(zip(fetch, session.run(fetch, {self.input: x})))
             for name in group:
+                if name in self.means and index is not None and index < self.mean_inputs:
+                    self.means[name][index] = values[f"{name}_channel_means"].astype(np.float64)
                 hist = self.histograms[name]
                 if self.steps[name] == 1:
                     hist.update(values[name], self.counts)
@@ -227,6 +237,13 @@ class Collector:
                     hist.update(values[f"{name}_sample"])
             del values
         self.seen += 1
+
+    def channel_means(self, count: int) -> dict[str, list[np.ndarray]]:
+        """Per tensor asked for, its [1, channels] means on the inputs numbered 0 to COUNT - 1, where
+        every one was counted in with its number (empty otherwise)."""
+        if not self.means or any(k not in got for got in self.means.values() for k in range(count)):
+            return {}
+        return {name: [got[k] for k in range(count)] for name, got in self.means.items()}
 
     def ranges(self, rule: RangeRule, exact: Iterable[str] = ()) -> dict[str, tuple[float, float]]:
         """Every calibrated tensor's range by RULE; the tensors named in EXACT keep min and max."""

@@ -47,22 +47,15 @@ def channel_means(model: Any, outputs: list[str]) -> Callable[[np.ndarray], list
 
     copy = copy_model(model)
     g = Graph(copy)
-    ranks = {v.name: len(v.type.tensor_type.shape.dim) for v in [*copy.graph.value_info, *copy.graph.output]}
-    version = next((o.version for o in copy.opset_import if o.domain in ("", "ai.onnx")), 13)
+    ranks = tensor_ranks(copy)
     del copy.graph.output[:]
     means: list[str] = []
     after: dict[str, list[Any]] = {}
-    for k, name in enumerate(outputs):
-        axes = list(range(2, ranks.get(name, 4)))
-        mean = f"{name}_channel_means"
-        if version >= 18:
-            g.add_initializer(f"{mean}_axes", axes, np.int64)
-            node = onnx.helper.make_node("ReduceMean", [name, f"{mean}_axes"], [mean], keepdims=0, name=f"mean_{k}")
-        else:
-            node = onnx.helper.make_node("ReduceMean", [name], [mean], axes=axes, keepdims=0, name=f"mean_{k}")
+    for name in outputs:
+        node = mean_node(copy, g, name, ranks.get(name, 4))
         after.setdefault(name, []).append(node)
-        copy.graph.output.append(onnx.ValueInfoProto(name=mean))
-        means.append(mean)
+        copy.graph.output.append(onnx.ValueInfoProto(name=node.output[0]))
+        means.append(node.output[0])
     g.insert_after_producers(after)
     opts = ort.SessionOptions()
     opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
@@ -71,6 +64,25 @@ def channel_means(model: Any, outputs: list[str]) -> Callable[[np.ndarray], list
     session = ort.InferenceSession(copy.SerializeToString(), opts, providers=["CPUExecutionProvider"])
     image = session.get_inputs()[0].name
     return lambda x: [m.astype(np.float64) for m in session.run(means, {image: x})]
+
+
+def tensor_ranks(model: Any) -> dict[str, int]:
+    """The rank of each tensor MODEL's shape inference knows."""
+    return {v.name: len(v.type.tensor_type.shape.dim) for v in [*model.graph.value_info, *model.graph.output,
+                                                                 *model.graph.input]}
+
+
+def mean_node(model: Any, g: Graph, name: str, rank: int) -> Any:
+    """A ReduceMean node of MODEL (G its Graph, which takes its axes initializer) giving tensor NAME's
+    (of RANK) per-image, per-channel means as NAME_channel_means, [images, channels]."""
+    import onnx
+
+    version = next((o.version for o in model.opset_import if o.domain in ("", "ai.onnx")), 13)
+    axes, mean = list(range(2, rank)), f"{name}_channel_means"
+    if version >= 18:
+        g.add_initializer(f"{mean}_axes", axes, np.int64)
+        return onnx.helper.make_node("ReduceMean", [name, f"{mean}_axes"], [mean], keepdims=0, name=f"{mean}_node")
+    return onnx.helper.make_node("ReduceMean", [name], [mean], axes=axes, keepdims=0, name=f"{mean}_node")
 
 
 @dataclass

@@ -21,6 +21,7 @@ optimisations off, each Q/DQ pair computed as written.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -218,11 +219,13 @@ def to_seven_bit_onnx(float_model: Any, model: Any, names: list[str]) -> None:
             values[c.bias_scale] = bias_scale
 
 
-def correct_onnx_biases(float_model: Any, model: Any, tensors: list[np.ndarray], skip: set[str]) -> int:
+def correct_onnx_biases(float_model: Any, model: Any, tensors: list[np.ndarray], skip: set[str],
+                        fp32_means: Mapping[str, list[np.ndarray]] | None = None) -> int:
     """Empirical bias correction of MODEL (QDQ) in place, against the same convs of FLOAT_MODEL on
     TENSORS (model inputs): MODEL runs on all TENSORS together, segment by segment (`segments`),
     and each wave's convs are corrected before the segments after it run. Convs named in SKIP are
-    left alone. Returns how many convs were corrected."""
+    left alone. FP32_MEANS: FLOAT_MODEL's per-channel means of its conv outputs on TENSORS, where
+    calibration counted them (run for them otherwise). Returns how many convs were corrected."""
     by_name = {n.name: n for n in float_model.graph.node}
     convs = {name: c for name, c in qdq_convs(model).items() if name not in skip and name in by_name}
     bias = {name: (c.bias_codes, c.bias_scale) for name, c in convs.items()
@@ -230,12 +233,16 @@ def correct_onnx_biases(float_model: Any, model: Any, tensors: list[np.ndarray],
     if not bias:
         return 0
     names = list(bias)
-    fp32 = channel_means(float_model, [by_name[name].output[0] for name in names])
-    rows: dict[str, list[np.ndarray]] = {name: [] for name in names}
-    for x in tensors:
-        for name, means in zip(names, fp32(x), strict=True):
-            rows[name].append(means)
-    target = {name: np.concatenate(r) for name, r in rows.items()}
+    outputs = [by_name[name].output[0] for name in names]
+    if fp32_means and all(len(fp32_means.get(out, [])) >= len(tensors) for out in outputs):
+        target = {name: np.concatenate(fp32_means[out][:len(tensors)]) for name, out in zip(names, outputs)}
+    else:
+        fp32 = channel_means(float_model, outputs)
+        rows: dict[str, list[np.ndarray]] = {name: [] for name in names}
+        for x in tensors:
+            for name, means in zip(names, fp32(x), strict=True):
+                rows[name].append(means)
+        target = {name: np.concatenate(r) for name, r in rows.items()}
     values = Values(model)
     image = model.graph.input[0].name
     env = [{image: x} for x in tensors]  # per tensor, what later segments read

@@ -197,8 +197,8 @@ def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np
     rules = candidate_rules(config)
     held_out = bool(held) and collector.seen >= len(held)
     if not held_out:
-        for x in held:
-            collector.add(x)
+        for k, x in enumerate(held):
+            collector.add(x, k)
     if len(rules) == 1:
         return rules[0], {"rule": str(rules[0])}, None
     from edgepick.progress import progress as progress_bar
@@ -215,8 +215,8 @@ def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np
         scores.append(RuleScore(rule, check.error(written, None)))
     best = min(scores, key=lambda s: s.error)
     if held_out:
-        for x in held:
-            collector.add(x)
+        for k, x in enumerate(held):  # the first calibration tensors
+            collector.add(x, k)
     return best.rule, {"rule": str(best.rule), "held_out": len(held) if held_out else 0,
                        "candidates": [s.to_dict() for s in scores]}, pristine
 

@@ -94,14 +94,15 @@ HELD_REFERENCE_BYTES = 64 << 20
 @dataclass(frozen=True)
 class _Calibrated:
     """What calibration leaves: each activation's range, the first calibration tensors (kept for the
-    measurements and the fidelity check), how many there were, the range rule's record and the graph
-    it was chosen on."""
+    measurements and the fidelity check), how many there were, the range rule's record, the graph
+    it was chosen on and the float convs' output means."""
 
     ranges: dict[str, tuple[float, float]]
     kept: list[np.ndarray]
     seen: int
     record: dict
     written: Any | None  # the QDQ graph the rule was chosen on (qdq.qdq_for), None when not chosen
+    means: dict[str, list[np.ndarray]]  # fp32's per-channel conv output means on the first tensors, for bias correction
 
 
 def _read(model: str | Path, config: QuantConfig, task: Task | Mapping[str, Task] | None) -> tuple[Any, int]:
@@ -135,20 +136,22 @@ def _prepared(proto: Any, pre: Path, equalize: bool, rewrites: dict[str, int]) -
 
 def _calibrated(prepared: Any, pre: Path, first: np.ndarray, tensors: Iterator[Any], input_shape: tuple[int, ...],
                 config: QuantConfig, ops: list[str], exclude: list[str], keep: int, hold: int, total: int | None,
-                evaluator: Callable[[list[np.ndarray]], Evaluator], progress: bool) -> _Calibrated:
+                evaluator: Callable[[list[np.ndarray]], Evaluator], mean_inputs: int, progress: bool) -> _Calibrated:
     """Stream every calibration tensor through PREPARED into a histogram per activation that OPS read
     or write (the first HOLD held out until the rule is chosen on them, EVALUATOR's check tensors),
-    and read the ranges off."""
+    and read the ranges off; on the first MEAN_INPUTS, the convs' per-channel output means too."""
     sizes = calibrated_tensors(prepared, ops)
     check_memory(prepared, sizes, int(np.prod(input_shape)) * 4 * keep)
-    collector = Collector(prepared, sizes, minmax_only=config.calib_method == CalibMethod.MINMAX)
+    convs = [n.output[0] for n in prepared.graph.node if n.op_type == "Conv"]
+    collector = Collector(prepared, sizes, minmax_only=config.calib_method == CalibMethod.MINMAX, means=convs,
+                          mean_inputs=mean_inputs)
     kept, seen = _calibrate(collector, first, tensors, input_shape, keep, hold, total, progress)
     rule, record, written = choose_rule(collector, pre, prepared, kept[:hold], ops, exclude, config, evaluator, progress)
     exact = exact_tensors(prepared)
-    ranges = collector.ranges(rule, exact)
+    ranges, means = collector.ranges(rule, exact), collector.channel_means(min(mean_inputs, seen))
     del collector  # its sessions, before the int8 graphs' are made
     release_memory()
-    return _Calibrated(ranges, kept, seen, {**record, "exact_tensors": len(exact & set(sizes))}, written)
+    return _Calibrated(ranges, kept, seen, {**record, "exact_tensors": len(exact & set(sizes))}, written, means)
 
 
 class _CheckOutputs:
@@ -222,7 +225,8 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
         exclude = [*config.keep_float, *float_tail(prepared)]
         checks = _CheckOutputs(pre, prepared, tasks, nhwc)
         cal = _calibrated(prepared, pre, first, tensors, tuple(input_shape), config, ops, exclude, keep,
-                          check if config.calib_method == CalibMethod.AUTO else 0, total, checks, progress)
+                          check if config.calib_method == CalibMethod.AUTO else 0, total, checks,
+                          measured if methods.bias_correction == BiasCorrection.EMPIRICAL else 0, progress)
         checks.release_if_large()
 
         def checker() -> Evaluator:
@@ -232,7 +236,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
             int8 = qdq_for(cal.written, pre, prepared, cal.ranges, ops, exclude, config.reduce_range)
             if options.gelu == GeluForm.SIGMOID:  # before the bias correction, which then measures it
                 rewrites["sigmoid_gelu"] = sigmoid_gelu(int8)
-            return int8, _measure(prepared, int8, cal.kept, measured or lockstep_images(*hw), config, with_methods, checker)
+            return int8, _measure(prepared, int8, cal, measured or lockstep_images(*hw), config, with_methods, checker)
 
         int8, done = build(methods)
         evaluator = checker()
@@ -344,21 +348,23 @@ def _calibrate(collector: Collector, first: np.ndarray, rest: Iterator[Any], sha
         if len(kept) < keep:
             kept.append(x)
         if k >= hold:
-            collector.add(x)
+            collector.add(x, k)
         seen += 1
         bar.update()
     bar.close()
     return kept, seen
 
 
-def _measure(prepared: Any, int8: Any, kept: list[np.ndarray], images: int, config: QuantConfig,
+def _measure(prepared: Any, int8: Any, cal: _Calibrated, images: int, config: QuantConfig,
              methods: PtqMethods, checker: Callable[[], Evaluator]) -> dict:
     """first-7, AdaRound and empirical bias correction on the QDQ graph INT8 (in place), in that
-    order, measured on KEPT (the first calibration tensors; IMAGES of them for AdaRound and the
-    correction); the correction is kept only where it brings the outputs closer to fp32's on both
-    halves of the check tensors (CHECKER gives their Evaluator): on a table-cell detector at
-    1024x1024 it took every output 7-11 dB further from fp32 (docs/quantization.md). Returns what was done."""
+    order, measured on the first calibration tensors CAL kept (IMAGES of them for AdaRound and the
+    correction, fp32's side of it from calibration where it counted it); the correction is kept
+    only where it brings the outputs closer to fp32's on both halves of the check tensors (CHECKER
+    gives their Evaluator): on a table-cell detector at 1024x1024 it took every output 7-11 dB
+    further from fp32 (docs/quantization.md). Returns what was done."""
     done: dict = {}
+    kept = cal.kept
     if config.weight_bits == WeightBits.FIRST_SEVEN:
         share = saturating_onnx_convs(int8, kept[:SATURATION_CHECK_INPUTS], HEADROOM * INT16)
         done["seven_bit_convs"] = [name for name, s in share.items() if s > 0]
@@ -371,7 +377,7 @@ def _measure(prepared: Any, int8: Any, kept: list[np.ndarray], images: int, conf
         done["measured_images"] = min(images, len(kept))
     if methods.bias_correction == BiasCorrection.EMPIRICAL:
         uncorrected = copy_model(int8)
-        correct_onnx_biases(prepared, int8, kept[:images], writes_float_output(prepared))
+        correct_onnx_biases(prepared, int8, kept[:images], writes_float_output(prepared), cal.means)
         done["bias_correction_kept"] = checker().closer(uncorrected, int8)
         if not done["bias_correction_kept"]["kept"]:
             int8.CopyFrom(uncorrected)
