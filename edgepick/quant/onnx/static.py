@@ -161,16 +161,19 @@ class _CheckOutputs:
     def __init__(self, pre: Path, prepared: Any, tasks: dict[str, Task], nhwc: bool):
         self.pre, self.prepared, self.tasks, self.nhwc = pre, prepared, tasks, nhwc
         self.made: Evaluator | None = None
+        self.after_calibration = False
 
     def __call__(self, tensors: list[np.ndarray]) -> Evaluator:
         if self.made is None:
-            release_memory()  # the step before's, before they are made
+            if self.after_calibration:  # the measurements' memory; during calibration there is none to free
+                release_memory()
             self.made = evaluator_for(self.pre, self.prepared, tensors, self.tasks, self.nhwc)
         return self.made
 
     def release_if_large(self) -> None:
-        """Let the outputs go when they are larger than HELD_REFERENCE_BYTES: they are made again after
-        the measurements, whose peak they would raise."""
+        """After calibration: let the outputs go when they are larger than HELD_REFERENCE_BYTES: they are
+        made again after the measurements, whose peak they would raise."""
+        self.after_calibration = True
         if self.made is not None and sum(a.nbytes for out in self.made.reference for a in out) > HELD_REFERENCE_BYTES:
             self.made = None
 
