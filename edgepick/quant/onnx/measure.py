@@ -33,7 +33,7 @@ from edgepick.quant.onnx.lockstep import channel_means, image_means, runner, seg
 
 SEVEN_BIT = 64  # onnxruntime's reduce-range int8 weight grid: -64..64, scale = max |w| / 64
 BIASED_OPS = ("Conv", "ConvTranspose", "Gemm")  # their int32 bias's scale is the input's times the weight's
-BIAS_SCALE_ROOM = 1.01
+BIAS_SCALE_ROOM = 1.01  # a bias scale within 1% of the writer's widening limit: the writer is asked again
 
 
 @dataclass(frozen=True)
@@ -112,9 +112,9 @@ def adjusted_ranges(float_model: Any, ranges: dict[str, tuple[float, float]]) ->
 
 def requantize_activations(model: Any, float_model: Any, ranges: dict[str, tuple[float, float]]) -> bool:
     """Set the uint8 qparams of MODEL's activations (QDQ, as onnxruntime wrote it from FLOAT_MODEL) to
-    those of RANGES, as its writer computes them, and the int32 bias codes of its Convs and Gemms to
-    the new input scales: the graph calib_method auto measures each candidate rule with, without
-    writing it again.
+    those of RANGES, as its writer computes them, and the int32 bias codes of its Convs,
+    ConvTransposes and Gemms to the new input scales: the graph calib_method auto measures each
+    candidate rule with, without writing it again.
     (onnxruntime's writer may also widen a weight's scale where a bias would overflow int32; here
     such a bias clips, so a candidate's measure can differ from its written file's in that case.)
     Returns whether MODEL is now what the writer writes for RANGES: every activation's qparams and

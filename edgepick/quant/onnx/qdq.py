@@ -186,14 +186,14 @@ def _fidelity(evaluator: Evaluator, model: Any) -> tuple[dict, dict[str, float]]
     return compare_outputs(evaluator.names, evaluator.tasks, zip(evaluator.reference, got), evaluator.nhwc), channels
 
 
-def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np.ndarray], ops: list[str], exclude: list[str],
-                config: QuantConfig, evaluator: Callable[[list[np.ndarray]], Evaluator], progress: bool,
-                ) -> tuple[RangeRule, dict, Any | None]:
-    """The range rule: config's own, or with auto the candidate whose int8 outputs on the HELD tensors
-    (held out of COLLECTOR until now, unless fewer others were counted; EVALUATOR gives fp32's
-    outputs on tensors) of the float file PRE stay closest to fp32's. HELD is counted into COLLECTOR on the way. Returns
-    the rule, what was measured and the QDQ graph the candidates were measured on, as written
-    (None when there was one rule: nothing written), which `qdq_for` takes again."""
+def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np.ndarray], ops: list[str],
+                exclude: list[str], config: QuantConfig, evaluator: Callable[[list[np.ndarray]], Evaluator],
+                progress: bool) -> tuple[RangeRule, dict, Any | None]:
+    """The range rule: config's own, or with auto the candidate whose int8 graph of the float file
+    PRE gives outputs closest to fp32's on the HELD tensors (held out of COLLECTOR until now, unless
+    fewer others were counted; EVALUATOR gives fp32's outputs on them). HELD is counted into
+    COLLECTOR on the way. Returns the rule, what was measured, and the QDQ graph the candidates were
+    measured on as the writer wrote it (None with one rule: nothing written), for `qdq_for`."""
     rules = candidate_rules(config)
     held_out = bool(held) and collector.seen >= len(held)
     if not held_out:
