@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -61,16 +61,18 @@ class Evaluator:
         self.graphs += 1
         return session
 
+    def outputs(self, model: Any) -> Iterator[list[np.ndarray]]:
+        """MODEL's outputs on each check tensor in turn, in `reference`'s order (one tensor's held at a time)."""
+        session = self.session(model)
+        return (session.run(self.names, {self.input_name: x}) for x in self.inputs)
+
     def fidelity(self, model: Any) -> dict[str, OutputFidelity]:
         """Each output's fidelity (quant/fidelity.py) of MODEL on every check tensor."""
-        session = self.session(model)
-        pairs = ((ref, session.run(self.names, {self.input_name: x})) for x, ref in zip(self.inputs, self.reference))
-        return compare_outputs(self.names, self.tasks, pairs, self.nhwc)
+        return compare_outputs(self.names, self.tasks, zip(self.reference, self.outputs(model)), self.nhwc)
 
     def measure(self, model: Any) -> tuple[dict[str, OutputFidelity], float]:
         """`fidelity` and `error` of MODEL on every check tensor, from one run of each."""
-        session = self.session(model)
-        outputs = [session.run(self.names, {self.input_name: x}) for x in self.inputs]
+        outputs = list(self.outputs(model))
         errors = [BalancedError(self.nhwc) for _ in self.names]
         for ref, got in zip(self.reference, outputs):
             for error, r, t in zip(errors, ref, got):
