@@ -150,21 +150,3 @@ def test_the_graph_the_rule_was_chosen_on_is_taken_again_where_it_is_what_the_wr
         np.testing.assert_allclose(got[name], want[name], rtol=1e-6, err_msg=name)
     assert qdq.qdq_for(written, path, float_model, tiny, ops, [], False) is fresh_tiny and len(calls) == 1
     assert qdq.qdq_for(None, path, float_model, second, ops, [], False) is fresh_tiny and len(calls) == 2
-
-
-def test_a_conv_output_only_a_float_relu_reads_gets_no_levels_below_zero(tmp_path):
-    """With the model's activations float (placement convs, for OpenVINO), the conv's output grid starts at
-    0 as onnxruntime's writer starts it when it quantizes the Relu itself: the negative half the Relu zeroes
-    needs no uint8 levels."""
-    from edgepick.onnx_graph import Graph
-    from edgepick.quant.config import OnnxOptions, Placement
-
-    path, _, _ = conv_relu_model(tmp_path / "m.onnx")
-    xs = [x * 3 - 1 for x in calib_tensors(12, shape=(1, 2, 32, 32))]
-    result = quantize_onnx_static(path, xs, tmp_path / "convs.onnx", options=OnnxOptions(placement=Placement.CONVS),
-                                  progress=False)
-    g = Graph(onnx.load(result.out))
-    q = next(n for n in g.nodes if n.op_type == "QuantizeLinear" and n.input[0] == "conv_out")
-    assert [n.op_type for n in g.consumers(g.consumers(q.output[0])[0].output[0])] == ["Relu"]
-    assert int(g.array(q.input[2])) == 0
-    assert result.fidelity["output"]["sqnr_db"] > 45

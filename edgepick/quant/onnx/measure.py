@@ -98,18 +98,13 @@ class Values:
 
 def adjusted_ranges(float_model: Any, ranges: dict[str, tuple[float, float]]) -> dict[str, tuple[float, float]]:
     """RANGES as onnxruntime's QDQ writer adjusts them before it computes the qparams: a Relu's or
-    Clip's input (read by it alone) takes its output's range, a Softmax's output is [0, 1]. Where
-    the Relu stays float and its output has no range (placement convs), its input's range is cut
-    at 0 all the same: the negative half the Relu zeroes needs no levels."""
+    Clip's input (read by it alone) takes its output's range, a Softmax's output is [0, 1]."""
     g = Graph(float_model)
     adjusted = dict(ranges)
     for n in g.nodes:
-        if n.op_type in ("Relu", "Clip") and len(g.consumers(n.input[0])) == 1 and n.input[0] in adjusted:
-            if n.output[0] in adjusted:
+        if n.op_type in ("Relu", "Clip") and len(g.consumers(n.input[0])) == 1 and n.output[0] in adjusted:
+            if n.input[0] in adjusted:
                 adjusted[n.input[0]] = adjusted[n.output[0]]
-            elif n.op_type == "Relu":
-                low, high = adjusted[n.input[0]]
-                adjusted[n.input[0]] = (max(low, 0.0), max(high, 0.0))
         elif n.op_type == "Softmax" and n.output[0] in adjusted:
             adjusted[n.output[0]] = (0.0, 1.0)
     return adjusted

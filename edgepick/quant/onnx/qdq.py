@@ -222,14 +222,12 @@ def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np
 
 def qdq_for(written: Any | None, prepared: Path, float_model: Any, ranges: dict[str, tuple[float, float]],
             op_types: Sequence[str], exclude: Sequence[str], reduce_range: bool) -> Any:
-    """`qdq_model` for RANGES as `adjusted_ranges` adjusts them (a tensor only a Relu or Clip reads
-    takes its output's range, whatever the placement: what it clamps it gets back the same): a copy
-    of WRITTEN (the writer's graph of the same float model for other ranges) with their qparams
-    where that is what the writer writes (`requantize_activations` says so), else written afresh.
-    onnxruntime's writer takes about as long as a calibration pass on a small model."""
-    adjusted = adjusted_ranges(float_model, ranges)
+    """`qdq_model` for RANGES: a copy of WRITTEN (the writer's graph of the same float model for
+    other ranges) with the qparams of RANGES where that is what the writer writes
+    (`requantize_activations` says so), else written afresh. onnxruntime's writer takes about as
+    long as a calibration pass on a small model."""
     if written is not None:
         model = copy_model(written)
-        if requantize_activations(model, float_model, adjusted):
+        if requantize_activations(model, float_model, adjusted_ranges(float_model, ranges)):
             return model
-    return qdq_model(prepared, adjusted, op_types, exclude, reduce_range)
+    return qdq_model(prepared, ranges, op_types, exclude, reduce_range)
