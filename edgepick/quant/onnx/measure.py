@@ -21,7 +21,7 @@ optimisations off, each Q/DQ pair computed as written.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -96,12 +96,16 @@ class Values:
         self.graph.set_array(name, value)
 
 
-def adjusted_ranges(float_model: Any, ranges: dict[str, tuple[float, float]]) -> dict[str, tuple[float, float]]:
+def adjusted_ranges(float_model: Any, ranges: dict[str, tuple[float, float]], op_types: Collection[str] | None = None,
+                    exclude: Collection[str] = ()) -> dict[str, tuple[float, float]]:
     """RANGES as onnxruntime's QDQ writer adjusts them before it computes the qparams: a Relu's or
-    Clip's input (read by it alone) takes its output's range, a Softmax's output is [0, 1]."""
+    Clip's input (read by it alone) takes its output's range, a Softmax's output is [0, 1]; as its
+    writer does, only for the nodes it quantizes (of OP_TYPES, or any type; none in EXCLUDE)."""
     g = Graph(float_model)
     adjusted = dict(ranges)
     for n in g.nodes:
+        if (op_types is not None and n.op_type not in op_types) or n.name in exclude:
+            continue
         if n.op_type in ("Relu", "Clip") and len(g.consumers(n.input[0])) == 1 and n.output[0] in adjusted:
             if n.input[0] in adjusted:
                 adjusted[n.input[0]] = adjusted[n.output[0]]

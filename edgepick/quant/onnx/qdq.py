@@ -210,6 +210,7 @@ def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np
     float_outputs(written, tail, float_model)
     scores = []
     for rule in progress_bar(rules, desc="choose ranges", unit="rule", enabled=progress):
+        # every Relu and Clip folded as placement all writes them, whatever the placement: ranks the rules alike
         requantize_activations(written, float_model, adjusted_ranges(float_model, collector.ranges(rule, exact)))
         scores.append(RuleScore(rule, check.error(written, None)))
     best = min(scores, key=lambda s: s.error)
@@ -228,6 +229,6 @@ def qdq_for(written: Any | None, prepared: Path, float_model: Any, ranges: dict[
     long as a calibration pass on a small model."""
     if written is not None:
         model = copy_model(written)
-        if requantize_activations(model, float_model, adjusted_ranges(float_model, ranges)):
+        if requantize_activations(model, float_model, adjusted_ranges(float_model, ranges, op_types, exclude)):
             return model
     return qdq_model(prepared, ranges, op_types, exclude, reduce_range)
