@@ -12,7 +12,8 @@ import math
 import os
 import sys
 import time
-from collections.abc import Iterable, Iterator, Sized
+from collections.abc import Iterable, Iterator, Mapping, Sized
+from contextlib import contextmanager
 
 from tqdm import tqdm
 
@@ -83,3 +84,28 @@ def stage(message: str, enabled: bool = True) -> None:
     """A stage of a long pass on stderr: steps without a bar still say what they are doing."""
     if enabled:
         print(message, file=sys.stderr, flush=True)
+
+
+class StageClock:
+    """Wall seconds per named stage of a long job, summed where a stage comes back: where the time
+    of a quantize went (the result's `stage_s`), so a user sees what each part of the recipe costs."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    @contextmanager
+    def __call__(self, name: str) -> Iterator[None]:
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - start
+
+    def add(self, seconds: Mapping[str, float]) -> None:
+        """SECONDS per stage (another clock's, or a result's stage_s) added to this clock's."""
+        for name, s in seconds.items():
+            self.seconds[name] = self.seconds.get(name, 0.0) + s
+
+    def to_dict(self) -> dict[str, float]:
+        """Each stage's seconds, to the millisecond, in the order they first ran."""
+        return {name: round(s, 3) for name, s in self.seconds.items()}

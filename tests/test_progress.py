@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from edgepick.progress import progress
+from edgepick.progress import StageClock, progress
 
 
 def test_in_a_log_a_line_every_interval(capsys):
@@ -53,3 +53,22 @@ def test_a_bad_interval_is_refused_in_one_line_before_any_work(monkeypatch, caps
     assert list(tmp_path.iterdir()) == []
     err = capsys.readouterr().err.strip()
     assert err.startswith("edgepick: error: EDGEPICK_PROGRESS_S='soon'") and len(err.splitlines()) == 1
+
+
+def test_a_stage_that_comes_back_is_summed_and_a_failing_one_still_counted():
+    clock = StageClock()
+    with clock("calibrate"):
+        time.sleep(0.02)
+    with clock("write"):
+        pass
+    with pytest.raises(RuntimeError), clock("calibrate"):
+        time.sleep(0.02)
+        raise RuntimeError("boom")
+    seconds = clock.to_dict()
+    assert list(seconds) == ["calibrate", "write"]
+    assert seconds["calibrate"] >= 0.04 and seconds["write"] < seconds["calibrate"]
+    total = StageClock()
+    total.add({"prepare": 1.0, "calibrate": 2.0})
+    total.add(seconds)
+    assert total.to_dict() == {"prepare": 1.0, "calibrate": round(2.0 + clock.seconds["calibrate"], 3),
+                               "write": seconds["write"]}

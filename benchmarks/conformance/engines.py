@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -36,12 +36,14 @@ class Job:
 @dataclass(frozen=True)
 class Quantized:
     """A quantizer's result: the file a runtime loads (.onnx, or OpenVINO's .xml), every file it
-    takes (for the size), the quantizer's own calibration time where it reports one, and a note."""
+    takes (for the size), the quantizer's own calibration time where it reports one, and a note;
+    edgepick's also its seconds per stage (the result's stage_s)."""
 
     model: Path
     files: tuple[Path, ...]
     calib_s: float | None = None
     note: str = ""
+    stage_s: dict[str, float] = field(default_factory=dict)
 
     @property
     def size_mb(self) -> float:
@@ -132,7 +134,8 @@ def edgepick_quantizer(name: str, options: OnnxOptions, budget: FidelityBudget |
             if tried is not None:
                 note += f"; AdaRound first: {'kept' if tried['kept'] else 'not kept'}"
             note += "; " + accuracy_note(result.quant["accuracy_aware"])
-        return Quantized(Path(result.out), (Path(result.out),), calib_s=result.calib_s, note=note)
+        return Quantized(Path(result.out), (Path(result.out),), calib_s=result.calib_s, note=note,
+                         stage_s=result.stage_s)
     return Quantizer(name, run)
 
 
@@ -156,7 +159,8 @@ def openvino_placement_quantizer(placement: str) -> Quantizer:
             ("exact" if math.isinf(worst) else f"{worst:.1f} dB")
         if made:
             note += f"; {made['subsampled_pointwise_convs']} strided 1x1 convs subsampled first"
-        return Quantized(Path(result.out), (Path(result.out),), calib_s=result.calib_s, note=note)
+        return Quantized(Path(result.out), (Path(result.out),), calib_s=result.calib_s, note=note,
+                         stage_s=result.stage_s)
     return Quantizer(f"edgepick-openvino-{placement}", run)
 
 

@@ -151,6 +151,32 @@ def quantize_times(results: list[ModelResult], peer: str = "ort-best") -> list[s
         times = [v for _, v in values]
         per = ", ".join(f"{n} {v:.2f}x" for n, v in values)
         lines.append(f"| {engine} | {np.median(times):.2f}x | {min(times):.2f}x | {max(times):.2f}x | {per} |")
+    return lines + stage_times(results, peer)
+
+
+def stage_times(results: list[ModelResult], peer: str = "ort-best") -> list[str]:
+    """The markdown table of where the time of each engine that reports its stages went (edgepick's
+    stage_s), per model, with its calibration pass alone (stage calibrate) over PEER's whole call."""
+    rows = [(m.name, e, next((p for p in m.engines if p.engine == peer and not p.failure and p.quantize_s), None))
+            for m in results for e in m.engines if e.stage_s and not e.failure]
+    if not rows:
+        return []
+    stages = list(dict.fromkeys(stage for _, e, _ in rows for stage in e.stage_s))
+    lines = ["", "### Where the time went", "",
+             f"Seconds per stage of each engine that reports them, and its calibration pass alone (every tensor "
+             f"streamed into the histograms) over {peer}'s whole call; the other stages are the measurements that "
+             "choose the recipe per model:", "",
+             f"| model | engine | calibration pass / {peer} | " + " | ".join(stages) + " |",
+             "|---|---|---|" + "---|" * len(stages)]
+    passes: dict[str, list[float]] = {}
+    for name, e, p in rows:
+        ratio = e.stage_s.get("calibrate", 0.0) / p.quantize_s if p is not None and p.quantize_s else None
+        if ratio is not None:
+            passes.setdefault(e.engine, []).append(ratio)
+        seconds = " | ".join(number(e.stage_s.get(stage), 1) for stage in stages)
+        lines.append(f"| {name} | {e.engine} | {'-' if ratio is None else f'{ratio:.2f}x'} | {seconds} |")
+    lines += ["", *(f"{engine}'s calibration pass over {peer}'s call: median {np.median(v):.2f}x, "
+                    f"{min(v):.2f}x to {max(v):.2f}x over {len(v)} models." for engine, v in passes.items())]
     return lines
 
 

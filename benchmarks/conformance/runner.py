@@ -56,6 +56,7 @@ class EngineResult:
     size_mb: float | None = None
     quantize_s: float | None = None  # wall time of the quantizer call
     calib_s: float | None = None  # the quantizer's own calibration time, where it reports one
+    stage_s: dict[str, float] = field(default_factory=dict)  # edgepick's seconds per stage of its recipe
     peak_mb: float | None = None  # the process's resident memory during the call, above its start
     note: str = ""
     failure: str | None = None
@@ -269,7 +270,7 @@ def _score(entry: Entry, engine: Engine, run, test: list[np.ndarray], reference:
         engine.name, engine.runtime, metric=round(entry.metric.score(ref_decisions, decisions), 5),
         also={m.name: round(m.score(ref_decisions, decisions), 5) for m in entry.also},
         truth=round(entry.metric.score(truths, decisions), 5) if all(t is not None for t in truths) else None,
-        sqnr_db=sqnr, size_mb=made.size_mb, calib_s=made.calib_s, note=made.note)
+        sqnr_db=sqnr, size_mb=made.size_mb, calib_s=made.calib_s, stage_s=made.stage_s, note=made.note)
 
 
 def _time(results: dict[str, EngineResult], runners: dict, test: list[np.ndarray], settings: Settings,

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import MISSING, asdict, dataclass, fields
+from dataclasses import MISSING, asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -69,6 +69,9 @@ class OnnxPassResult:
     quant: dict
     calib_tensors: int
     calib_s: float
+    # wall seconds per stage of the recipe (ONNX static PTQ: prepare, calibrate, choose_ranges, write_qdq,
+    # corrections, finish, write_check), so the cost of each measurement is seen; empty where not kept
+    stage_s: dict[str, float] = field(default_factory=dict)
 
     @classmethod
     def of(cls, out: Path, report: dict, fidelity: dict[str, dict], **rest: Any) -> OnnxPassResult:

@@ -200,3 +200,25 @@ def test_quantize_times_are_given_against_onnxruntimes_best_settings_per_model()
     assert lines[1] == "## Quantize time against ort-best"
     assert "| edgepick | 2.75x | 1.50x | 4.00x | a 1.50x, b 4.00x |" in lines
     assert quantize_times(results[2:]) == []
+    assert "### Where the time went" not in lines  # no engine reported its stages
+
+
+def test_the_time_per_stage_is_given_with_the_calibration_pass_against_onnxruntimes_call():
+    from conformance.report import quantize_times
+    from conformance.runner import EngineResult, ModelResult
+
+    def model(name: str, *engines: EngineResult) -> ModelResult:
+        return ModelResult(name, "f", "o", "l", (1, 3, 8, 8), "nchw", "m", engines)
+
+    ort = EngineResult("ort-best", ONNXRUNTIME, quantize_s=2.0)
+    a = EngineResult("edgepick", ONNXRUNTIME, quantize_s=5.0, stage_s={"prepare": 0.5, "calibrate": 1.0,
+                                                                      "choose_ranges": 3.0})
+    b = EngineResult("edgepick", ONNXRUNTIME, quantize_s=5.0, stage_s={"calibrate": 3.0, "time_placements": 1.25})
+    lines = quantize_times([model("a", ort, a), model("b", ort, b), model("c", b)])
+    at = lines.index("### Where the time went")
+    assert "| model | engine | calibration pass / ort-best | prepare | calibrate | choose_ranges | time_placements |" \
+        in lines[at:]
+    assert "| a | edgepick | 0.50x | 0.5 | 1.0 | 3.0 | - |" in lines
+    assert "| b | edgepick | 1.50x | - | 3.0 | - | 1.2 |" in lines
+    assert "| c | edgepick | - | - | 3.0 | - | 1.2 |" in lines  # no peer on c: its stages, no ratio
+    assert lines[-1] == "edgepick's calibration pass over ort-best's call: median 1.00x, 0.50x to 1.50x over 2 models."

@@ -32,6 +32,8 @@ def test_placement_auto_times_each_candidate_on_the_target_and_records_the_choic
                                                                                                           "net.onnx"]
     recorded = json.loads({p.key: p.value for p in onnx.load(result.out).metadata_props}["edgepick.quant"])
     assert recorded["placement_choice"] == choice
+    stages = result.stage_s  # every candidate's stages summed, and the timing of the candidates
+    assert stages["time_placements"] > 0 and stages["calibrate"] > 0 and stages["write_check"] > 0
 
 
 def test_a_target_without_placement_auto_is_refused():

@@ -207,6 +207,12 @@ def test_the_json_reports_sqnr_and_cosine_per_output_and_a_raw_output_no_agreeme
     assert 10.0 < fidelity["sqnr_db"] < 80.0 and 0.9 < fidelity["cosine"] <= 1.0
     recorded = json.loads({p.key: p.value for p in onnx.load(str(out)).metadata_props}["edgepick.fidelity"])
     assert recorded == result["fidelity"]
+    # where the time went, stage by stage: the calibration pass apart from the measurements that choose the recipe
+    stages = result["stage_s"]
+    assert list(stages) == ["prepare", "calibrate", "choose_ranges", "write_qdq", "corrections", "finish",
+                            "write_check"]
+    assert all(s >= 0 for s in stages.values()) and stages["calibrate"] > 0 and stages["choose_ranges"] > 0
+    assert sum(stages.values()) - stages["write_check"] <= result["calib_s"] + 0.05
 
 
 

@@ -29,6 +29,7 @@ import numpy as np
 from edgepick.errors import EdgepickError, ParameterError
 from edgepick.files import atomic_path
 from edgepick.machine import cpu_flags, cpu_model
+from edgepick.progress import StageClock
 from edgepick.quant.config import GeluForm, OnnxOptions, Placement, Target
 from edgepick.quant.onnx.inputs import check_tensor
 
@@ -83,8 +84,10 @@ def choose_placement(quantize: Callable[..., Any], model: str | Path, calib: Ite
     first = next(iter(tensors), None)
     made: dict[Placement, Any] = {}
     failed: dict[str, str] = {}
+    clock = StageClock()
     with tempfile.TemporaryDirectory(prefix="edgepick-placement-") as tmp:
-        source, forms = (openvino_forms(model, Path(tmp)) if options.target == Target.OPENVINO else (model, {}))
+        with clock("prepare"):
+            source, forms = (openvino_forms(model, Path(tmp)) if options.target == Target.OPENVINO else (model, {}))
         for placement in PLACEMENT_CANDIDATES:
             candidate = replace(options, placement=placement, target=Target.ONNXRUNTIME,
                                 gelu=options.gelu if placement == Placement.ALL else GeluForm.FLOAT)
@@ -100,8 +103,9 @@ def choose_placement(quantize: Callable[..., Any], model: str | Path, calib: Ite
         if not made:
             raise ParameterError("{placement}: no candidate placement could be made", placement=options.placement)
         x = check_tensor(first, tuple(next(iter(made.values())).input_shape), "calibration tensor 1")
-        runners = {p.value: engine_runner(Path(r.out), options.target) for p, r in made.items()}
-        ms = median_ms(runners, x, timed=20)
+        with clock("time_placements"):
+            runners = {p.value: engine_runner(Path(r.out), options.target) for p, r in made.items()}
+            ms = median_ms(runners, x, timed=20)
         sqnr = {p.value: worst_sqnr(r.fidelity) for p, r in made.items()}
         good = [p for p in made if sqnr[p.value] >= fidelity_threshold_db(sqnr.values())]
         chosen = min(good, key=lambda p: ms[p.value])
@@ -116,8 +120,13 @@ def choose_placement(quantize: Callable[..., Any], model: str | Path, calib: Ite
             print(f"placement auto: {chosen} on {options.target} ({times})", file=sys.stderr, flush=True)
         result = made[chosen]
         quant = {**result.quant, "placement_choice": record}
-        _write_with(Path(result.out), Path(out), quant)
-    return replace(result, out=str(out), size_bytes=Path(out).stat().st_size, quant=quant)
+        with clock("write_check"):
+            _write_with(Path(result.out), Path(out), quant)
+    stages = StageClock()
+    for candidate in made.values():  # every candidate made in full, then the choice's own stages
+        stages.add(candidate.stage_s)
+    stages.add(clock.seconds)
+    return replace(result, out=str(out), size_bytes=Path(out).stat().st_size, quant=quant, stage_s=stages.to_dict())
 
 
 def fidelity_threshold_db(worst_sqnr_db: Iterable[float]) -> float:

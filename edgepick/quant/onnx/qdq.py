@@ -185,19 +185,15 @@ def _fidelity(evaluator: Evaluator, model: Any) -> tuple[dict, dict[str, float]]
     return compare_outputs(evaluator.names, evaluator.tasks, zip(evaluator.reference, got), evaluator.nhwc), channels
 
 
-def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np.ndarray], ops: list[str],
+def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np.ndarray], held_out: bool, ops: list[str],
                 exclude: list[str], config: QuantConfig, evaluator: Callable[[list[np.ndarray]], Evaluator],
                 progress: bool) -> tuple[RangeRule, dict, Any | None]:
     """The range rule: config's own, or with auto the candidate whose int8 graph of the float file
-    PRE gives outputs closest to fp32's on the HELD tensors (held out of COLLECTOR until now, unless
-    fewer others were counted; EVALUATOR gives fp32's outputs on them). HELD is counted into
-    COLLECTOR on the way. Returns the rule, what was measured, and the QDQ graph the candidates were
-    measured on as the writer wrote it (None with one rule: nothing written), for `qdq_for`."""
+    PRE gives outputs closest to fp32's on the HELD tensors (EVALUATOR gives fp32's outputs on them;
+    HELD_OUT: COLLECTOR has not counted them yet, the caller does after). Returns the rule, what was
+    measured, and the QDQ graph the candidates were measured on as the writer wrote it (None with one
+    rule: nothing written), for `qdq_for`."""
     rules = candidate_rules(config)
-    held_out = bool(held) and collector.seen >= len(held)
-    if not held_out:
-        for k, x in enumerate(held):
-            collector.add(x, k)
     if len(rules) == 1:
         return rules[0], {"rule": str(rules[0])}, None
     from edgepick.progress import progress as progress_bar
@@ -215,9 +211,6 @@ def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np
         requantize_activations(written, float_model, adjusted_ranges(float_model, collector.ranges(rule, exact)))
         scores.append(RuleScore(rule, check.error(written, None)))
     best = min(scores, key=lambda s: s.error)
-    if held_out:
-        for k, x in enumerate(held):  # the first calibration tensors
-            collector.add(x, k)
     return best.rule, {"rule": str(best.rule), "held_out": len(held) if held_out else 0,
                        "candidates": [s.to_dict() for s in scores]}, pristine
 

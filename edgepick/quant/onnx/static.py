@@ -28,13 +28,12 @@ cosine per output, and the share of agreeing decisions where the output decides 
 
 from __future__ import annotations
 
-import itertools
 import json
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sized
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Iterable, Mapping, Sized
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -56,6 +55,7 @@ from edgepick.export.onnx_io import (
 )
 from edgepick.files import atomic_path
 from edgepick.onnx_graph import Graph, copy_model
+from edgepick.progress import StageClock
 from edgepick.quant.config import (
     HEADROOM,
     SATURATION_CHECK_INPUTS,
@@ -74,14 +74,15 @@ from edgepick.quant.fidelity import Task, check_task_names, output_tasks
 from edgepick.quant.methods import INT16
 from edgepick.quant.onnx.accuracy import Evaluator, FidelityBudget, evaluator_for, fidelity_first
 from edgepick.quant.onnx.adaround import adaround_onnx
-from edgepick.quant.onnx.calibrate import Collector, calibrated_tensors, check_memory, release_memory
+from edgepick.quant.onnx.calibrate import release_memory
+from edgepick.quant.onnx.calibration_pass import Calibrated, calibrated
 from edgepick.quant.onnx.equalize import equalize_onnx
 from edgepick.quant.onnx.floating import float_tensors, node_tensors
 from edgepick.quant.onnx.gelu import sigmoid_gelu
 from edgepick.quant.onnx.inputs import check_tensor
 from edgepick.quant.onnx.measure import correct_onnx_biases, qdq_convs, saturating_onnx_convs, to_seven_bit_onnx
 from edgepick.quant.onnx.preprocess import pre_process
-from edgepick.quant.onnx.qdq import choose_rule, exact_tensors, float_tail, outputs_on_grid, qdq_for, writes_float_output
+from edgepick.quant.onnx.qdq import float_tail, outputs_on_grid, qdq_for, writes_float_output
 from edgepick.quant.onnx.rewrite import fold_affine_into_convs, rewrite_activations
 from edgepick.quant.record import QuantRecord, RecordKind
 from edgepick.quant.results import OnnxPassResult
@@ -89,20 +90,6 @@ from edgepick.quant.results import OnnxPassResult
 # fp32's outputs on the check tensors are kept from choosing the rule to the fidelity check when no larger (made
 # again otherwise: held through bias correction, a 2048x1024 segmentation model's would raise its peak)
 HELD_REFERENCE_BYTES = 64 << 20
-
-
-@dataclass(frozen=True)
-class _Calibrated:
-    """What calibration leaves: each activation's range, the first calibration tensors (kept for the
-    measurements and the fidelity check), how many there were, the range rule's record, the graph
-    it was chosen on and the float convs' output means."""
-
-    ranges: dict[str, tuple[float, float]]
-    kept: list[np.ndarray]
-    seen: int
-    record: dict
-    written: Any | None  # the QDQ graph the rule was chosen on (qdq.qdq_for), None when not chosen
-    means: dict[str, list[np.ndarray]]  # fp32's per-channel conv output means on the first tensors, for bias correction
 
 
 def _read(model: str | Path, config: QuantConfig, task: Task | Mapping[str, Task] | None) -> tuple[Any, int]:
@@ -120,11 +107,17 @@ def _read(model: str | Path, config: QuantConfig, task: Task | Mapping[str, Task
     return proto, constants
 
 
-def _prepared(proto: Any, pre: Path, equalize: bool, rewrites: dict[str, int]) -> Any:
-    """PROTO pre-processed (shapes inferred, BatchNorm folded) into the file PRE, equalized when asked
-    (the pairs counted into REWRITES); returns the graph PRE holds."""
+def _prepared(proto: Any, model: str | Path, input_shape: tuple[int, ...], pre: Path, options: OnnxOptions,
+              equalize: bool, rewrites: dict[str, int]) -> Any:
+    """PROTO (read from MODEL) with its opset lifted, input dims fixed to INPUT_SHAPE and rewritten
+    for OPTIONS, pre-processed (shapes inferred, BatchNorm folded) into the file PRE, equalized when
+    asked; what was rewritten is counted into REWRITES. Returns the graph PRE holds."""
     import onnx
 
+    proto = lift_opset(proto, model)  # before the shapes are cleared: the converter needs them
+    fix_input_shape(proto, input_shape)
+    rewrites.update(rewrite_activations(proto) if options.placement == Placement.ALL else {})
+    rewrites["affine_folded"] = fold_affine_into_convs(proto)
     pre_process(proto, pre)
     prepared = onnx.load(str(pre))
     drop_unused_initializers(prepared)
@@ -132,26 +125,6 @@ def _prepared(proto: Any, pre: Path, equalize: bool, rewrites: dict[str, int]) -
         rewrites["equalized_pairs"] = equalize_onnx(prepared)
     onnx.save(prepared, str(pre))
     return prepared
-
-
-def _calibrated(prepared: Any, pre: Path, first: np.ndarray, tensors: Iterator[Any], input_shape: tuple[int, ...],
-                config: QuantConfig, ops: list[str], exclude: list[str], keep: int, hold: int, total: int | None,
-                evaluator: Callable[[list[np.ndarray]], Evaluator], mean_inputs: int, progress: bool) -> _Calibrated:
-    """Stream every calibration tensor through PREPARED into a histogram per activation that OPS read
-    or write (the first HOLD held out until the rule is chosen on them, EVALUATOR's check tensors),
-    and read the ranges off; on the first MEAN_INPUTS, the convs' per-channel output means too."""
-    sizes = calibrated_tensors(prepared, ops)
-    check_memory(prepared, sizes, int(np.prod(input_shape)) * 4 * keep)
-    convs = [n.output[0] for n in prepared.graph.node if n.op_type == "Conv"]
-    collector = Collector(prepared, sizes, minmax_only=config.calib_method == CalibMethod.MINMAX, means=convs,
-                          mean_inputs=mean_inputs)
-    kept, seen = _calibrate(collector, first, tensors, input_shape, keep, hold, total, progress)
-    rule, record, written = choose_rule(collector, pre, prepared, kept[:hold], ops, exclude, config, evaluator, progress)
-    exact = exact_tensors(prepared)
-    ranges, means = collector.ranges(rule, exact), collector.channel_means(min(mean_inputs, seen))
-    del collector  # its sessions, before the int8 graphs' are made
-    release_memory()
-    return _Calibrated(ranges, kept, seen, {**record, "exact_tensors": len(exact & set(sizes))}, written, means)
 
 
 class _CheckOutputs:
@@ -209,52 +182,52 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
     total = len(calib) if isinstance(calib, Sized) else None
     tensors = iter(calib)
     first, input_shape = _first_tensor(proto, next(tensors, None), input_shape)
-    t0 = time.perf_counter()
+    t0, clock = time.perf_counter(), StageClock()
     opset_in = opset(proto)
-    proto = lift_opset(proto, model)  # before the shapes are cleared: the converter needs them
-    fix_input_shape(proto, tuple(input_shape))
-    rewrites = {"constants_to_initializers": constants,
-                **(rewrite_activations(proto) if options.placement == Placement.ALL else {}),
-                "affine_folded": fold_affine_into_convs(proto)}
     nhwc = len(input_shape) == 4 and input_shape[-1] in (1, 3, 4) and input_shape[1] not in (1, 3, 4)
     with tempfile.TemporaryDirectory(prefix="edgepick-onnx-") as tmp:
-        pre = Path(tmp) / "float.onnx"
-        prepared = _prepared(proto, pre, methods.equalize, rewrites)
-        tasks = output_tasks(prepared, _output_shapes(prepared), task, nhwc)
+        pre, rewrites = Path(tmp) / "float.onnx", {"constants_to_initializers": constants}
+        with clock("prepare"):
+            prepared = _prepared(proto, model, tuple(input_shape), pre, options, methods.equalize, rewrites)
+            tasks = output_tasks(prepared, _output_shapes(prepared), task, nhwc)
         hw = input_shape[1:3] if nhwc else input_shape[-2:]
         measured, check = lockstep_images(*hw) if methods.measures else 0, check_inputs(*hw)
         keep = max(check, measured, SATURATION_CHECK_INPUTS if config.weight_bits == WeightBits.FIRST_SEVEN else 0)
         ops = placement_ops(options.placement, _quantizer_registry())
         exclude = [*config.keep_float, *float_tail(prepared)]
         checks = _CheckOutputs(pre, prepared, tasks, nhwc)
-        cal = _calibrated(prepared, pre, first, tensors, tuple(input_shape), config, ops, exclude, keep,
-                          check if config.calib_method == CalibMethod.AUTO else 0, total, checks,
-                          measured if methods.bias_correction == BiasCorrection.EMPIRICAL else 0, progress)
+        cal = calibrated(prepared, pre, first, tensors, tuple(input_shape), config, ops, exclude, keep,
+                         check if config.calib_method == CalibMethod.AUTO else 0, total, checks,
+                         measured if methods.bias_correction == BiasCorrection.EMPIRICAL else 0, clock, progress)
         checks.release_if_large()
 
         def checker() -> Evaluator:
             return checks(cal.kept[:check])
 
         def build(with_methods: PtqMethods) -> tuple[Any, dict]:
-            int8 = qdq_for(cal.written, pre, prepared, cal.ranges, ops, exclude, config.reduce_range)
-            if options.gelu == GeluForm.SIGMOID:  # before the bias correction, which then measures it
-                rewrites["sigmoid_gelu"] = sigmoid_gelu(int8)
-            return int8, _measure(prepared, int8, cal, measured or lockstep_images(*hw), config, with_methods, checker)
+            with clock("write_qdq"):
+                int8 = qdq_for(cal.written, pre, prepared, cal.ranges, ops, exclude, config.reduce_range)
+                if options.gelu == GeluForm.SIGMOID:  # before the bias correction, which then measures it
+                    rewrites["sigmoid_gelu"] = sigmoid_gelu(int8)
+            with clock("corrections"):
+                return int8, _measure(prepared, int8, cal, measured or lockstep_images(*hw), config, with_methods,
+                                      checker)
 
         int8, done = build(methods)
         evaluator = checker()
         if budget is not None and not methods.adaround:
             int8, done = adaround_first(int8, done, build, methods, evaluator, budget, progress)
-        int8, steps, accuracy = _finished(int8, prepared, rewrites, config, evaluator, budget, progress)
+        with clock("finish"):
+            int8, steps, accuracy = _finished(int8, prepared, rewrites, config, evaluator, budget, progress)
         quant = QuantRecord(RecordKind.ONNX, config, cal.seen, methods, options, ranges=cal.record, measured={
             **done, **accuracy, **({"equalized_pairs": rewrites["equalized_pairs"]} if methods.equalize else {})}
                             ).to_dict()
         calib_s = time.perf_counter() - t0
-        with atomic_path(out) as path:
+        with atomic_path(out) as path, clock("write_check"):
             fidelity, report = _write_checked(int8, path, prepared, config, quant, evaluator)
     return OnnxPassResult.of(Path(out), report, fidelity, input_shape=list(input_shape), opset_in=opset_in,
                              opset_out=opset(int8), rewrites=steps, quant=quant, calib_tensors=cal.seen,
-                             calib_s=round(calib_s, 2))
+                             calib_s=round(calib_s, 2), stage_s=clock.to_dict())
 
 
 def adaround_first(int8: Any, done: dict, build: Callable[[PtqMethods], tuple[Any, dict]], methods: PtqMethods,
@@ -337,28 +310,7 @@ def _output_shapes(model: Any) -> dict[str, tuple[int, ...]]:
     return {o.name: tuple(d.dim_value for d in o.type.tensor_type.shape.dim) for o in model.graph.output}
 
 
-def _calibrate(collector: Collector, first: np.ndarray, rest: Iterator[Any], shape: tuple[int, ...], keep: int,
-               hold: int, total: int | None, progress: bool) -> tuple[list[np.ndarray], int]:
-    """Every calibration tensor, checked, into COLLECTOR but the first HOLD (held out for choosing the
-    rule, counted in later); returns the first KEEP tensors and how many there were."""
-    from edgepick.progress import progress as progress_bar
-
-    kept: list[np.ndarray] = []
-    bar = progress_bar(desc="calibrate", total=total, unit="tensor", enabled=progress)
-    seen = 0
-    for k, x in enumerate(itertools.chain([first], rest)):
-        x = first if k == 0 else check_tensor(x, shape, f"calibration tensor {k + 1}")
-        if len(kept) < keep:
-            kept.append(x)
-        if k >= hold:
-            collector.add(x, k)
-        seen += 1
-        bar.update()
-    bar.close()
-    return kept, seen
-
-
-def _measure(prepared: Any, int8: Any, cal: _Calibrated, images: int, config: QuantConfig,
+def _measure(prepared: Any, int8: Any, cal: Calibrated, images: int, config: QuantConfig,
              methods: PtqMethods, checker: Callable[[], Evaluator]) -> dict:
     """first-7, AdaRound and empirical bias correction on the QDQ graph INT8 (in place), in that
     order, measured on the first calibration tensors CAL kept (IMAGES of them for AdaRound and the
