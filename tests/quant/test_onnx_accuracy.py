@@ -176,3 +176,32 @@ def test_the_region_search_takes_the_region_that_meets_the_budget_then_its_short
     assert found is not None
     _, names, fidelity = found
     assert names == ["t8", "t9"] and math.isclose(fidelity["output"].sqnr_db, 30.0)
+
+
+def test_a_graph_measured_again_is_not_run_again_and_a_changed_one_is(faint, monkeypatch):
+    """The recipe measures a graph again after trying another: the last two graphs' outputs are kept (while
+    fp32's are small), keyed by the graph's bytes, so a graph changed in place is run afresh."""
+    import onnx
+
+    from edgepick.quant.fidelity import Task, TaskKind
+    from edgepick.quant.onnx import accuracy
+
+    path, _, check, reference, _ = faint
+    model = onnx.load(str(path))
+    evaluator = accuracy.evaluator_for(path, model, check, {"output": Task(TaskKind.RAW)}, False)
+    other = onnx.load(str(path))
+    other.graph.node[0].name = "renamed"  # another graph, the same outputs
+    first = evaluator.half_errors(model)
+    fidelity = evaluator.fidelity(model)
+    assert evaluator.graphs == 1 and first == (0.0, 0.0)
+    evaluator.fidelity(other)
+    assert evaluator.fidelity(model) == fidelity and evaluator.half_errors(model) == first and evaluator.graphs == 2
+    weight = next(i for i in model.graph.initializer if len(i.dims) == 4)
+    values = onnx.numpy_helper.to_array(weight) * 0.5
+    weight.CopyFrom(onnx.numpy_helper.from_array(values, weight.name))  # changed in place: run again
+    assert evaluator.half_errors(model)[0] > 0 and evaluator.graphs == 3
+    monkeypatch.setattr(accuracy, "KEPT_OUTPUT_BYTES", 0)  # fp32's outputs too large to keep another's beside them
+    fresh = accuracy.evaluator_for(path, onnx.load(str(path)), check, {"output": Task(TaskKind.RAW)}, False)
+    fresh.fidelity(other)
+    fresh.fidelity(other)
+    assert fresh.graphs == 2 and fresh.kept == []
