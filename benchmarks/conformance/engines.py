@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from _quantizers import OpenVino, Ort, nncf_quantize, ort_quantize, ort_ready
 
-from edgepick.quant.config import OnnxOptions, PtqMethods
+from edgepick.quant.config import OnnxOptions, PtqMethods, QuantConfig
 from edgepick.quant.onnx.accuracy import FidelityBudget
 
 ONNXRUNTIME, OPENVINO = "onnxruntime", "openvino"
@@ -112,15 +112,15 @@ def _nncf(job: Job) -> Quantized:
 
 
 def edgepick_quantizer(name: str, options: OnnxOptions, budget: FidelityBudget | None = None,
-                       methods: PtqMethods | None = None) -> Quantizer:
+                       methods: PtqMethods | None = None, config: QuantConfig | None = None) -> Quantizer:
     """edgepick's static PTQ of the fp32 file with OPTIONS (and the accuracy-aware mode's BUDGET, the
-    PTQ METHODS other than the defaults), through its public API."""
+    PTQ METHODS and quantization CONFIG other than the defaults), through its public API."""
     def run(job: Job) -> Quantized:
         from edgepick.quant.fidelity import Task
         from edgepick.quant.onnx.static import quantize_onnx_static
 
         out = job.work / f"{name}.onnx"
-        result = quantize_onnx_static(job.fp32, list(job.calib), out, options=options, methods=methods,
+        result = quantize_onnx_static(job.fp32, list(job.calib), out, config=config, options=options, methods=methods,
                                       input_shape=job.input_shape, progress=False,
                                       task=Task.parse(job.task) if job.task else None, budget=budget)
         note = f"{result.int8_convs} of {result.convs} convs int8, ranges {result.quant['ranges']['rule']}"
@@ -198,6 +198,11 @@ ENGINES: tuple[Engine, ...] = (
     Engine("edgepick", ONNXRUNTIME, EDGEPICK),
     # the accuracy-aware mode: activations left float, most sensitive first, until every output is within the budget
     Engine("edgepick-aa", ONNXRUNTIME, edgepick_quantizer("edgepick-aa", OnnxOptions(), ACCURACY_BUDGET)),
+    # the recipe without the measurements that choose it: min/max ranges (no histograms, no candidate rules) and no
+    # bias correction (`--calib-method minmax --bias-correction none`), to show what they cost and what they buy
+    Engine("edgepick-minmax", ONNXRUNTIME, edgepick_quantizer("edgepick-minmax", OnnxOptions(),
+                                                              methods=PtqMethods(bias_correction="none"),
+                                                              config=QuantConfig(calib_method="minmax"))),
     # AdaRound on top of the defaults (`--adaround`), its budget halved to bound the run
     Engine("edgepick-ada", ONNXRUNTIME, edgepick_quantizer("edgepick-ada", OnnxOptions(),
                                                            methods=PtqMethods(adaround=True, adaround_budget_s=60.0))),
