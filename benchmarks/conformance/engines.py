@@ -203,6 +203,12 @@ ENGINES: tuple[Engine, ...] = (
     Engine("edgepick-minmax", ONNXRUNTIME, edgepick_quantizer("edgepick-minmax", OnnxOptions(),
                                                               methods=PtqMethods(bias_correction="none"),
                                                               config=QuantConfig(calib_method="minmax"))),
+    # one measurement at a time: min/max ranges with bias correction, and the percentile rule pinned (the check
+    # tensors counted first, not held out), how far a small change of ranges moves a model's decisions
+    Engine("edgepick-minmax-bc", ONNXRUNTIME, edgepick_quantizer("edgepick-minmax-bc", OnnxOptions(),
+                                                                 config=QuantConfig(calib_method="minmax"))),
+    Engine("edgepick-percentile", ONNXRUNTIME, edgepick_quantizer("edgepick-percentile", OnnxOptions(),
+                                                                  config=QuantConfig(calib_method="percentile"))),
     # AdaRound on top of the defaults (`--adaround`), its budget halved to bound the run
     Engine("edgepick-ada", ONNXRUNTIME, edgepick_quantizer("edgepick-ada", OnnxOptions(),
                                                            methods=PtqMethods(adaround=True, adaround_budget_s=60.0))),
