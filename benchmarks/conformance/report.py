@@ -164,8 +164,8 @@ def stage_times(results: list[ModelResult], peer: str = "ort-best") -> list[str]
     stages = list(dict.fromkeys(stage for _, e, _ in rows for stage in e.stage_s))
     lines = ["", "### Where the time went", "",
              f"Seconds per stage of each engine that reports them, and its calibration pass alone (every tensor "
-             f"streamed into the histograms) over {peer}'s whole call; the other stages are the measurements that "
-             "choose the recipe per model:", "",
+             f"streamed into the histograms; with placement auto, one pass per candidate) over {peer}'s whole call; "
+             "the other stages are the measurements that choose the recipe per model:", "",
              f"| model | engine | calibration pass / {peer} | " + " | ".join(stages) + " |",
              "|---|---|---|" + "---|" * len(stages)]
     passes: dict[str, list[float]] = {}
