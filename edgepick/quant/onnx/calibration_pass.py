@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from edgepick.progress import StageClock
+from edgepick.progress import progress as progress_bar
 from edgepick.quant.config import CalibMethod, QuantConfig
 from edgepick.quant.onnx.accuracy import Evaluator
 from edgepick.quant.onnx.calibrate import Collector, calibrated_tensors, check_memory, release_memory
@@ -77,8 +78,6 @@ def _calibrate(collector: Collector, first: np.ndarray, rest: Iterator[Any], sha
                hold: int, total: int | None, progress: bool) -> tuple[list[np.ndarray], int]:
     """Every calibration tensor, checked, into COLLECTOR but the first HOLD (held out for choosing the
     rule, counted in later); returns the first KEEP tensors and how many there were."""
-    from edgepick.progress import progress as progress_bar
-
     kept: list[np.ndarray] = []
     bar = progress_bar(desc="calibrate", total=total, unit="tensor", enabled=progress)
     seen = 0
