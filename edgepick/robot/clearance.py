@@ -2,7 +2,8 @@
 
 The grasp step finds where an object's top is; the hand is larger than that point. A 100 mm
 magnet face over a bearing lands on a taller adapter beside it; a parallel jaw puts its fingers
-down on a neighbour's top, or on the object itself when it is wider than the opening. Either way
+down on a neighbour's top, or on the object itself when it is wider than the opening, and its
+body (above the fingers, wider than a small part) on a tall neighbour's top. Either way
 the descent stops short (docs/contracts.md#physics-verdict: blocked, too wide). The jaw opens
 only as far as the part needs (`jaw_opening_m`: its width plus room for each finger), as an RG2
 is told a width, so that two parts side by side leave each other's fingers room. This module
@@ -39,6 +40,11 @@ class HandShape:
     finger_width_m: float = 0.024  # along the object
     finger_depth_m: float = 0.015  # the fingertips below the commanded point
     pole_radius_m: float = 0.05  # the magnet's face
+    # the jaw's body above the fingers: its half-size along the closing axis and across it, and how far its
+    # underside is above the commanded point (a neighbour that tall beside the part stops it)
+    body_half_across_m: float = 0.040
+    body_half_along_m: float = 0.030
+    body_above_m: float = 0.035
     margin_m: float = 0.003  # depth noise and calibration error: footprints grow by this, heights too
     min_share: float = 0.02  # a footprint is in the way when this share of its readings stands too high
 
@@ -74,26 +80,31 @@ def hand_clearance(depth: np.ndarray, intr: Intrinsics, calib: Calibration,
         grasp = np.asarray(pose[:3], np.float64)
         magnet = GRIPPER[record.cls] == "electromagnet"
         half = jaw_opening_m(record, shape) / 2
-        reach = shape.pole_radius_m if magnet else math.hypot(half + shape.finger_thickness_m, shape.finger_width_m / 2)
+        reach = shape.pole_radius_m if magnet else max(math.hypot(half + shape.finger_thickness_m, shape.finger_width_m / 2),
+                                                       math.hypot(shape.body_half_across_m, shape.body_half_along_m))
         points = _surface_near(depth, intr, calib, inverse, grasp, reach + shape.margin_m)
         if points is None:
             return None
-        xy = points[:, :2] - grasp[:2]
-        if magnet:  # the face comes down until it touches: nothing under it may stand above the target's top
-            under = np.hypot(xy[:, 0], xy[:, 1]) <= shape.pole_radius_m + shape.margin_m
-            floor, what = grasp[2], "the magnet's face"
-        else:  # the fingertips go down finger_depth_m below the grasp point, on both sides
+        xy, m = points[:, :2] - grasp[:2], shape.margin_m
+        if magnet:  # the face comes down until it touches the target's top: nothing under it may stand higher
+            # (the target's own top is under it: a reading counts only past the margin)
+            footprints = [(np.hypot(xy[:, 0], xy[:, 1]) <= shape.pole_radius_m + m, grasp[2] + m, "the magnet's face")]
+        else:  # the fingertips go down finger_depth_m below the grasp point beside the part, the body above them:
+            # nothing of the target is under either, so a reading within the margin below them counts
             yaw = math.radians(closing_yaw_deg(pose))
             across = np.abs(xy @ [math.cos(yaw), math.sin(yaw)])
             along = np.abs(xy @ [-math.sin(yaw), math.cos(yaw)])
-            under = (across >= half - shape.margin_m) & (across <= half + shape.finger_thickness_m + shape.margin_m) & \
-                (along <= shape.finger_width_m / 2 + shape.margin_m)
-            floor, what = grasp[2] - shape.finger_depth_m, "a finger"
-        high = points[under, 2] > floor + shape.margin_m
-        if under.sum() == 0 or high.sum() < shape.min_share * under.sum():
-            return None
-        return f"{what} would land on something {1000 * (np.percentile(points[under][high, 2], 50) - floor):.0f} mm " \
-               f"above where it must go ({100 * high.mean():.0f}% of the readings under it)"
+            fingers = (across >= half - m) & (across <= half + shape.finger_thickness_m + m) & \
+                (along <= shape.finger_width_m / 2 + m)
+            body = (across <= shape.body_half_across_m + m) & (along <= shape.body_half_along_m + m)
+            footprints = [(fingers, grasp[2] - shape.finger_depth_m - m, "a finger"),
+                          (body, grasp[2] + shape.body_above_m - m, "the jaw's body")]
+        for under, floor, what in footprints:
+            high = points[under, 2] > floor
+            if under.sum() and high.sum() >= shape.min_share * under.sum():
+                return f"{what} would land on something {1000 * (np.percentile(points[under][high, 2], 50) - floor):.0f} " \
+                       f"mm above where it must go ({100 * high.mean():.0f}% of the readings under it)"
+        return None
 
     return reason
 

@@ -84,6 +84,29 @@ def test_a_jaw_opened_to_the_parts_width_clears_a_twin_that_the_whole_stroke_lan
     assert "finger" in hand_clearance(depth_of([adapter, twin]), INTR, CAL, HandShape(finger_room_m=0.04))(fitted)
 
 
+def test_a_finger_is_refused_over_a_neighbour_within_the_margin_below_its_tip():
+    """The physics hand stops on any contact below it: a surface a millimetre above or below the
+    fingertips is in the way (heights grow by the margin, as footprints do)."""
+    adapter = (0.28, 0.0, 0.036, rect(0.022, 0.031))
+    fitted = replace(record("adapter", 0.28, 0.0, 0.036, closing_yaw=0.0, area=2000), width_m=0.044)
+    for top, refused in ((0.022, True), (0.019, True), (0.016, False)):  # the fingertips at 21 mm, the margin 3 mm
+        beside = (0.28 + 0.065, 0.0, top, rect(0.02, 0.05))  # under the right finger's pad
+        reason = hand_clearance(depth_of([adapter, beside]), INTR, CAL)(fitted)
+        assert (reason is not None and "finger" in reason) == refused, top
+
+
+def test_the_jaws_body_over_a_tall_neighbour_is_refused_where_its_fingers_pass():
+    adapter = (0.28, 0.0, 0.036, rect(0.022, 0.031))
+    fitted = replace(record("adapter", 0.28, 0.0, 0.036, closing_yaw=0.0, area=2000), width_m=0.044)
+    # beside the part along the closing fingers' pads, under the 80 x 60 mm body whose underside is 35 mm up
+    tall = (0.28, 0.040, 0.075, rect(0.01, 0.015))
+    reason = hand_clearance(depth_of([adapter, tall]), INTR, CAL)(fitted)
+    assert reason is not None and "body" in reason
+    lower = (0.28, 0.040, 0.060, rect(0.01, 0.015))  # below the body: it passes over it
+    assert hand_clearance(depth_of([adapter, lower]), INTR, CAL)(fitted) is None
+    assert hand_clearance(depth_of([adapter, tall]), INTR, CAL, HandShape(body_above_m=0.05))(fitted) is None
+
+
 def test_a_finger_over_a_taller_neighbour_is_refused_then_the_jaw_turned_to_the_parts_ends():
     adapter = (0.28, 0.0, 0.036, rect(0.022, 0.031))  # 44 mm across x, 62 mm along y
     tall = (0.28 + 0.065, 0.0, 0.09, rect(0.02, 0.05))  # a box beside it, where a finger of the open jaw goes
