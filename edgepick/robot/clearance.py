@@ -88,7 +88,7 @@ def hand_clearance(depth: np.ndarray, intr: Intrinsics, calib: Calibration,
         xy, m = points[:, :2] - grasp[:2], shape.margin_m
         if magnet:  # the face comes down until it touches the target's top: nothing under it may stand higher
             # (the target's own top is under it: a reading counts only past the margin)
-            footprints = [(np.hypot(xy[:, 0], xy[:, 1]) <= shape.pole_radius_m + m, grasp[2] + m, "the magnet's face")]
+            footprints = [(np.hypot(xy[:, 0], xy[:, 1]) <= shape.pole_radius_m + m, grasp[2], m, "the magnet's face")]
         else:  # the fingertips go down finger_depth_m below the grasp point beside the part, the body above them:
             # nothing of the target is under either, so a reading within the margin below them counts
             yaw = math.radians(closing_yaw_deg(pose))
@@ -97,13 +97,15 @@ def hand_clearance(depth: np.ndarray, intr: Intrinsics, calib: Calibration,
             fingers = (across >= half - m) & (across <= half + shape.finger_thickness_m + m) & \
                 (along <= shape.finger_width_m / 2 + m)
             body = (across <= shape.body_half_across_m + m) & (along <= shape.body_half_along_m + m)
-            footprints = [(fingers, grasp[2] - shape.finger_depth_m - m, "a finger"),
-                          (body, grasp[2] + shape.body_above_m - m, "the jaw's body")]
-        for under, floor, what in footprints:
-            high = points[under, 2] > floor
+            footprints = [(fingers, grasp[2] - shape.finger_depth_m, -m, "a finger"),
+                          (body, grasp[2] + shape.body_above_m, -m, "the jaw's body")]
+        for under, floor, counted, what in footprints:  # a reading counts above floor + counted
+            high = points[under, 2] > floor + counted
             if under.sum() and high.sum() >= shape.min_share * under.sum():
-                return f"{what} would land on something {1000 * (np.percentile(points[under][high, 2], 50) - floor):.0f} " \
-                       f"mm above where it must go ({100 * high.mean():.0f}% of the readings under it)"
+                above = 1000 * (np.percentile(points[under][high, 2], 50) - floor)
+                where = f"{above:.0f} mm above" if above >= 0.5 else f"within {1000 * m:.0f} mm of"
+                return f"{what} would land on something {where} where it must go ({100 * high.mean():.0f}% of the " \
+                       "readings under it)"
         return None
 
     return reason
