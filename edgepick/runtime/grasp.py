@@ -26,6 +26,8 @@ from edgepick.runtime.readings import histogram, median, percentile_25, readings
 from edgepick.runtime.regions import components, depth_holes, near_level, row_ends, split_touching
 
 DEFAULT_CLASSES = ("background", "bearing", "disk", "adapter", "box")
+RAISED_FACE_SHARE = 0.6  # a top face at most this share of its object's region stands above the rest (a disk's hub)
+LEVEL_M = 0.01  # an object whose own surface around its raised face spans no more depth than this lies flat
 
 
 class Laps:
@@ -265,6 +267,7 @@ def _grasp(region: np.ndarray, x: int, y: int, c: int, labels: np.ndarray, depth
     z = grasp_depth(units, ys, xs, cx, cy, area, intr.depth_scale, cfg)
     lap("depth")
     pixels = None if z is None else top_pixels(units, ys, xs, own.shape, z, intr.depth_scale, cfg)
+    hull = None
     if pixels is not None:  # the grasp point and axis of the top face, not of the silhouette with its walls
         hull = hull_mask(pixels)
         cx, cy, angle, defined, _ = moments_pose(hull, cfg.round_ratio)
@@ -290,10 +293,39 @@ def _grasp(region: np.ndarray, x: int, y: int, c: int, labels: np.ndarray, depth
         occluded = occluded_fraction(region, labels[y:y + h, x:x + w], depth[y:y + h, x:x + w], z, intr.depth_scale,
                                      own=own)
         lap("occlusion")
-    # cut by the image border: its centroid is that of the part in view
-    partial = border_contact(region, x, y, labels.shape) >= cfg.partial_contact * math.sqrt(area)
+    # cut by the image border: its centroid is that of the part in view, unless the grasp point is that of a raised
+    # top face wholly in view (a brake disk's hub, its ring cut)
+    partial = border_contact(region, x, y, labels.shape) >= cfg.partial_contact * math.sqrt(area) and \
+        not (hull is not None and raised_face_in_view(hull, region, np.where(own, depth[y:y + h, x:x + w], 0) *
+                                                          intr.depth_scale, x, y, labels.shape, area))
     return Grasp(classes[c], (round(cx, 2), round(cy, 2)), angle, defined, area, depth_m, point, pose, occluded,
                  partial, None if z is not None else NO_DEPTH, width)
+
+
+def raised_face_in_view(face: np.ndarray, region: np.ndarray, own_depth_m: np.ndarray, x: int, y: int,
+                        frame_hw: tuple[int, int], area: int) -> bool:
+    """Whether FACE (a top face's filled hull in REGION's frame, their top left at frame pixel (x, y))
+    is the raised centre of a level object of AREA pixels, wholly in view: RAISED_FACE_SHARE of it
+    at most; every face pixel 0.1 x the square root of AREA or more inside the object's outline,
+    and the object's own readings farther out than that (OWN_DEPTH_M, metres, 0: none) within
+    LEVEL_M of each other (a hub on a ring that lies flat, not the high edge of a tilted part); and
+    farther than that and 4% of the frame's width from every frame edge (a D415 has no depth in a
+    band at its left edge, where a face may seem to end for want of readings)."""
+    ys, xs = np.nonzero(face)
+    if not len(xs) or len(xs) > RAISED_FACE_SHARE * area:
+        return False
+    inset = 0.1 * math.sqrt(area)
+    if min(x + xs.min(), y + ys.min(), frame_hw[1] - 1 - (x + xs.max()), frame_hw[0] - 1 - (y + ys.max())) < \
+            max(inset, 0.04 * frame_hw[1]):
+        return False
+    outline = np.zeros((region.shape[0] + 2, region.shape[1] + 2), np.uint8)  # a pixel of background around it
+    contours, _ = cv2.findContours(np.ascontiguousarray(region), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    cv2.drawContours(outline, contours, -1, 1, -1, offset=(1, 1))
+    if cv2.distanceTransform(outline, cv2.DIST_L2, 5)[1:-1, 1:-1][ys, xs].min() < inset:
+        return False
+    k = 2 * int(inset) + 1
+    ring = own_depth_m[(cv2.dilate(face.view(np.uint8), np.ones((k, k), np.uint8)) == 0) & (own_depth_m > 0)]
+    return bool(ring.size and np.percentile(ring, 90) - np.percentile(ring, 10) <= LEVEL_M)
 
 
 def minor_width_m(pixels: np.ndarray, angle_deg: float, z: float, intr: Intrinsics) -> float | None:

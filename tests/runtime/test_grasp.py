@@ -310,6 +310,26 @@ def test_only_an_object_cut_by_the_border_along_a_real_stretch_is_partial(case, 
     assert r.partial is partial
 
 
+@pytest.mark.parametrize("case, hub_y, partial", [("its ring cut", 380, False), ("its hub cut", 440, True),
+                                                   ("tilted, its ring cut", 380, True)])
+def test_a_disk_cut_by_the_border_is_partial_unless_its_level_raised_hub_is_in_view(case, hub_y, partial):
+    """A brake disk's grasp point is its hub's centre (its raised top face): with only the friction
+    ring of a disk lying flat cut by the border the hub is whole and the point right, so the disk
+    is pickable. With the hub cut too, or a tilted disk (its top face the hub's high side), the
+    point is that of the part in view."""
+    labels = np.zeros((480, 640), np.uint8)
+    cv2.circle(labels, (320, hub_y), 120, 2, -1)
+    depth = flat_depth(700)
+    ring = np.broadcast_to(660 + (np.arange(480)[:, None] - hub_y) * (0.1 if case.startswith("tilted") else 0.0),
+                           depth.shape)
+    depth[labels == 2] = ring[labels == 2].astype(np.uint16)  # friction ring
+    cv2.circle(depth, (320, hub_y), 45, 630, -1)  # hub, 3 cm higher
+    (r,) = grasp_records(labels, depth, INTR)
+    assert r.partial is partial, case
+    if not partial:
+        assert r.pixel == pytest.approx((320, hub_y), abs=1.0)
+
+
 def test_an_object_partly_under_another_is_marked_occluded():
     """A box lying across a larger disk, 30 mm nearer the camera: the disk's rim meets the box where
     the box is nearer; the box is not occluded, and the pick loop prefers it (robot/pick.py)."""
