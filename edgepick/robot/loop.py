@@ -24,7 +24,7 @@ from edgepick.robot.clearance import hand_clearance
 from edgepick.robot.cycle import CycleResult, verdicts
 from edgepick.robot.envelope import Envelope
 from edgepick.robot.grippers import DigitalGripper, RG2Gripper
-from edgepick.robot.pick import CommandLog, PickConfig, Step, choose_target, execute
+from edgepick.robot.pick import CommandLog, PickConfig, Step, carry_path, choose_target, execute
 from edgepick.robot.recording import PickCycle, Recorder, SceneChange, StepDone
 from edgepick.robot.verdict import Verdict, judge, summarize, undetected
 from edgepick.runtime.calibration import Calibration
@@ -102,7 +102,8 @@ class Cell:
     """What the pick loop drives: the camera and the pipeline that sees through it, the arm and its
     gripper (None: plan only), the command log, and where the cycles also go: a recorder, and in
     the synthetic cell its true calibration (TRUTH_CAL: each cycle judged against the scene's truth)
-    and the physics check (PHYSICS: sim/physics.py's judge, a second verdict after the commands)."""
+    and the physics check (PHYSICS: sim/physics.py's judge, a second verdict after the commands: the
+    chosen grasp, the frame, and the plan's carry_path)."""
 
     camera: Camera
     pipeline: Pipeline
@@ -111,7 +112,7 @@ class Cell:
     log: CommandLog
     truth_cal: Calibration | None = None
     recorder: Recorder | None = None
-    physics: Callable[[Grasp, Frame], Verdict] | None = None
+    physics: Callable[[Grasp, Frame, list[list[float]]], Verdict] | None = None
 
 
 def run_cycles(cell: Cell, *, cfg: PickConfig, cycles: int, overlay_dir: str | Path | None = None,
@@ -266,7 +267,8 @@ class _Loop:
         self.echo(line)
 
 
-def physics_verdict(result: CycleResult, frame: Frame, physics: Callable[[Grasp, Frame], Verdict]) -> Verdict:
+def physics_verdict(result: CycleResult, frame: Frame, physics: Callable[[Grasp, Frame, list[list[float]]], Verdict]
+                    ) -> Verdict:
     """The physics check's verdict on a judged cycle: its own on a grasp that was carried out, the
     geometric one where nothing was chosen, a failure where the robot stopped."""
     if result.verdict is None:
@@ -275,7 +277,7 @@ def physics_verdict(result: CycleResult, frame: Frame, physics: Callable[[Grasp,
         return Verdict(result.verdict.success, result.verdict.failure)
     if result.outcome == "stopped":
         return Verdict(False, "robot stopped")
-    return physics(result.chosen, frame)
+    return physics(result.chosen, frame, carry_path(result.plan))
 
 
 def _step_recorder(robot: RobotBase, steps: list[StepDone]) -> Callable[[Step, str], None]:

@@ -43,7 +43,8 @@ class PickConfig:
     classes: tuple[str, ...] = ()  # only these classes; empty = any
     choose: Choose = Choose.LARGEST
     approach_m: float = 0.08  # above the grasp point
-    lift_m: float = 0.10
+    lift_m: float = 0.10  # above the grasp point at least; higher where the table holds taller parts (plan_pick)
+    transit_clearance_m: float = 0.02  # what the hand carries passes this far above the tallest part in view
     grasp_offset_m: float = 0.0  # added to the grasp point's z (negative = deeper)
     place_pose: tuple[float, ...] = (-0.05, -0.32, 0.10, math.pi, 0.0, 0.0)
     home_pose: tuple[float, ...] = tuple(HOME_POSE)
@@ -64,6 +65,9 @@ class PickConfig:
         for name in ("speed", "acc"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise ParameterError(f"{{{name}}}: must be a positive number", **{name: getattr(self, name)})
+        for name in ("lift_m", "transit_clearance_m"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise ParameterError(f"{{{name}}}: must be 0 or more metres", **{name: getattr(self, name)})
         if not (math.isfinite(self.retry_elsewhere_m) and self.retry_elsewhere_m >= 0):
             raise ParameterError("{retry_elsewhere_m}: must be 0 or more metres", retry_elsewhere_m=self.retry_elsewhere_m)
 
@@ -98,24 +102,50 @@ def _around_the_base(a: list[float], b: list[float], cfg: PickConfig) -> list[li
             for k in range(1, n + 1)]
 
 
-def plan_pick(record: Grasp, cfg: PickConfig) -> list[Step]:
+def plan_pick(record: Grasp, cfg: PickConfig, tallest_z_m: float | None = None, table_z_m: float = 0.0) -> list[Step]:
     """The cycle's steps for one grasp with a robot pose: a jaw opens to the part's width and room
-    for its fingers (jaw_opening_m), and all the way when it lets go."""
+    for its fingers (jaw_opening_m), and all the way when it lets go. The lift (lift_height_m)
+    carries the part over the tallest top in view (TALLEST_Z_M, robot frame; None: lift_m alone)."""
     grasp = list(record.chosen_pose())
     grasp[2] += cfg.grasp_offset_m
     place = list(cfg.place_pose)
+    lifted = _above(grasp, lift_height_m(cfg, tallest_z_m, table_z_m))
     return [Step("moveL", _above(grasp, cfg.approach_m), "approach above the object"),
             Step("open", None, "open / magnet off", width_m=jaw_opening_m(record, cfg.hand)),
             Step("moveL", grasp, "descend to the grasp point"),
             Step("grip", None, "close / magnet on"),
-            Step("moveL", _above(grasp, cfg.lift_m), "lift"),
-            *[Step("moveL", via, "around the base") for via in _around_the_base(_above(grasp, cfg.lift_m),
-                                                                                _above(place, cfg.approach_m), cfg)],
+            Step("moveL", lifted, "lift"),
+            *[Step("moveL", via, "around the base") for via in _around_the_base(lifted, _above(place, cfg.approach_m), cfg)],
             Step("moveL", _above(place, cfg.approach_m), "above the place pose", clears_view=True),
             Step("moveL", place, "place"),
             Step("release", None, "open / magnet off"),
             Step("moveL", _above(place, cfg.approach_m), "retreat"),
             Step("moveL", list(cfg.home_pose), "home")]
+
+
+def lift_height_m(cfg: PickConfig, tallest_z_m: float | None = None, table_z_m: float = 0.0) -> float:
+    """How far the hand rises from the grasp point before it carries the part off: cfg.lift_m, or
+    as high as the tallest top in view (TALLEST_Z_M) stands above the table (TABLE_Z_M) plus
+    cfg.transit_clearance_m, if that is more. The part rises with the hand from where it stood (on
+    the table or higher), so its underside then passes over every part in view: a part carried
+    low drags the parts it meets on its way to the place pose off the table."""
+    if tallest_z_m is None:
+        return cfg.lift_m
+    return round(max(cfg.lift_m, tallest_z_m - table_z_m + cfg.transit_clearance_m), 4)
+
+
+def carry_path(plan: Sequence[Step]) -> list[list[float]]:
+    """The TCP positions (x, y, z) a plan moves through while it holds the part: the lift, then
+    on to above the place pose (the physics check's hand follows them, sim/physics.py)."""
+    path: list[list[float]] = []
+    holding = False
+    for step in plan:
+        holding = holding or step.command == "grip"
+        if holding and step.command == "moveL" and step.target is not None:
+            path.append(list(step.target[:3]))
+            if step.clears_view:
+                break
+    return path
 
 
 def plan_reason(plan: list[Step], envelope: Envelope, cfg: PickConfig, start: list[float] | None = None,
@@ -169,10 +199,14 @@ def choose_target(records: list[Grasp], envelope: Envelope, cfg: PickConfig, sta
         candidates.sort(key=lambda r: r.depth_m if r.depth_m is not None else math.inf)
     else:
         candidates.sort(key=lambda r: -r.area_px)
-    # objects with nothing on top first: a partly hidden object's centroid is that of its visible part
-    candidates.sort(key=lambda r: r.occluded > OCCLUDED)
+    # objects with nothing on top first: a partly hidden object's centroid is that of its visible part; of the
+    # others, the highest first: the top of a pile, which the part under it would carry off with it
+    candidates.sort(key=lambda r: (r.occluded > OCCLUDED,
+                                   -r.chosen_pose()[2] if r.occluded > OCCLUDED and r.pose_robot is not None else 0.0))
     candidates.sort(key=lambda r: _tried_here(r, tried, cfg.retry_elsewhere_m))
     reasons = []
+    tops = [r.chosen_pose()[2] for r in records if r.pose_robot is not None]  # every part in view: what a carry passes over
+    tallest = max(tops) if tops else None
     for r in candidates:
         if r.partial:
             reasons.append(f"{r.cls}: cut by the image border")
@@ -191,7 +225,7 @@ def choose_target(records: list[Grasp], envelope: Envelope, cfg: PickConfig, sta
         if blocked:
             reasons.append(f"{r.cls}: {blocked}")
             continue
-        plan = plan_pick(r, cfg)
+        plan = plan_pick(r, cfg, tallest, envelope.table_z_m)
         reason = plan_reason(plan, envelope, cfg, start, limits)
         if reason is None:
             return r, plan, "ok"

@@ -205,9 +205,10 @@ class ClutterRound(SynthCamera):
         poses the check left the parts in kept for `after`."""
         truth_cal = self.calibration()
 
-        def judge(record: Grasp, frame: Frame) -> Verdict:
+        def judge(record: Grasp, frame: Frame, path: list[list[float]]) -> Verdict:
             self._run = physics_run(record, frame.truth or [], truth_cal, list(pick.place_pose), pick.grasp_offset_m,
-                                    self.physics_cfg, hidden=frame.hidden or [], opening_m=jaw_opening_m(record, pick.hand))
+                                    self.physics_cfg, hidden=frame.hidden or [], opening_m=jaw_opening_m(record, pick.hand),
+                                    path=path)
             return self._run.verdict
 
         return judge

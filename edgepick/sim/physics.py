@@ -110,28 +110,32 @@ def require_mujoco():
 
 
 def physics_judge(truth_cal: Calibration, pick: PickConfig, cfg: PhysicsConfig | None = None
-                  ) -> Callable[[Grasp, Frame], Verdict]:
+                  ) -> Callable[[Grasp, Frame, list[list[float]]], Verdict]:
     """run_cycles' PHYSICS for the synthetic cell: each chosen record's grasp carried out on the
-    frame's truth, with the pick's place pose and grasp offset. Needs the [sim] extra (checked now)."""
+    frame's truth, with the pick's place pose and grasp offset, and carried along the plan's path
+    (robot/pick.py carry_path). Needs the [sim] extra (checked now)."""
     require_mujoco()
     cfg = cfg or PhysicsConfig()
 
-    def judge(record: Grasp, frame: Frame) -> Verdict:
+    def judge(record: Grasp, frame: Frame, path: list[list[float]]) -> Verdict:
         return physics_verdict(record, frame.truth or [], truth_cal, list(pick.place_pose), pick.grasp_offset_m, cfg,
-                               hidden=frame.hidden or [], opening_m=jaw_opening_m(record, pick.hand))
+                               hidden=frame.hidden or [], opening_m=jaw_opening_m(record, pick.hand), path=path)
 
     return judge
 
 
 def physics_verdict(record: Grasp, truth: list[dict], cal: Calibration, place_pose: list[float],
                     grasp_offset_m: float = 0.0, cfg: PhysicsConfig | None = None, hidden: Sequence[dict] = (),
-                    opening_m: float | None = None) -> Verdict:
+                    opening_m: float | None = None, path: Sequence[Sequence[float]] = ()) -> Verdict:
     """Carry out RECORD's grasp (its pose_robot, the chosen object) on the scene TRUTH (the true
     calibration CAL puts it in the robot frame): its success, failure (PHYSICS_FAILURES),
     lifted_m and ms. The gripper is the class's (robot/verdict.py GRIPPER); a jaw opens to
     OPENING_M (the plan's, robot/clearance.py jaw_opening_m; None: its whole stroke). HIDDEN: the
-    truth of objects the camera does not see, in the scene too (what rests on them) but never the target."""
-    return physics_run(record, truth, cal, place_pose, grasp_offset_m, cfg, hidden, opening_m).verdict
+    truth of objects the camera does not see, in the scene too (what rests on them) but never the target.
+    PATH: the TCP positions the plan carries the part through (robot/pick.py carry_path: the lift,
+    then on to above the place pose), followed from where the hand gripped; empty: up cfg.lift_m,
+    then straight at that height to above the place pose."""
+    return physics_run(record, truth, cal, place_pose, grasp_offset_m, cfg, hidden, opening_m, path).verdict
 
 
 @dataclass
@@ -147,7 +151,7 @@ class PhysicsRun:
 
 def physics_run(record: Grasp, truth: list[dict], cal: Calibration, place_pose: list[float],
                 grasp_offset_m: float = 0.0, cfg: PhysicsConfig | None = None, hidden: Sequence[dict] = (),
-                opening_m: float | None = None) -> PhysicsRun:
+                opening_m: float | None = None, path: Sequence[Sequence[float]] = ()) -> PhysicsRun:
     """physics_verdict, with the poses the check left its objects in: what a clutter-removal round
     (sim/clutter.py) goes on from. The poses are read once the check ends (the part carried, or the
     hand where it stopped)."""
@@ -174,7 +178,10 @@ def physics_run(record: Grasp, truth: list[dict], cal: Calibration, place_pose: 
     sim = _Sim(mujoco, model, data, world, k, magnet, cfg)
     yaw = math.radians(closing_yaw_deg(record.chosen_pose()))
     grasp = np.asarray(record.chosen_pose()[:3], np.float64) + [0, 0, grasp_offset_m]
-    verdict = sim.run(grasp, yaw, np.asarray(place_pose[:3], np.float64), opening)
+    place = np.asarray(place_pose[:3], np.float64)
+    lifted = grasp + [0, 0, cfg.lift_m]
+    carry = [np.asarray(p[:3], np.float64) for p in path] or [lifted, np.array([*place[:2], max(place[2], lifted[2])])]
+    verdict = sim.run(grasp, yaw, carry, opening)
     if not verdict.success and sim.settled_m > SETTLED_M:  # the scene, not the grasp, failed
         verdict = replace(verdict, failure="unsettled", note=f"the scene does not stand as rendered: the "
                           f"{target.cls} moved {1000 * sim.settled_m:.0f} mm before the hand reached it")
@@ -272,7 +279,9 @@ class _Sim:
         pos, rot = self.data.xpos[self.body], self.data.xmat[self.body].reshape(3, 3)
         return float(self.data.xpos[self.hand][2] - (pos + rot @ [0, 0, self.solid.dims["height"]])[2])
 
-    def run(self, grasp: np.ndarray, yaw: float, place: np.ndarray, opening: float) -> Verdict:
+    def run(self, grasp: np.ndarray, yaw: float, carry: list[np.ndarray], opening: float) -> Verdict:
+        """The moves from above GRASP down, the grip, and the carry: up to CARRY's first point and
+        through the rest, each shifted by where the hand stopped against GRASP."""
         cfg = self.cfg
         self.data.mocap_quat[0] = [math.cos(yaw / 2), 0, 0, math.sin(yaw / 2)]
         above = grasp + [0, 0, 0.08]
@@ -309,17 +318,21 @@ class _Sim:
                 wide = self._across() > opening
                 return Verdict(False, "too wide" if wide else "missed", lifted_m=0.0,
                                note="the object is wider than the opening" if wide else "the fingers closed on nothing")
-        lifted = reached + [0, 0, cfg.lift_m]
+        shift = reached - grasp  # a magnet's spring mount may stop it off the commanded point
+        lifted = carry[0] + shift
         self.move(reached, lifted, cfg.speed_m_s)
         self.step(lifted, cfg.hold_s)
         rise = float(self.data.xpos[self.body][2]) - start_z
-        if rise < cfg.lift_m - 0.03 or not self._touching():
+        if rise < lifted[2] - reached[2] - 0.03 or not self._touching():
             return Verdict(False, "missed" if rise < 0.01 else "dropped", lifted_m=round(rise, 4))
-        carry = place + [0, 0, lifted[2] - place[2]] if place[2] < lifted[2] else place
-        end, _ = self.move(lifted, carry, cfg.carry_speed_m_s)
-        self.step(end, 0.3)
+        hangs = float(self.data.xpos[self.hand][2] - self.data.xpos[self.body][2])  # how far below the hand
+        at = lifted
+        for point in carry[1:]:
+            at, _ = self.move(at, point + shift, cfg.carry_speed_m_s)
+        self.step(at, 0.3)
         rise = float(self.data.xpos[self.body][2]) - start_z
-        held = bool(self._touching()) and rise > cfg.lift_m - 0.03
+        slipped = float(self.data.xpos[self.hand][2] - self.data.xpos[self.body][2]) - hangs
+        held = bool(self._touching()) and slipped < 0.03
         return Verdict(held, None if held else "dropped", lifted_m=round(rise, 4))
 
     def _steel_only(self) -> None:

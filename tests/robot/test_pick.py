@@ -42,6 +42,18 @@ def test_a_buried_object_is_never_chosen_and_a_partly_covered_one_last():
     assert chosen is None and plan == [] and "box: under other objects (20% of its rim)" in note
 
 
+def test_of_the_partly_covered_objects_the_highest_comes_first():
+    """In a pile every part's rim meets another: the part on top (nearest the camera) comes before
+    the larger one it lies on, which would carry it off the table."""
+    def rec(cls, area, z):
+        return make_grasp(cls, [0.28, 0.0, z, math.pi, 0.0, 0.0], area_px=area, occluded=2 * OCCLUDED, depth_m=0.7 - z)
+
+    under, on_top = rec("disk", 40000, 0.055), rec("bearing", 4000, 0.06)
+    assert choose_target([under, on_top], Envelope(), PickConfig())[0] is on_top
+    free = make_grasp("box", [0.28, 0.1, 0.03, math.pi, 0.0, 0.0], area_px=3000, depth_m=0.67)
+    assert choose_target([under, on_top, free], Envelope(), PickConfig())[0] is free
+
+
 def test_a_part_still_where_an_earlier_pick_went_comes_after_the_others():
     """On one table picked from in turn, a part seen within retry_elsewhere_m of a point an earlier pick
     went to is still there: that pick failed, and it is tried again only once the others are refused;
@@ -56,3 +68,24 @@ def test_a_part_still_where_an_earlier_pick_went_comes_after_the_others():
     assert choose_target([big, small], Envelope(), PickConfig(retry_elsewhere_m=0), tried=went)[0] is big
     with pytest.raises(ParameterError, match="retry_elsewhere_m"):
         PickConfig(retry_elsewhere_m=-0.01)
+
+
+def test_the_lift_clears_the_tallest_part_in_view_and_the_carry_path_follows_the_plan():
+    """A part rises with the hand from where it stood, so lifting it as high as the tallest top in
+    view stands above the table (plus the clearance) carries its underside over everything; never
+    less than lift_m. carry_path: the plan's moves while it holds the part."""
+    from edgepick.robot.pick import carry_path, lift_height_m
+
+    cfg = PickConfig()
+    assert lift_height_m(cfg) == cfg.lift_m
+    assert lift_height_m(cfg, tallest_z_m=0.05) == cfg.lift_m
+    assert lift_height_m(cfg, tallest_z_m=0.25, table_z_m=0.05) == pytest.approx(0.20 + cfg.transit_clearance_m)
+    record = make_grasp("bearing", [0.30, 0.10, 0.035, math.pi, 0.0, 0.0])
+    plan = plan_pick(record, cfg, tallest_z_m=0.20)
+    path = carry_path(plan)
+    assert path[0] == pytest.approx([0.30, 0.10, 0.035 + 0.22])
+    assert path[-1] == pytest.approx([*cfg.place_pose[:2], cfg.place_pose[2] + cfg.approach_m])
+    held = plan[[s.command for s in plan].index("grip") + 1:[s.clears_view for s in plan].index(True) + 1]
+    assert [list(s.target[:3]) for s in held] == path
+    with pytest.raises(ParameterError, match="transit_clearance_m"):
+        PickConfig(transit_clearance_m=-0.01)

@@ -258,3 +258,29 @@ def test_pick_gives_each_cycle_a_physics_verdict_after_its_commands(tmp_path):
     refused = run_cli("pick", "--verdict", "physics", "--camera", "dir:" + str(tmp_path), "--model", "m.onnx",
                       "--log", str(tmp_path / "other.jsonl"))
     assert refused.returncode == 2 and refused.stderr.count("\n") == 1 and "--verdict physics" in refused.stderr
+
+
+@pytest.mark.parametrize("neighbour_height, lift_over", [(0.11, None), (0.20, 0.20)], ids=["box", "tower"])
+def test_the_hand_carries_along_the_plans_path_over_the_parts_in_view(neighbour_height, lift_over):
+    """The check's hand follows the plan's carry (robot/pick.py carry_path), whose lift clears the
+    tallest top in view: a part carried straight at 10 cm above its grasp point (the path a check
+    without a plan takes) drags a taller neighbour on its way off the table; the plan's way up and
+    over leaves it standing. A tower taller than the via points' height needs the higher lift."""
+    from edgepick.robot.pick import PickConfig, carry_path, plan_pick
+    from edgepick.sim.physics import physics_run
+
+    record = grasp("bearing", 0.30, 0.10, 0.035)
+    low = carry_path(plan_pick(record, PickConfig()))
+    a, b = np.array(low[0][:2]), np.array(low[1][:2])
+    where = a + 0.55 * (b - a)  # on the way from the lift to the first via point, across it
+    scene = [{**bearing(0.30, 0.10), "id": 1},
+             {**block("box", *where, math.atan2(*(b - a)[::-1]) + math.pi / 2, 0.16, 0.09, neighbour_height), "id": 2}]
+    paths = {"straight": [], "the plan's": carry_path(plan_pick(record, PickConfig(), tallest_z_m=lift_over))}
+    if lift_over is not None:
+        paths["the plan's, lifted as if nothing stood taller"] = low
+    moved = {}
+    for name, path in paths.items():
+        run = physics_run(record, scene, IDENTITY, PLACE, path=path)
+        assert run.verdict.success, (name, run.verdict)
+        moved[name] = float(np.linalg.norm(run.poses[2][0][:2] - where))
+    assert moved.pop("the plan's") < 0.005 and all(m > 0.05 for m in moved.values()), moved
