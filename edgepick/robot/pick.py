@@ -200,9 +200,8 @@ def choose_target(records: list[Grasp], envelope: Envelope, cfg: PickConfig, sta
     else:
         candidates.sort(key=lambda r: -r.area_px)
     # objects with nothing on top first: a partly hidden object's centroid is that of its visible part; of the
-    # others, the highest first: the top of a pile, which the part under it would carry off with it
-    candidates.sort(key=lambda r: (r.occluded > OCCLUDED,
-                                   -r.chosen_pose()[2] if r.occluded > OCCLUDED and r.pose_robot is not None else 0.0))
+    # others, the least covered first: the top of a pile before what it lies on, which would carry it off
+    candidates.sort(key=lambda r: (r.occluded > OCCLUDED, r.occluded if r.occluded > OCCLUDED else 0.0))
     candidates.sort(key=lambda r: _tried_here(r, tried, cfg.retry_elsewhere_m))
     reasons = []
     tops = [r.chosen_pose()[2] for r in records if r.pose_robot is not None]  # every part in view: what a carry passes over

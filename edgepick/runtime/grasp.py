@@ -27,6 +27,7 @@ from edgepick.runtime.regions import components, depth_holes, near_level, row_en
 
 DEFAULT_CLASSES = ("background", "bearing", "disk", "adapter", "box")
 RAISED_FACE_SHARE = 0.6  # a top face at most this share of its object's region stands above the rest (a disk's hub)
+NEIGHBOUR_READING_PX = 7  # occluded_fraction: a neighbour's rim pixel with no depth takes its nearest reading this close
 LEVEL_M = 0.01  # an object whose own surface around its raised face spans no more depth than this lies flat
 
 
@@ -352,10 +353,23 @@ def occluded_fraction(region: np.ndarray, labels: np.ndarray, depth: np.ndarray,
     if ys.size == 0:
         return 0.0
     d = depth[ys, xs]
+    missing = (d == 0) & (labels[ys, xs] != 0)
+    if missing.any():  # a shiny neighbour (a steel bearing) returns depth on few pixels: its nearest reading close by
+        mine = own if own is not None else region > 0
+        far = np.iinfo(depth.dtype).max if depth.dtype.kind in "ui" else np.inf
+        others = np.where((labels != 0) & (depth > 0) & ~mine, depth, far).astype(depth.dtype)
+        nearest = cv2.erode(others, np.ones((2 * NEIGHBOUR_READING_PX + 1,) * 2, np.uint8))[ys[missing], xs[missing]]
+        d = d.copy()
+        d[missing] = np.where(nearest < far, nearest, 0)
     surface = np.full(ys.size, z)
-    if own is not None:  # the farthest of its own readings within 5 px: the rim lies that close to its pixels
-        beside = cv2.dilate(np.where(own, depth, 0).astype(depth.dtype), np.ones((11, 11), np.uint8))[ys, xs]
-        surface = np.maximum(surface, beside * depth_scale)
+    if own is not None and (own & (depth > 0)).any():
+        # the mean of its own readings within 5 px, of those no more than LEVEL_M beyond its median one: the surface a
+        # neighbour rests on there (a disk's ring), not a side wall's foot or a mask spilling onto the table
+        read = own & (depth > 0)
+        read = (read & (depth <= np.median(depth[read]) + LEVEL_M / depth_scale)).astype(np.float32)
+        total = cv2.boxFilter(np.where(read > 0, depth, 0).astype(np.float32), -1, (11, 11), normalize=False)[ys, xs]
+        count = cv2.boxFilter(read, -1, (11, 11), normalize=False)[ys, xs]
+        surface = np.maximum(surface, np.divide(total, count, out=np.zeros_like(total), where=count > 0) * depth_scale)
     above = (labels[ys, xs] != 0) & (d > 0) & (d * depth_scale < surface - step_m)
     return round(int(above.sum()) / ys.size, 3)
 

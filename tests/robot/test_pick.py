@@ -42,13 +42,14 @@ def test_a_buried_object_is_never_chosen_and_a_partly_covered_one_last():
     assert chosen is None and plan == [] and "box: under other objects (20% of its rim)" in note
 
 
-def test_of_the_partly_covered_objects_the_highest_comes_first():
-    """In a pile every part's rim meets another: the part on top (nearest the camera) comes before
-    the larger one it lies on, which would carry it off the table."""
-    def rec(cls, area, z):
-        return make_grasp(cls, [0.28, 0.0, z, math.pi, 0.0, 0.0], area_px=area, occluded=2 * OCCLUDED, depth_m=0.7 - z)
+def test_of_the_partly_covered_objects_the_least_covered_comes_first():
+    """In a pile every part's rim meets another: the part on top, whose rim meets the others only
+    where it leans on them, comes before the larger one it lies on (a bearing on a brake disk's
+    ring, its top below the disk's hub), which would carry it off the table."""
+    def rec(cls, area, z, occluded):
+        return make_grasp(cls, [0.28, 0.0, z, math.pi, 0.0, 0.0], area_px=area, occluded=occluded, depth_m=0.7 - z)
 
-    under, on_top = rec("disk", 40000, 0.055), rec("bearing", 4000, 0.06)
+    under, on_top = rec("disk", 40000, 0.058, 5 * OCCLUDED), rec("bearing", 4000, 0.055, 2 * OCCLUDED)
     assert choose_target([under, on_top], Envelope(), PickConfig())[0] is on_top
     free = make_grasp("box", [0.28, 0.1, 0.03, math.pi, 0.0, 0.0], area_px=3000, depth_m=0.67)
     assert choose_target([under, on_top, free], Envelope(), PickConfig())[0] is free

@@ -371,6 +371,30 @@ def test_a_part_lying_on_a_disks_low_ring_marks_the_disk_occluded():
     assert chosen.cls == "bearing", note
 
 
+def test_a_shiny_part_on_a_disks_ring_marks_it_occluded_and_a_mask_spilling_onto_the_table_does_not():
+    """A steel bearing returns depth on few of its pixels: where its rim pixel has none, its nearest
+    reading close by stands for it, so the disk it lies on still counts as carrying it. A box whose
+    mask spills over the table onto a disk's low ring: the ring lies below the box's top, and the
+    table and ring readings of its own mask do not make the ring stand above it."""
+    from edgepick.robot.pick import OCCLUDED
+
+    labels, depth = np.zeros((480, 640), np.uint8), flat_depth(700)
+    cv2.circle(labels, (300, 240), 120, 2, -1)  # disk: ring 20 mm above the table, hub 40 mm
+    depth[labels == 2] = 680
+    cv2.circle(depth, (300, 240), 40, 660, -1)
+    cv2.circle(labels, (380, 240), 30, 1, -1)  # a shiny bearing on the ring: depth on one pixel in 25
+    depth[labels == 1] = 0
+    sparse = np.zeros_like(depth, bool)
+    sparse[::5, ::5] = True
+    depth[(labels == 1) & sparse] = 662
+    rect(labels, BOX, (468.0, 240.0), (80, 60), 0.0)  # a box 60 mm tall 8 px from the disk...
+    depth[labels == BOX] = 640
+    labels[210:270, 410:428] = BOX  # ... its mask spilling over the table onto the disk's ring
+    by_class = {r.cls: r for r in grasp_records(labels, depth, INTR)}
+    assert by_class["disk"].occluded > OCCLUDED, by_class["disk"]
+    assert by_class["box"].occluded <= OCCLUDED, by_class["box"]
+
+
 def numpy_object_depth(depth, region, depth_scale, min_px, share=0.08, level_m=0.004):
     """object_depth as first written, on every pixel's value with numpy's own histogram, median and
     percentile: the reference the counting version must match to the last bit."""
