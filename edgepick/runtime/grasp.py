@@ -29,6 +29,7 @@ DEFAULT_CLASSES = ("background", "bearing", "disk", "adapter", "box")
 RAISED_FACE_SHARE = 0.6  # a top face at most this share of its object's region stands above the rest (a disk's hub)
 NEIGHBOUR_READING_PX = 7  # occluded_fraction: a neighbour's rim pixel with no depth takes its nearest reading this close
 LEVEL_M = 0.01  # an object whose own surface around its raised face spans no more depth than this lies flat
+OWN_SURFACE_M = 0.01  # occluded_fraction: its own readings this far beyond its median one are no surface to rest on
 
 
 class Laps:
@@ -363,10 +364,10 @@ def occluded_fraction(region: np.ndarray, labels: np.ndarray, depth: np.ndarray,
         d[missing] = np.where(nearest < far, nearest, 0)
     surface = np.full(ys.size, z)
     if own is not None and (own & (depth > 0)).any():
-        # the mean of its own readings within 5 px, of those no more than LEVEL_M beyond its median one: the surface a
-        # neighbour rests on there (a disk's ring), not a side wall's foot or a mask spilling onto the table
+        # the mean of its own readings within 5 px, of those no more than OWN_SURFACE_M beyond its median one: the
+        # surface a neighbour rests on there (a disk's ring), not a side wall's foot or a mask spilling onto the table
         read = own & (depth > 0)
-        read = (read & (depth <= np.median(depth[read]) + LEVEL_M / depth_scale)).astype(np.float32)
+        read = (read & (depth <= np.median(depth[read]) + OWN_SURFACE_M / depth_scale)).astype(np.float32)
         total = cv2.boxFilter(np.where(read > 0, depth, 0).astype(np.float32), -1, (11, 11), normalize=False)[ys, xs]
         count = cv2.boxFilter(read, -1, (11, 11), normalize=False)[ys, xs]
         surface = np.maximum(surface, np.divide(total, count, out=np.zeros_like(total), where=count > 0) * depth_scale)
