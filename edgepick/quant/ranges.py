@@ -1,6 +1,7 @@
 """Activation ranges read off histograms, shared by the torch and the ONNX paths: a `Histogram` of a
 tensor's values over every calibration input (exact bins, widened as values arrive), and the
-rules that read a range off it (`RangeRule`: minmax, percentile, entropy, mse). Numpy only."""
+rules that read a range off it (`RangeRule`: minmax, percentile, entropy, mse). Numpy, and
+OpenCV to count values into bins."""
 
 from __future__ import annotations
 
@@ -21,6 +22,17 @@ CHUNK = 1 << 22  # values binned at once: bounds numpy's temporaries for a large
 SAMPLED = 1 << 20
 UINT8_LEVELS = 255
 AUTO_PERCENTILES = (99.99, 99.999, 99.9999)  # with calib_method auto, beside minmax, entropy and mse
+
+
+def _bin_counts(index: np.ndarray) -> np.ndarray:
+    """How many of INDEX (uint16 bin numbers below BINS, at most 2**24 of them) fall in each bin. OpenCV
+    counts them as the 2-D histogram of their high and low bytes, about twice as fast as np.bincount."""
+    import cv2
+
+    high_bins = BINS >> 8
+    pairs = np.ascontiguousarray(index, dtype="<u2").reshape(1, -1).view(np.uint8).reshape(1, -1, 2)  # low byte first
+    counts = cv2.calcHist([pairs], [1, 0], None, [high_bins, 256], [0, high_bins, 0, 256])
+    return counts.reshape(-1).astype(np.float64)
 
 
 def _finite(values: np.ndarray) -> np.ndarray:
@@ -111,7 +123,7 @@ class Histogram:
         index = x - np.float32(self.lo)
         index *= np.float32(1.0 / self.width)
         np.clip(index, 0, BINS - 1, out=index)
-        self.counts += np.bincount(index.astype(np.int32), minlength=BINS)
+        self.counts += _bin_counts(index.astype(np.uint16))
 
     def _cover(self, mn: float, mx: float) -> None:
         """Widen the bins (by powers of two, old bins merging whole) until [mn, mx] fits."""

@@ -184,8 +184,6 @@ class Collector:
 
     def __init__(self, model: Any, sizes: dict[str, int], budget: int = OUTPUT_BUDGET, threads: int = 0,
                  minmax_only: bool = False, means: Iterable[str] = (), mean_inputs: int = 0):
-        import onnxruntime as ort
-
         self.names = list(sizes)
         # per-channel means of these tensors on the inputs numbered below MEAN_INPUTS (bias correction's fp32 side)
         self.mean_inputs = mean_inputs
@@ -197,32 +195,51 @@ class Collector:
         self.steps = {n: _spatial_step(shapes.get(n, [])) for n in self.names if n not in inputs}
         fetched = {n: sizes[n] // self.steps[n] ** 2 for n in self.steps}
         self.groups = output_groups(fetched, budget)
-        opts = ort.SessionOptions()
-        opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
-        opts.log_severity_level = 3
-        # no arena and no planned pattern: each run gives its memory back, so the sessions do not each hold
-        # their own peak; nodes in priority order, so that each sampling node runs as soon as its map is made
-        # (onnxruntime's default order ran them last, holding every feature map: 2.7 GB where 0.8 GB do)
-        opts.enable_cpu_mem_arena, opts.enable_mem_pattern = False, False
-        opts.execution_order = ort.ExecutionOrder.PRIORITY_BASED
-        if threads:
-            opts.intra_op_num_threads = threads
-        self.sessions, self.fetches = [], []
-        ranks = tensor_ranks(model)
-        for group in self.groups:
-            part, fetch = _with_samples(model, group, self.steps, self.means, ranks)
-            self.fetches.append(fetch)
-            self.sessions.append(ort.InferenceSession(part.SerializeToString(), opts, providers=["CPUExecutionProvider"]))
+        self.model, self.threads, self.ranks = model, threads, tensor_ranks(model)
+        self.sessions: list[Any] = []  # opened by the first add()
+        self.fetches: list[list[str]] = []
         self.input = Graph(model).inputs[0]
         self.seen = 0
         self.counts = not minmax_only  # minmax reads the extremes alone: no histogram to fill
 
+    def _open(self) -> None:
+        """One onnxruntime session per group, its graph outputs that group alone."""
+        import onnxruntime as ort
+
+        opts = ort.SessionOptions()
+        opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
+        opts.log_severity_level = 3
+        # an arena, so that a run reuses its freed blocks (without one every feature map is a fresh mmap,
+        # page-faulted in: a text detector's runs took 1.6x as long), shrunk after each run and given back by
+        # close(); no planned pattern (it holds the run's whole plan); nodes in priority order, so that each
+        # sampling node runs as soon as its map is made (onnxruntime's default order ran them last, holding
+        # every feature map: 2.7 GB where 0.8 GB do)
+        opts.enable_cpu_mem_arena, opts.enable_mem_pattern = True, False
+        opts.execution_order = ort.ExecutionOrder.PRIORITY_BASED
+        if self.threads:
+            opts.intra_op_num_threads = self.threads
+        self.run_options = ort.RunOptions()
+        self.run_options.add_run_config_entry("memory.enable_memory_arena_shrinkage", "cpu:0")
+        self.fetches = []
+        for group in self.groups:
+            part, fetch = _with_samples(self.model, group, self.steps, self.means, self.ranks)
+            self.fetches.append(fetch)
+            self.sessions.append(ort.InferenceSession(part.SerializeToString(), opts, providers=["CPUExecutionProvider"]))
+
+    def close(self) -> None:
+        """Let the sessions and their arenas go (the steps between calibration passes need the memory);
+        the next add() opens them again."""
+        self.sessions = []
+        release_memory()
+
     def add(self, x: np.ndarray, index: int | None = None) -> None:
         """Count one input tensor in (the INDEX-th calibration tensor, for the means)."""
+        if not self.sessions:
+            self._open()
         for name in self.inputs:
             self.histograms[name].update(x, self.counts)
         for group, fetch, session in zip(self.groups, self.fetches, self.sessions):
-            values = dict(zip(fetch, session.run(fetch, {self.input: x})))
+            values = dict(zip(fetch, session.run(fetch, {self.input: x}, self.run_options)))
             for name in group:
                 if name in self.means and index is not None and index < self.mean_inputs:
                     self.means[name][index] = values[f"{name}_channel_means"].astype(np.float64)

@@ -50,6 +50,7 @@ def calibrated(prepared: Any, pre: Path, first: np.ndarray, tensors: Iterator[An
         collector = Collector(prepared, sizes, minmax_only=config.calib_method == CalibMethod.MINMAX, means=convs,
                               mean_inputs=mean_inputs)
         kept, seen = _calibrate(collector, first, tensors, input_shape, keep, hold, total, progress)
+        collector.close()  # choosing the rule needs the memory; the held-out tensors open it again
         held = kept[:hold]
         held_out = bool(held) and collector.seen >= len(held)  # else too few others: the rule is chosen on them
         if not held_out:
