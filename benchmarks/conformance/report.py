@@ -76,21 +76,26 @@ def markdown(results: list[ModelResult], header: Header, figure: str | None = No
              "made and preprocessed as the model's own package does (benchmarks/conformance/); every engine "
              "quantizes the same fp32 file on the same calibration tensors. The task metric scores the package's "
              "own decision (boxes, strings, classes, masks) from each engine's outputs against fp32's on "
-             "onnxruntime; 'vs truth' scores it against what the inputs were made to show, where they know it. "
+             "onnxruntime; 'vs truth' scores it against what the inputs were made to show, where they know it; "
+             "'fp32, ±1 grey level' scores fp32 itself on the test images with every pixel moved by at most one "
+             "grey level at random (a camera's own rounding): the metric's floor, below which a difference is a "
+             "decision on its threshold, not the engine. "
              f"p50 over {header.runs} timed runs per engine, all engines of a model in one process in "
              "alternating blocks of 5; speed-up against fp32 on the same runtime" +
              (f"; the timing done {header.repeats} times, one after another: the median p50 and speed-up, "
               "the speed-ups' lowest and highest in brackets." if header.repeats > 1 else "."), "",
              "## Summary", "", "Task metric against fp32 (%) and speed-up, per engine:", "",
-             "| " + " | ".join(["model", "family", "metric", "fp32 vs truth (%)", *engines]) + " |",
-             "|---|---|---|---|" + "---|" * len(engines)]
+             "| " + " | ".join(["model", "family", "metric", "fp32 vs truth (%)", "fp32, ±1 grey level (%)",
+                                  *engines]) + " |",
+             "|---|---|---|---|---|" + "---|" * len(engines)]
     for m in results:
         by = {e.engine: e for e in m.engines}
         fp32 = by.get(BASELINES["onnxruntime"])
         cells = [("failed" if by[n].failure else f"{percent(by[n].metric)}, {speedup_text(by[n])}")
                  if n in by else "-" for n in engines]
         cells = cells if not m.failure else ["model failed: " + m.failure]
-        lines.append("| " + " | ".join([m.name, m.family, m.metric, percent(fp32.truth) if fp32 else "-", *cells]) + " |")
+        lines.append("| " + " | ".join([m.name, m.family, m.metric, percent(fp32.truth) if fp32 else "-",
+                                         percent(m.fp32_jittered), *cells]) + " |")
     if figure:
         lines += ["", f"![speed-up against task metric, one point per model and engine]({figure})"]
     lines += ["", "## Per model"]
@@ -114,6 +119,9 @@ def markdown(results: list[ModelResult], header: Header, figure: str | None = No
         also = [f"{e.engine}: " + ", ".join(f"{k} {percent(v)}%" for k, v in e.also.items()) for e in m.engines if e.also]
         if also:
             lines += ["", "Also: " + "; ".join(also) + "."]
+        if m.fp32_jittered is not None:
+            lines += ["", f"fp32 on the test images moved by at most one grey level: {percent(m.fp32_jittered)}% "
+                          "against its decisions on the images as made."]
     lines += quantize_times(results)
     failures = [(m.name, "(model)", m.failure) for m in results if m.failure]
     failures += [(m.name, e.engine, e.failure) for m in results if not m.failure for e in m.engines if e.failure]
@@ -184,7 +192,7 @@ def write_csv(results: list[ModelResult], path: Path) -> None:
     """One row per model and engine, the lowest SQNR over the outputs."""
     fields = ["model", "family", "engine", "runtime", "metric_name", "metric", "truth", "min_sqnr_db", "p50_ms",
               "speedup", "speedup_low", "speedup_high", "size_mb", "quantize_s", "calib_s", "peak_mb", "minimum",
-              "regressed", "failure", "note"]
+              "regressed", "failure", "note", "fp32_jittered"]
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(fields)
@@ -194,7 +202,7 @@ def write_csv(results: list[ModelResult], path: Path) -> None:
                 w.writerow([m.name, m.family, e.engine, e.runtime, m.metric, e.metric, e.truth,
                             min(sqnr) if sqnr else "", e.p50_ms, e.speedup, *(e.speedup_range or ("", "")),
                             e.size_mb, e.quantize_s, e.calib_s, e.peak_mb, e.minimum, e.regressed, e.failure or "",
-                            e.note])
+                            e.note, m.fp32_jittered])
 
 
 def write_json(results: list[ModelResult], header: Header, path: Path) -> None:

@@ -79,6 +79,7 @@ class ModelResult:
     outputs: tuple[str, ...] = ()
     failure: str | None = None
     notes: str = ""
+    fp32_jittered: float | None = None  # fp32's task metric on the test inputs moved by one grey level (grey_jitter)
 
     @property
     def regressions(self) -> list[EngineResult]:
@@ -193,8 +194,11 @@ def run_model(entry: Entry, settings: Settings, log: Callable[[str], None] = pri
         quantized = _quantize(entry, settings, work, calib, log)
         try:
             fp32 = next(e for e in settings.engines if e.name == BASELINES[ONNXRUNTIME])
-            reference = [fp32.load(_file(quantized[fp32.quantizer.name]), settings.threads, outputs)(x) for x in test]
+            fp32_run = fp32.load(_file(quantized[fp32.quantizer.name]), settings.threads, outputs)
+            reference = [fp32_run(x) for x in test]
             ref_decisions = [decide(o) for o in reference]
+            jittered = tensors(entry, [grey_jitter(s.image, k) for k, s in enumerate(test_samples)])
+            fp32_jittered = round(entry.metric.score(ref_decisions, [decide(fp32_run(x)) for x in jittered]), 5)
         except Exception as exc:  # noqa: BLE001
             return failed(f"fp32: {one_line(exc)}")
         truths = [s.truth for s in test_samples]
@@ -217,7 +221,19 @@ def run_model(entry: Entry, settings: Settings, log: Callable[[str], None] = pri
                     results[engine.name] = replace(results[engine.name], quantize_s=round(seconds, 2), peak_mb=peak)
             log(f"{entry.name}: {engine.name} {results[engine.name].failure or 'scored'}")
         _time(results, runners, test, settings, log, entry.name)
-    return replace(base, outputs=tuple(outputs), engines=tuple(_judge(entry, results[e.name]) for e in settings.engines))
+    return replace(base, outputs=tuple(outputs), fp32_jittered=fp32_jittered,
+                   engines=tuple(_judge(entry, results[e.name]) for e in settings.engines))
+
+
+def grey_jitter(image: np.ndarray, seed: int) -> np.ndarray:
+    """IMAGE (8-bit) with every value moved by -1, 0 or +1 grey level at random: a change of the
+    size a camera's own 8-bit rounding makes. fp32's decisions on such inputs against its decisions
+    on the inputs as made are the floor of a task metric: below it, a difference is the decision's
+    own instability (a box or a character on its threshold), not the engine's."""
+    if image.dtype != np.uint8:
+        raise ValueError(f"a sample image is {image.dtype}, an 8-bit image was expected")
+    step = np.random.default_rng([2, seed]).integers(-1, 2, image.shape)
+    return np.clip(image.astype(np.int16) + step, 0, 255).astype(np.uint8)
 
 
 Made = tuple[Quantized | str, float, float | None]  # the file or why there is none; seconds; peak MB

