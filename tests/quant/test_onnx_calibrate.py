@@ -19,7 +19,7 @@ from edgepick.quant.onnx.calibrate import (
 )
 from edgepick.quant.onnx.static import quantize_onnx_static
 from edgepick.quant.ranges import RangeRule
-from tests.quant.onnx_models import conv_relu_model
+from tests.quant.onnx_models import conv_relu_model, helper_model, optimized_ops
 
 
 def _inputs(count: int) -> list[np.ndarray]:
@@ -156,3 +156,54 @@ def test_bias_correction_from_the_calibration_pass_gives_the_file_its_own_pass_g
                                  )["measured_images"] > 0
     for mine, theirs in zip(counted.graph.initializer, own.graph.initializer, strict=True):
         assert onnx.numpy_helper.to_array(mine).tobytes() == onnx.numpy_helper.to_array(theirs).tobytes(), mine.name
+
+
+def _concat_model(path) -> tuple:
+    """Two Relu branches of one input, one about four times the other's size, joined by a Concat
+    that a 1x1 conv reads."""
+    from onnx import helper
+
+    rng = np.random.default_rng(3)
+    w1, w2 = rng.normal(0, 1, (3, 2, 1, 1)), rng.normal(0, 4, (3, 2, 1, 1))
+    w3 = rng.normal(0, 0.3, (2, 6, 1, 1))
+    nodes = [helper.make_node("Conv", ["input", "w1"], ["a"], name="conv_a"),
+             helper.make_node("Relu", ["a"], ["relu_a"], name="relu_a"),
+             helper.make_node("Conv", ["input", "w2"], ["b"], name="conv_b"),
+             helper.make_node("Relu", ["b"], ["relu_b"], name="relu_b"),
+             helper.make_node("Concat", ["relu_a", "relu_b"], ["joined"], name="concat", axis=1),
+             helper.make_node("Conv", ["joined", "w3"], ["output"], name="conv_out")]
+    return helper_model(nodes, [("input", [1, 2, 32, 32])], [("output", [1, 2, 32, 32])],
+                        {"w1": w1, "w2": w2, "w3": w3}, path)
+
+
+def test_a_concats_range_spans_its_inputs_and_the_wider_one_shares_its_qparams(tmp_path):
+
+    model = _concat_model(tmp_path / "concat.onnx")
+    xs = _inputs(6)
+    proto = onnx.load(str(model))
+    collector = Collector(onnx.shape_inference.infer_shapes(proto), calibrated_tensors(
+        onnx.shape_inference.infer_shapes(proto), ["Conv", "Relu", "Concat"]))
+    for x in xs:
+        collector.add(x)
+    ranges = collector.ranges(RangeRule(CalibMethod.PERCENTILE, 99.9))
+    (a_low, a_high), (b_low, b_high) = ranges["relu_a"], ranges["relu_b"]
+    assert b_high > 2 * a_high  # the second branch is the wider
+    assert ranges["joined"] == (min(a_low, b_low), max(a_high, b_high)) == ranges["relu_b"]
+    # in the int8 file the wider input's bytes are the Concat's own: onnxruntime copies them
+    out = tmp_path / "int8.onnx"
+    quantize_onnx_static(model, xs, out, config=QuantConfig(calib_method=CalibMethod.PERCENTILE), progress=False)
+    int8 = onnx.load(str(out))
+    dq = {n.output[0]: n for n in int8.graph.node if n.op_type == "DequantizeLinear"}
+    concat = next(n for n in int8.graph.node if n.op_type == "Concat")
+    after = next(n for n in int8.graph.node if n.op_type == "QuantizeLinear" and n.input[0] == concat.output[0])
+    shared = [dq[i].input[1:] == after.input[1:] or _same_qparams(int8, dq[i].input[1:], after.input[1:])
+              for i in concat.input]
+    assert shared == [False, True]
+    assert optimized_ops(out)["QLinearConcat"] == 1
+
+
+def _same_qparams(model, one, other) -> bool:
+    from onnx import numpy_helper
+
+    values = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer}
+    return all(np.array_equal(values[a], values[b]) for a, b in zip(one, other))

@@ -280,7 +280,25 @@ class Collector:
         return {name: [got[k] for k in range(count)] for name, got in self.means.items()}
 
     def ranges(self, rule: RangeRule, exact: Iterable[str] = ()) -> dict[str, tuple[float, float]]:
-        """Every calibrated tensor's range by RULE; the tensors named in EXACT keep min and max."""
+        """Every calibrated tensor's range by RULE (a Concat's output the span of its inputs', see
+        concat_spans); the tensors named in EXACT keep min and max."""
         exact = set(exact)
         plain = RangeRule(CalibMethod.MINMAX)
-        return {name: (plain if name in exact else rule).range(h) for name, h in self.histograms.items()}
+        read = {name: (plain if name in exact else rule).range(h) for name, h in self.histograms.items()}
+        return concat_spans(self.model, read)
+
+
+def concat_spans(model: Any, ranges: dict[str, tuple[float, float]]) -> dict[str, tuple[float, float]]:
+    """RANGES with each Concat's output given the span of its inputs' ranges (in graph order, so that
+    a Concat of Concats spans the spans). Its values are its inputs' values, so the span is a range
+    each input fits; an input whose own range is that span (the one with the largest values, and
+    with the smallest: every Relu's input starts at 0) then gets the output's very qparams, and
+    onnxruntime's QLinearConcat copies its bytes instead of requantizing them (a salient-mask U-Net's
+    Concats took 1.4x as long where each input had a range of its own)."""
+    spans = dict(ranges)
+    for node in model.graph.node:
+        parts = [spans.get(name) for name in node.input]
+        if node.op_type != "Concat" or node.output[0] not in spans or not parts or any(p is None for p in parts):
+            continue
+        spans[node.output[0]] = (min(p[0] for p in parts if p), max(p[1] for p in parts if p))
+    return spans
