@@ -9,7 +9,7 @@ tensor's min, max and histogram, and is freed before the next tensor. Where the 
 would not fit the memory budget, they are fetched in groups, each run computing only what its
 group needs. A run's tensors are counted on every core at once (the counting lets go of the
 GIL), while onnxruntime's threads wait for the next run. The ranges (minmax, percentile, entropy,
-mse) are then read off the histograms.
+mse) are then read off the histograms, a Concat's output spanning its inputs' (`concat_spans`).
 
 Torch-free: numpy, OpenCV and onnxruntime.
 """
@@ -293,8 +293,8 @@ def concat_spans(model: Any, ranges: dict[str, tuple[float, float]]) -> dict[str
     a Concat of Concats spans the spans). Its values are its inputs' values, so the span is a range
     each input fits; an input whose own range is that span (the one with the largest values, and
     with the smallest: every Relu's input starts at 0) then gets the output's very qparams, and
-    onnxruntime's QLinearConcat copies its bytes instead of requantizing them (a salient-mask U-Net's
-    Concats took 1.4x as long where each input had a range of its own)."""
+    onnxruntime's QLinearConcat copies its bytes instead of requantizing them (what that is worth:
+    docs/quantization.md, the conformance suite's Concat spans)."""
     spans = dict(ranges)
     for node in model.graph.node:
         parts = [spans.get(name) for name in node.input]
