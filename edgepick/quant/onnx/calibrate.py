@@ -297,8 +297,8 @@ def concat_spans(model: Any, ranges: dict[str, tuple[float, float]]) -> dict[str
     docs/quantization.md, the conformance suite's Concat spans)."""
     spans = dict(ranges)
     for node in model.graph.node:
-        parts = [spans.get(name) for name in node.input]
-        if node.op_type != "Concat" or node.output[0] not in spans or not parts or any(p is None for p in parts):
+        parts = [spans[name] for name in node.input if name in spans]
+        if node.op_type != "Concat" or node.output[0] not in spans or not parts or len(parts) != len(node.input):
             continue
-        spans[node.output[0]] = (min(p[0] for p in parts if p), max(p[1] for p in parts if p))
+        spans[node.output[0]] = (min(p[0] for p in parts), max(p[1] for p in parts))
     return spans
