@@ -218,10 +218,9 @@ class Collector:
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
         opts.log_severity_level = 3
         # an arena, so that a run reuses its freed blocks (without one every feature map is a fresh mmap,
-        # page-faulted in: a text detector's runs took 1.6x as long), shrunk after each run and given back by
-        # close(); no planned pattern (it holds the run's whole plan); nodes in priority order, so that each
-        # sampling node runs as soon as its map is made (onnxruntime's default order ran them last, holding
-        # every feature map: 2.7 GB where 0.8 GB do)
+        # page-faulted in), shrunk after each run and given back by close(); no planned pattern (it holds the
+        # run's whole plan); nodes in priority order, so that each sampling node runs as soon as its map is
+        # made (onnxruntime's default order ran them last, holding every feature map: 2.7 GB where 0.8 GB do)
         opts.enable_cpu_mem_arena, opts.enable_mem_pattern = True, False
         opts.execution_order = ort.ExecutionOrder.PRIORITY_BASED
         # its threads sleep as soon as a run ends, rather than spin on the cores the histograms are counted on
