@@ -26,7 +26,8 @@ AUTO_PERCENTILES = (99.99, 99.999, 99.9999)  # with calib_method auto, beside mi
 
 def _bin_counts(index: np.ndarray) -> np.ndarray:
     """How many of INDEX (uint16 bin numbers below BINS, at most 2**24 of them) fall in each bin. OpenCV
-    counts them as the 2-D histogram of their high and low bytes, about twice as fast as np.bincount."""
+    counts them as the 2-D histogram of their high and low bytes: a table lookup per byte, faster than
+    np.bincount's loop."""
     import cv2
 
     high_bins = BINS >> 8
