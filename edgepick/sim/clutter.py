@@ -41,6 +41,9 @@ from edgepick.sim.physics_scene import OVERLAP_M, Solid, scene_xml, settle
 
 ROUND_ENDS = ("cleared", "two failures in a row", "cycle cap", "robot stopped")
 STAYS_M, STAYS_DEG = 0.01, 10.0  # a laid-out part that settles farther or tips more did not stay where it was put
+# a laid-out part lies this share of the frame's width or more inside every edge (a D415 has no depth in a band
+# at its left edge, up to 3.5% of the width)
+IN_VIEW_MARGIN = 0.04
 TRAY_MARGIN_M = 0.05  # a part whose base centre ends farther than this outside the pick area has left the tray
 
 
@@ -141,7 +144,7 @@ class ClutterRound(SynthCamera):
         while True:
             layout = self.renderer.lay_out(rng, self.mount, self.in_pick_area, self.cfg.objects, tries=50)
             parts = [self._part(k, p, layout.n) for k, p in enumerate(layout.placed)]
-            parts = self._apart(parts)
+            parts = [p for p in self._apart(parts) if self._in_view(p)]
             rested = settle(self.mujoco, [p.solid() for p in parts], self.physics_cfg)
             stays = rested is not None and all(
                 np.linalg.norm(base - p.base) <= STAYS_M and rotation[:, 2] @ p.rotation[:, 2] >= np.cos(np.radians(STAYS_DEG))
@@ -171,6 +174,25 @@ class ClutterRound(SynthCamera):
                 break
             parts = [p for i, p in enumerate(parts) if i != max(clash)]
         return parts
+
+    def _in_view(self, part: Part) -> bool:
+        """Whether PART lies wholly in the camera's view, IN_VIEW_MARGIN of the width inside every
+        edge of the frame (the tray is in view: a part laid out half out of it could never be
+        picked, its centroid not its own): its footprint's corners, or its rim, at its base and top."""
+        m, cal, intr = part.model, self.calibration(), self.intrinsics
+        if m.major_axis:
+            footprint = [(sx * m.length / 2, sy * m.width / 2) for sx in (-1, 1) for sy in (-1, 1)]
+        else:
+            footprint = [(m.radius * np.cos(a), m.radius * np.sin(a)) for a in np.linspace(0, 2 * np.pi, 16, endpoint=False)]
+        local = np.array([(x, y, z) for x, y in footprint for z in (0.0, m.height)])
+        camera = (part.base + local @ part.rotation.T - cal.t) @ cal.R  # robot -> camera frame, one point a row
+        if (camera[:, 2] <= 0).any():
+            return False
+        u = intr.fx * camera[:, 0] / camera[:, 2] + intr.cx
+        v = intr.fy * camera[:, 1] / camera[:, 2] + intr.cy
+        margin = IN_VIEW_MARGIN * intr.width
+        return bool((u >= margin).all() and (u <= intr.width - 1 - margin).all() and (v >= margin).all()
+                    and (v <= intr.height - 1 - margin).all())
 
     def placed(self) -> list[Placed]:
         """The parts as the renderer places them (camera frame, each posed where it rests)."""

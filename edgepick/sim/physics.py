@@ -37,7 +37,7 @@ from edgepick.robot.pick import PickConfig
 from edgepick.robot.verdict import Verdict
 from edgepick.runtime.calibration import Calibration
 from edgepick.runtime.grasp_record import Grasp
-from edgepick.sim.physics_scene import FINGER_DAMPING, PhysicsConfig, Solid, solids, without_overlaps
+from edgepick.sim.physics_scene import FINGER_DAMPING, PhysicsConfig, Solid, solids, with_what_they_touch, without_overlaps
 
 __all__ = ["PHYSICS_FAILURES", "PhysicsConfig", "PhysicsRun", "Solid", "physics_judge", "physics_run", "physics_verdict",
            "require_mujoco", "solids", "steel_share"]
@@ -45,7 +45,7 @@ __all__ = ["PHYSICS_FAILURES", "PhysicsConfig", "PhysicsRun", "Solid", "physics_
 SIM_EXTRA = "the physics verdict needs the sim extra: pip install 'edgepick[sim]'"
 MAGNETIC = ("bearing", "disk")  # steel and cast iron; the box (cardboard) and adapter (plastic) are not
 CONTACT_M = 0.0005  # a pole face this close to the part's top touches it
-NEAR_M = 0.3  # objects farther than this from the target are left out of its check
+NEAR_M = 0.3  # objects farther than this from the target are left out of its check, unless they touch one in it
 PHYSICS_FAILURES = ("false detection", "blocked", "too wide", "missed", "dropped", "unsettled", "unstable")
 SETTLED_M = 0.005  # a target that moves farther than this before the hand reaches it was not at rest in the scene
 
@@ -168,9 +168,11 @@ def physics_run(record: Grasp, truth: list[dict], cal: Calibration, place_pose: 
     if k is None:
         return PhysicsRun(Verdict(False, "false detection", lifted_m=0.0, ms=0.0))
     world += solids(list(hidden), cal)
-    # what the hand can meet on its way down, up and off: objects within NEAR_M of the target
+    # what the hand can meet on its way down, up and off: objects within NEAR_M of the target, and what those
+    # rest on or hold up
     target = world[k]
-    world = [target] + [s for s in world if s is not target and np.linalg.norm((s.base - target.base)[:2]) < NEAR_M]
+    near = [k] + [i for i, s in enumerate(world) if i != k and np.linalg.norm((s.base - target.base)[:2]) < NEAR_M]
+    world = [world[i] for i in with_what_they_touch(mujoco, world, near, cfg)]
     k = 0
     magnet = GRIPPER.get(record.cls) == "electromagnet"
     model, data, left_out = without_overlaps(mujoco, world, magnet, cfg)

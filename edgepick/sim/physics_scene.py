@@ -199,17 +199,7 @@ def _touch_hops(mujoco, model, data, names: list[str], count: int) -> list[float
     """For each of COUNT objects (bodies obj0, obj1, ...), how many objects touching one another
     (within TOUCH_M) lie between it and obj0, the target: 0 for the target, 1 for what it rests on
     or leans against, inf for an object not linked to it."""
-    geoms: dict[int, list[int]] = {}
-    for g, name in enumerate(names):
-        if name.startswith("obj"):
-            geoms.setdefault(int(name[3:]), []).append(g)
-    touching: dict[int, set[int]] = {k: set() for k in range(count)}
-    for a in range(count):
-        for b in range(a + 1, count):
-            if any(mujoco.mj_geomDistance(model, data, ga, gb, TOUCH_M, None) < TOUCH_M
-                   for ga in geoms.get(a, []) for gb in geoms.get(b, [])):
-                touching[a].add(b)
-                touching[b].add(a)
+    touching = _touching(mujoco, model, data, names, count)
     hops, front = [math.inf] * count, [0]
     hops[0] = 0
     while front:
@@ -221,6 +211,42 @@ def _touch_hops(mujoco, model, data, names: list[str], count: int) -> list[float
                     nearer.append(j)
         front = nearer
     return hops
+
+
+def _touching(mujoco, model, data, names: list[str], count: int) -> dict[int, set[int]]:
+    """For each of COUNT objects (bodies obj0, obj1, ...), the objects within TOUCH_M of it."""
+    geoms: dict[int, list[int]] = {}
+    for g, name in enumerate(names):
+        if name.startswith("obj"):
+            geoms.setdefault(int(name[3:]), []).append(g)
+    touching: dict[int, set[int]] = {k: set() for k in range(count)}
+    for a in range(count):
+        for b in range(a + 1, count):
+            if any(mujoco.mj_geomDistance(model, data, ga, gb, TOUCH_M, None) < TOUCH_M
+                   for ga in geoms.get(a, []) for gb in geoms.get(b, [])):
+                touching[a].add(b)
+                touching[b].add(a)
+    return touching
+
+
+def with_what_they_touch(mujoco, world: list[Solid], chosen: list[int], cfg: PhysicsConfig) -> list[int]:
+    """CHOSEN (indices into WORLD, in order) and, after them, every other object of WORLD linked to
+    one of them by objects touching one another (within TOUCH_M): what a chosen object rests on,
+    and what rests on it. A check that leaves out what a part lies on drops that part onto the
+    table, into the place where the left-out object stands."""
+    if len(chosen) == len(world):
+        return list(chosen)
+    model = mujoco.MjModel.from_xml_string(scene_xml(world, False, cfg, hand=False))
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    names = [model.body(model.geom_bodyid[g]).name for g in range(model.ngeom)]
+    touching = _touching(mujoco, model, data, names, len(world))
+    kept, front = list(chosen), list(chosen)
+    while front:
+        linked = sorted({j for i in front for j in touching[i]} - set(kept))
+        kept += linked
+        front = linked
+    return kept
 
 
 REST_M_S = 0.003  # an object moving slower than this (and turning slower than REST_RAD_S) is at rest

@@ -61,9 +61,9 @@ def test_round_config_refuses_what_no_round_can_be():
     assert RoundConfig().cap(7) == 16 and RoundConfig(max_cycles=3).cap(7) == 3
 
 
-@pytest.mark.parametrize("index", [1, 2, 3])
-def test_a_round_lays_out_4_to_10_parts_at_rest_in_the_pick_area(index):
-    cell = ClutterRound(640, 480, seed=5, index=index)
+@pytest.mark.parametrize("seed, index", [(5, 1), (5, 2), (5, 3), (0, 191)])  # (0, 191): a draw with parts at the edge
+def test_a_round_lays_out_4_to_10_parts_at_rest_in_the_pick_area(seed, index):
+    cell = ClutterRound(640, 480, seed=seed, index=index)
     assert 4 <= len(cell.parts) <= 10 and cell.laid_out == len(cell.parts)
     (x0, x1), (y0, y1) = cell.PICK_AREA_M
     assert all(x0 - 0.05 <= p.base[0] <= x1 + 0.05 and y0 - 0.05 <= p.base[1] <= y1 + 0.05 for p in cell.parts)
@@ -73,6 +73,19 @@ def test_a_round_lays_out_4_to_10_parts_at_rest_in_the_pick_area(index):
     ids = sorted(t["id"] for t in frame.truth + frame.hidden)
     assert ids == sorted(p.key for p in cell.parts)
     assert frame.scene["round"] == index and frame.scene["pick"] == 1
+    # the camera sees the whole tray: no part's pixels come near the frame's edges
+    margin = int(0.04 * frame.labels.shape[1])
+    inner = np.zeros(frame.labels.shape, bool)
+    inner[margin:-margin, margin:-margin] = True
+    assert not (frame.labels[~inner] > 0).any()
+
+
+def test_a_part_laid_out_partly_out_of_view_is_left_out():
+    cell = ClutterRound(640, 480, seed=5, index=1)
+    part = cell.parts[0]
+    assert cell._in_view(part)
+    part.base = part.base + [0.0, 0.30, 0.0]  # towards the frame's edge (robot +y: the image's left)
+    assert not cell._in_view(part)
 
 
 def test_a_rounds_frame_after_a_pick_is_a_fresh_render_of_the_settled_table():

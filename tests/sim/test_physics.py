@@ -203,6 +203,22 @@ def test_a_check_says_where_it_left_the_objects_it_simulated():
     assert np.linalg.norm(stood - [0.25, 0.12, 0.0]) < 0.002
 
 
+def test_a_part_near_the_target_stays_on_what_it_rests_on_however_far_that_lies():
+    """A bearing 0.29 m from the target lies on a box whose centre is 0.34 m from it (farther than
+    the check's reach): the box is simulated too, and the bearing stays on it, not dropped onto the
+    table into the box's place (where a round's next settling would fling the two apart)."""
+    from edgepick.sim.physics import NEAR_M, physics_run
+
+    support = {**block("box", 0.25, -0.34, math.pi / 2, 0.16, 0.09, 0.06), "id": 1}
+    resting = {**on(bearing(0.25, -0.29), 0.06), "id": 2}
+    target = {**block("adapter", 0.25, 0.0, 0.0, 0.062, 0.044, 0.036), "id": 3}
+    assert 0.29 < NEAR_M < 0.34
+    run = physics_run(grasp("adapter", 0.25, 0.0, 0.036, math.pi / 2), [target, resting, support], IDENTITY, PLACE)
+    assert run.verdict.success and set(run.poses) == {1, 2, 3}, run
+    stayed, _ = run.poses[2]
+    assert np.linalg.norm(stayed - [0.25, -0.29, 0.06]) < 0.003, stayed
+
+
 def test_settle_brings_objects_to_rest_and_stiff_contacts_hold_a_heavy_disk_on_light_parts():
     """MuJoCo's default contacts scale with the lighter body: a brake disk resting on two adapters pushes
     them millimetres into the table; contacts as stiff as a step allows (a round's) keep them on it."""
