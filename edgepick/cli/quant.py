@@ -146,8 +146,11 @@ def quantize() -> None:
               help="For --calib-method percentile (with auto: one of the percentiles tried).")
 @click.option("--task", "tasks", multiple=True, metavar="[OUTPUT=]TASK",
               help="For an .onnx MODEL: what an output decides, for the agreement with fp32 in the report: labels "
-                   "(argmax over channels), threshold:T, top1 (argmax per row) or raw (SQNR and cosine only); "
-                   "OUTPUT= for one output, else all [default: guessed from each output's shape and op].")
+                   "(argmax over channels), threshold:T, top1 (argmax per row), boxes:T (a detector's table of cx, cy, "
+                   "w, h and class scores per row, as YOLOv8 exports it: the F1 score of the boxes scoring above T, "
+                   "0.25 by default, after NMS), boxes-obj:T (the same with an objectness score after the box, as "
+                   "YOLOv5) or raw (SQNR and cosine only); OUTPUT= for one output, else all [default: guessed from "
+                   "each output's shape and op].")
 @with_options(ptq_methods)
 @click.option("--seed", default=0, show_default=True, help="Which calibration images are drawn.")
 @click.option("--max-miou-drop", default=None, type=float, metavar="PP",

@@ -4,7 +4,7 @@ Per output: the SQNR (signal-to-quantization-noise ratio, dB) and the cosine sim
 values against fp32's, which mean something for every output (logits, probabilities, box
 regressions, embeddings); and, where the output decides something, the share of decisions that
 agree (`Task`): per-pixel labels (the argmax over channels), a thresholded map, the top-1 class of
-each row. A raw regression decides nothing and gets no agreement: the sign of a box coordinate
+each row, a detector's boxes (detections.py). A raw regression decides nothing and gets no agreement: the sign of a box coordinate
 says nothing about the box. Numpy only.
 """
 
@@ -20,6 +20,7 @@ import numpy as np
 
 from edgepick.errors import ParameterError
 from edgepick.onnx_graph import Graph
+from edgepick.quant.detections import detections, found_again
 from edgepick.quant.ranges import RangeRule
 
 PROBABILITY_OPS = ("Sigmoid", "Softmax")
@@ -34,7 +35,13 @@ class TaskKind(enum.StrEnum):
     LABELS = "labels"  # a class per pixel: the argmax over the channel axis
     THRESHOLD = "threshold"  # a map thresholded at T (threshold:T; 0.5 for a probability)
     TOP1 = "top1"  # a class per row: the argmax over the last axis
+    BOXES = "boxes"  # a detector's box table (boxes:T): cx, cy, w, h and class scores per row (YOLOv8 and later)
+    BOXES_OBJ = "boxes-obj"  # the same with an objectness score after the box (boxes-obj:T; YOLOv5)
     RAW = "raw"  # nothing: SQNR and cosine only
+
+
+# the kinds that take a threshold (KIND:T), and T where none is given
+THRESHOLDS = {TaskKind.THRESHOLD: 0.5, TaskKind.BOXES: 0.25, TaskKind.BOXES_OBJ: 0.25}
 
 
 @dataclass(frozen=True)
@@ -42,33 +49,54 @@ class Task:
     """What an output decides, and how the decision is read off it."""
 
     kind: TaskKind
-    threshold: float = 0.5
+    threshold: float = math.nan  # KIND:T's T; NaN: the kind's default (THRESHOLDS; 0.5 for the others)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "kind", TaskKind(self.kind))
+        if math.isnan(self.threshold):
+            object.__setattr__(self, "threshold", THRESHOLDS.get(self.kind, 0.5))
         if not math.isfinite(self.threshold):
             raise ParameterError("{task}: the threshold must be a finite number", task=str(self))
 
     def __str__(self) -> str:
-        return f"threshold:{self.threshold:g}" if self.kind == TaskKind.THRESHOLD else self.kind.value
+        return f"{self.kind.value}:{self.threshold:g}" if self.kind in THRESHOLDS else self.kind.value
 
     @classmethod
     def parse(cls, text: str) -> Task:
-        """'labels', 'threshold:T', 'top1' or 'raw', refused in one line naming `task`."""
+        """'labels', 'threshold[:T]', 'top1', 'boxes[:T]', 'boxes-obj[:T]' or 'raw', refused in one line
+        naming `task`."""
         kind, _, value = str(text).strip().partition(":")
         try:
             task_kind = TaskKind(kind)
         except ValueError:
-            raise ParameterError(f"{{task}}: not one of {', '.join(k.value for k in TaskKind)} (threshold:T)",
-                                 task=text) from None
-        if task_kind != TaskKind.THRESHOLD:
+            raise ParameterError(f"{{task}}: not one of {', '.join(k.value for k in TaskKind)} (threshold:T, "
+                                 "boxes:T)", task=text) from None
+        if task_kind not in THRESHOLDS:
             if value:
-                raise ParameterError("{task}: only threshold takes a value (threshold:T)", task=text)
+                raise ParameterError(f"{{task}}: only {', '.join(THRESHOLDS)} take a value (KIND:T)", task=text)
             return cls(task_kind)
         try:
-            return cls(task_kind, float(value) if value else 0.5)
+            threshold = float(value) if value else None
         except ValueError:
-            raise ParameterError("{task}: T in threshold:T must be a number", task=text) from None
+            raise ParameterError(f"{{task}}: T in {task_kind.value}:T must be a number", task=text) from None
+        if threshold is not None and not math.isfinite(threshold):
+            raise ParameterError("{task}: the threshold must be a finite number", task=text)
+        return cls(task_kind) if threshold is None else cls(task_kind, threshold)
+
+    @property
+    def boxes(self) -> bool:
+        """Whether the output is a detector's box table (boxes, boxes-obj)."""
+        return self.kind in (TaskKind.BOXES, TaskKind.BOXES_OBJ)
+
+    def check_shape(self, shape: tuple[int, ...], output: str) -> None:
+        """Refuse, naming `task`, a box task on an OUTPUT of SHAPE that holds no table of box rows."""
+        least = 6 if self.kind == TaskKind.BOXES_OBJ else 5
+        table = shape[1:] if len(shape) == 3 and shape[0] in (0, 1) else shape  # 0: a dim not known before a run
+        known = [d for d in table if d > 0]
+        if self.boxes and (len(table) != 2 or (len(known) == 2 and min(known) < least)
+                           or (len(known) == 1 and known[0] < least)):
+            raise ParameterError(f"{{task}}: output {output} of shape {list(shape)} is no box table ([1, boxes, "
+                                 f"{least} or more attributes], either way round)", task=str(self))
 
     def decide(self, y: np.ndarray, nhwc: bool = False) -> np.ndarray | None:
         """The decisions Y makes (None for raw)."""
@@ -79,6 +107,24 @@ class Task:
         if self.kind == TaskKind.TOP1:
             return y.argmax(-1)
         return None
+
+    def agree(self, ref: np.ndarray, test: np.ndarray, nhwc: bool = False) -> tuple[int, int] | None:
+        """How many of the decisions of REF (fp32's output) and TEST agree, and how many were made
+        (None: raw decides nothing). Boxes: twice the detections found again and the detections of
+        both, so that their ratio over several images is the F1 score of TEST's boxes against REF's."""
+        if self.boxes:
+            objectness = self.kind == TaskKind.BOXES_OBJ
+            images = zip(ref, test) if ref.ndim == 3 else [(ref, test)]
+            same = made = 0
+            for a, b in images:
+                found, shown = detections(a, self.threshold, objectness), detections(b, self.threshold, objectness)
+                same += 2 * found_again(found, shown)
+                made += len(found[0]) + len(shown[0])
+            return same, made
+        da, db = self.decide(ref, nhwc), self.decide(test, nhwc)
+        if da is None or db is None:
+            return None
+        return int((da == db).sum()), int(da.size)
 
 
 def guess_task(shape: tuple[int, ...], made_by: str | bool | None, nhwc: bool = False) -> Task:
@@ -140,10 +186,10 @@ class OutputFidelity:
         self.noise += float((a - b) @ (a - b))
         self.dot += float(a @ b)
         self.norm_int8 += float(b @ b)
-        da, db = self.task.decide(ref, nhwc), self.task.decide(int8, nhwc)
-        if da is not None and db is not None:
-            self.same += int((da == db).sum())
-            self.decided += da.size
+        agreed = self.task.agree(ref, int8, nhwc)
+        if agreed is not None:
+            self.same += agreed[0]
+            self.decided += agreed[1]
 
     @property
     def sqnr_db(self) -> float:
@@ -255,5 +301,7 @@ def output_tasks(model: Any, shapes: Mapping[str, tuple[int, ...]], task: Task |
     found = {}
     for name in names:
         given = task.get(name) if isinstance(task, Mapping) else task
+        if given is not None:
+            given.check_shape(tuple(shapes[name]), name)
         found[name] = given if given is not None else guess_task(shapes[name], probability[name], nhwc)
     return found

@@ -183,6 +183,26 @@ def detector_head_model(path: Path, size: int = 64) -> Path:
     return helper_model(nodes, [("input", [1, 3, size, size])], [("rows", [1, size * size, 5])], inits, path)
 
 
+def box_table_model(path: Path, size: int = 32) -> Path:
+    """A YOLOv8-style head on inputs in [0, 1]: per pixel a box (cx = 300 c0, cy = 300 c1, w = 30 +
+    40 c2, h = 30 + 40 c0, in pixels) and two class scores through a Sigmoid (class 0 where the three
+    channels sum past 2.5, class 1 where c2 - c1 passes 0.67), concatenated and reshaped to a
+    [1, 6, boxes] table: a few dozen boxes above 0.25 on a random input."""
+    from onnx import helper
+
+    box_w = np.zeros((4, 3, 1, 1), np.float32)
+    box_w[0, 0], box_w[1, 1], box_w[2, 2], box_w[3, 0] = 300.0, 300.0, 40.0, 40.0
+    score_w = np.array([[1, 1, 1], [0, -1, 1]], np.float32).reshape(2, 3, 1, 1) * 30.0
+    nodes = [helper.make_node("Conv", ["input", "box_w", "box_b"], ["box"], name="box_conv"),
+             helper.make_node("Conv", ["input", "score_w", "score_b"], ["logit"], name="score_conv"),
+             helper.make_node("Sigmoid", ["logit"], ["score"], name="score_sigmoid"),
+             helper.make_node("Concat", ["box", "score"], ["table_nchw"], axis=1, name="concat"),
+             helper.make_node("Reshape", ["table_nchw", "table_shape"], ["table"], name="reshape")]
+    inits = {"box_w": box_w, "box_b": np.array([0, 0, 30, 30], np.float32), "score_w": score_w,
+             "score_b": np.array([-75.0, -20.0], np.float32), "table_shape": np.array([1, 6, -1], np.int64)}
+    return helper_model(nodes, [("input", [1, 3, size, size])], [("table", [1, 6, size * size])], inits, path)
+
+
 def unused_initializers(path: Path) -> list[str]:
     """The initializers of the ONNX file at PATH that no node reads (onnxruntime warns of each on every load)."""
     import onnx

@@ -18,15 +18,16 @@ from edgepick.quant.fidelity import (
     probability_outputs,
 )
 from edgepick.quant.onnx.static import quantize_onnx_static
-from tests.quant.onnx_models import detector_head_model, helper_model
+from tests.quant.onnx_models import box_table_model, detector_head_model, helper_model
 
 
 def test_tasks_parse_and_refuse_in_one_line():
     assert Task.parse("labels") == Task(TaskKind.LABELS)
     assert Task.parse("threshold:0.3") == Task(TaskKind.THRESHOLD, 0.3) and str(Task.parse("threshold")) == "threshold:0.5"
     assert Task.parse(" top1 ").kind == TaskKind.TOP1 and Task.parse("raw").decide(np.ones(3)) is None
-    for bad, message in (("boxes2", "not one of"), ("labels:3", "only threshold"), ("threshold:x", "must be a number"),
-                         ("threshold:nan", "finite")):
+    assert Task.parse("boxes") == Task(TaskKind.BOXES, 0.25) and str(Task.parse("boxes-obj:0.4")) == "boxes-obj:0.4"
+    for bad, message in (("boxes2", "not one of"), ("labels:3", "only threshold, boxes, boxes-obj take"),
+                         ("threshold:x", "must be a number"), ("threshold:nan", "finite"), ("boxes:inf", "finite")):
         with pytest.raises(ParameterError, match=f"^task=.*{message}"):
             Task.parse(bad)
 
@@ -86,3 +87,29 @@ def test_a_sigmoid_behind_reshape_and_transpose_is_still_a_probability(tmp_path)
     result = quantize_onnx_static(path, xs, tmp_path / "int8.onnx", progress=False)
     assert result.fidelity["scores"]["task"] == "threshold:0.5"  # [1, rows, 2] sigmoid scores, each decided
     assert result.agreement_vs_fp32["scores"] >= 0.95 and result.fidelity["scores"]["cosine"] > 0.99
+
+
+def test_a_box_task_scores_the_f1_of_the_boxes_found_again():
+    rng = np.random.default_rng(4)
+    ref = np.zeros((1, 40, 6), np.float32)
+    ref[0, :, :2] = rng.uniform(0, 600, (40, 2))
+    ref[0, :, 2:4] = 20.0
+    ref[0, :10, 4] = 0.9  # ten boxes of class 0, the rest score 0
+    test = ref.copy()
+    test[0, :3, 4] = 0.1  # three lost
+    test[0, 20:22, 5] = 0.8  # two more, of class 1
+    found = OutputFidelity(Task.parse("boxes"))
+    found.add(ref, test)
+    assert found.same == 2 * 7 and found.decided == 10 + 9
+    assert found.agreement == pytest.approx(14 / 19, abs=1e-5)
+    with pytest.raises(ParameterError, match="^task='boxes:0.25': output scores of shape .1, 2, 8, 8. is no box table"):
+        Task.parse("boxes").check_shape((1, 2, 8, 8), "scores")
+    Task.parse("boxes-obj").check_shape((1, 0, 85), "rows")  # rows not known before a run: a table still
+
+
+def test_quantize_with_a_box_task_reports_the_f1_of_the_boxes(tmp_path):
+    path = box_table_model(tmp_path / "m.onnx")
+    xs = [np.random.default_rng(k).uniform(0, 1, (1, 3, 32, 32)).astype(np.float32) for k in range(8)]
+    result = quantize_onnx_static(path, xs, tmp_path / "int8.onnx", progress=False, task=Task.parse("boxes"))
+    assert result.fidelity["table"]["task"] == "boxes:0.25"
+    assert 0.9 <= result.agreement_vs_fp32["table"] <= 1.0, result.fidelity

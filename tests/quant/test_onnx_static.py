@@ -180,7 +180,8 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
     (["{NET}", "--data", "{EMPTY}", "--calib", "{NPY}"], "--data is for a RUN or checkpoint"),
     (["{NET}"], "--calib DIR is needed"),
     (["{NET}", "--calib", "{NPY}", "--mean", "1,2"], "--mean 1,2: must be 3"),
-    (["{NET}", "--calib", "{NPY}", "--task", "boxes"], "--task boxes: not one of labels, threshold, top1, raw"),
+    (["{NET}", "--calib", "{NPY}", "--task", "box"], "--task box: not one of labels, threshold, top1, boxes, boxes-obj, raw"),
+    (["{NET}", "--calib", "{NPY}", "--task", "boxes"], r"--task boxes:0.25: output logits of shape \[1, 3, \d+, \d+\] is no box table"),
     (["{NET}", "--calib", "{NPY}", "--task", "nope=raw"], "--task names no output of the model: nope"),
     (["{NET}", "--calib", "{NPY}", "--task", "raw", "--task", "labels"], "--task labels: one task for all"),
 ])
