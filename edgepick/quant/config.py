@@ -14,10 +14,11 @@ from edgepick.schema import member, plain
 
 DEFAULT_CALIB_IMAGES = 64  # or the whole train split when it is smaller
 FREEZE_AT = 0.7  # share of the QaT steps after which observers and BN statistics are frozen
-# the images bias correction, first-7 and AdaRound measure on: the first BIAS_CORRECTION_IMAGES calibration
-# images, fewer where the model's input is larger than 320x240. The empirical form and AdaRound run them in
-# lockstep, holding every image's live activations at once, so the pixels are bounded rather than the images:
-# 32 images at 320x240 peak at about 2.6 GB with DeepLabV3-MobileNetV3 (benchmarks/results/ptq-methods/).
+# the images bias correction, first-7 and AdaRound measure on: BIAS_CORRECTION_IMAGES calibration images (an
+# .onnx model's: those after its check inputs), fewer where the model's input is larger than 320x240. The
+# empirical form and AdaRound run them in lockstep, holding every image's live activations at once, so the
+# pixels are bounded rather than the images: 32 images at 320x240 peak at about 2.6 GB with
+# DeepLabV3-MobileNetV3 (benchmarks/results/ptq-methods/).
 BIAS_CORRECTION_IMAGES = 32
 LOCKSTEP_PIXELS = BIAS_CORRECTION_IMAGES * 320 * 240
 MIN_LOCKSTEP_IMAGES = 4  # below this the per-channel means and AdaRound's sampled positions get too few images

@@ -15,9 +15,16 @@ import pytest
 from edgepick.errors import ParameterError
 from edgepick.export.checks import conv_weight_report
 from edgepick.quant.config import OnnxOptions, QuantConfig
-from edgepick.quant.onnx.static import quantize_onnx_static
+from edgepick.quant.onnx.static import fitting_tensors, quantize_onnx_static
 from tests.conftest import run_cli, without_torch
-from tests.quant.onnx_models import calib_tensors, export_torch, optimized_ops, run, unused_initializers
+from tests.quant.onnx_models import (
+    box_table_model,
+    calib_tensors,
+    export_torch,
+    optimized_ops,
+    run,
+    unused_initializers,
+)
 
 
 def test_an_opset_12_export_with_dynamic_dims_becomes_an_all_int8_model(tmp_path):
@@ -226,3 +233,26 @@ def test_the_onnx_pass_and_all_its_methods_run_without_torch(inputs, tmp_path):
     assert proc.returncode == 0, proc.stderr
     quant = json.loads(proc.stdout)["quant"]
     assert quant["adaround"] and quant["equalize"] and "seven_bit_convs" in quant and quant["measured_images"] >= 1
+
+
+def test_bias_correction_fits_on_the_tensors_after_the_check_tensors_that_judge_it(tmp_path, monkeypatch):
+    """A correction (or AdaRound's rounding, or a budget) judged on the tensors it was fit on is met
+    more easily than on other images: the fit takes the tensors after the check tensors where there
+    are enough, and overlaps them as little as it can where there are not."""
+    kept = [np.full(1, k) for k in range(12)]
+    assert fitting_tensors(kept, 8, 4) == (8, 4) and fitting_tensors(kept, 8, 8) == (4, 8)
+    assert fitting_tensors(kept[:3], 8, 4) == (0, 3)
+    import edgepick.quant.onnx.static as static
+
+    seen: list[list[float]] = []
+    real = static.correct_onnx_biases
+
+    def spy(float_model, int8, tensors, *args):
+        seen.append([float(t[0, 0, 0, 0]) for t in tensors])
+        return real(float_model, int8, tensors, *args)
+
+    monkeypatch.setattr(static, "correct_onnx_biases", spy)
+    xs = [np.random.default_rng(k).uniform(0, 1, (1, 3, 32, 32)).astype(np.float32) for k in range(40)]
+    result = quantize_onnx_static(box_table_model(tmp_path / "m.onnx"), xs, tmp_path / "int8.onnx", progress=False)
+    # 32x32 inputs: checked on the first 8, fit on the 32 after them
+    assert seen == [[float(x[0, 0, 0, 0]) for x in xs[8:40]]] and result.quant["measured_images"] == 32

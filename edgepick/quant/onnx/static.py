@@ -192,13 +192,16 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
             tasks = output_tasks(prepared, _output_shapes(prepared), task, nhwc)
         hw = input_shape[1:3] if nhwc else input_shape[-2:]
         measured, check = lockstep_images(*hw) if methods.measures else 0, check_inputs(*hw)
-        keep = max(check, measured, SATURATION_CHECK_INPUTS if config.weight_bits == WeightBits.FIRST_SEVEN else 0)
+        # AdaRound and bias correction fit on the calibration tensors after the check tensors that judge them
+        # (the accuracy-aware mode may try AdaRound): up to check + lockstep_images are kept
+        fitting = lockstep_images(*hw) if methods.measures or budget is not None else 0
+        keep = max(check + fitting, SATURATION_CHECK_INPUTS if config.weight_bits == WeightBits.FIRST_SEVEN else 0)
         ops = placement_ops(options.placement, _quantizer_registry())
         exclude = [*config.keep_float, *float_tail(prepared)]
         checks = _CheckOutputs(pre, prepared, tasks, nhwc)
         cal = calibrated(prepared, pre, first, tensors, tuple(input_shape), config, ops, exclude, keep,
                          check if config.calib_method == CalibMethod.AUTO else 0, total, checks,
-                         measured if methods.bias_correction == BiasCorrection.EMPIRICAL else 0, clock, progress)
+                         check + measured if methods.bias_correction == BiasCorrection.EMPIRICAL else 0, clock, progress)
         checks.release_if_large()
 
         def checker() -> Evaluator:
@@ -210,8 +213,8 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
                 if options.gelu == GeluForm.SIGMOID:  # before the bias correction, which then measures it
                     rewrites["sigmoid_gelu"] = sigmoid_gelu(int8)
             with clock("corrections"):
-                return int8, _measure(prepared, int8, cal, measured or lockstep_images(*hw), config, with_methods,
-                                      checker)
+                return int8, _measure(prepared, int8, cal, check, measured or lockstep_images(*hw), config,
+                                      with_methods, checker)
 
         int8, done = build(methods)
         evaluator = checker()
@@ -310,29 +313,41 @@ def _output_shapes(model: Any) -> dict[str, tuple[int, ...]]:
     return {o.name: tuple(d.dim_value for d in o.type.tensor_type.shape.dim) for o in model.graph.output}
 
 
-def _measure(prepared: Any, int8: Any, cal: Calibrated, images: int, config: QuantConfig,
+def fitting_tensors(kept: list[np.ndarray], check: int, images: int) -> tuple[int, int]:
+    """Where the IMAGES tensors AdaRound and bias correction fit on start among the calibration
+    tensors KEPT, and how many there are: after the CHECK tensors that judge what they did, where
+    enough were given (else as far along as there are, overlapping the check tensors: a budget or a
+    correction judged on the tensors it was fit on is met more easily than on other images)."""
+    count = min(images, len(kept))
+    return min(check, len(kept) - count), count
+
+
+def _measure(prepared: Any, int8: Any, cal: Calibrated, check: int, images: int, config: QuantConfig,
              methods: PtqMethods, checker: Callable[[], Evaluator]) -> dict:
     """first-7, AdaRound and empirical bias correction on the QDQ graph INT8 (in place), in that
-    order, measured on the first calibration tensors CAL kept (IMAGES of them for AdaRound and the
-    correction, fp32's side of it from calibration where it counted it); the correction is kept
-    only where it brings the outputs closer to fp32's on both halves of the check tensors (CHECKER
-    gives their Evaluator): on a table-cell detector at 1024x1024 it took every output 7-11 dB
-    further from fp32 (docs/quantization.md). Returns what was done."""
+    order; AdaRound and the correction fit on IMAGES calibration tensors CAL kept after the CHECK
+    tensors (fitting_tensors; fp32's side of the correction from calibration where it counted it),
+    and the correction is kept only where it brings the outputs closer to fp32's on both halves of
+    the check tensors (CHECKER gives their Evaluator): on a table-cell detector at 1024x1024 it took
+    every output 7-11 dB further from fp32 (docs/quantization.md). Returns what was done."""
     done: dict = {}
     kept = cal.kept
+    start, count = fitting_tensors(kept, check, images)
+    fit = kept[start:start + count]
     if config.weight_bits == WeightBits.FIRST_SEVEN:
         share = saturating_onnx_convs(int8, kept[:SATURATION_CHECK_INPUTS], HEADROOM * INT16)
         done["seven_bit_convs"] = [name for name, s in share.items() if s > 0]
         to_seven_bit_onnx(prepared, int8, done["seven_bit_convs"])
     if methods.adaround:
         seven = set(qdq_convs(int8)) if config.weight_bits == WeightBits.SEVEN else set(done.get("seven_bit_convs", []))
-        rounded = adaround_onnx(prepared, int8, kept[:images], methods.adaround_budget_s, seven)
+        rounded = adaround_onnx(prepared, int8, fit, methods.adaround_budget_s, seven)
         done["adaround_convs"] = sum(r["error_adaround"] < r["error_nearest"] for r in rounded.values())
     if methods.adaround or methods.bias_correction == BiasCorrection.EMPIRICAL:
-        done["measured_images"] = min(images, len(kept))
+        done["measured_images"] = count
     if methods.bias_correction == BiasCorrection.EMPIRICAL:
         uncorrected = copy_model(int8)
-        correct_onnx_biases(prepared, int8, kept[:images], writes_float_output(prepared), cal.means)
+        means = {name: got[start:start + count] for name, got in cal.means.items()}
+        correct_onnx_biases(prepared, int8, fit, writes_float_output(prepared), means)
         done["bias_correction_kept"] = checker().closer(uncorrected, int8)
         if not done["bias_correction_kept"]["kept"]:
             int8.CopyFrom(uncorrected)
