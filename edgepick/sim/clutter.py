@@ -28,6 +28,7 @@ from edgepick.data.render import Layout
 from edgepick.data.shapes import ObjectModel, Placed
 from edgepick.errors import ParameterError
 from edgepick.frames import Frame
+from edgepick.geometry import project
 from edgepick.intervals import rounded, wilson
 from edgepick.robot.clearance import jaw_opening_m
 from edgepick.robot.cycle import CycleResult, verdicts
@@ -188,8 +189,7 @@ class ClutterRound(SynthCamera):
         camera = (part.base + local @ part.rotation.T - cal.t) @ cal.R  # robot -> camera frame, one point a row
         if (camera[:, 2] <= 0).any():
             return False
-        u = intr.fx * camera[:, 0] / camera[:, 2] + intr.cx
-        v = intr.fy * camera[:, 1] / camera[:, 2] + intr.cy
+        u, v = np.array([project(intr, point) for point in camera]).T
         margin = IN_VIEW_MARGIN * intr.width
         return bool((u >= margin).all() and (u <= intr.width - 1 - margin).all() and (v >= margin).all()
                     and (v <= intr.height - 1 - margin).all())
