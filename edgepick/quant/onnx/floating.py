@@ -6,13 +6,16 @@ OpenVINO the same. That is how a node is kept float too (`QuantConfig.keep_float
 the tensors it reads and the tensors it writes, so that it computes what fp32 computes from what
 the int8 graph gives it. (Leaving only its weights float, with its input still on the uint8
 grid, can lower fidelity: the int8 graph's errors no longer meet the rounding they were measured
-with.)
+with.) A pair whose DQ reads with another scale than its Q wrote computes an op (MobileNetV3's
+HardSigmoid, written by `export.int8_activations`): it goes float as that op in float ops.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from typing import Any
+
+import numpy as np
 
 from edgepick.export.onnx_io import CONV_OPS
 from edgepick.onnx_graph import Graph
@@ -45,9 +48,14 @@ def float_tensors(model: Any, names: Sequence[str], float_model: Any, weights: b
             dqs = [n for n in g.consumers(q.output[0]) if n.op_type == "DequantizeLinear"]
             if len(dqs) != len(g.consumers(q.output[0])) or any(dq.output[0] in outputs for dq in dqs):
                 continue  # a reader takes the uint8 codes themselves, or a DQ is the graph's output: leave it
-            for dq in dqs:
+            maps = [_pair_map(g, q, dq) for dq in dqs]
+            if any(m is None for m in maps):
+                continue  # a pair whose map is not known (per-channel, not constant): leave it
+            for dq, map_nodes in zip(dqs, maps):
                 readers = g.consumers(dq.output[0])
-                g.redirect(dq.output[0], name)
+                g.redirect(dq.output[0], map_nodes[-1].output[0] if map_nodes else name)
+                if map_nodes:
+                    g.insert_before(q, map_nodes)
                 for reader in readers:
                     if weights and reader.op_type in WEIGHTED_OPS:
                         _float_weights(g, reader, fg)
@@ -61,6 +69,37 @@ def float_tensors(model: Any, names: Sequence[str], float_model: Any, weights: b
                 restore_activation(g, made_by, writer, fg)
                 restore = False
     return dropped
+
+
+def _pair_map(g: Graph, q: Any, dq: Any) -> list[Any] | None:
+    """The float ops that compute what the pair Q -> DQ computes, up to rounding: none when DQ reads
+    with Q's scale and zero point (the pair only rounds and clamps to the grid); else the clamp to
+    Q's grid, then DQ's scale over Q's and the shift between their zero points. A rewrite may write
+    an op into such a pair (`export.int8_activations` writes HardSigmoid as an Add quantized with 6
+    times the scale it is read with: the grid's clamp is the clip, the scales' ratio the division),
+    and then taking the pair off would drop the op. None when a scale or zero point is no constant
+    scalar."""
+    from onnx import helper
+
+    q_scale, dq_scale = g.scalar(q.input[1]), g.scalar(dq.input[1])
+    q_zero = g.array(q.input[2]) if len(q.input) > 2 and q.input[2] else np.zeros((), np.uint8)
+    dq_zero = g.array(dq.input[2]) if len(dq.input) > 2 and dq.input[2] else np.zeros((), np.uint8)
+    if q_scale is None or dq_scale is None or q_zero is None or dq_zero is None or q_zero.size != 1 or dq_zero.size != 1:
+        return None
+    if q_scale == dq_scale and q_zero.item() == dq_zero.item():
+        return []
+    info = np.iinfo(q_zero.dtype)
+    zq, zdq = int(q_zero.item()), int(dq_zero.item())
+    tag = f"{dq.output[0]}_float_pair"
+    low = g.add_initializer(f"{tag}_low", (info.min - zq) * q_scale, np.float32)
+    high = g.add_initializer(f"{tag}_high", (info.max - zq) * q_scale, np.float32)
+    ratio = g.add_initializer(f"{tag}_ratio", dq_scale / q_scale, np.float32)
+    nodes = [helper.make_node("Clip", [q.input[0], low, high], [f"{tag}_clipped"], name=f"{tag}_clip"),
+             helper.make_node("Mul", [f"{tag}_clipped", ratio], [f"{tag}_scaled"], name=f"{tag}_scale")]
+    if zq != zdq:
+        shift = g.add_initializer(f"{tag}_shift", dq_scale * (zq - zdq), np.float32)
+        nodes.append(helper.make_node("Add", [f"{tag}_scaled", shift], [f"{tag}_shifted"], name=f"{tag}_shift"))
+    return nodes
 
 
 WEIGHTED_OPS = ("Conv", "ConvTranspose", "MatMul", "Gemm")  # ops whose int8 weights go float with their input
