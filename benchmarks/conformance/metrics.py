@@ -8,6 +8,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from edgepick.quant.strings import edit_distance
+
 from .detectors import Boxes, iou_matrix
 from .spec import Metric
 
@@ -31,16 +33,6 @@ def box_f1(reference: Sequence[Boxes], found: Sequence[Boxes], iou: float = 0.5,
                 used_ref.add(r)
         hits += len(used_got)
     return 1.0 if found_n + ref_n == 0 else 2 * hits / (found_n + ref_n)
-
-
-def edit_distance(a: str, b: str) -> int:
-    """Levenshtein distance (insertions, deletions, substitutions)."""
-    row = list(range(len(b) + 1))
-    for i, ca in enumerate(a, 1):
-        prev, row[0] = row[0], i
-        for j, cb in enumerate(b, 1):
-            prev, row[j] = row[j], min(row[j] + 1, row[j - 1] + 1, prev + (ca != cb))
-    return row[-1]
 
 
 def char_accuracy(reference: Sequence[str], found: Sequence[str]) -> float:

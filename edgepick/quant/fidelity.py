@@ -4,7 +4,7 @@ Per output: the SQNR (signal-to-quantization-noise ratio, dB) and the cosine sim
 values against fp32's, which mean something for every output (logits, probabilities, box
 regressions, embeddings); and, where the output decides something, the share of decisions that
 agree (`Task`): per-pixel labels (the argmax over channels), a thresholded map, the top-1 class of
-each row, a detector's boxes (detections.py). A raw regression decides nothing and gets no
+each row, a detector's boxes (detections.py), a recogniser's strings (strings.py). A raw regression decides nothing and gets no
 agreement: the sign of a box coordinate says nothing about the box. Numpy only.
 """
 
@@ -22,6 +22,7 @@ from edgepick.errors import ParameterError
 from edgepick.onnx_graph import Graph
 from edgepick.quant.detections import detections, found_again
 from edgepick.quant.ranges import RangeRule
+from edgepick.quant.strings import characters_read_again
 
 PROBABILITY_OPS = ("Sigmoid", "Softmax")
 # ops that move or reshape values without changing them: a probability stays one through them
@@ -37,6 +38,7 @@ class TaskKind(enum.StrEnum):
     TOP1 = "top1"  # a class per row: the argmax over the last axis
     BOXES = "boxes"  # a detector's box table (boxes:T): cx, cy, w, h and class scores per row (YOLOv8 and later)
     BOXES_OBJ = "boxes-obj"  # the same with an objectness score after the box (boxes-obj:T; YOLOv5)
+    CTC = "ctc"  # a text recogniser's strings: greedy CTC decoding of [steps, classes] scores, class 0 the blank
     RAW = "raw"  # nothing: SQNR and cosine only
 
 
@@ -63,7 +65,7 @@ class Task:
 
     @classmethod
     def parse(cls, text: str) -> Task:
-        """'labels', 'threshold[:T]', 'top1', 'boxes[:T]', 'boxes-obj[:T]' or 'raw', refused in one line
+        """'labels', 'threshold[:T]', 'top1', 'boxes[:T]', 'boxes-obj[:T]', 'ctc' or 'raw', refused in one line
         naming `task`."""
         kind, _, value = str(text).strip().partition(":")
         try:
@@ -89,7 +91,11 @@ class Task:
         return self.kind in (TaskKind.BOXES, TaskKind.BOXES_OBJ)
 
     def check_shape(self, shape: tuple[int, ...], output: str) -> None:
-        """Refuse, naming `task`, a box task on an OUTPUT of SHAPE that holds no table of box rows."""
+        """Refuse, naming `task`, a box task on an OUTPUT of SHAPE that holds no table of box rows,
+        and a CTC task on one that holds no sequence of class scores."""
+        if self.kind == TaskKind.CTC and (len(shape) not in (2, 3) or 0 < shape[-1] < 2):
+            raise ParameterError(f"{{task}}: output {output} of shape {list(shape)} holds no CTC scores ([steps, "
+                                 "classes], [1, steps, classes] or [steps, 1, classes])", task=str(self))
         least = 6 if self.kind == TaskKind.BOXES_OBJ else 5
         table = shape[1:] if len(shape) == 3 and shape[0] in (0, 1) else shape  # 0: a dim not known before a run
         known = [d for d in table if d > 0]
@@ -111,7 +117,8 @@ class Task:
     def agree(self, ref: np.ndarray, test: np.ndarray, nhwc: bool = False) -> tuple[int, int] | None:
         """How many of the decisions of REF (fp32's output) and TEST agree, and how many were made
         (None: raw decides nothing). Boxes: twice the detections found again and the detections of
-        both, so that their ratio over several images is the F1 score of TEST's boxes against REF's."""
+        both, so that their ratio over several images is the F1 score of TEST's boxes against REF's.
+        CTC: the characters read the same and read, their ratio the character accuracy."""
         if self.boxes:
             objectness = self.kind == TaskKind.BOXES_OBJ
             images = zip(ref, test) if ref.ndim == 3 else [(ref, test)]
@@ -121,6 +128,8 @@ class Task:
                 same += 2 * found_again(found, shown)
                 made += len(found[0]) + len(shown[0])
             return same, made
+        if self.kind == TaskKind.CTC:
+            return characters_read_again(ref, test)
         da, db = self.decide(ref, nhwc), self.decide(test, nhwc)
         if da is None or db is None:
             return None

@@ -178,6 +178,50 @@ def test_the_region_search_takes_the_region_that_meets_the_budget_then_its_short
     assert names == ["t8", "t9"] and math.isclose(fidelity["output"].sqnr_db, 30.0)
 
 
+def test_where_no_region_is_enough_the_shortest_float_start_of_the_graph_that_meets_the_budget(tmp_path, monkeypatch):
+    """The start search (`_float_start`), on a scripted evaluator: the outputs meet the budget only
+    once the graph's first 37 activations are float (errors that add up along a backbone); the
+    search finds that length by halving, and gives up where the budget allows fewer."""
+    import onnx
+
+    from edgepick.quant.fidelity import OutputFidelity, Task, TaskKind
+    from edgepick.quant.onnx import accuracy
+    from tests.quant.onnx_models import faint_channel_model
+
+    model = onnx.load(str(faint_channel_model(tmp_path / "faint.onnx")))
+    rest = [f"t{k}" for k in range(100)]
+
+    class Scripted:
+        float_model = model
+        graphs = 0
+
+        def fidelity(self, graph):
+            self.graphs += 1
+            start = set(rest[:37]) <= set(graph.doc_string.split(","))
+            return {"output": OutputFidelity(Task(TaskKind.RAW), signal=1.0, noise=0.001 if start else 0.5)}
+
+        def half_errors(self, graph):
+            return 0.01, 0.01
+
+    def float_tensors(graph, names, float_model, weights=False):
+        assert weights  # the ops that then read float values compute with float weights
+        graph.doc_string = ",".join(names)
+        return len(names)
+
+    monkeypatch.setattr(accuracy, "float_tensors", float_tensors)
+    monkeypatch.setattr(accuracy, "float_weight_convs", lambda graph: [])  # every conv still int8
+    evaluator = Scripted()
+    budget, best = FidelityBudget(min_sqnr_db=20.0, max_float=65), (0.4, 0.4)
+    found = accuracy._float_start(model, ["x"], rest, evaluator, budget, best, lambda _: None)
+    assert found is not None and found[1] == ["x", *rest[:37]] and evaluator.graphs <= 8
+    assert accuracy._float_start(model, ["x"], rest, Scripted(), FidelityBudget(min_sqnr_db=20.0, max_float=37), best,
+                                 lambda _: None) is None  # 36 activations are all the budget leaves
+    assert accuracy._float_start(model, ["x"], rest, Scripted(), budget, (0.4, 0.005),
+                                 lambda _: None) is None  # not closer on the second half of the check tensors
+    monkeypatch.setattr(accuracy, "float_weight_convs", lambda graph: ["conv1", "conv2"])  # both the faint model's convs float
+    assert accuracy._float_start(model, ["x"], rest, Scripted(), budget, best, lambda _: None) is None  # no int8 left
+
+
 def test_a_graph_measured_again_is_not_run_again_and_a_changed_one_is(faint, monkeypatch):
     """The recipe measures a graph again after trying another: the last two graphs' outputs are kept (while
     fp32's are small), keyed by the graph's bytes, so a graph changed in place is run afresh."""

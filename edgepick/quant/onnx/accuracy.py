@@ -10,7 +10,8 @@ halves of the check tensors (a gain on their sum alone can be one input's noise)
 tensors are not enough (an error spread over dozens of activations, as in a text recogniser),
 whole regions of the graph go float, the one that brings the outputs closest first, with the
 weights of the ops that then read nothing on the uint8 grid: mixed tensor by tensor, float and
-int8 can end further from fp32 than either.
+int8 can end further from fp32 than either. Where no set of regions meets the budget, the
+shortest float start of the graph that does (errors that add up along a backbone).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from edgepick.errors import ParameterError
+from edgepick.export.onnx_io import CONV_OPS
 from edgepick.onnx_graph import copy_model
 from edgepick.quant.fidelity import BalancedError, OutputFidelity, Task, compare_outputs
 from edgepick.quant.onnx.floating import float_tensors, float_weight_convs, quantized_activations
@@ -221,6 +223,8 @@ def restore_fidelity(model: Any, evaluator: Evaluator, budget: FidelityBudget,
     if not budget.met(fidelity) and len(kept) < budget.max_float:
         rest = [t for t in quantized_activations(original) if t not in kept]
         widened = _widen(original, kept, rest, evaluator, budget, best, progress)
+        if widened is None or not budget.met(widened[2]):
+            widened = _float_start(original, kept, rest, evaluator, budget, best, progress) or widened
         if widened is not None:
             model, kept, fidelity = widened
             before = set(float_weight_convs(original))
@@ -286,6 +290,45 @@ def _widen(original: Any, kept: list[str], rest: list[str], evaluator: Evaluator
     if found is None or any(e >= b for e, b in zip(evaluator.half_errors(found[0]), best)):
         return None  # not closer to fp32 on both halves of the check tensors: kept as it was
     return found[0], [*kept, *chosen], found[1]
+
+
+def _float_start(original: Any, kept: list[str], rest: list[str], evaluator: Evaluator, budget: FidelityBudget,
+                 best: tuple[float, ...], progress: Callable[[str], None]) -> tuple[Any, list[str], dict] | None:
+    """ORIGINAL with KEPT and the shortest start of REST (activations in graph order) left float, with
+    the weights of the ops that then read nothing on the uint8 grid, that meets BUDGET: found by
+    halving the start's length; None where the longest start the budget allows does not meet it with a
+    conv left int8, or
+    the start found does not bring the outputs closer than BEST on both halves of the check tensors. A
+    start rather than regions in between: where int8 errors add up along the graph (a text
+    recogniser's backbone) no region alone brings the outputs back, and the int8 part after a float
+    start reads what fp32 gives it, as it was calibrated on."""
+    convs = sum(n.op_type in CONV_OPS for n in original.graph.node)
+
+    def trial(count: int) -> tuple[Any, dict[str, OutputFidelity]]:
+        graph = copy_model(original)
+        float_tensors(graph, [*kept, *rest[:count]], evaluator.float_model, weights=True)
+        return graph, evaluator.fidelity(graph)
+
+    def met(tried: tuple[Any, dict[str, OutputFidelity]]) -> bool:  # with a conv left int8: else no int8 model
+        return budget.met(tried[1]) and len(float_weight_convs(tried[0])) < convs
+
+    short, long = 0, min(budget.max_float - len(kept), len(rest))  # short: not met; long: met
+    if long < 1:
+        return None
+    found = trial(long)
+    if not met(found):
+        return None
+    while long - short > 1:
+        middle = (short + long) // 2
+        tried = trial(middle)
+        if met(tried):
+            long, found = middle, tried
+        else:
+            short = middle
+    if any(e >= b for e, b in zip(evaluator.half_errors(found[0]), best)):
+        return None
+    progress(f"{len(kept) + long} float (the graph's first {long} activations): {_summary(found[1])}, budget met")
+    return found[0], [*kept, *rest[:long]], found[1]
 
 
 def speed_cost(int8: Any, kept_float: Any, x: np.ndarray, threads: int = 2) -> dict:
