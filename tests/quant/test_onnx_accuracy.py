@@ -142,7 +142,8 @@ def test_where_single_activations_are_not_enough_whole_regions_go_float_with_the
 
 def test_the_region_search_takes_the_region_that_meets_the_budget_then_its_shortest_half(tmp_path, monkeypatch):
     """The search itself (`_widen`), on a scripted evaluator: no region but the third brings the
-    error under the budget's, and only its first half is needed."""
+    error under the budget's, and only its first half is needed; a graph with no conv left int8 is
+    never the answer."""
     import math
 
     import onnx
@@ -172,10 +173,13 @@ def test_the_region_search_takes_the_region_that_meets_the_budget_then_its_short
     rest = [f"t{k}" for k in range(64)]  # 16 regions of 4
     budget = FidelityBudget(min_sqnr_db=20.0, max_float=100)
     monkeypatch.setattr(accuracy, "float_tensors", float_tensors)
+    monkeypatch.setattr(accuracy, "float_weight_convs", lambda graph: [])  # every conv still int8
     found = accuracy._widen(model, [], rest, Scripted(), budget, (0.4, 0.4), lambda _: None)
     assert found is not None
     _, names, fidelity = found
     assert names == ["t8", "t9"] and math.isclose(fidelity["output"].sqnr_db, 30.0)
+    monkeypatch.setattr(accuracy, "float_weight_convs", lambda graph: ["conv1", "conv2"])  # both convs float
+    assert accuracy._widen(model, [], rest, Scripted(), budget, (0.4, 0.4), lambda _: None) is None  # no int8 model
 
 
 def test_where_no_region_is_enough_the_shortest_float_start_of_the_graph_that_meets_the_budget(tmp_path, monkeypatch):

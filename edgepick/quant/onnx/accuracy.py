@@ -254,9 +254,13 @@ def _widen(original: Any, kept: list[str], rest: list[str], evaluator: Evaluator
     room = budget.max_float - len(kept)
     regions = [list(b) for b in np.array_split(np.array(rest, dtype=object), min(SCAN_BLOCKS, len(rest))) if len(b)]
 
+    convs = conv_count(original)
+
     def trial(names: list[str]) -> tuple[Any, dict[str, OutputFidelity], float]:
         graph = copy_model(original)
         float_tensors(graph, [*kept, *names], evaluator.float_model, weights=True)
+        if not int8_conv_left(graph, convs):
+            return None, {}, math.inf  # no int8 model any more: never taken
         return graph, *evaluator.measure(graph)
 
     chosen: list[str] = []
@@ -278,7 +282,8 @@ def _widen(original: Any, kept: list[str], rest: list[str], evaluator: Evaluator
         if budget.met(fidelity):
             while len(region) > 1:  # the shortest half of the region that still meets the budget
                 halves = [list(h) for h in np.array_split(np.array(region, dtype=object), 2)]
-                met = [(t, h) for t, h in ((trial([*chosen, *h]), h) for h in halves) if budget.met(t[1])]
+                met = [(t, h) for t, h in ((trial([*chosen, *h]), h) for h in halves)
+                       if t[0] is not None and budget.met(t[1])]
                 if not met:
                     break
                 (graph, fidelity, error), region = met[0]
@@ -292,6 +297,17 @@ def _widen(original: Any, kept: list[str], rest: list[str], evaluator: Evaluator
     return found[0], [*kept, *chosen], found[1]
 
 
+def conv_count(model: Any) -> int:
+    """How many convs MODEL has."""
+    return sum(n.op_type in CONV_OPS for n in model.graph.node)
+
+
+def int8_conv_left(graph: Any, convs: int) -> bool:
+    """Whether one of GRAPH's CONVS convs still reads int8 weights: a graph with none is no int8 model,
+    and the accuracy-aware mode never gives one as its answer."""
+    return len(float_weight_convs(graph)) < convs
+
+
 def _float_start(original: Any, kept: list[str], rest: list[str], evaluator: Evaluator, budget: FidelityBudget,
                  best: tuple[float, ...], progress: Callable[[str], None]) -> tuple[Any, list[str], dict] | None:
     """ORIGINAL with KEPT and the shortest start of REST (activations in graph order) left float, with
@@ -302,7 +318,7 @@ def _float_start(original: Any, kept: list[str], rest: list[str], evaluator: Eva
     start rather than regions in between: where int8 errors add up along the graph (a text
     recogniser's backbone) no region alone brings the outputs back, and the int8 part after a float
     start reads what fp32 gives it, as it was calibrated on."""
-    convs = sum(n.op_type in CONV_OPS for n in original.graph.node)
+    convs = conv_count(original)
 
     def trial(count: int) -> tuple[Any, dict[str, OutputFidelity]]:
         graph = copy_model(original)
@@ -310,7 +326,7 @@ def _float_start(original: Any, kept: list[str], rest: list[str], evaluator: Eva
         return graph, evaluator.fidelity(graph)
 
     def met(tried: tuple[Any, dict[str, OutputFidelity]]) -> bool:  # with a conv left int8: else no int8 model
-        return budget.met(tried[1]) and len(float_weight_convs(tried[0])) < convs
+        return budget.met(tried[1]) and int8_conv_left(tried[0], convs)
 
     short, long = 0, min(budget.max_float - len(kept), len(rest))  # short: not met; long: met
     if long < 1:
