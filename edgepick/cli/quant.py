@@ -149,9 +149,9 @@ def quantize() -> None:
                    "(argmax over channels), threshold:T, top1 (argmax per row), boxes:T (a detector's table of cx, cy, "
                    "w, h and class scores per row, as YOLOv8 exports it: the F1 score of the boxes scoring above T, "
                    "0.25 by default, after NMS), boxes-obj:T (the same with an objectness score after the box, as "
-                   "YOLOv5), ctc (a text recogniser's [steps, classes] scores: the character accuracy of its greedy CTC "
-                   "strings, class 0 the blank) or raw (SQNR and cosine only); OUTPUT= for one output, else all [default: guessed from "
-                   "each output's shape and op].")
+                   "YOLOv5), ctc (a text recogniser's [steps, classes] scores: the character accuracy of its "
+                   "greedy CTC strings, class 0 the blank) or raw (SQNR and cosine only); OUTPUT= for one output, "
+                   "else all [default: guessed from each output's shape and op].")
 @with_options(ptq_methods)
 @click.option("--seed", default=0, show_default=True, help="Which calibration images are drawn.")
 @click.option("--max-miou-drop", default=None, type=float, metavar="PP",

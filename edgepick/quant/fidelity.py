@@ -4,8 +4,9 @@ Per output: the SQNR (signal-to-quantization-noise ratio, dB) and the cosine sim
 values against fp32's, which mean something for every output (logits, probabilities, box
 regressions, embeddings); and, where the output decides something, the share of decisions that
 agree (`Task`): per-pixel labels (the argmax over channels), a thresholded map, the top-1 class of
-each row, a detector's boxes (detections.py), a recogniser's strings (strings.py). A raw regression decides nothing and gets no
-agreement: the sign of a box coordinate says nothing about the box. Numpy only.
+each row, a detector's boxes (detections.py), a recogniser's strings (strings.py). A raw
+regression decides nothing and gets no agreement: the sign of a box coordinate says nothing about
+the box. Numpy only.
 """
 
 from __future__ import annotations

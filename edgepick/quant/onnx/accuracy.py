@@ -313,9 +313,8 @@ def _float_start(original: Any, kept: list[str], rest: list[str], evaluator: Eva
     """ORIGINAL with KEPT and the shortest start of REST (activations in graph order) left float, with
     the weights of the ops that then read nothing on the uint8 grid, that meets BUDGET: found by
     halving the start's length; None where the longest start the budget allows does not meet it with a
-    conv left int8, or
-    the start found does not bring the outputs closer than BEST on both halves of the check tensors. A
-    start rather than regions in between: where int8 errors add up along the graph (a text
+    conv left int8, or where the start found does not bring the outputs closer than BEST on both
+    halves of the check tensors. A start rather than regions in between: where int8 errors add up along the graph (a text
     recogniser's backbone) no region alone brings the outputs back, and the int8 part after a float
     start reads what fp32 gives it, as it was calibrated on."""
     convs = conv_count(original)
