@@ -187,7 +187,7 @@ def accuracy_note(record: dict) -> str:
 
 FP32 = Quantizer("fp32", _fp32)
 # edgepick-aa's: 99.5% of every output's decisions (the task each model's entry names, else guessed), up to 160
-# activations float (a float start of a text recogniser's backbone can need more than half of its 240)
+# activations float (room for a float start of the graph, not only for regions)
 ACCURACY_BUDGET = FidelityBudget(min_agreement=0.995, max_float=160)
 EDGEPICK = edgepick_quantizer("edgepick", OnnxOptions())
 ENGINES: tuple[Engine, ...] = (
