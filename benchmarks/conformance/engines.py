@@ -169,11 +169,13 @@ NOTE_TENSORS = 6  # float activations the table names; the rest are counted
 
 def accuracy_note(record: dict) -> str:
     """What the accuracy-aware mode did, for the table: the activations it left float (with the SQNR
-    the scan measured each one gains), whether the budget was met, and the speed it cost."""
+    the scan measured each one gains), whether the budget was met on how many check tensors, and the
+    speed it cost."""
     gains = {s["tensor"]: s["gain_db"] for s in record.get("scan", [])}
     kept = record.get("float_tensors", [])
+    checked = f" on {record['check_tensors']} check tensors" if "check_tensors" in record else ""
     if not kept:
-        return "accuracy-aware: " + ("budget met all-int8" if record.get("met") else "no float activation helped")
+        return "accuracy-aware: " + (f"budget met all-int8{checked}" if record.get("met") else "no float activation helped")
     listed = ", ".join(f"{t} (+{gains[t]:.1f} dB alone)" if t in gains else t for t in kept[:NOTE_TENSORS])
     if len(kept) > NOTE_TENSORS:
         listed += f" and {len(kept) - NOTE_TENSORS} more"
@@ -182,7 +184,7 @@ def accuracy_note(record: dict) -> str:
         listed += f" ({convs} convs with them float)"
     speed = record.get("speed", {})
     cost = f", {speed['slowdown']:.2f}x the all-int8 file's time" if "slowdown" in speed else ""
-    return f"accuracy-aware: {len(kept)} float: {listed}; budget {'met' if record.get('met') else 'not met'}{cost}"
+    return f"accuracy-aware: {len(kept)} float: {listed}; budget {'met' if record.get('met') else 'not met'}{checked}{cost}"
 
 
 FP32 = Quantizer("fp32", _fp32)

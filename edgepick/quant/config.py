@@ -36,9 +36,25 @@ HEADROOM = 0.8
 CHECK_PIXELS = 8 * 640 * 480
 
 
+# the accuracy-aware mode checks its budget on more inputs where they are small: a budget of 99.5% of the
+# decisions needs hundreds of them, and 8 text lines hold about a hundred characters
+ACCURACY_CHECK_INPUTS = 32
+ACCURACY_CHECK_PIXELS = 4 * CHECK_PIXELS
+
+
 def check_inputs(height: int, width: int) -> int:
     """How many HEIGHT x WIDTH inputs an .onnx model's fidelity is checked on (and auto holds out)."""
     return min(HELD_OUT_INPUTS, max(2, CHECK_PIXELS // max(height * width, 1)))
+
+
+def accuracy_check_inputs(height: int, width: int, total: int | None, fitting: int) -> int:
+    """How many HEIGHT x WIDTH inputs the accuracy-aware mode checks its budget on: `check_inputs`, or up to
+    ACCURACY_CHECK_INPUTS where their pixels allow and TOTAL calibration inputs (None: not known) leave
+    FITTING after them for AdaRound and bias correction to fit on."""
+    more = min(ACCURACY_CHECK_INPUTS, ACCURACY_CHECK_PIXELS // max(height * width, 1))
+    if total is not None:
+        more = min(more, total - fitting)
+    return max(check_inputs(height, width), more)
 
 
 def lockstep_images(height: int, width: int) -> int:

@@ -3,7 +3,8 @@
 Per output: the SQNR (signal-to-quantization-noise ratio, dB) and the cosine similarity of the int8
 values against fp32's, which mean something for every output (logits, probabilities, box
 regressions, embeddings); and, where the output decides something, the share of decisions that
-agree (`Task`): per-pixel labels (the argmax over channels), a thresholded map, the top-1 class of
+agree (`Task`): per-pixel labels (the argmax over channels), the cells of a thresholded map (their
+F1 score: a sparse score map's negatives would otherwise hide lost detections), the top-1 class of
 each row, a detector's boxes (detections.py), a recogniser's strings (strings.py). A raw
 regression decides nothing and gets no agreement: the sign of a box coordinate says nothing about
 the box. Numpy only.
@@ -35,7 +36,7 @@ class TaskKind(enum.StrEnum):
     """What an output decides (`--task`)."""
 
     LABELS = "labels"  # a class per pixel: the argmax over the channel axis
-    THRESHOLD = "threshold"  # a map thresholded at T (threshold:T; 0.5 for a probability)
+    THRESHOLD = "threshold"  # the cells of a map above T (threshold:T; 0.5 for a probability), judged by their F1
     TOP1 = "top1"  # a class per row: the argmax over the last axis
     BOXES = "boxes"  # a detector's box table (boxes:T): cx, cy, w, h and class scores per row (YOLOv8 and later)
     BOXES_OBJ = "boxes-obj"  # the same with an objectness score after the box (boxes-obj:T; YOLOv5)
@@ -119,6 +120,8 @@ class Task:
         """How many of the decisions of REF (fp32's output) and TEST agree, and how many were made
         (None: raw decides nothing). Boxes: twice the detections found again and the detections of
         both, so that their ratio over several images is the F1 score of TEST's boxes against REF's.
+        Threshold: likewise for the cells above T (twice those above in both, those above in each): a
+        score map is mostly cells below T in both, and counting them would hide the detections lost.
         CTC: the characters read the same and read, their ratio the character accuracy."""
         if self.boxes:
             objectness = self.kind == TaskKind.BOXES_OBJ
@@ -134,6 +137,8 @@ class Task:
         da, db = self.decide(ref, nhwc), self.decide(test, nhwc)
         if da is None or db is None:
             return None
+        if self.kind == TaskKind.THRESHOLD:
+            return 2 * int((da & db).sum()), int(da.sum() + db.sum())
         return int((da == db).sum()), int(da.size)
 
 

@@ -188,12 +188,13 @@ def test_task_metrics():
 def test_the_accuracy_aware_note_names_the_float_activations_their_gain_the_budget_and_the_cost():
     from conformance.engines import accuracy_note
 
-    record = {"float_tensors": ["conv_3.out", "sigmoid_1.out"], "met": True,
+    record = {"float_tensors": ["conv_3.out", "sigmoid_1.out"], "met": True, "check_tensors": 32,
               "scan": [{"tensor": "conv_3.out", "gain_db": 9.44}, {"tensor": "add_2.out", "gain_db": 3.1}],
               "speed": {"all_int8_ms": 2.0, "kept_float_ms": 2.3, "slowdown": 1.15, "threads": 2}}
     assert accuracy_note(record) == ("accuracy-aware: 2 float: conv_3.out (+9.4 dB alone), sigmoid_1.out; "
-                                     "budget met, 1.15x the all-int8 file's time")
-    assert accuracy_note({"float_tensors": [], "met": True}) == "accuracy-aware: budget met all-int8"
+                                     "budget met on 32 check tensors, 1.15x the all-int8 file's time")
+    assert accuracy_note({"float_tensors": [], "met": True, "check_tensors": 8}) == \
+        "accuracy-aware: budget met all-int8 on 8 check tensors"
     assert accuracy_note({"float_tensors": [], "met": False}) == "accuracy-aware: no float activation helped"
 
 

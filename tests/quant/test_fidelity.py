@@ -107,6 +107,21 @@ def test_a_box_task_scores_the_f1_of_the_boxes_found_again():
     Task.parse("boxes-obj").check_shape((1, 0, 85), "rows")  # rows not known before a run: a table still
 
 
+def test_a_threshold_task_scores_the_f1_of_the_cells_above_it():
+    ref = np.full((1, 1000, 3), 0.01, np.float32)  # a detector's score map: nearly every cell a negative
+    ref[0, :10, 0] = 0.9
+    test = ref.copy()
+    test[0, :4, 0] = 0.3  # four of ten detections lost
+    test[0, 500, 1] = 0.7  # one cell more
+    found = OutputFidelity(Task(TaskKind.THRESHOLD, 0.5))
+    found.add(ref, test)
+    assert found.same == 2 * 6 and found.decided == 10 + 7
+    assert found.agreement == pytest.approx(12 / 17, abs=1e-5)  # cell by cell it would read 99.8%
+    quiet = OutputFidelity(Task(TaskKind.THRESHOLD, 0.5))
+    quiet.add(ref * 0, test * 0)
+    assert quiet.agreement is None  # no cell above T in either: nothing decided
+
+
 def test_quantize_with_a_box_task_reports_the_f1_of_the_boxes(tmp_path):
     path = box_table_model(tmp_path / "m.onnx")
     xs = [np.random.default_rng(k).uniform(0, 1, (1, 3, 32, 32)).astype(np.float32) for k in range(8)]

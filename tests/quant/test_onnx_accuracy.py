@@ -56,6 +56,7 @@ def test_a_faint_channel_is_named_and_the_accuracy_aware_mode_leaves_it_float(fa
                                  budget=FidelityBudget(min_sqnr_db=25.0))
     record = fixed.quant["accuracy_aware"]
     assert record["float_tensors"] == ["input"] and record["met"]  # the fewest: one tensor
+    assert record["check_tensors"] == 8  # 16 calibration tensors leave none for more checks after AdaRound's
     # AdaRound was tried first: no weight rounding brings back a channel lost on the input's grid
     tried = fixed.quant["adaround_first"]
     assert isinstance(tried["kept"], bool) and len(tried["error_before"]) == len(tried["error_after"]) == 2
@@ -83,6 +84,14 @@ def test_keeping_a_node_float_never_lowers_fidelity_on_either_engine(faint):
     conv = quantize_onnx_static(path, calib, tmp / "c.onnx", QuantConfig(calib_method="minmax", keep_float=("conv",)),
                                 methods, progress=False)
     assert conv.fidelity["output"]["sqnr_db"] > 25  # the conv reads the input's float values
+
+
+def test_the_budget_is_checked_on_more_tensors_where_the_calibration_leaves_them(faint):
+    path, _, _, _, tmp = faint
+    calib = faint_channel_inputs(48, seed=3)  # 16x16 inputs: 32 for AdaRound to fit on, 16 to check on
+    result = quantize_onnx_static(path, calib, tmp / "checked.onnx", methods=PtqMethods(bias_correction="none"),
+                                  progress=False, budget=FidelityBudget(min_sqnr_db=-100.0))
+    assert result.quant["accuracy_aware"]["check_tensors"] == 16 and result.quant["accuracy_aware"]["met"]
 
 
 def test_a_budget_is_checked_on_creation():

@@ -198,7 +198,8 @@ def restore_fidelity(model: Any, evaluator: Evaluator, budget: FidelityBudget,
     kept only when it brings the outputs closer on both halves of the check tensors; where that is
     not enough, whole regions of the graph (`_widen`). Returns the graph and what was done."""
     fidelity = evaluator.fidelity(model)
-    record: dict = {"before": {n: f.to_dict() for n, f in fidelity.items()}, "float_tensors": []}
+    record: dict = {"check_tensors": len(evaluator.inputs), "before": {n: f.to_dict() for n, f in fidelity.items()},
+                    "float_tensors": []}
     if budget.met(fidelity):
         return model, {**record, "met": True, "graphs_measured": evaluator.graphs}
     original = model

@@ -67,6 +67,7 @@ from edgepick.quant.config import (
     PtqMethods,
     QuantConfig,
     WeightBits,
+    accuracy_check_inputs,
     check_inputs,
     lockstep_images,
 )
@@ -137,6 +138,8 @@ class _CheckOutputs:
         self.after_calibration = False
 
     def __call__(self, tensors: list[np.ndarray]) -> Evaluator:
+        if self.made is not None and len(self.made.inputs) != len(tensors):  # the accuracy-aware mode checks on more
+            self.made = None
         if self.made is None:
             if self.after_calibration:  # the measurements' memory; during calibration there is none to free
                 release_memory()
@@ -191,16 +194,17 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
             prepared = _prepared(proto, model, tuple(input_shape), pre, options, methods.equalize, rewrites)
             tasks = output_tasks(prepared, _output_shapes(prepared), task, nhwc)
         hw = input_shape[1:3] if nhwc else input_shape[-2:]
-        measured, check = lockstep_images(*hw) if methods.measures else 0, check_inputs(*hw)
+        measured, hold = lockstep_images(*hw) if methods.measures else 0, check_inputs(*hw)
         # AdaRound and bias correction fit on the calibration tensors after the check tensors that judge them
         # (the accuracy-aware mode may try AdaRound): up to check + lockstep_images are kept
         fitting = lockstep_images(*hw) if methods.measures or budget is not None else 0
+        check = hold if budget is None else accuracy_check_inputs(hw[0], hw[1], total, fitting)
         keep = max(check + fitting, SATURATION_CHECK_INPUTS if config.weight_bits == WeightBits.FIRST_SEVEN else 0)
         ops = placement_ops(options.placement, _quantizer_registry())
         exclude = [*config.keep_float, *float_tail(prepared)]
         checks = _CheckOutputs(pre, prepared, tasks, nhwc)
         cal = calibrated(prepared, pre, first, tensors, tuple(input_shape), config, ops, exclude, keep,
-                         check if config.calib_method == CalibMethod.AUTO else 0, total, checks,
+                         hold if config.calib_method == CalibMethod.AUTO else 0, total, checks,
                          check + measured if methods.bias_correction == BiasCorrection.EMPIRICAL else 0, clock, progress)
         checks.release_if_large()
 
