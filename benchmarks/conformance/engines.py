@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from _quantizers import OpenVino, Ort, nncf_quantize, ort_quantize, ort_ready
@@ -24,13 +25,15 @@ ONNXRUNTIME, OPENVINO = "onnxruntime", "openvino"
 @dataclass(frozen=True)
 class Job:
     """What a quantizer is given: the fp32 file, the calibration tensors, a folder of its own for its
-    files, and edgepick's --task for the model (None: guessed)."""
+    files, edgepick's --task for the model (None: guessed) and the model's own judge of int8 outputs
+    against fp32's (its package's decisions scored by its metric), for edgepick's budget."""
 
     fp32: Path
     calib: Sequence[np.ndarray]
     work: Path
     input_shape: tuple[int, ...]
     task: str | None = None
+    judge: Callable[[list[list[np.ndarray]], list[list[np.ndarray]]], float] | None = None
 
 
 @dataclass(frozen=True)
@@ -112,17 +115,19 @@ def _nncf(job: Job) -> Quantized:
 
 
 def edgepick_quantizer(name: str, options: OnnxOptions, budget: FidelityBudget | None = None,
-                       methods: PtqMethods | None = None, config: QuantConfig | None = None) -> Quantizer:
+                       methods: PtqMethods | None = None, config: QuantConfig | None = None,
+                       judged: bool = False) -> Quantizer:
     """edgepick's static PTQ of the fp32 file with OPTIONS (and the accuracy-aware mode's BUDGET, the
-    PTQ METHODS and quantization CONFIG other than the defaults), through its public API."""
+    PTQ METHODS and quantization CONFIG other than the defaults), through its public API; JUDGED: the
+    budget held by the model's own decisions (the job's judge) rather than edgepick's tasks."""
     def run(job: Job) -> Quantized:
-        from edgepick.quant.fidelity import Task
         from edgepick.quant.onnx.static import quantize_onnx_static
 
         out = job.work / f"{name}.onnx"
+        given = replace(budget, judge=job.judge) if judged and budget is not None else budget
         result = quantize_onnx_static(job.fp32, list(job.calib), out, config=config, options=options, methods=methods,
                                       input_shape=job.input_shape, progress=False,
-                                      task=Task.parse(job.task) if job.task else None, budget=budget)
+                                      task=edgepick_task(job.task), budget=given)
         note = f"{result.int8_convs} of {result.convs} convs int8, ranges {result.quant['ranges']['rule']}"
         grid = result.quant.get("outputs_on_grid")
         if grid:
@@ -143,7 +148,6 @@ def openvino_placement_quantizer(placement: str) -> Quantizer:
     """One of the candidates `--placement auto --target openvino` chooses among, made as it makes
     them (the float model in OpenVINO's forms, then PLACEMENT), to show what the choice left."""
     def run(job: Job) -> Quantized:
-        from edgepick.quant.fidelity import Task
         from edgepick.quant.onnx.placement import openvino_forms, worst_sqnr
         from edgepick.quant.onnx.static import quantize_onnx_static
 
@@ -153,7 +157,7 @@ def openvino_placement_quantizer(placement: str) -> Quantizer:
         source, made = openvino_forms(job.fp32, forms)
         result = quantize_onnx_static(source, list(job.calib), job.work / f"{name}.onnx",
                                       options=OnnxOptions(placement=placement), input_shape=job.input_shape,
-                                      progress=False, task=Task.parse(job.task) if job.task else None)
+                                      progress=False, task=edgepick_task(job.task))
         worst = worst_sqnr(result.fidelity)
         note = f"placement {placement}; worst SQNR on the check tensors " + \
             ("exact" if math.isinf(worst) else f"{worst:.1f} dB")
@@ -162,6 +166,18 @@ def openvino_placement_quantizer(placement: str) -> Quantizer:
         return Quantized(Path(result.out), (Path(result.out),), calib_s=result.calib_s, note=note,
                          stage_s=result.stage_s)
     return Quantizer(f"edgepick-openvino-{placement}", run)
+
+
+def edgepick_task(text: str | None) -> Any:
+    """An entry's task as quantize_onnx_static takes it: one Task for every output ("ctc"), or one per
+    output name ("537=threshold:0.2 538=raw", as the CLI's --task OUTPUT=TASK); None: guessed."""
+    from edgepick.quant.fidelity import Task
+
+    if not text:
+        return None
+    if "=" not in text:
+        return Task.parse(text)
+    return {name: Task.parse(task) for name, _, task in (item.rpartition("=") for item in text.split())}
 
 
 NOTE_TENSORS = 6  # float activations the table names; the rest are counted
@@ -201,6 +217,10 @@ ENGINES: tuple[Engine, ...] = (
     Engine("edgepick", ONNXRUNTIME, EDGEPICK),
     # the accuracy-aware mode: activations left float, most sensitive first, until every output is within the budget
     Engine("edgepick-aa", ONNXRUNTIME, edgepick_quantizer("edgepick-aa", OnnxOptions(), ACCURACY_BUDGET)),
+    # the same budget held by the model's own decisions: its package's post-processing scored by its metric on the
+    # check tensors (FidelityBudget.judge, as NNCF's accuracy control takes a validation function)
+    Engine("edgepick-aa-judged", ONNXRUNTIME, edgepick_quantizer("edgepick-aa-judged", OnnxOptions(), ACCURACY_BUDGET,
+                                                                 judged=True)),
     # the recipe without the measurements that choose it: min/max ranges (no histograms, no candidate rules) and no
     # bias correction (`--calib-method minmax --bias-correction none`), to show what they cost and what they buy
     Engine("edgepick-minmax", ONNXRUNTIME, edgepick_quantizer("edgepick-minmax", OnnxOptions(),

@@ -16,6 +16,7 @@ import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from _common import interleaved_times
@@ -191,7 +192,7 @@ def run_model(entry: Entry, settings: Settings, log: Callable[[str], None] = pri
             decide = entry.decoder(assets)
         except Exception as exc:  # noqa: BLE001 - any step of a foreign model may fail; the run goes on
             return failed(one_line(exc))
-        quantized = _quantize(entry, settings, work, calib, log)
+        quantized = _quantize(entry, settings, work, calib, log, own_judge(entry, decide))
         try:
             fp32 = next(e for e in settings.engines if e.name == BASELINES[ONNXRUNTIME])
             fp32_run = fp32.load(_file(quantized[fp32.quantizer.name]), settings.threads, outputs)
@@ -246,10 +247,19 @@ def _file(made: Made) -> Quantized:
     return made[0]
 
 
+def own_judge(entry: Entry, decide: Callable[[list[np.ndarray]], Any]) -> Callable[..., float]:
+    """ENTRY's own judge of int8 outputs against fp32's, per check tensor a list of outputs in the graph's
+    order: the package's decisions (DECIDE) scored by the entry's metric, as the suite scores the test inputs."""
+    def judge(reference: list[list[np.ndarray]], outputs: list[list[np.ndarray]]) -> float:
+        return float(entry.metric.score([decide(r) for r in reference], [decide(o) for o in outputs]))
+    return judge
+
+
 def _quantize(entry: Entry, settings: Settings, work: Path, calib: list[np.ndarray],
-              log: Callable[[str], None]) -> dict[str, Made]:
-    """Each distinct quantizer of the engines once, on CALIB: its file (or the one-line reason it
-    failed), the call's wall time and its peak memory."""
+              log: Callable[[str], None], judge: Callable[..., float] | None = None) -> dict[str, Made]:
+    """Each distinct quantizer of the engines once, on CALIB (edgepick's budget given the model's own JUDGE
+    where an engine asks for it): its file (or the one-line reason it failed), the call's wall time and its
+    peak memory."""
     done: dict[str, Made] = {}
     for engine in settings.engines:
         q = engine.quantizer
@@ -257,7 +267,7 @@ def _quantize(entry: Entry, settings: Settings, work: Path, calib: list[np.ndarr
             continue
         folder = work / q.name
         folder.mkdir(exist_ok=True)
-        job = Job(work / "fp32.onnx", calib, folder, tuple(entry.input_shape), entry.task)
+        job = Job(work / "fp32.onnx", calib, folder, tuple(entry.input_shape), entry.task, judge)
         t0 = time.perf_counter()
         result: Quantized | str
         with PeakRss() as peak:

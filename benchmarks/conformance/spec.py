@@ -85,7 +85,9 @@ class Entry:
     aux: tuple[tuple[str, Source], ...] = ()  # other files the decoder or the inputs read (dictionaries, photos)
     prepare: Callable[[Any], Any] | None = None  # what the package does to the graph before it runs it
     layout: str = "nchw"  # or nhwc: said in the report (edgepick tells the layout by the input shape)
-    task: str | None = None  # edgepick's --task for its own fidelity report; None: guessed
+    # edgepick's --task for its fidelity report and budget: one for every output, or OUTPUT=TASK per output
+    # (space-separated); None: guessed
+    task: str | None = None
     references: tuple[Reference, ...] = ()
     notes: str = ""
 

@@ -146,8 +146,9 @@ def quantize() -> None:
               help="For --calib-method percentile (with auto: one of the percentiles tried).")
 @click.option("--task", "tasks", multiple=True, metavar="[OUTPUT=]TASK",
               help="For an .onnx MODEL: what an output decides, for the agreement with fp32 in the report: labels "
-                   "(argmax over channels), threshold:T, top1 (argmax per row), boxes:T (a detector's table of cx, cy, "
-                   "w, h and class scores per row, as YOLOv8 exports it: the F1 score of the boxes scoring above T, "
+                   "(argmax over channels), threshold:T (the F1 score of the cells above T), top1 (argmax per row), "
+                   "boxes:T (a detector's table of cx, cy, w, h and class scores per row, as YOLOv8 exports it: the "
+                   "F1 score of the boxes scoring above T, "
                    "0.25 by default, after NMS), boxes-obj:T (the same with an objectness score after the box, as "
                    "YOLOv5), ctc (a text recogniser's [steps, classes] scores: the character accuracy of its "
                    "greedy CTC strings, class 0 the blank) or raw (SQNR and cosine only); OUTPUT= for one output, "
@@ -162,7 +163,8 @@ def quantize() -> None:
                    "when it brings the outputs closer), then leave the activations whose float values bring the "
                    "outputs closest to fp32 float, one at a time, then whole regions of the graph (with a large "
                    "enough --max-float-layers), until every output that decides something agrees with fp32 on at "
-                   "least SHARE (0-1) of its decisions on the check tensors.")
+                   "least SHARE (0-1) of its decisions on the check tensors (the first calibration tensors: up "
+                   "to 32 where they are small and --calib-images leaves them after AdaRound's).")
 @click.option("--min-sqnr", default=None, type=float, metavar="DB",
               help="For an .onnx MODEL, accuracy-aware: ... until every output's SQNR against fp32 is at least DB.")
 @click.option("--max-float-layers", default=MAX_FLOAT_LAYERS, show_default=True,

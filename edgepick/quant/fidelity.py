@@ -194,6 +194,7 @@ class OutputFidelity:
     same: int = 0
     decided: int = 0
     cosines: list[float] = field(default_factory=list)
+    judged: bool = False  # a caller's own judge's agreement (quant/onnx/evaluator.py), not an output's
 
     def add(self, ref: np.ndarray, int8: np.ndarray, nhwc: bool = False) -> None:
         a, b = ref.astype(np.float64).ravel(), int8.astype(np.float64).ravel()
@@ -223,6 +224,8 @@ class OutputFidelity:
         return round(self.same / self.decided, 5) if self.decided else None
 
     def to_dict(self) -> dict:
+        if self.judged:
+            return {"task": "judge", "agreement": self.agreement}
         sqnr = self.sqnr_db
         return {"task": str(self.task), "sqnr_db": round(sqnr, 2) if math.isfinite(sqnr) else None,
                 "cosine": round(self.cosine, 6), "agreement": self.agreement}

@@ -91,6 +91,9 @@ ENGINES = (Engine("fp32", ONNXRUNTIME, FP32), Engine("edgepick", ONNXRUNTIME, ED
            # a budget out of reach: the accuracy-aware mode leaves its best activation float, and no more
            Engine("edgepick-aa", ONNXRUNTIME, edgepick_quantizer("edgepick-aa", OnnxOptions(),
                                                                  FidelityBudget(min_sqnr_db=90.0, max_float=1))),
+           # held by the model's own decisions (its decoder and metric on the check tensors)
+           Engine("edgepick-judged", ONNXRUNTIME, edgepick_quantizer("edgepick-judged", OnnxOptions(),
+                                                                     FidelityBudget(min_agreement=0.5), judged=True)),
            Engine("broken", ONNXRUNTIME, Quantizer("broken", cannot)))
 
 
@@ -117,6 +120,7 @@ def test_a_run_writes_its_report_records_failures_and_fails_on_a_regression(tmp_
     aa = seg["edgepick-aa"]
     assert "accuracy-aware: " in aa["note"] and "budget not met" in aa["note"] and "x the all-int8 file's time" in aa["note"]
     assert aa["sqnr_db"]["map"] >= seg["edgepick"]["sqnr_db"]["map"]  # a float activation never lowers fidelity
+    assert seg["edgepick-judged"]["note"].endswith("accuracy-aware: budget met all-int8 on 6 check tensors")
     cls_fp32 = record["models"][1]["engines"][0]
     assert cls_fp32["truth"] is not None and cls_fp32["metric"] == 1.0
     for model in record["models"][:2]:  # fp32's own floor: its decisions on the images moved by one grey level
@@ -183,6 +187,29 @@ def test_task_metrics():
     probs = np.zeros((1, 5, 4), np.float32)
     probs[0, [0, 1, 2, 3, 4], [1, 1, 0, 2, 1]] = 1  # a a - b a
     assert decoders.greedy_ctc(probs[0], ["blank", "a", "b", "c"]) == "aba"
+
+
+def test_a_models_own_judge_scores_its_packages_decisions_by_its_metric():
+    from conformance.metrics import TOP1
+    from conformance.runner import own_judge
+    from conformance.spec import Entry
+
+    entry = Entry("m", "classification", (1, 3, 8, 8), None, None, None, TOP1, local=Path("m.onnx"))
+    judge = own_judge(entry, lambda outs: int(outs[0].argmax()))
+    ref = [[np.array([0.1, 0.9])], [np.array([0.8, 0.2])]]
+    assert judge(ref, ref) == 1.0 and judge(ref, [[np.array([0.1, 0.9])], [np.array([0.2, 0.8])]]) == 0.5
+
+
+def test_an_entrys_task_is_one_for_every_output_or_one_per_output_name():
+    from conformance.engines import edgepick_task
+    from conformance.models import MODELS
+
+    from edgepick.quant.fidelity import Task, TaskKind
+
+    assert edgepick_task(None) is None and edgepick_task("ctc") == Task(TaskKind.CTC)
+    assert edgepick_task("537=threshold:0.2 538=raw") == {"537": Task(TaskKind.THRESHOLD, 0.2), "538": Task(TaskKind.RAW)}
+    for entry in MODELS:
+        edgepick_task(entry.task)  # each parses
 
 
 def test_the_accuracy_aware_note_names_the_float_activations_their_gain_the_budget_and_the_cost():

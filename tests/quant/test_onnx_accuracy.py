@@ -94,6 +94,16 @@ def test_the_budget_is_checked_on_more_tensors_where_the_calibration_leaves_them
     assert result.quant["accuracy_aware"]["check_tensors"] == 16 and result.quant["accuracy_aware"]["met"]
 
 
+def test_a_budget_not_met_is_said_in_one_line(faint, capsys):
+    path, calib, _, _, tmp = faint
+    result = quantize_onnx_static(path, calib, tmp / "short.onnx", methods=PtqMethods(bias_correction="none"),
+                                  progress=False, budget=FidelityBudget(min_sqnr_db=200.0, max_float=1))
+    assert not result.quant["accuracy_aware"]["met"]
+    warning = capsys.readouterr().err.strip().splitlines()[-1]
+    assert warning.startswith("edgepick: warning: the budget is not met on the 8 check tensors (1 of at most 1 "
+                              "activations float)"), warning
+
+
 def test_a_budget_is_checked_on_creation():
     for kwargs, message in (({}, "min_agreement or min_sqnr_db"), ({"min_agreement": 1.5}, "min_agreement=1.5"),
                             ({"min_sqnr_db": float("nan")}, "min_sqnr_db=nan"),
@@ -233,32 +243,3 @@ def test_where_no_region_is_enough_the_shortest_float_start_of_the_graph_that_me
                                  lambda _: None) is None  # not closer on the second half of the check tensors
     monkeypatch.setattr(accuracy, "float_weight_convs", lambda graph: ["conv1", "conv2"])  # both the faint model's convs float
     assert accuracy._float_start(model, ["x"], rest, Scripted(), budget, best, lambda _: None) is None  # no int8 left
-
-
-def test_a_graph_measured_again_is_not_run_again_and_a_changed_one_is(faint, monkeypatch):
-    """The recipe measures a graph again after trying another: the last two graphs' outputs are kept (while
-    fp32's are small), keyed by the graph's bytes, so a graph changed in place is run afresh."""
-    import onnx
-
-    from edgepick.quant.fidelity import Task, TaskKind
-    from edgepick.quant.onnx import accuracy
-
-    path, _, check, reference, _ = faint
-    model = onnx.load(str(path))
-    evaluator = accuracy.evaluator_for(path, model, check, {"output": Task(TaskKind.RAW)}, False)
-    other = onnx.load(str(path))
-    other.graph.node[0].name = "renamed"  # another graph, the same outputs
-    first = evaluator.half_errors(model)
-    fidelity = evaluator.fidelity(model)
-    assert evaluator.graphs == 1 and first == (0.0, 0.0)
-    evaluator.fidelity(other)
-    assert evaluator.fidelity(model) == fidelity and evaluator.half_errors(model) == first and evaluator.graphs == 2
-    weight = next(i for i in model.graph.initializer if len(i.dims) == 4)
-    values = onnx.numpy_helper.to_array(weight) * 0.5
-    weight.CopyFrom(onnx.numpy_helper.from_array(values, weight.name))  # changed in place: run again
-    assert evaluator.half_errors(model)[0] > 0 and evaluator.graphs == 3
-    monkeypatch.setattr(accuracy, "KEPT_OUTPUT_BYTES", 0)  # fp32's outputs too large to keep another's beside them
-    fresh = accuracy.evaluator_for(path, onnx.load(str(path)), check, {"output": Task(TaskKind.RAW)}, False)
-    fresh.fidelity(other)
-    fresh.fidelity(other)
-    assert fresh.graphs == 2 and fresh.kept == []

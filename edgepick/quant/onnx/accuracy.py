@@ -16,12 +16,10 @@ shortest float start of the graph that does (errors that add up along a backbone
 
 from __future__ import annotations
 
-import hashlib
 import math
 import sys
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -29,109 +27,15 @@ import numpy as np
 from edgepick.errors import ParameterError
 from edgepick.export.onnx_io import CONV_OPS
 from edgepick.onnx_graph import copy_model
-from edgepick.quant.fidelity import BalancedError, OutputFidelity, Task, compare_outputs
+from edgepick.quant.fidelity import OutputFidelity
+from edgepick.quant.onnx.evaluator import JUDGED, Evaluator, Judge
 from edgepick.quant.onnx.floating import float_tensors, float_weight_convs, quantized_activations
 
 SCAN_BLOCKS = 16  # blocks of activations measured float first
 SCAN_KEEP = 4  # the best blocks (then sub-blocks) split again
-SCAN_TENSORS = 4  # check tensors the scan measures on (the budget is checked on all of them)
 # an output's SQNR under this is int8 far from fp32 (segmentation logits and text maps measure 15-25 dB): the
 # file is written with a warning naming the activations to leave float
 SQNR_FLOOR_DB = 10.0
-# the outputs of the last KEPT_GRAPHS graphs measured are kept when fp32's on the check tensors are no larger than
-# KEPT_OUTPUT_BYTES: the recipe measures a graph again after trying another (bias correction's check, the
-# outputs-on-grid check, the fidelity)
-KEPT_OUTPUT_BYTES = 64 << 20
-KEPT_GRAPHS = 2
-
-
-@dataclass
-class Evaluator:
-    """Runs candidate int8 graphs on check tensors against fp32's outputs there."""
-
-    float_model: Any  # the float graph the int8 one was written from
-    reference: list[list[np.ndarray]]  # fp32's outputs, per check tensor
-    inputs: list[np.ndarray]
-    names: list[str]  # the outputs, in the order the graphs give them
-    tasks: dict[str, Task]
-    nhwc: bool = False
-    graphs: int = 0  # how many graphs were measured
-    input_name: str = ""
-    kept: list[tuple[bytes, list[list[np.ndarray]]]] = field(default_factory=list, repr=False)  # see `outputs`
-
-    def session(self, model: Any) -> Any:
-        """An onnxruntime session of MODEL (a ModelProto, or one serialized)."""
-        import onnxruntime as ort
-
-        opts = ort.SessionOptions()
-        opts.log_severity_level = 3
-        opts.enable_cpu_mem_arena = False  # many graphs are made one after another: none keeps its peak
-        data = model if isinstance(model, bytes) else model.SerializeToString()
-        session = ort.InferenceSession(data, opts, providers=["CPUExecutionProvider"])
-        self.input_name = session.get_inputs()[0].name
-        self.graphs += 1
-        return session
-
-    def outputs(self, model: Any) -> Iterator[list[np.ndarray]]:
-        """MODEL's outputs on each check tensor in turn, in `reference`'s order. Where fp32's are no
-        larger than KEPT_OUTPUT_BYTES, the last KEPT_GRAPHS graphs' are kept, and a graph the same as one
-        of them (byte for byte) is not run again; otherwise one tensor's are held at a time."""
-        data = model.SerializeToString()
-        digest = hashlib.sha256(data).digest()
-        for kept_digest, outputs in self.kept:
-            if kept_digest == digest:
-                return iter(outputs)
-        session = self.session(data)
-        if sum(a.nbytes for out in self.reference for a in out) > KEPT_OUTPUT_BYTES:
-            return (session.run(self.names, {self.input_name: x}) for x in self.inputs)
-        outputs = [session.run(self.names, {self.input_name: x}) for x in self.inputs]
-        self.kept = [*self.kept, (digest, outputs)][-KEPT_GRAPHS:]
-        return iter(outputs)
-
-    def fidelity(self, model: Any) -> dict[str, OutputFidelity]:
-        """Each output's fidelity (quant/fidelity.py) of MODEL on every check tensor."""
-        return compare_outputs(self.names, self.tasks, zip(self.reference, self.outputs(model)), self.nhwc)
-
-    def measure(self, model: Any) -> tuple[dict[str, OutputFidelity], float]:
-        """`fidelity` and `error` of MODEL on every check tensor, from one run of each."""
-        outputs = list(self.outputs(model))
-        errors = [BalancedError(self.nhwc) for _ in self.names]
-        for ref, got in zip(self.reference, outputs):
-            for error, r, t in zip(errors, ref, got):
-                error.add(r, t)
-        return compare_outputs(self.names, self.tasks, zip(self.reference, outputs), self.nhwc), \
-            max(e.value for e in errors)
-
-    def error(self, model: Any, count: int | None = SCAN_TENSORS) -> float:
-        """The worst output's balanced relative error (quant/fidelity.py) of MODEL on the first COUNT
-        tensors, summed one input at a time."""
-        return self._worst_error(self.session(model), self.inputs[:count], self.reference)
-
-    def half_errors(self, model: Any) -> tuple[float, ...]:
-        """`error` of MODEL on each half of the check tensors (one value for a single tensor): a change
-        the accuracy-aware mode keeps must bring the outputs closer on both, not only on their sum."""
-        half, got = max(1, len(self.inputs) // 2), self.outputs(model)
-        errors: list[list[BalancedError]] = []
-        for k, ref in enumerate(self.reference):
-            if k in (0, half):
-                errors.append([BalancedError(self.nhwc) for _ in self.names])
-            for error, r, t in zip(errors[-1], ref, next(got)):
-                error.add(r, t)
-        return tuple(max(e.value for e in part) for part in errors)
-
-    def closer(self, before: Any, after: Any) -> dict:
-        """Whether the graph AFTER brings the outputs closer to fp32's than BEFORE on both halves of
-        the check tensors (the rule an optional step of the recipe is kept by), with both errors."""
-        errors_before, errors_after = self.half_errors(before), self.half_errors(after)
-        return {"kept": all(a < b for a, b in zip(errors_after, errors_before)),
-                "error_before": [round(e, 6) for e in errors_before], "error_after": [round(e, 6) for e in errors_after]}
-
-    def _worst_error(self, session: Any, inputs: Sequence[np.ndarray], reference: Sequence[list[np.ndarray]]) -> float:
-        errors = [BalancedError(self.nhwc) for _ in self.names]
-        for x, ref in zip(inputs, reference):
-            for error, r, t in zip(errors, ref, session.run(self.names, {self.input_name: x})):
-                error.add(r, t)
-        return max(e.value for e in errors)
 
 
 def _db(error: float) -> float:
@@ -164,12 +68,14 @@ def rank_tensors(model: Any, evaluator: Evaluator, candidates: list[str]) -> lis
 @dataclass(frozen=True)
 class FidelityBudget:
     """How close the accuracy-aware mode brings the int8 outputs to fp32's: every output that
-    decides something agrees on at least MIN_AGREEMENT of its decisions, every output's SQNR is at
-    least MIN_SQNR_DB; at most MAX_FLOAT activations are left float for it."""
+    decides something agrees on at least MIN_AGREEMENT of its decisions (with a JUDGE, the share it
+    gives instead: the caller's own post-processing), every output's SQNR is at least MIN_SQNR_DB;
+    at most MAX_FLOAT activations are left float for it."""
 
     min_agreement: float | None = None
     min_sqnr_db: float | None = None
     max_float: int = 6
+    judge: Judge | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         if self.min_agreement is None and self.min_sqnr_db is None:
@@ -181,12 +87,17 @@ class FidelityBudget:
             raise ParameterError("{min_sqnr_db}: must be a finite number of dB", min_sqnr_db=self.min_sqnr_db)
         if self.max_float < 1:
             raise ParameterError("{max_float}: must be 1 or more", max_float=self.max_float)
+        if self.judge is not None and self.min_agreement is None:
+            raise ParameterError("{judge:name} needs {min_agreement:name}: the share its decisions must agree on",
+                                 judge=None, min_agreement=None)
 
     def met(self, fidelity: dict[str, OutputFidelity]) -> bool:
-        for f in fidelity.values():
+        judged = JUDGED in fidelity  # the judge's agreement stands for the outputs' own
+        for name, f in fidelity.items():
             if self.min_sqnr_db is not None and f.sqnr_db < self.min_sqnr_db:
                 return False
-            if self.min_agreement is not None and f.agreement is not None and f.agreement < self.min_agreement:
+            if self.min_agreement is not None and f.agreement is not None and f.agreement < self.min_agreement \
+                    and judged == (name == JUDGED):
                 return False
         return True
 
@@ -255,12 +166,11 @@ def _widen(original: Any, kept: list[str], rest: list[str], evaluator: Evaluator
     room = budget.max_float - len(kept)
     regions = [list(b) for b in np.array_split(np.array(rest, dtype=object), min(SCAN_BLOCKS, len(rest))) if len(b)]
 
-    convs = conv_count(original)
 
     def trial(names: list[str]) -> tuple[Any, dict[str, OutputFidelity], float]:
         graph = copy_model(original)
         float_tensors(graph, [*kept, *names], evaluator.float_model, weights=True)
-        if not int8_conv_left(graph, convs):
+        if not int8_conv_left(graph):
             return None, {}, math.inf  # no int8 model any more: never taken
         return graph, *evaluator.measure(graph)
 
@@ -298,15 +208,10 @@ def _widen(original: Any, kept: list[str], rest: list[str], evaluator: Evaluator
     return found[0], [*kept, *chosen], found[1]
 
 
-def conv_count(model: Any) -> int:
-    """How many convs MODEL has."""
-    return sum(n.op_type in CONV_OPS for n in model.graph.node)
-
-
-def int8_conv_left(graph: Any, convs: int) -> bool:
-    """Whether one of GRAPH's CONVS convs still reads int8 weights: a graph with none is no int8 model,
-    and the accuracy-aware mode never gives one as its answer."""
-    return len(float_weight_convs(graph)) < convs
+def int8_conv_left(graph: Any) -> bool:
+    """Whether one of GRAPH's convs still reads int8 weights: a graph with none is no int8 model, and
+    the accuracy-aware mode never gives one as its answer."""
+    return len(float_weight_convs(graph)) < sum(n.op_type in CONV_OPS for n in graph.graph.node)
 
 
 def _float_start(original: Any, kept: list[str], rest: list[str], evaluator: Evaluator, budget: FidelityBudget,
@@ -318,15 +223,13 @@ def _float_start(original: Any, kept: list[str], rest: list[str], evaluator: Eva
     halves of the check tensors. A start rather than regions in between: where int8 errors add up along the graph (a text
     recogniser's backbone) no region alone brings the outputs back, and the int8 part after a float
     start reads what fp32 gives it, as it was calibrated on."""
-    convs = conv_count(original)
-
     def trial(count: int) -> tuple[Any, dict[str, OutputFidelity]]:
         graph = copy_model(original)
         float_tensors(graph, [*kept, *rest[:count]], evaluator.float_model, weights=True)
         return graph, evaluator.fidelity(graph)
 
     def met(tried: tuple[Any, dict[str, OutputFidelity]]) -> bool:  # with a conv left int8: else no int8 model
-        return budget.met(tried[1]) and int8_conv_left(tried[0], convs)
+        return budget.met(tried[1]) and int8_conv_left(tried[0])
 
     short, long = 0, min(budget.max_float - len(kept), len(rest))  # short: not met; long: met
     if long < 1:
@@ -365,16 +268,6 @@ def speed_cost(int8: Any, kept_float: Any, x: np.ndarray, threads: int = 2) -> d
     return {**ms, "slowdown": round(ms["kept_float_ms"] / ms["all_int8_ms"], 3), "threads": threads}
 
 
-def evaluator_for(pre: Path, float_model: Any, check: list[np.ndarray], tasks: dict[str, Task],
-                  nhwc: bool) -> Evaluator:
-    """What int8 graphs are measured against: fp32's (the file PRE, FLOAT_MODEL) outputs on the CHECK tensors."""
-    evaluator = Evaluator(float_model, [], check, [o.name for o in float_model.graph.output], tasks, nhwc)
-    fp32 = evaluator.session(float_model)
-    evaluator.reference = [fp32.run(evaluator.names, {evaluator.input_name: x}) for x in check]
-    evaluator.graphs = 0  # int8 graphs measured
-    return evaluator
-
-
 def fidelity_first(int8: Any, evaluator: Evaluator, budget: FidelityBudget | None,
                     progress: bool) -> tuple[Any, dict]:
     """With BUDGET, INT8 with the activations that matter most left float until its outputs meet it
@@ -387,6 +280,10 @@ def fidelity_first(int8: Any, evaluator: Evaluator, budget: FidelityBudget | Non
 
     if budget is not None:
         int8, record = restore_fidelity(int8, evaluator, budget, stage)
+        if not record["met"]:
+            print(f"edgepick: warning: the budget is not met on the {len(evaluator.inputs)} check tensors "
+                  f"({len(record['float_tensors'])} of at most {budget.max_float} activations float); the file is the "
+                  "closest found (accuracy_aware in its edgepick.quant)", file=sys.stderr, flush=True)
         return int8, {"accuracy_aware": record}
     worst = min(f.sqnr_db for f in evaluator.fidelity(int8).values())
     if worst >= SQNR_FLOOR_DB:

@@ -15,8 +15,8 @@ import numpy as np
 from edgepick.progress import StageClock
 from edgepick.progress import progress as progress_bar
 from edgepick.quant.config import CalibMethod, QuantConfig
-from edgepick.quant.onnx.accuracy import Evaluator
 from edgepick.quant.onnx.calibrate import Collector, calibrated_tensors, check_memory, release_memory
+from edgepick.quant.onnx.evaluator import Evaluator
 from edgepick.quant.onnx.inputs import check_tensor
 from edgepick.quant.onnx.qdq import choose_rule, exact_tensors
 

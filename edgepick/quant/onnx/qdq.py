@@ -25,9 +25,9 @@ import numpy as np
 from edgepick.export.onnx_io import CONV_OPS
 from edgepick.onnx_graph import Graph, copy_model
 from edgepick.quant.config import QuantConfig
-from edgepick.quant.fidelity import RuleScore, compare_outputs
-from edgepick.quant.onnx.accuracy import Evaluator
+from edgepick.quant.fidelity import OutputFidelity, RuleScore, compare_outputs
 from edgepick.quant.onnx.calibrate import Collector
+from edgepick.quant.onnx.evaluator import Evaluator
 from edgepick.quant.onnx.floating import REMOVABLE_OPS, restore_activation
 from edgepick.quant.onnx.measure import adjusted_ranges, requantize_activations
 from edgepick.quant.ranges import RangeRule, candidate_rules
@@ -157,14 +157,18 @@ def outputs_on_grid(int8: Any, tail: list[str], evaluator: Evaluator) -> tuple[A
     (on_grid, grid_channels), (off_grid, float_channels) = _fidelity(evaluator, mixed), _fidelity(evaluator, floated)
     kept = all(on_grid[n].sqnr_db >= off_grid[n].sqnr_db - OUTPUT_GRID_DB and
                grid_channels[n] >= float_channels[n] - OUTPUT_GRID_DB and
-               (off_grid[n].agreement is None or on_grid[n].agreement >= off_grid[n].agreement - OUTPUT_GRID_AGREEMENT)
-               for n in on_grid)
+               _agreed(on_grid[n]) >= _agreed(off_grid[n]) - OUTPUT_GRID_AGREEMENT for n in on_grid)
     record = {"kept": kept, **{key: {n: None if math.isinf(v) else round(v, 2) for n, v in values.items()}
                                for key, values in (("channel_sqnr_db_on_grid", grid_channels),
                                                    ("channel_sqnr_db_float", float_channels))},
               "agreement_on_grid": {n: f.agreement for n, f in on_grid.items()},
               "agreement_float": {n: f.agreement for n, f in off_grid.items()}}
     return (mixed, partly, record) if kept else (floated, dropped, record)
+
+
+def _agreed(fidelity: OutputFidelity) -> float:
+    """FIDELITY's agreement, 1.0 where it decides nothing (raw, or no cell above a threshold in either file)."""
+    return 1.0 if fidelity.agreement is None else fidelity.agreement
 
 
 def _fidelity(evaluator: Evaluator, model: Any) -> tuple[dict, dict[str, float]]:

@@ -73,11 +73,12 @@ from edgepick.quant.config import (
 )
 from edgepick.quant.fidelity import Task, check_task_names, output_tasks
 from edgepick.quant.methods import INT16
-from edgepick.quant.onnx.accuracy import Evaluator, FidelityBudget, evaluator_for, fidelity_first
+from edgepick.quant.onnx.accuracy import FidelityBudget, fidelity_first
 from edgepick.quant.onnx.adaround import adaround_onnx
 from edgepick.quant.onnx.calibrate import release_memory
 from edgepick.quant.onnx.calibration_pass import Calibrated, calibrated
 from edgepick.quant.onnx.equalize import equalize_onnx
+from edgepick.quant.onnx.evaluator import Evaluator, Judge, evaluator_for
 from edgepick.quant.onnx.floating import float_tensors, node_tensors
 from edgepick.quant.onnx.gelu import sigmoid_gelu
 from edgepick.quant.onnx.inputs import check_tensor
@@ -132,8 +133,8 @@ class _CheckOutputs:
     """fp32's outputs on the check tensors (an Evaluator of the float file PRE), made when first asked
     for and kept for every later check: choosing the rule, the measurements' checks, the fidelity."""
 
-    def __init__(self, pre: Path, prepared: Any, tasks: dict[str, Task], nhwc: bool):
-        self.pre, self.prepared, self.tasks, self.nhwc = pre, prepared, tasks, nhwc
+    def __init__(self, pre: Path, prepared: Any, tasks: dict[str, Task], nhwc: bool, judge: Judge | None):
+        self.pre, self.prepared, self.tasks, self.nhwc, self.judge = pre, prepared, tasks, nhwc, judge
         self.made: Evaluator | None = None
         self.after_calibration = False
 
@@ -143,7 +144,7 @@ class _CheckOutputs:
         if self.made is None:
             if self.after_calibration:  # the measurements' memory; during calibration there is none to free
                 release_memory()
-            self.made = evaluator_for(self.pre, self.prepared, tensors, self.tasks, self.nhwc)
+            self.made = evaluator_for(self.pre, self.prepared, tensors, self.tasks, self.nhwc, self.judge)
         return self.made
 
     def release_if_large(self) -> None:
@@ -202,7 +203,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
         keep = max(check + fitting, SATURATION_CHECK_INPUTS if config.weight_bits == WeightBits.FIRST_SEVEN else 0)
         ops = placement_ops(options.placement, _quantizer_registry())
         exclude = [*config.keep_float, *float_tail(prepared)]
-        checks = _CheckOutputs(pre, prepared, tasks, nhwc)
+        checks = _CheckOutputs(pre, prepared, tasks, nhwc, budget.judge if budget is not None else None)
         cal = calibrated(prepared, pre, first, tensors, tuple(input_shape), config, ops, exclude, keep,
                          hold if config.calib_method == CalibMethod.AUTO else 0, total, checks,
                          check + measured if methods.bias_correction == BiasCorrection.EMPIRICAL else 0, clock, progress)
@@ -288,7 +289,7 @@ def _write_checked(int8: Any, path: Path, prepared: Any, config: QuantConfig, qu
     expected = sum(1 for n in prepared.graph.node if n.op_type in CONV_OPS and n.name not in made_float)
     onnx.save(int8, str(path))
     report = require_int8_convs(path, expected)
-    fidelity = {n: f.to_dict() for n, f in evaluator.fidelity(int8).items()}
+    fidelity = {n: f.to_dict() for n, f in evaluator.fidelity(int8).items() if n in evaluator.names}  # the outputs
     for key, value in (("edgepick.quant", quant), ("edgepick.fidelity", fidelity)):
         entry = int8.metadata_props.add()
         entry.key, entry.value = key, json.dumps(value)
