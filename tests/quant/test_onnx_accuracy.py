@@ -120,7 +120,8 @@ def test_a_float_activation_is_kept_only_when_it_brings_both_halves_of_the_check
     import onnx
 
     from edgepick.quant.fidelity import Task, TaskKind
-    from edgepick.quant.onnx.accuracy import Evaluator, evaluator_for, restore_fidelity
+    from edgepick.quant.onnx.accuracy import restore_fidelity
+    from edgepick.quant.onnx.evaluator import Evaluator, evaluator_for
     from edgepick.quant.onnx.floating import quantized_activations
 
     path, calib, check, _, tmp = faint
