@@ -32,18 +32,6 @@ def _sqnr(path, xs, reference, engine: str) -> float:
     return 10 * np.log10(signal / noise)
 
 
-@pytest.fixture(scope="module")
-def faint(tmp_path_factory):
-    """The faint-channel model, its inputs (calibration, check) and fp32's outputs on the check inputs."""
-    import onnxruntime as ort
-
-    tmp = tmp_path_factory.mktemp("faint")
-    path = faint_channel_model(tmp / "faint.onnx")
-    check = faint_channel_inputs(4, seed=9)
-    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
-    return path, faint_channel_inputs(16), check, [session.run(None, {"input": x})[0] for x in check], tmp
-
-
 @pytest.mark.slow
 def test_a_faint_channel_is_named_and_the_accuracy_aware_mode_leaves_it_float(faint, capsys):
     path, calib, check, reference, tmp = faint
@@ -170,7 +158,6 @@ def test_the_region_search_takes_the_region_that_meets_the_budget_then_its_short
 
     from edgepick.quant.fidelity import OutputFidelity, Task, TaskKind
     from edgepick.quant.onnx import accuracy
-    from tests.quant.onnx_models import faint_channel_model
 
     model = onnx.load(str(faint_channel_model(tmp_path / "faint.onnx")))
     needed = {"t8", "t9"}  # of the third region, t8..t11
@@ -210,7 +197,6 @@ def test_where_no_region_is_enough_the_shortest_float_start_of_the_graph_that_me
 
     from edgepick.quant.fidelity import OutputFidelity, Task, TaskKind
     from edgepick.quant.onnx import accuracy
-    from tests.quant.onnx_models import faint_channel_model
 
     model = onnx.load(str(faint_channel_model(tmp_path / "faint.onnx")))
     rest = [f"t{k}" for k in range(100)]

@@ -10,19 +10,6 @@ from edgepick.quant.config import PtqMethods
 from edgepick.quant.onnx.accuracy import FidelityBudget
 from edgepick.quant.onnx.evaluator import JUDGED, judged
 from edgepick.quant.onnx.static import quantize_onnx_static
-from tests.quant.onnx_models import faint_channel_inputs, faint_channel_model
-
-
-@pytest.fixture(scope="module")
-def faint(tmp_path_factory):
-    """The faint-channel model, its inputs (calibration, check) and fp32's outputs on the check inputs."""
-    import onnxruntime as ort
-
-    tmp = tmp_path_factory.mktemp("faint")
-    path = faint_channel_model(tmp / "faint.onnx")
-    check = faint_channel_inputs(4, seed=9)
-    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
-    return path, faint_channel_inputs(16), check, [session.run(None, {"input": x})[0] for x in check], tmp
 
 
 def test_a_graph_measured_again_is_not_run_again_and_a_changed_one_is(faint, monkeypatch):
