@@ -37,7 +37,7 @@ CHECK_PIXELS = 8 * 640 * 480
 
 
 # the accuracy-aware mode checks its budget on more inputs where they are small: a budget of 99.5% of the
-# decisions needs hundreds of them, and 8 text lines hold about a hundred characters
+# decisions needs hundreds of them (one character misread among 200 is already 0.5%)
 ACCURACY_CHECK_INPUTS = 32
 ACCURACY_CHECK_PIXELS = 4 * CHECK_PIXELS
 
