@@ -171,13 +171,9 @@ def openvino_placement_quantizer(placement: str) -> Quantizer:
 def edgepick_task(text: str | None) -> Any:
     """An entry's task as quantize_onnx_static takes it: one Task for every output ("ctc"), or one per
     output name ("537=threshold:0.2 538=raw", as the CLI's --task OUTPUT=TASK); None: guessed."""
-    from edgepick.quant.fidelity import Task
+    from edgepick.quant.fidelity import parse_tasks
 
-    if not text:
-        return None
-    if "=" not in text:
-        return Task.parse(text)
-    return {name: Task.parse(task) for name, _, task in (item.rpartition("=") for item in text.split())}
+    return parse_tasks((text or "").split())
 
 
 NOTE_TENSORS = 6  # float activations the table names; the rest are counted

@@ -263,28 +263,10 @@ def _budget(min_agreement: float | None, min_sqnr: float | None, max_float: int)
     return FidelityBudget(min_agreement=min_agreement, min_sqnr_db=min_sqnr, max_float=max_float)
 
 
-def _task_option(values: tuple[str, ...]):
-    """--task values as quantize_onnx_static takes them: one Task for all outputs, or per output name."""
-    from edgepick.quant.fidelity import Task
-
-    named, common = {}, None
-    for value in values:
-        name, sep, text = value.rpartition("=")
-        task = Task.parse(text)  # refused as "--task TEXT: ..."
-        if sep:
-            named[name] = task
-        elif common is not None:
-            raise ConfigError(f"--task {value}: one task for all outputs is given twice; name the output (OUTPUT=TASK)")
-        else:
-            common = task
-    if named and common is not None:
-        raise ConfigError("--task: give one task for all outputs, or OUTPUT=TASK for each, not both")
-    return named or common
-
-
 def _quantize_onnx(model: str, out: str, shared: dict, configs: dict, preprocessing: dict, budget=None) -> None:
     """`quantize static MODEL.onnx --calib DIR`: edgepick's recipe on a float ONNX file."""
     from edgepick.export.onnx_io import image_size, load_float_onnx
+    from edgepick.quant.fidelity import parse_tasks
     from edgepick.quant.onnx.inputs import folder_tensors
     from edgepick.quant.onnx.static import quantize_onnx_static
 
@@ -305,7 +287,7 @@ def _quantize_onnx(model: str, out: str, shared: dict, configs: dict, preprocess
     if calib_images is not None and calib_images < 1:
         raise ConfigError(f"--calib-images {calib_images}: must be 1 or more")
     tensors = folder_tensors(calib, prep, size, calib_images)
-    emit(quantize_onnx_static(model, tensors, out, **configs, input_shape=shape, task=_task_option(shared["tasks"]),
+    emit(quantize_onnx_static(model, tensors, out, **configs, input_shape=shape, task=parse_tasks(shared["tasks"]),
                               budget=budget))
 
 

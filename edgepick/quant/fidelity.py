@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -298,6 +298,30 @@ class RuleScore:
 
     def to_dict(self) -> dict:
         return {"rule": str(self.rule), "balanced_sqnr_db": round(self.sqnr_db, 2) if self.error > 0 else None}
+
+
+def parse_tasks(values: Iterable[str]) -> Task | dict[str, Task] | None:
+    """Task texts as quantize_onnx_static takes them: one Task for every output ("ctc"), or one per
+    output name ("537=threshold:0.2", "538=raw"); none given: None (guessed per output). Refused in
+    one line naming `task`: a common task given twice, or a common one mixed with named ones."""
+    named: dict[str, Task] = {}
+    common: Task | None = None
+    for value in values:
+        name, sep, text = value.rpartition("=")
+        try:
+            task = Task.parse(text)
+        except ParameterError as exc:  # named as the user wrote it, OUTPUT= included
+            raise ParameterError(exc.template, **{**exc.parameters, "task": value}) from None
+        if sep:
+            named[name] = task
+        elif common is not None:
+            raise ParameterError("{task}: one task for all outputs is given twice; name the output (OUTPUT=TASK)",
+                                 task=value)
+        else:
+            common = task
+    if named and common is not None:
+        raise ParameterError("{task:name}: give one task for all outputs, or OUTPUT=TASK for each, not both", task=None)
+    return named or common
 
 
 def check_task_names(model: Any, task: Task | Mapping[str, Task] | None) -> None:

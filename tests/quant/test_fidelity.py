@@ -15,6 +15,7 @@ from edgepick.quant.fidelity import (
     TaskKind,
     balanced_error,
     guess_task,
+    parse_tasks,
     probability_outputs,
 )
 from edgepick.quant.onnx.static import quantize_onnx_static
@@ -30,6 +31,18 @@ def test_tasks_parse_and_refuse_in_one_line():
                          ("threshold:x", "must be a number"), ("threshold:nan", "finite"), ("boxes:inf", "finite")):
         with pytest.raises(ParameterError, match=f"^task=.*{message}"):
             Task.parse(bad)
+
+
+def test_task_texts_give_one_task_or_one_per_output_and_refuse_a_mix():
+    assert parse_tasks([]) is None and parse_tasks(["ctc"]) == Task(TaskKind.CTC)
+    assert parse_tasks(["537=threshold:0.2", "538=raw"]) == {"537": Task(TaskKind.THRESHOLD, 0.2), "538": Task(TaskKind.RAW)}
+    assert parse_tasks(["a=b=raw"]) == {"a=b": Task(TaskKind.RAW)}  # the task is after the last "="
+    with pytest.raises(ParameterError, match="^task='labels': one task for all outputs is given twice"):
+        parse_tasks(["raw", "labels"])
+    with pytest.raises(ParameterError, match="^task: give one task for all outputs, or OUTPUT=TASK for each, not both"):
+        parse_tasks(["raw", "out=labels"])
+    with pytest.raises(ParameterError, match="^task='out=box'"):
+        parse_tasks(["out=box"])
 
 
 def test_each_output_shape_gets_the_task_it_most_likely_has():

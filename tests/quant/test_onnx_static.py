@@ -192,6 +192,7 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
     (["{NET}", "--calib", "{NPY}", "--task", "boxes"], r"--task boxes:0.25: output logits of shape \[1, 3, \d+, \d+\] is no box table"),
     (["{NET}", "--calib", "{NPY}", "--task", "nope=raw"], "--task names no output of the model: nope"),
     (["{NET}", "--calib", "{NPY}", "--task", "raw", "--task", "labels"], "--task labels: one task for all"),
+    (["{NET}", "--calib", "{NPY}", "--task", "raw", "--task", "logits=labels"], "--task: give one task for all outputs, or"),
 ])
 def test_a_mistake_is_one_line_exit_2_and_nothing_written(inputs, tmp_path, args, message):
     """Found before torch is imported (in a second, not after seconds of imports): here torch cannot be imported."""
