@@ -170,6 +170,10 @@ def quantize() -> None:
 @click.option("--max-float-layers", default=MAX_FLOAT_LAYERS, show_default=True,
               help="With --max-miou-drop, --min-agreement or --min-sqnr: at most this many layers (activations) "
                    "left float.")
+@click.option("--max-seconds", default=None, type=float, metavar="SECONDS",
+              help="With --min-agreement or --min-sqnr: stop the search for activations to leave float after "
+                   "SECONDS and write the closest file found by then (said in a warning and in the file's "
+                   "accuracy_aware record) [default: no limit].")
 @with_options(common)
 @with_options(preprocessing_options)
 def quantize_static_cmd(checkpoint: str, out: str, **flags) -> None:
@@ -183,7 +187,7 @@ def quantize_static_cmd(checkpoint: str, out: str, **flags) -> None:
     """
     onnx_model = Path(checkpoint).suffix.lower() == ".onnx"
     _refuse_other_kinds(flags, onnx_model)
-    budget = _budget(flags.pop("min_agreement"), flags.pop("min_sqnr"), flags["max_float_layers"])
+    budget = _budget(flags.pop("min_agreement"), flags.pop("min_sqnr"), flags["max_float_layers"], flags.pop("max_seconds"))
     shared = {k: flags.pop(k) for k in ("calib_images", "max_float_layers", "seed", "max_miou_drop", "calib",
                                         "input_shape", "tasks", "data_dir")}
     prep = {k: flags.pop(k) for k in list(flags) if k not in _CONFIG_FIELDS}
@@ -201,7 +205,8 @@ def quantize_static_cmd(checkpoint: str, out: str, **flags) -> None:
 # flags only one kind of MODEL takes (parameter, flag as the error names it): another value than the default
 # for the other kind is refused in one line
 _ONNX_ONLY = (("calib", "--calib"), ("input_shape", "--input-shape"), ("tasks", "--task"),
-              ("min_agreement", "--min-agreement"), ("min_sqnr", "--min-sqnr"), ("placement", "--placement {}"),
+              ("min_agreement", "--min-agreement"), ("min_sqnr", "--min-sqnr"), ("max_seconds", "--max-seconds"),
+              ("placement", "--placement {}"),
               ("target", "--target {}"), ("gelu", "--gelu {}"))
 _RUN_ONLY = (("data_dir", "--data"), ("max_miou_drop", "--max-miou-drop"), ("seed", "--seed"))
 _CONFIGS = {"config": QuantConfig, "methods": PtqMethods, "options": OnnxOptions, "qat": QatOptions}
@@ -254,13 +259,16 @@ def _quantize_checkpoint(checkpoint: str, out: str, shared: dict, configs: dict)
                          check_images=agreement_images(data, seed)))
 
 
-def _budget(min_agreement: float | None, min_sqnr: float | None, max_float: int):
+def _budget(min_agreement: float | None, min_sqnr: float | None, max_float: int, max_seconds: float | None):
     """The accuracy-aware mode's FidelityBudget of the flags, or None when neither is given."""
     if min_agreement is None and min_sqnr is None:
+        if max_seconds is not None:
+            raise ConfigError("--max-seconds limits the accuracy-aware mode: give --min-agreement or --min-sqnr too")
         return None
     from edgepick.quant.onnx.accuracy import FidelityBudget
 
-    return FidelityBudget(min_agreement=min_agreement, min_sqnr_db=min_sqnr, max_float=max_float)
+    return FidelityBudget(min_agreement=min_agreement, min_sqnr_db=min_sqnr, max_float=max_float,
+                          max_seconds=max_seconds)
 
 
 def _quantize_onnx(model: str, out: str, shared: dict, configs: dict, preprocessing: dict, budget=None) -> None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -92,10 +94,29 @@ def test_a_budget_not_met_is_said_in_one_line(faint, capsys):
                               "activations float)"), warning
 
 
+def test_the_search_stops_at_its_time_limit_with_what_it_found(faint, capsys):
+    """A limit that passes at once: no activation is measured float, the record says where it
+    stopped, the warning says why; without the limit the same budget leaves one float."""
+    path, calib, _, _, tmp = faint
+    methods = PtqMethods(bias_correction="none")
+    budget = FidelityBudget(min_sqnr_db=200.0, max_float=1)
+    stopped = quantize_onnx_static(path, calib, tmp / "stopped.onnx", methods=methods, progress=False,
+                                   budget=replace(budget, max_seconds=1e-9)).quant["accuracy_aware"]
+    assert stopped["stopped_at_max_seconds"] == 1e-9 and stopped["float_tensors"] == [] and not stopped["met"]
+    assert stopped["scan"] == [] and stopped["search_s"] >= 0
+    assert "(0 of at most 1 activations float, the search stopped after 1e-09 s)" in capsys.readouterr().err
+    searched = quantize_onnx_static(path, calib, tmp / "searched.onnx", methods=methods, progress=False,
+                                    budget=budget).quant["accuracy_aware"]
+    assert "stopped_at_max_seconds" not in searched and searched["float_tensors"] == ["input"]
+    assert searched["graphs_measured"] > stopped["graphs_measured"]
+
+
 def test_a_budget_is_checked_on_creation():
     for kwargs, message in (({}, "min_agreement or min_sqnr_db"), ({"min_agreement": 1.5}, "min_agreement=1.5"),
                             ({"min_sqnr_db": float("nan")}, "min_sqnr_db=nan"),
-                            ({"min_sqnr_db": 20, "max_float": 0}, "max_float=0")):
+                            ({"min_sqnr_db": 20, "max_float": 0}, "max_float=0"),
+                            ({"min_sqnr_db": 20, "max_seconds": 0.0}, "max_seconds=0.0: must be a positive"),
+                            ({"min_sqnr_db": 20, "max_seconds": float("inf")}, "max_seconds=inf")):
         with pytest.raises(ParameterError, match=message):
             FidelityBudget(**kwargs)
 

@@ -193,6 +193,8 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
     (["{NET}", "--calib", "{NPY}", "--task", "nope=raw"], "--task names no output of the model: nope"),
     (["{NET}", "--calib", "{NPY}", "--task", "raw", "--task", "labels"], "--task labels: one task for all"),
     (["{NET}", "--calib", "{NPY}", "--task", "raw", "--task", "logits=labels"], "--task: give one task for all outputs, or"),
+    (["{NET}", "--calib", "{NPY}", "--max-seconds", "5"], "--max-seconds limits the accuracy-aware mode"),
+    (["{NET}", "--calib", "{NPY}", "--min-sqnr", "9", "--max-seconds", "0"], "--max-seconds 0.0: must be a positive"),
 ])
 def test_a_mistake_is_one_line_exit_2_and_nothing_written(inputs, tmp_path, args, message):
     """Found before torch is imported (in a second, not after seconds of imports): here torch cannot be imported."""

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import sys
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -42,9 +43,23 @@ def _db(error: float) -> float:
     return -10.0 * math.log10(error) if error > 0 else math.inf
 
 
-def rank_tensors(model: Any, evaluator: Evaluator, candidates: list[str]) -> list[tuple[str, float]]:
+class Clock:
+    """The search's time limit: SECONDS from now (None: no limit). `up` says whether it has passed."""
+
+    def __init__(self, seconds: float | None = None):
+        self.end = None if seconds is None else time.perf_counter() + seconds
+        self.hit = False
+
+    def up(self) -> bool:
+        self.hit = self.hit or (self.end is not None and time.perf_counter() >= self.end)
+        return self.hit
+
+
+def rank_tensors(model: Any, evaluator: Evaluator, candidates: list[str],
+                 clock: Clock | None = None) -> list[tuple[str, float]]:
     """CANDIDATES (activations of the QDQ MODEL) with the output SQNR in dB that leaving each float
-    gains, best first: blocks in graph order, the best split again, down to single tensors."""
+    gains, best first: blocks in graph order, the best split again, down to single tensors (those
+    found when CLOCK's limit passes)."""
     base = _db(evaluator.error(model))
 
     def gain(names: list[str]) -> float:
@@ -54,7 +69,7 @@ def rank_tensors(model: Any, evaluator: Evaluator, candidates: list[str]) -> lis
 
     singles: dict[str, float] = {}
     blocks = [list(b) for b in np.array_split(np.array(candidates, dtype=object), min(SCAN_BLOCKS, len(candidates)))]
-    while blocks:
+    while blocks and not (clock and clock.up()):
         scored = sorted(((gain(b), b) for b in blocks if b), key=lambda s: -s[0])
         blocks = []
         for value, block in scored[:SCAN_KEEP]:
@@ -70,12 +85,14 @@ class FidelityBudget:
     """How close the accuracy-aware mode brings the int8 outputs to fp32's: every output that
     decides something agrees on at least MIN_AGREEMENT of its decisions (with a JUDGE, the share it
     gives instead: the caller's own post-processing), every output's SQNR is at least MIN_SQNR_DB;
-    at most MAX_FLOAT activations are left float for it."""
+    at most MAX_FLOAT activations are left float for it, and the search stops after MAX_SECONDS
+    (None: when done) with the closest graph found by then."""
 
     min_agreement: float | None = None
     min_sqnr_db: float | None = None
     max_float: int = 6
     judge: Judge | None = field(default=None, compare=False)
+    max_seconds: float | None = None
 
     def __post_init__(self) -> None:
         if self.min_agreement is None and self.min_sqnr_db is None:
@@ -87,6 +104,8 @@ class FidelityBudget:
             raise ParameterError("{min_sqnr_db}: must be a finite number of dB", min_sqnr_db=self.min_sqnr_db)
         if self.max_float < 1:
             raise ParameterError("{max_float}: must be 1 or more", max_float=self.max_float)
+        if self.max_seconds is not None and not (math.isfinite(self.max_seconds) and self.max_seconds > 0):
+            raise ParameterError("{max_seconds}: must be a positive number of seconds", max_seconds=self.max_seconds)
         if self.judge is not None and self.min_agreement is None:
             raise ParameterError("{judge:name} needs {min_agreement:name}: the share its decisions must agree on",
                                  judge=None, min_agreement=None)
@@ -107,7 +126,9 @@ def restore_fidelity(model: Any, evaluator: Evaluator, budget: FidelityBudget,
     """MODEL (a QDQ graph) with the fewest activations left float that meets BUDGET (or the best
     found within budget.max_float). First the scan's best single tensors one at a time, a tensor
     kept only when it brings the outputs closer on both halves of the check tensors; where that is
-    not enough, whole regions of the graph (`_widen`). Returns the graph and what was done."""
+    not enough, whole regions of the graph (`_widen`), or a float start (`_float_start`); after
+    budget.max_seconds, what was found by then. Returns the graph and what was done."""
+    clock, started = Clock(budget.max_seconds), time.perf_counter()
     fidelity = evaluator.fidelity(model)
     record: dict = {"check_tensors": len(evaluator.inputs), "before": {n: f.to_dict() for n, f in fidelity.items()},
                     "float_tensors": []}
@@ -115,12 +136,12 @@ def restore_fidelity(model: Any, evaluator: Evaluator, budget: FidelityBudget,
         return model, {**record, "met": True, "graphs_measured": evaluator.graphs}
     original = model
     progress("scan which activations to leave float")
-    ranked = rank_tensors(model, evaluator, quantized_activations(model))
+    ranked = rank_tensors(model, evaluator, quantized_activations(model), clock)
     record["scan"] = [{"tensor": t, "gain_db": round(g, 2)} for t, g in ranked[:20]]
     best = evaluator.half_errors(model)
     kept: list[str] = []
     for name, value in ranked:
-        if len(kept) >= budget.max_float or value <= 0:
+        if len(kept) >= budget.max_float or value <= 0 or clock.up():
             break
         trial = copy_model(model)
         float_tensors(trial, [*kept, name], evaluator.float_model)
@@ -132,17 +153,19 @@ def restore_fidelity(model: Any, evaluator: Evaluator, budget: FidelityBudget,
         progress(f"{len(kept)} float: {name}")
         if budget.met(fidelity):
             break
-    if not budget.met(fidelity) and len(kept) < budget.max_float:
+    if not budget.met(fidelity) and len(kept) < budget.max_float and not clock.up():
         rest = [t for t in quantized_activations(original) if t not in kept]
-        widened = _widen(original, kept, rest, evaluator, budget, best, progress)
-        if widened is None or not budget.met(widened[2]):
-            widened = _float_start(original, kept, rest, evaluator, budget, best, progress) or widened
+        widened = _widen(original, kept, rest, evaluator, budget, best, progress, clock)
+        if (widened is None or not budget.met(widened[2])) and not clock.up():
+            widened = _float_start(original, kept, rest, evaluator, budget, best, progress, clock) or widened
         if widened is not None:
             model, kept, fidelity = widened
             before = set(float_weight_convs(original))
             record["float_weight_convs"] = [n for n in float_weight_convs(model) if n not in before]
     record.update(float_tensors=kept, after={n: f.to_dict() for n, f in fidelity.items()}, met=budget.met(fidelity),
-                  graphs_measured=evaluator.graphs)
+                  graphs_measured=evaluator.graphs, search_s=round(time.perf_counter() - started, 1))
+    if clock.hit:
+        record["stopped_at_max_seconds"] = budget.max_seconds
     if kept:
         record["speed"] = speed_cost(original, model, evaluator.inputs[0])
     return model, record
@@ -156,13 +179,16 @@ def _summary(fidelity: dict[str, OutputFidelity]) -> str:
 
 
 def _widen(original: Any, kept: list[str], rest: list[str], evaluator: Evaluator, budget: FidelityBudget,
-           best: tuple[float, ...], progress: Callable[[str], None]) -> tuple[Any, list[str], dict] | None:
+           best: tuple[float, ...], progress: Callable[[str], None],
+           clock: Clock | None = None) -> tuple[Any, list[str], dict] | None:
     """ORIGINAL with KEPT and whole regions of REST (activations in graph order, SCAN_BLOCKS
     stretches of it) left float, one region at a time, each time the one that brings the outputs
     closest, until BUDGET is met; the last region is then halved while a half still meets it.
     Regions, not single tensors: float and int8 mixed tensor by tensor can end further from fp32
     than either (the int8 parts were calibrated on what fp32 gives them). Taken only if it brings
-    the outputs closer than BEST on both halves of the check tensors; else None."""
+    the outputs closer than BEST on both halves of the check tensors; else None. Stops where CLOCK's
+    limit passes, with the regions found by then."""
+    clock = clock or Clock()
     room = budget.max_float - len(kept)
     regions = [list(b) for b in np.array_split(np.array(rest, dtype=object), min(SCAN_BLOCKS, len(rest))) if len(b)]
 
@@ -176,22 +202,24 @@ def _widen(original: Any, kept: list[str], rest: list[str], evaluator: Evaluator
 
     chosen: list[str] = []
     found: tuple[Any, dict[str, OutputFidelity], float] | None = None
-    while regions:
+    while regions and not clock.up():
         fits = [r for r in regions if len(chosen) + len(r) <= room]
         if not fits:
             break
         closest: tuple[Any, dict[str, OutputFidelity], float] = (None, {}, math.inf)
         region = fits[0]
         for candidate in fits:  # the closest, one graph held at a time
+            if clock.up():
+                break
             measured = trial([*chosen, *candidate])
             if measured[2] < closest[2]:
                 closest, region = measured, candidate
         graph, fidelity, error = closest
-        if graph is None or (found is not None and error >= found[2]):
-            break  # no region brings the outputs closer
+        if graph is None or (found is not None and error >= found[2]) or clock.hit:
+            break  # no region brings the outputs closer, or not all were measured
         regions.remove(region)
         if budget.met(fidelity):
-            while len(region) > 1:  # the shortest half of the region that still meets the budget
+            while len(region) > 1 and not clock.up():  # the shortest half of the region that still meets it
                 halves = [list(h) for h in np.array_split(np.array(region, dtype=object), 2)]
                 met = [(t, h) for t, h in ((trial([*chosen, *h]), h) for h in halves)
                        if t[0] is not None and budget.met(t[1])]
@@ -215,14 +243,18 @@ def int8_conv_left(graph: Any) -> bool:
 
 
 def _float_start(original: Any, kept: list[str], rest: list[str], evaluator: Evaluator, budget: FidelityBudget,
-                 best: tuple[float, ...], progress: Callable[[str], None]) -> tuple[Any, list[str], dict] | None:
+                 best: tuple[float, ...], progress: Callable[[str], None],
+                 clock: Clock | None = None) -> tuple[Any, list[str], dict] | None:
     """ORIGINAL with KEPT and the shortest start of REST (activations in graph order) left float, with
     the weights of the ops that then read nothing on the uint8 grid, that meets BUDGET: found by
     halving the start's length; None where the longest start the budget allows does not meet it with a
     conv left int8, or where the start found does not bring the outputs closer than BEST on both
     halves of the check tensors. A start rather than regions in between: where int8 errors add up along the graph (a text
     recogniser's backbone) no region alone brings the outputs back, and the int8 part after a float
-    start reads what fp32 gives it, as it was calibrated on."""
+    start reads what fp32 gives it, as it was calibrated on. Where CLOCK's limit passes, the shortest
+    start found by then."""
+    clock = clock or Clock()
+
     def trial(count: int) -> tuple[Any, dict[str, OutputFidelity]]:
         graph = copy_model(original)
         float_tensors(graph, [*kept, *rest[:count]], evaluator.float_model, weights=True)
@@ -237,7 +269,7 @@ def _float_start(original: Any, kept: list[str], rest: list[str], evaluator: Eva
     found = trial(long)
     if not met(found):
         return None
-    while long - short > 1:
+    while long - short > 1 and not clock.up():
         middle = (short + long) // 2
         tried = trial(middle)
         if met(tried):
@@ -281,9 +313,10 @@ def fidelity_first(int8: Any, evaluator: Evaluator, budget: FidelityBudget | Non
     if budget is not None:
         int8, record = restore_fidelity(int8, evaluator, budget, stage)
         if not record["met"]:
+            stopped = f", the search stopped after {budget.max_seconds:g} s" if "stopped_at_max_seconds" in record else ""
             print(f"edgepick: warning: the budget is not met on the {len(evaluator.inputs)} check tensors "
-                  f"({len(record['float_tensors'])} of at most {budget.max_float} activations float); the file is the "
-                  "closest found (accuracy_aware in its edgepick.quant)", file=sys.stderr, flush=True)
+                  f"({len(record['float_tensors'])} of at most {budget.max_float} activations float{stopped}); the file "
+                  "is the closest found (accuracy_aware in its edgepick.quant)", file=sys.stderr, flush=True)
         return int8, {"accuracy_aware": record}
     worst = min(f.sqnr_db for f in evaluator.fidelity(int8).values())
     if worst >= SQNR_FLOOR_DB:
