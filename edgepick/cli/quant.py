@@ -141,6 +141,11 @@ def quantize() -> None:
                    "between its Q/DQ: onnxruntime has no integer Erf) or sigmoid (written as c*x*sigmoid(alpha*x), "
                    "alpha fitted per layer, on onnxruntime's integer kernels: faster, an approximation). Time both "
                    "and compare their agreement with benchmarks/peers_onnx.py.")
+@click.option("--adaround-if-far/--no-adaround-if-far", default=default_of(OnnxOptions, "adaround_if_far"),
+              show_default=True,
+              help="For an .onnx MODEL: where the file's worst output SQNR against fp32 is under 10 dB, make it "
+                   "again with AdaRound (about --adaround-budget seconds more) and keep that file when its outputs "
+                   "come closer to fp32's on each half of the check tensors (recorded as adaround_first).")
 @with_options(calibration)
 @click.option("--percentile", default=default_of(QuantConfig, "percentile"), show_default=True,
               help="For --calib-method percentile (with auto: one of the percentiles tried).")
@@ -207,7 +212,8 @@ def quantize_static_cmd(checkpoint: str, out: str, **flags) -> None:
 _ONNX_ONLY = (("calib", "--calib"), ("input_shape", "--input-shape"), ("tasks", "--task"),
               ("min_agreement", "--min-agreement"), ("min_sqnr", "--min-sqnr"), ("max_seconds", "--max-seconds"),
               ("placement", "--placement {}"),
-              ("target", "--target {}"), ("gelu", "--gelu {}"))
+              ("target", "--target {}"), ("gelu", "--gelu {}"),
+              ("adaround_if_far", "--no-adaround-if-far"))
 _RUN_ONLY = (("data_dir", "--data"), ("max_miou_drop", "--max-miou-drop"), ("seed", "--seed"))
 _CONFIGS = {"config": QuantConfig, "methods": PtqMethods, "options": OnnxOptions, "qat": QatOptions}
 _CONFIG_FIELDS = {f.name for kind in _CONFIGS.values() for f in fields(kind)}

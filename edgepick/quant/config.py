@@ -194,11 +194,14 @@ class PtqMethods(_Config):
 @dataclass(frozen=True)
 class OnnxOptions(_Config):
     """What only the ONNX pass (`quantize_onnx_static`) can choose: which tensors go on the int8 grid,
-    for which engine, and how a GELU runs."""
+    for which engine, how a GELU runs, and whether a file far from fp32 is made again with AdaRound."""
 
     placement: Placement = Placement.ALL
     target: Target = Target.ONNXRUNTIME  # with placement auto: the engine the candidates are timed on
     gelu: GeluForm = GeluForm.FLOAT  # with placement all
+    # where the file's worst output SQNR is under the floor (10 dB), make it again with AdaRound, kept when closer:
+    # on the conformance models under it, AdaRound moved the task metric most (docs/quantization.md)
+    adaround_if_far: bool = True
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "placement", member(Placement, "placement", self.placement))

@@ -165,6 +165,8 @@ CASES = [
      "--placement convs is for an .onnx MODEL"),
     (["quantize", "static", "{W}/none", "--data", "{D}", "--gelu", "sigmoid", "--out", "{W}/q.onnx"],
      "--gelu sigmoid is for an .onnx MODEL"),
+    (["quantize", "static", "{W}/none", "--data", "{D}", "--no-adaround-if-far", "--out", "{W}/q.onnx"],
+     "--no-adaround-if-far is for an .onnx MODEL"),
     (["quantize", "static", "{MODEL}", "--calib", "{W}", "--gelu", "sigmoid", "--placement", "convs", "--out",
       "{W}/q.onnx"], "--gelu sigmoid: with --placement convs"),
     (["quantize", "hybrid", "{W}/none", "--data", "{D}", "--qat-fraction", "0.1", "--out", "{W}/h.onnx", "--run",

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from edgepick.errors import ParameterError
-from edgepick.quant.config import PtqMethods, QuantConfig
+from edgepick.quant.config import OnnxOptions, PtqMethods, QuantConfig
 from edgepick.quant.onnx.accuracy import FidelityBudget
 from edgepick.quant.onnx.static import quantize_onnx_static
 from tests.quant.onnx_models import faint_channel_inputs, faint_channel_model
@@ -57,6 +57,23 @@ def test_a_faint_channel_is_named_and_the_accuracy_aware_mode_leaves_it_float(fa
                                                                           abs=1e-3)
     for engine in ("onnxruntime", "openvino"):
         assert _sqnr(fixed.out, check, reference, engine) > _sqnr(plain.out, check, reference, engine) + 15, engine
+
+
+def test_a_file_far_from_fp32_is_made_again_with_adaround_by_default(faint, tmp_path):
+    """Under the SQNR floor, the default pass tries AdaRound and keeps it only when closer on both
+    halves of the check tensors (the record says which and why); adaround_if_far=False does not try."""
+    path, calib, _, _, _ = faint
+    methods = PtqMethods(bias_correction="none")
+    tried = quantize_onnx_static(path, calib, tmp_path / "tried.onnx", methods=methods, progress=False)
+    record = tried.quant["adaround_first"]
+    assert record["why"] == "sqnr_floor" and len(record["error_before"]) == len(record["error_after"]) == 2
+    assert record["kept"] == all(a < b for a, b in zip(record["error_after"], record["error_before"]))
+    assert tried.quant["adaround"] is False  # the methods asked for; what AdaRound did, where kept, beside them
+    assert ("adaround_convs" in tried.quant) == record["kept"]
+    untried = quantize_onnx_static(path, calib, tmp_path / "untried.onnx", methods=methods,
+                                   options=OnnxOptions(adaround_if_far=False), progress=False)
+    assert "adaround_first" not in untried.quant and untried.fidelity["output"]["sqnr_db"] < 10
+    assert tried.fidelity["output"]["sqnr_db"] >= untried.fidelity["output"]["sqnr_db"] - 0.05 or not record["kept"]
 
 
 @pytest.mark.slow

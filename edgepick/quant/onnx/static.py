@@ -71,9 +71,9 @@ from edgepick.quant.config import (
     check_inputs,
     lockstep_images,
 )
-from edgepick.quant.fidelity import Task, check_task_names, output_tasks
+from edgepick.quant.fidelity import Task, check_task_names, output_tasks, worst_sqnr
 from edgepick.quant.methods import INT16
-from edgepick.quant.onnx.accuracy import FidelityBudget, fidelity_first
+from edgepick.quant.onnx.accuracy import SQNR_FLOOR_DB, FidelityBudget, fidelity_first
 from edgepick.quant.onnx.adaround import adaround_onnx
 from edgepick.quant.onnx.calibrate import release_memory
 from edgepick.quant.onnx.calibration_pass import Calibrated, calibrated
@@ -196,8 +196,9 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
             tasks = output_tasks(prepared, _output_shapes(prepared), task, nhwc)
         hw = input_shape[1:3] if nhwc else input_shape[-2:]
         measured, hold = lockstep_images(*hw) if methods.measures else 0, check_inputs(*hw)
-        # AdaRound and bias correction (the accuracy-aware mode may try AdaRound) fit on the tensors after the check's
-        fitting = lockstep_images(*hw) if methods.measures or budget is not None else 0
+        # AdaRound and bias correction (the accuracy-aware mode or adaround_if_far may try AdaRound) fit on the tensors
+        # after the check's
+        fitting = lockstep_images(*hw) if methods.measures or budget is not None or options.adaround_if_far else 0
         check = hold if budget is None else accuracy_check_inputs(hw[0], hw[1], total, fitting)
         keep = max(check + fitting, SATURATION_CHECK_INPUTS if config.weight_bits == WeightBits.FIRST_SEVEN else 0)
         ops = placement_ops(options.placement, _quantizer_registry())
@@ -222,7 +223,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
 
         int8, done = build(methods)
         evaluator = checker()
-        if budget is not None and not methods.adaround:
+        if not methods.adaround and (budget is not None or options.adaround_if_far):
             int8, done = adaround_first(int8, done, build, methods, evaluator, budget, progress)
         with clock("finish"):
             int8, steps, accuracy = _finished(int8, prepared, rewrites, config, evaluator, budget, progress)
@@ -238,18 +239,23 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
 
 
 def adaround_first(int8: Any, done: dict, build: Callable[[PtqMethods], tuple[Any, dict]], methods: PtqMethods,
-                   evaluator: Evaluator, budget: FidelityBudget, progress: bool) -> tuple[Any, dict]:
-    """The accuracy-aware mode's first step, before any activation is left float: where INT8 (made
-    with METHODS, DONE) misses BUDGET, the same graph with AdaRound (BUILD makes it), kept when it
-    brings the outputs closer on both halves of the check tensors. On the conformance models the
-    defaults leave under 99.5%, AdaRound moved task agreement further than float activations did
-    (docs/quantization.md)."""
-    if budget.met(evaluator.fidelity(int8)):
+                   evaluator: Evaluator, budget: FidelityBudget | None, progress: bool) -> tuple[Any, dict]:
+    """Where INT8 (made with METHODS, DONE) misses BUDGET (without one: where its worst output's SQNR
+    is under SQNR_FLOOR_DB), the same graph with AdaRound (BUILD makes it), kept when it brings the
+    outputs closer on both halves of the check tensors: the accuracy-aware mode's first step, before
+    any activation is left float, and the default pass's answer to a file far from fp32. On the
+    conformance models under 99.5% or under the floor, AdaRound moved the task metric further than
+    float activations did (docs/quantization.md)."""
+    fidelity = evaluator.fidelity(int8)
+    if budget.met(fidelity) if budget is not None else worst_sqnr(fidelity) >= SQNR_FLOOR_DB:
         return int8, done
+    why = "the budget is not met" if budget is not None else \
+        f"worst output SQNR {worst_sqnr(fidelity):.1f} dB, under {SQNR_FLOOR_DB:g}"
     if progress:
-        print("accuracy-aware: the budget is not met; trying AdaRound first", file=sys.stderr, flush=True)
+        print(f"{'accuracy-aware' if budget is not None else 'static'}: {why}; trying AdaRound first", file=sys.stderr,
+              flush=True)
     rounded, rounded_done = build(replace(methods, adaround=True))
-    record = {"adaround_first": evaluator.closer(int8, rounded)}
+    record = {"adaround_first": {**evaluator.closer(int8, rounded), "why": "budget" if budget is not None else "sqnr_floor"}}
     return (rounded, {**rounded_done, **record}) if record["adaround_first"]["kept"] else (int8, {**done, **record})
 
 
