@@ -134,10 +134,11 @@ def edgepick_quantizer(name: str, options: OnnxOptions, budget: FidelityBudget |
             note += ", outputs on the uint8 grid" if grid["kept"] else ", outputs float (closer than on the grid)"
         if "placement_choice" in result.quant:
             note += f", placement {result.quant['placement_choice']['chosen']} (timed on {options.target})"
+        tried = result.quant.get("adaround_first")
+        if tried is not None:
+            why = "budget missed" if tried.get("why") == "budget" else "under the SQNR floor"
+            note += f"; AdaRound first ({why}): {'kept' if tried['kept'] else 'not kept'}"
         if budget is not None:
-            tried = result.quant.get("adaround_first")
-            if tried is not None:
-                note += f"; AdaRound first: {'kept' if tried['kept'] else 'not kept'}"
             note += "; " + accuracy_note(result.quant["accuracy_aware"])
         return Quantized(Path(result.out), (Path(result.out),), calib_s=result.calib_s, note=note,
                          stage_s=result.stage_s)

@@ -32,7 +32,8 @@ LAYOUTS: dict[RecordKind, tuple[str, ...]] = {
     RecordKind.QAT: _QAT,
     RecordKind.HYBRID: (*_QAT, "freeze_at", "carry_optimizer", "hold_ranges"),
     RecordKind.ONNX: ("mode", "source", "calib_method", "calib_images", "percentile", "weight_bits", "placement", "gelu",
-                      "equalize", "bias_correction", "adaround", "adaround_budget_s", "keep_float", "ranges"),
+                      "equalize", "bias_correction", "adaround", "adaround_budget_s", "adaround_if_far", "keep_float",
+                      "ranges"),
     RecordKind.MODULE: ("mode", "source", "calib_method", "calib_images", "percentile", "weight_bits",
                         "bias_correction", "equalize", "adaround", "keep_float", "ranges"),
 }
@@ -71,7 +72,7 @@ class QuantRecord:
             "calib_method": self.calib_method or self.config.calib_method.value, "calib_images": self.calib_images,
             "ranges": self.ranges, **self.hybrid})
         keys = LAYOUTS[self.kind]
-        if self.kind == RecordKind.ONNX and not settings["adaround"]:
+        if self.kind == RecordKind.ONNX and not settings["adaround"] and "adaround_first" not in self.measured:
             keys = tuple(k for k in keys if k != "adaround_budget_s")  # recorded where AdaRound ran
         return {**{k: settings[k] for k in keys}, **self.measured}
 

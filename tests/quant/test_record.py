@@ -36,10 +36,13 @@ def test_a_foreign_models_file_records_its_source_and_adaround_budget_only_where
     onnx = QuantRecord(RecordKind.ONNX, QuantConfig(), 8, PtqMethods(), OnnxOptions(placement="convs"),
                        ranges={"rule": "minmax"}).to_dict()
     assert list(onnx) == ["mode", "source", "calib_method", "calib_images", "percentile", "weight_bits", "placement",
-                          "gelu", "equalize", "bias_correction", "adaround", "keep_float", "ranges"]
-    assert onnx["source"] == "onnx" and onnx["placement"] == "convs"
+                          "gelu", "equalize", "bias_correction", "adaround", "adaround_if_far", "keep_float", "ranges"]
+    assert onnx["source"] == "onnx" and onnx["placement"] == "convs" and onnx["adaround_if_far"] is True
     ran = QuantRecord(RecordKind.ONNX, QuantConfig(), 8, PtqMethods(adaround=True, adaround_budget_s=5.0),
                       OnnxOptions()).to_dict()
     assert ran["adaround_budget_s"] == 5.0
+    tried = QuantRecord(RecordKind.ONNX, QuantConfig(), 8, PtqMethods(adaround_budget_s=7.0), OnnxOptions(),
+                        measured={"adaround_first": {"kept": False}}).to_dict()
+    assert tried["adaround"] is False and tried["adaround_budget_s"] == 7.0  # tried for a file far from fp32
     module = QuantRecord(RecordKind.MODULE, QuantConfig(), 4, PtqMethods(), ranges={}).to_dict()
     assert module["source"] == "module" and "placement" not in module and "hardswish_gate" not in module
