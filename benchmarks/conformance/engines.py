@@ -218,9 +218,10 @@ ENGINES: tuple[Engine, ...] = (
     # check tensors (FidelityBudget.judge, as NNCF's accuracy control takes a validation function)
     Engine("edgepick-aa-judged", ONNXRUNTIME, edgepick_quantizer("edgepick-aa-judged", OnnxOptions(), ACCURACY_BUDGET,
                                                                  judged=True)),
-    # the recipe without the measurements that choose it: min/max ranges (no histograms, no candidate rules) and no
-    # bias correction (`--calib-method minmax --bias-correction none`), to show what they cost and what they buy
-    Engine("edgepick-minmax", ONNXRUNTIME, edgepick_quantizer("edgepick-minmax", OnnxOptions(),
+    # the recipe without the measurements that choose it: min/max ranges (no histograms, no candidate rules), no
+    # bias correction and no AdaRound under the SQNR floor (`--calib-method minmax --bias-correction none
+    # --no-adaround-if-far`), to show what they cost and what they buy
+    Engine("edgepick-minmax", ONNXRUNTIME, edgepick_quantizer("edgepick-minmax", OnnxOptions(adaround_if_far=False),
                                                               methods=PtqMethods(bias_correction="none"),
                                                               config=QuantConfig(calib_method="minmax"))),
     # one measurement at a time: min/max ranges with bias correction, and the percentile rule pinned (the check

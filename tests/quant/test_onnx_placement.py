@@ -36,6 +36,27 @@ def test_placement_auto_times_each_candidate_on_the_target_and_records_the_choic
     assert stages["time_placements"] > 0 and stages["calibrate"] > 0 and stages["write_check"] > 0
 
 
+def test_placement_auto_tries_adaround_once_on_the_chosen_file_where_it_is_far_from_fp32(faint, tmp_path):
+    """The faint model lands under the SQNR floor with every placement: the candidates are made
+    without AdaRound and only the chosen one is made again with it tried; the file records the
+    user's adaround_if_far and the AdaRound step."""
+    from edgepick.quant.onnx.placement import choose_placement
+
+    path, calib, _, _, _ = faint
+    asked: list[bool] = []
+
+    def quantize(*args, options, **kwargs):
+        asked.append(options.adaround_if_far)
+        return quantize_onnx_static(*args, options=options, **kwargs)
+
+    options = OnnxOptions(placement="auto")
+    result = choose_placement(quantize, path, calib, tmp_path / "auto.onnx", options, False,
+                              methods=PtqMethods(bias_correction="none"))
+    assert asked == [False, False, False, True]
+    assert result.quant["adaround_if_far"] is True and result.quant["adaround_first"]["why"] == "sqnr_floor"
+    assert result.quant["placement"] == result.quant["placement_choice"]["chosen"]
+
+
 def test_a_target_without_placement_auto_is_refused():
     with pytest.raises(ParameterError, match="^target='openvino': .*give placement auto"):
         OnnxOptions(target="openvino")

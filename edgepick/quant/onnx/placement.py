@@ -31,6 +31,7 @@ from edgepick.files import atomic_path
 from edgepick.machine import cpu_flags, cpu_model
 from edgepick.progress import StageClock
 from edgepick.quant.config import GeluForm, OnnxOptions, Placement, Target
+from edgepick.quant.onnx.accuracy import SQNR_FLOOR_DB
 from edgepick.quant.onnx.inputs import check_tensor
 
 PLACEMENT_CANDIDATES = (Placement.ALL, Placement.CONVS, Placement.JOINS)
@@ -88,9 +89,11 @@ def choose_placement(quantize: Callable[..., Any], model: str | Path, calib: Ite
     with tempfile.TemporaryDirectory(prefix="edgepick-placement-") as tmp:
         with clock("prepare"):
             source, forms = (openvino_forms(model, Path(tmp)) if options.target == Target.OPENVINO else (model, {}))
-        for placement in PLACEMENT_CANDIDATES:
-            candidate = replace(options, placement=placement, target=Target.ONNXRUNTIME,
-                                gelu=options.gelu if placement == Placement.ALL else GeluForm.FLOAT)
+        candidates = {}
+        for placement in PLACEMENT_CANDIDATES:  # AdaRound, where the file is far from fp32, for the chosen one only
+            candidate = candidates[placement] = replace(options, placement=placement, target=Target.ONNXRUNTIME,
+                                                        gelu=options.gelu if placement == Placement.ALL else GeluForm.FLOAT,
+                                                        adaround_if_far=False)
             if progress:
                 print(f"placement auto: make the {placement} file", file=sys.stderr, flush=True)
             try:
@@ -118,12 +121,18 @@ def choose_placement(quantize: Callable[..., Any], model: str | Path, calib: Ite
         if progress:
             times = ", ".join(f"{p} {ms[p]:.1f} ms" for p in ms)
             print(f"placement auto: {chosen} on {options.target} ({times})", file=sys.stderr, flush=True)
-        result = made[chosen]
-        quant = {**result.quant, "placement_choice": record}
+        result, again = made[chosen], []
+        if options.adaround_if_far and sqnr[chosen.value] < SQNR_FLOOR_DB:
+            if progress:
+                print(f"placement auto: {chosen} again, with AdaRound tried", file=sys.stderr, flush=True)
+            result = quantize(source, tensors, Path(tmp) / "chosen.onnx", progress=progress, **given,
+                              options=replace(candidates[chosen], adaround_if_far=True))
+            again.append(result)
+        quant = {**result.quant, "adaround_if_far": options.adaround_if_far, "placement_choice": record}
         with clock("write_check"):
             _write_with(Path(result.out), Path(out), quant)
     stages = StageClock()
-    for candidate in made.values():  # every candidate made in full, then the choice's own stages
+    for candidate in [*made.values(), *again]:  # every candidate made in full (the chosen again), the choice's stages
         stages.add(candidate.stage_s)
     stages.add(clock.seconds)
     return replace(result, out=str(out), size_bytes=Path(out).stat().st_size, quant=quant, stage_s=stages.to_dict())
