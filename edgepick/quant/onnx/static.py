@@ -196,8 +196,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
             tasks = output_tasks(prepared, _output_shapes(prepared), task, nhwc)
         hw = input_shape[1:3] if nhwc else input_shape[-2:]
         measured, hold = lockstep_images(*hw) if methods.measures else 0, check_inputs(*hw)
-        # AdaRound and bias correction (the accuracy-aware mode or adaround_if_far may try AdaRound) fit on the tensors
-        # after the check's
+        # AdaRound and bias correction (AdaRound also tried by a budget or adaround_if_far) fit on the tensors after the check's
         fitting = lockstep_images(*hw) if methods.measures or budget is not None or options.adaround_if_far else 0
         check = hold if budget is None else accuracy_check_inputs(hw[0], hw[1], total, fitting)
         keep = max(check + fitting, SATURATION_CHECK_INPUTS if config.weight_bits == WeightBits.FIRST_SEVEN else 0)
