@@ -211,8 +211,7 @@ def quantize_static_cmd(checkpoint: str, out: str, **flags) -> None:
 # for the other kind is refused in one line
 _ONNX_ONLY = (("calib", "--calib"), ("input_shape", "--input-shape"), ("tasks", "--task"),
               ("min_agreement", "--min-agreement"), ("min_sqnr", "--min-sqnr"), ("max_seconds", "--max-seconds"),
-              ("placement", "--placement {}"),
-              ("target", "--target {}"), ("gelu", "--gelu {}"),
+              ("placement", "--placement {}"), ("target", "--target {}"), ("gelu", "--gelu {}"),
               ("adaround_if_far", "--no-adaround-if-far"))
 _RUN_ONLY = (("data_dir", "--data"), ("max_miou_drop", "--max-miou-drop"), ("seed", "--seed"))
 _CONFIGS = {"config": QuantConfig, "methods": PtqMethods, "options": OnnxOptions, "qat": QatOptions}

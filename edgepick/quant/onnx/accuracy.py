@@ -133,7 +133,8 @@ def restore_fidelity(model: Any, evaluator: Evaluator, budget: FidelityBudget,
     record: dict = {"check_tensors": len(evaluator.inputs), "before": {n: f.to_dict() for n, f in fidelity.items()},
                     "float_tensors": []}
     if budget.met(fidelity):
-        return model, {**record, "met": True, "graphs_measured": evaluator.graphs}
+        return model, {**record, "met": True, "graphs_measured": evaluator.graphs,
+                       "search_s": round(time.perf_counter() - started, 1)}
     original = model
     progress("scan which activations to leave float")
     ranked = rank_tensors(model, evaluator, quantized_activations(model), clock)
