@@ -81,7 +81,9 @@ ptq_methods = [
                       "calibration images (fewer above 320x240), so that its output stays closest to fp32's "
                       "(AdaRound)."),
     click.option("--adaround-budget", "adaround_budget_s", default=default_of(PtqMethods, "adaround_budget_s"),
-                 show_default=True, metavar="SECONDS", help="AdaRound's time, shared by the convs."),
+                 show_default=True, metavar="SECONDS",
+                 help="AdaRound's time, shared by the convs (also where an .onnx MODEL's file is made again with "
+                      "it: --adaround-if-far, --min-agreement)."),
     click.option("--bias-correction", default=default_of(PtqMethods, "bias_correction"), show_default=True,
                  type=choice(BiasCorrection),
                  help=f"Shift each int8 conv's bias so that its output's per-channel mean is fp32's, on the first "
