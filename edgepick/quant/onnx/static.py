@@ -255,6 +255,11 @@ def adaround_first(int8: Any, done: dict, build: Callable[[PtqMethods], tuple[An
               flush=True)
     rounded, rounded_done = build(replace(methods, adaround=True))
     record = {"adaround_first": {**evaluator.closer(int8, rounded), "why": "budget" if budget is not None else "sqnr_floor"}}
+    if progress:
+        kept = record["adaround_first"]["kept"]
+        print(f"{'accuracy-aware' if budget is not None else 'static'}: AdaRound {'kept' if kept else 'not kept'} "
+              f"({'closer' if kept else 'not closer'} to fp32 on both halves of the check tensors)", file=sys.stderr,
+              flush=True)
     return (rounded, {**rounded_done, **record}) if record["adaround_first"]["kept"] else (int8, {**done, **record})
 
 
