@@ -241,6 +241,30 @@ def faint_channel_inputs(count: int, seed: int = 0) -> list[np.ndarray]:
     return out
 
 
+def half_step_model(path: Path) -> Path:
+    """input (16 channels) -> 1x1 Conv -> output, each output channel one weight of 1.0 (on input
+    channel 0) and fifteen of 0.55 int8 steps of it: nearest rounding takes every small weight to
+    one step (or, on a coarser grid, to none), so the output that those channels carry moves by a
+    half or more of itself, where rounding some down and some up (AdaRound) keeps it close."""
+    from onnx import helper
+
+    w = np.full((4, 16, 1, 1), 0.55 / 127.0, np.float32)
+    w[:, 0, 0, 0] = 1.0
+    nodes = [helper.make_node("Conv", ["input", "w"], ["output"], name="conv")]
+    return helper_model(nodes, [("input", [1, 16, 16, 16])], [("output", [1, 4, 16, 16])], {"w": w}, path)
+
+
+def half_step_inputs(count: int, seed: int = 0) -> list[np.ndarray]:
+    """Inputs for half_step_model: channel 0 near zero, the others over 0-1."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(count):
+        x = rng.uniform(0, 1, (1, 16, 16, 16)).astype(np.float32)
+        x[0, 0] = rng.uniform(0, 0.01, (16, 16))
+        out.append(x)
+    return out
+
+
 def strided_projection_model(path: Path) -> Path:
     """A ResNet stage's first block made small: a residual sum read by two 1x1 convs with stride 2
     (the projection and the next conv), then a 3x3 head; input (1, 3, 64, 96), in [0, 1]."""

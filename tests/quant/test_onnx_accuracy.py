@@ -76,6 +76,21 @@ def test_a_file_far_from_fp32_is_made_again_with_adaround_by_default(faint, tmp_
     assert tried.fidelity["output"]["sqnr_db"] >= untried.fidelity["output"]["sqnr_db"] - 0.05 or not record["kept"]
 
 
+def test_adaround_is_kept_where_it_brings_a_file_back_over_the_floor(tmp_path):
+    """Weights half an int8 step from the grid: nearest rounding moves the output by about itself
+    (under 10 dB), AdaRound's file is kept and lands over the floor; without it the file stays under."""
+    from tests.quant.onnx_models import half_step_inputs, half_step_model
+
+    path, calib, methods = half_step_model(tmp_path / "half.onnx"), half_step_inputs(48), PtqMethods(bias_correction="none")
+    tried = quantize_onnx_static(path, calib, tmp_path / "tried.onnx", methods=methods, progress=False)
+    untried = quantize_onnx_static(path, calib, tmp_path / "untried.onnx", methods=methods,
+                                   options=OnnxOptions(adaround_if_far=False), progress=False)
+    assert tried.quant["adaround_first"]["kept"] and tried.quant["adaround_first"]["why"] == "sqnr_floor"
+    assert tried.quant["adaround_convs"] == 1 and "fidelity_warning" not in tried.quant
+    assert tried.fidelity["output"]["sqnr_db"] >= 10 > untried.fidelity["output"]["sqnr_db"]
+    assert "fidelity_warning" in untried.quant
+
+
 @pytest.mark.slow
 def test_keeping_a_node_float_never_lowers_fidelity_on_either_engine(faint):
     path, calib, check, reference, tmp = faint
