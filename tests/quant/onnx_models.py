@@ -230,15 +230,21 @@ def faint_channel_model(path: Path) -> Path:
                         {"w1": w1, "b1": b1, "w2": w2}, path)
 
 
-def faint_channel_inputs(count: int, seed: int = 0) -> list[np.ndarray]:
-    """Inputs for faint_channel_model: channels 0 and 1 over 0-100, channel 2 over 0.495-0.505."""
+def _uniform_inputs(count: int, seed: int, channels: int, span: float, odd: int, odd_span: tuple[float, float]
+                    ) -> list[np.ndarray]:
+    """COUNT 16x16 inputs of CHANNELS channels uniform over 0-SPAN, channel ODD over ODD_SPAN instead."""
     rng = np.random.default_rng(seed)
     out = []
     for _ in range(count):
-        x = rng.uniform(0, 100, (1, 3, 16, 16)).astype(np.float32)
-        x[0, 2] = rng.uniform(0.495, 0.505, (16, 16))
+        x = rng.uniform(0, span, (1, channels, 16, 16)).astype(np.float32)
+        x[0, odd] = rng.uniform(*odd_span, (16, 16))
         out.append(x)
     return out
+
+
+def faint_channel_inputs(count: int, seed: int = 0) -> list[np.ndarray]:
+    """Inputs for faint_channel_model: channels 0 and 1 over 0-100, channel 2 over 0.495-0.505."""
+    return _uniform_inputs(count, seed, 3, 100.0, 2, (0.495, 0.505))
 
 
 def half_step_model(path: Path) -> Path:
@@ -256,13 +262,7 @@ def half_step_model(path: Path) -> Path:
 
 def half_step_inputs(count: int, seed: int = 0) -> list[np.ndarray]:
     """Inputs for half_step_model: channel 0 near zero, the others over 0-1."""
-    rng = np.random.default_rng(seed)
-    out = []
-    for _ in range(count):
-        x = rng.uniform(0, 1, (1, 16, 16, 16)).astype(np.float32)
-        x[0, 0] = rng.uniform(0, 0.01, (16, 16))
-        out.append(x)
-    return out
+    return _uniform_inputs(count, seed, 16, 1.0, 0, (0.0, 0.01))
 
 
 def strided_projection_model(path: Path) -> Path:
