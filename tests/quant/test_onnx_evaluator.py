@@ -76,3 +76,22 @@ def test_the_budget_holds_the_judges_decisions_not_the_outputs_own(faint, capsys
                                   budget=FidelityBudget(min_agreement=0.5, judge=never, max_float=2))
     assert not missed.quant["accuracy_aware"]["met"]
     assert capsys.readouterr().err.strip().splitlines()[-1].startswith("edgepick: warning: the budget is not met")
+
+
+def test_adaround_meeting_the_budget_is_kept_where_it_is_not_closer_on_both_halves(faint):
+    """The faint model's lost channel is no rounding's to bring back (AdaRound is not closer on
+    both halves); a judge satisfied from its second graph on, AdaRound's, makes that file meet the
+    budget all-int8: it is the answer, with no activation left float."""
+    path, calib, _, _, tmp = faint
+    calls = []
+
+    def second_graph_on(reference, outputs):
+        calls.append(len(outputs))
+        return 0.0 if len(calls) == 1 else 1.0
+
+    result = quantize_onnx_static(path, calib, tmp / "met.onnx", methods=PtqMethods(bias_correction="none"),
+                                  progress=False, budget=FidelityBudget(min_agreement=0.99, judge=second_graph_on))
+    tried = result.quant["adaround_first"]
+    assert not all(a < b for a, b in zip(tried["error_after"], tried["error_before"]))  # not closer on both halves
+    assert tried["met"] and tried["kept"] and tried["why"] == "budget" and "adaround_convs" in result.quant
+    assert result.quant["accuracy_aware"]["met"] and result.quant["accuracy_aware"]["float_tensors"] == []

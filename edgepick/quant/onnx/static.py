@@ -241,26 +241,29 @@ def adaround_first(int8: Any, done: dict, build: Callable[[PtqMethods], tuple[An
                    evaluator: Evaluator, budget: FidelityBudget | None, progress: bool) -> tuple[Any, dict]:
     """Where INT8 (made with METHODS, DONE) misses BUDGET (without one: where its worst output's SQNR
     is under SQNR_FLOOR_DB), the same graph with AdaRound (BUILD makes it), kept when it brings the
-    outputs closer on both halves of the check tensors: the accuracy-aware mode's first step, before
-    any activation is left float, and the default pass's answer to a file far from fp32. On the
-    conformance models under 99.5% or under the floor, AdaRound moved the task metric further than
-    float activations did (docs/quantization.md)."""
+    outputs closer on both halves of the check tensors or meets BUDGET (all-int8, the answer): the
+    accuracy-aware mode's first step, before any activation is left float, and the default pass's
+    answer to a file far from fp32. On the conformance models under 99.5% or under the floor,
+    AdaRound moved the task metric further than float activations did (docs/quantization.md)."""
     fidelity = evaluator.fidelity(int8)
     if budget.met(fidelity) if budget is not None else worst_sqnr(fidelity) >= SQNR_FLOOR_DB:
         return int8, done
+    mode = "accuracy-aware" if budget is not None else "static"
     why = "the budget is not met" if budget is not None else \
         f"worst output SQNR {worst_sqnr(fidelity):.1f} dB, under {SQNR_FLOOR_DB:g}"
     if progress:
-        print(f"{'accuracy-aware' if budget is not None else 'static'}: {why}; trying AdaRound first", file=sys.stderr,
-              flush=True)
+        print(f"{mode}: {why}; trying AdaRound first", file=sys.stderr, flush=True)
     rounded, rounded_done = build(replace(methods, adaround=True))
-    record = {"adaround_first": {**evaluator.closer(int8, rounded), "why": "budget" if budget is not None else "sqnr_floor"}}
+    tried = {**evaluator.closer(int8, rounded), "why": "budget" if budget is not None else "sqnr_floor"}
+    if budget is not None:
+        tried["met"] = budget.met(evaluator.fidelity(rounded))
+        tried["kept"] = tried["kept"] or tried["met"]
     if progress:
-        kept = record["adaround_first"]["kept"]
-        print(f"{'accuracy-aware' if budget is not None else 'static'}: AdaRound {'kept' if kept else 'not kept'} "
-              f"({'closer' if kept else 'not closer'} to fp32 on both halves of the check tensors)", file=sys.stderr,
-              flush=True)
-    return (rounded, {**rounded_done, **record}) if record["adaround_first"]["kept"] else (int8, {**done, **record})
+        reason = "it meets the budget" if tried.get("met") else \
+            f"{'' if tried['kept'] else 'not '}closer to fp32 on both halves of the check tensors"
+        print(f"{mode}: AdaRound {'kept' if tried['kept'] else 'not kept'} ({reason})", file=sys.stderr, flush=True)
+    record = {"adaround_first": tried}
+    return (rounded, {**rounded_done, **record}) if tried["kept"] else (int8, {**done, **record})
 
 
 def _quantizer_registry() -> set[str]:
