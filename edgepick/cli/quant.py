@@ -147,7 +147,7 @@ def quantize() -> None:
               show_default=True,
               help="For an .onnx MODEL: where the file's worst output SQNR against fp32 is under 10 dB, make it "
                    "again with AdaRound (about --adaround-budget seconds more) and keep that file when its outputs "
-                   "come closer to fp32's on each half of the check tensors (recorded as adaround_first).")
+                   "come closer to fp32's on the check tensors and on their worse half (recorded as adaround_first).")
 @with_options(calibration)
 @click.option("--percentile", default=default_of(QuantConfig, "percentile"), show_default=True,
               help="For --calib-method percentile (with auto: one of the percentiles tried).")

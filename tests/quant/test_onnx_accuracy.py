@@ -60,14 +60,16 @@ def test_a_faint_channel_is_named_and_the_accuracy_aware_mode_leaves_it_float(fa
 
 
 def test_a_file_far_from_fp32_is_made_again_with_adaround_by_default(faint, tmp_path):
-    """Under the SQNR floor, the default pass tries AdaRound and keeps it only when closer on both
-    halves of the check tensors (the record says which and why); adaround_if_far=False does not try."""
+    """Under the SQNR floor, the default pass tries AdaRound and keeps it only when closer on the
+    check tensors and on their worse half (the record says which and why); adaround_if_far=False
+    does not try."""
     path, calib, _, _, _ = faint
     methods = PtqMethods(bias_correction="none")
     tried = quantize_onnx_static(path, calib, tmp_path / "tried.onnx", methods=methods, progress=False)
     record = tried.quant["adaround_first"]
     assert record["why"] == "sqnr_floor" and len(record["error_before"]) == len(record["error_after"]) == 2
-    assert record["kept"] == all(a < b for a, b in zip(record["error_after"], record["error_before"]))
+    before, after = record["error_before"], record["error_after"]
+    assert record["kept"] == (sum(after) < sum(before) and max(after) < max(before))
     assert tried.quant["adaround"] is False  # the methods asked for; what AdaRound did, where kept, beside them
     assert ("adaround_convs" in tried.quant) == record["kept"]
     untried = quantize_onnx_static(path, calib, tmp_path / "untried.onnx", methods=methods,

@@ -8,7 +8,7 @@ import pytest
 from edgepick.errors import ParameterError
 from edgepick.quant.config import PtqMethods
 from edgepick.quant.onnx.accuracy import FidelityBudget
-from edgepick.quant.onnx.evaluator import JUDGED, judged
+from edgepick.quant.onnx.evaluator import JUDGED, Evaluator, judged
 from edgepick.quant.onnx.static import quantize_onnx_static
 
 
@@ -78,9 +78,9 @@ def test_the_budget_holds_the_judges_decisions_not_the_outputs_own(faint, capsys
     assert capsys.readouterr().err.strip().splitlines()[-1].startswith("edgepick: warning: the budget is not met")
 
 
-def test_adaround_meeting_the_budget_is_kept_where_it_is_not_closer_on_both_halves(faint):
-    """The faint model's lost channel is no rounding's to bring back (AdaRound is not closer on
-    both halves); a judge satisfied from its second graph on, AdaRound's, makes that file meet the
+def test_adaround_meeting_the_budget_is_kept_where_it_is_not_closer(faint):
+    """The faint model's lost channel is no rounding's to bring back (AdaRound's file is not
+    closer); a judge satisfied from its second graph on, AdaRound's, makes that file meet the
     budget all-int8: it is the answer, with no activation left float."""
     path, calib, _, _, tmp = faint
     calls = []
@@ -92,6 +92,26 @@ def test_adaround_meeting_the_budget_is_kept_where_it_is_not_closer_on_both_halv
     result = quantize_onnx_static(path, calib, tmp / "met.onnx", methods=PtqMethods(bias_correction="none"),
                                   progress=False, budget=FidelityBudget(min_agreement=0.99, judge=second_graph_on))
     tried = result.quant["adaround_first"]
-    assert not all(a < b for a, b in zip(tried["error_after"], tried["error_before"]))  # not closer on both halves
+    before, after = tried["error_before"], tried["error_after"]
+    assert not (sum(after) < sum(before) and max(after) < max(before))  # not closer
     assert tried["met"] and tried["kept"] and tried["why"] == "budget" and "adaround_convs" in result.quant
     assert result.quant["accuracy_aware"]["met"] and result.quant["accuracy_aware"]["float_tensors"] == []
+
+
+def test_closer_on_the_whole_and_the_worse_half_keeps_a_large_gain_that_one_half_does_not_share():
+    """A graph much closer on one half and a little further on the other is kept by the worse-half
+    rule (AdaRound's) and not by the both-halves rule; one a little closer on the sum while its worse
+    half rises is kept by neither."""
+    errors = {"before": (0.575, 0.262), "large gain": (0.196, 0.269), "worse half down a little": (0.55, 0.27),
+              "even": (0.30, 0.30), "even, worse half up": (0.28, 0.31)}
+
+    class Scripted(Evaluator):
+        def half_errors(self, model):
+            return errors[model]
+
+    evaluator = Scripted(None, [], [], [], {})
+    assert evaluator.closer("before", "large gain", worse_half=True)["kept"]
+    assert not evaluator.closer("before", "large gain")["kept"]
+    assert evaluator.closer("before", "worse half down a little", worse_half=True)["kept"]
+    assert not evaluator.closer("even", "even, worse half up", worse_half=True)["kept"]
+    assert evaluator.closer("before", "large gain", worse_half=True)["error_after"] == [0.196, 0.269]
