@@ -9,6 +9,7 @@ import pytest
 
 from edgepick.errors import ParameterError
 from edgepick.quant.config import OnnxOptions, PtqMethods
+from edgepick.quant.onnx.accuracy import FidelityBudget
 from edgepick.quant.onnx.placement import PLACEMENT_ENOUGH_DB, PLACEMENT_FIDELITY_DB, fidelity_threshold_db
 from edgepick.quant.onnx.static import quantize_onnx_static
 from tests.quant.onnx_models import calib_tensors, export_torch, strided_projection_model
@@ -55,6 +56,12 @@ def test_placement_auto_tries_adaround_once_on_the_chosen_file_where_it_is_far_f
     assert asked == [False, False, False, True]
     assert result.quant["adaround_if_far"] is True and result.quant["adaround_first"]["why"] == "sqnr_floor"
     assert result.quant["placement"] == result.quant["placement_choice"]["chosen"]
+    asked.clear()  # with a budget, each candidate's accuracy-aware mode has tried AdaRound: no file made again
+    budgeted = choose_placement(quantize, path, calib, tmp_path / "budget.onnx", options, False,
+                                methods=PtqMethods(bias_correction="none"),
+                                budget=FidelityBudget(min_sqnr_db=200.0, max_seconds=1e-9))  # nothing float: under the floor
+    assert min(f["sqnr_db"] for f in budgeted.fidelity.values()) < 10
+    assert asked == [False, False, False] and budgeted.quant["adaround_first"]["why"] == "budget"
 
 
 def test_a_target_without_placement_auto_is_refused():

@@ -122,7 +122,8 @@ def choose_placement(quantize: Callable[..., Any], model: str | Path, calib: Ite
             times = ", ".join(f"{p} {ms[p]:.1f} ms" for p in ms)
             print(f"placement auto: {chosen} on {options.target} ({times})", file=sys.stderr, flush=True)
         result, again = made[chosen], []
-        if options.adaround_if_far and sqnr[chosen.value] < SQNR_FLOOR_DB:
+        # with a budget each candidate has tried AdaRound already (the accuracy-aware mode's first step)
+        if options.adaround_if_far and given.get("budget") is None and sqnr[chosen.value] < SQNR_FLOOR_DB:
             if progress:
                 print(f"placement auto: {chosen} again, with AdaRound tried", file=sys.stderr, flush=True)
             result = quantize(source, tensors, Path(tmp) / "chosen.onnx", progress=progress, **given,
