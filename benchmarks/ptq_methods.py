@@ -91,8 +91,14 @@ def case(text: str) -> tuple[WeightBits, BiasCorrection, str]:
     return WeightBits(bits), BiasCorrection(method), methods
 
 
+def adaround_text(seconds: float | None) -> str:
+    """How AdaRound's steps were set, for a results file."""
+    return (f"AdaRound's budget: {seconds:g} s per pass." if seconds is not None else
+            "AdaRound: its steps per conv planned from the model's size (no time budget; edgepick/quant/methods.py).")
+
+
 def start_case(seed: int, key: tuple[WeightBits, BiasCorrection, str], work: Path,
-               adaround_budget_s: float) -> tuple[Path, dict]:
+               adaround_budget_s: float | None) -> tuple[Path, dict]:
     """Announce case KEY for SEED on stderr; its int8 file's path in WORK and its configs (by keyword)."""
     bits, method, extra = key
     print(f"-- seed {seed}, weight bits {bits}, bias correction {method} {extra}", file=sys.stderr, flush=True)
@@ -122,7 +128,7 @@ def main() -> None:
                     "7/none/ada,7/empirical/cle,7/empirical/ada,7/empirical/cle+ada",
                     help="WEIGHT_BITS/BIAS_CORRECTION[/METHODS] cases to compare (METHODS: cle, ada, pPERCENTILE joined by +)")
     ap.add_argument("--adaround-budget", type=float, default=PtqMethods.adaround_budget_s,
-                    help="AdaRound's time budget per pass, seconds")
+                    help="AdaRound's time budget per pass, seconds [default: none, its steps planned from the model]")
     ap.add_argument("--runs", type=int, default=20, help="timed int8 calls per case (seed 0's file)")
     ap.add_argument("--openvino", action="store_true",
                     help="also time each file on OpenVINO (the peers extra), in the same alternating blocks; "
@@ -188,7 +194,7 @@ def main() -> None:
              f"of 5 ({args.runs} calls each, one process)"
              + (f"; OpenVINO {openvino_version()}, ONEDNN_MAX_CPU_ISA={os.environ.get('ONEDNN_MAX_CPU_ISA', 'unset')}"
                 if args.openvino else "") + ".", "",
-             f"AdaRound's budget: {args.adaround_budget:g} s per pass.", "",
+             adaround_text(args.adaround_budget), "",
              "| Weight bits | 7-bit convs | Bias correction | CLE / AdaRound / percentile | Object-pixel agreement with fp32 (%) | "
              "mIoU - fp32's (pp) | onnxruntime-vs-torch (%) | Calibration (s) | p50 (ms) |"
              + (" OpenVINO: object-pixel agreement with its fp32 (%) | OpenVINO p50 (ms) |" if args.openvino else ""),

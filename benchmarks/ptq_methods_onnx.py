@@ -32,7 +32,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import add_output, emit, interleaved_times, machine_line  # noqa: E402
 from peers_onnx import OpenVino, Ort, add_input_options, input_tensors  # noqa: E402
-from ptq_methods import case, seven_bit_convs, spread, start_case  # noqa: E402
+from ptq_methods import adaround_text, case, seven_bit_convs, spread, start_case  # noqa: E402
 
 from edgepick.quant.config import PtqMethods  # noqa: E402
 from edgepick.quant.fidelity import guess_task  # noqa: E402
@@ -76,7 +76,7 @@ def main() -> None:
     ap.add_argument("--cases", default="7/none,8/none,first-7/none,7/empirical,first-7/empirical,7/none/ada",
                     help="WEIGHT_BITS/BIAS_CORRECTION[/METHODS] cases to compare (METHODS: cle, ada, pPERCENTILE joined by +)")
     ap.add_argument("--adaround-budget", type=float, default=PtqMethods.adaround_budget_s,
-                    help="AdaRound's time budget per pass, seconds")
+                    help="AdaRound's time budget per pass, seconds [default: none, its steps planned from the model]")
     add_input_options(ap)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--runs", type=int, default=20, help="timed calls per file (the first seed's files)")
@@ -161,8 +161,7 @@ def main() -> None:
              "either model decides as non-background (argmax above class 0, or a one-channel map above its "
              "threshold) on which the int8 decision equals fp32's. Calibration time: the median over seeds of "
              "calibration and what the method measures. p50: the first seed's files, timed in alternating "
-             f"blocks of 5 ({args.runs} calls each, one process). AdaRound's budget: {args.adaround_budget:g} s "
-             "per pass.", "",
+             f"blocks of 5 ({args.runs} calls each, one process). " + adaround_text(args.adaround_budget), "",
              "| Weight bits | 7-bit convs | Bias correction | CLE / AdaRound / percentile | Foreground agreement with fp32 (%) | "
              "All-pixel agreement (%) | Calibration (s) | p50 (ms) |"
              + (" OpenVINO: foreground agreement with its fp32 (%) | OpenVINO p50 (ms) |" if args.openvino else ""),

@@ -35,6 +35,7 @@ from edgepick.quant.config import (
     Target,
     WeightBits,
 )
+from edgepick.quant.methods import MAX_STEPS
 
 
 def check_onnx_out_flag(out: str, *inputs: str | None) -> None:
@@ -81,9 +82,11 @@ ptq_methods = [
                       "calibration images (fewer above 320x240), so that its output stays closest to fp32's "
                       "(AdaRound)."),
     click.option("--adaround-budget", "adaround_budget_s", default=default_of(PtqMethods, "adaround_budget_s"),
-                 show_default=True, metavar="SECONDS",
-                 help="AdaRound's time, shared by the convs (also where an .onnx MODEL's file is made again with "
-                      "it: --adaround-if-far, --min-agreement)."),
+                 type=float, metavar="SECONDS",
+                 help="A time limit for AdaRound, shared by the convs (also where an .onnx MODEL's file is made "
+                      "again with it: --adaround-if-far, --min-agreement); the file then depends on the machine's "
+                      f"speed and load. [default: no limit: {MAX_STEPS} steps per conv, fewer on a large model "
+                      "(docs/quantization.md), so that the same inputs give the same file whatever the load]"),
     click.option("--bias-correction", default=default_of(PtqMethods, "bias_correction"), show_default=True,
                  type=choice(BiasCorrection),
                  help=f"Shift each int8 conv's bias so that its output's per-channel mean is fp32's, on the first "
@@ -146,7 +149,7 @@ def quantize() -> None:
 @click.option("--adaround-if-far/--no-adaround-if-far", default=default_of(OnnxOptions, "adaround_if_far"),
               show_default=True,
               help="For an .onnx MODEL: where the file's worst output SQNR against fp32 is under 10 dB, make it "
-                   "again with AdaRound (about --adaround-budget seconds more) and keep that file when its outputs "
+                   "again with AdaRound (see --adaround-budget) and keep that file when its outputs "
                    "come closer to fp32's on the check tensors and on their worse half (recorded as adaround_first).")
 @with_options(calibration)
 @click.option("--percentile", default=default_of(QuantConfig, "percentile"), show_default=True,
@@ -319,7 +322,7 @@ _GAIN_HEADERS = {"equalize": "CLE gain dB", "adaround": "AdaRound gain dB", "bia
               type=choice(WeightBits), help="As for quantize static.")
 @with_options(ptq_methods)
 def quantize_inspect_cmd(checkpoint: str, data_dir: str, calib_images: int | None, calib_method: str, images: int, top: int,
-                         weight_bits: str, equalize: bool, adaround: bool, adaround_budget_s: float,
+                         weight_bits: str, equalize: bool, adaround: bool, adaround_budget_s: float | None,
                          bias_correction: str) -> None:
     """Where int8 drifts from fp32: per conv layer, the SQNR of the int8 simulation against fp32 and
     the drift it adds; the worst layers are the --keep-float candidates. With --equalize,

@@ -6,6 +6,7 @@ line builds its options and defaults from them."""
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass, fields
 from typing import Self
 
@@ -175,15 +176,17 @@ class PtqMethods(_Config):
 
     equalize: bool = False  # cross-layer equalization of conv pairs before calibration
     adaround: bool = False  # learn each conv's weight rounding on the calibration images
-    adaround_budget_s: float = 120.0  # AdaRound's time budget, shared by the convs
+    # AdaRound's time budget, shared by the convs; None: steps planned from the model's size (a repeatable file)
+    adaround_budget_s: float | None = None
     # shift conv biases back to fp32's means; empirical was as close to fp32 as none or closer on every model
     # measured (benchmarks/results/ptq-methods/, ptq-methods-onnx/); fast is the torch pass's only
     bias_correction: BiasCorrection = BiasCorrection.EMPIRICAL
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "bias_correction", member(BiasCorrection, "bias_correction", self.bias_correction))
-        if not self.adaround_budget_s > 0.0:
-            raise ParameterError("{adaround_budget_s}: must be positive", adaround_budget_s=self.adaround_budget_s)
+        if self.adaround_budget_s is not None and not (math.isfinite(self.adaround_budget_s) and self.adaround_budget_s > 0):
+            raise ParameterError("{adaround_budget_s}: must be a positive number of seconds",
+                                 adaround_budget_s=self.adaround_budget_s)
 
     @property
     def measures(self) -> bool:

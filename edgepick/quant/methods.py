@@ -4,7 +4,8 @@ share, in numpy, so that the ONNX pass runs without torch:
 - cross-layer equalization's scale rule (`equalizing_scales`);
 - first-7's measure: the share of a conv's outputs whose int16 pair sums saturate on an AVX2 CPU
   (`saturated_share`);
-- AdaRound's solver: one conv's up/down rounding learnt on its sampled inputs (`round_conv`);
+- AdaRound's solver: one conv's up/down rounding learnt on its sampled inputs (`round_conv`), and
+  its steps per conv where no time budget is given (`planned_steps`);
 - empirical bias correction's rule: the median over the images of each channel's mean gap
   (`bias_shift`).
 """
@@ -13,7 +14,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 
 import numpy as np
 
@@ -34,8 +35,26 @@ REGULARIZATION = 0.01  # AIMET's default weight of the rounding regulariser
 WARM_START = 0.2  # share of the steps without the regulariser
 BETA = (20.0, 2.0)
 STEP_OVERHEAD = 20_000  # weights' worth of per-step cost that does not grow with the conv
+# weight-steps a model's AdaRound may take without a time budget: MAX_STEPS per conv up to ~4M weights
+WORK = 8e9
 ZETA, GAMMA = 1.1, -0.1  # the rectified sigmoid's stretch
 ADAM = (0.9, 0.999, 1e-8)  # Adam's betas and epsilon (torch.optim.Adam's defaults)
+
+
+def planned_steps(costs: Iterable[int]) -> int:
+    """AdaRound's steps per conv where no time budget is given: MAX_STEPS where the convs' COSTS (a
+    step's work: the conv's weights plus STEP_OVERHEAD) afford them within WORK, fewer on a larger
+    model, MIN_STEPS at least. From the model alone, so that the same inputs give the same file
+    whatever the machine's speed and load."""
+    return int(min(MAX_STEPS, max(MIN_STEPS, WORK // max(sum(costs), 1))))
+
+
+def adaround_done(report: dict[str, dict]) -> dict[str, int]:
+    """What a pass records of AdaRound's REPORT (per conv: its errors and steps): how many convs
+    kept a learnt rounding, and the steps per conv (their median where a time budget shared them)."""
+    steps = sorted(r["steps"] for r in report.values())
+    return {"adaround_convs": sum(r["error_adaround"] < r["error_nearest"] for r in report.values()),
+            "adaround_steps": steps[len(steps) // 2] if steps else 0}
 
 
 def equalizing_scales(r1: np.ndarray, r2: np.ndarray) -> np.ndarray:

@@ -14,7 +14,7 @@ from torch import nn
 
 from edgepick.errors import ParameterError
 from edgepick.geometry import Size
-from edgepick.quant import Pt2eOptions, PtqMethods, QuantConfig, convert, prepare, quantize_module_static
+from edgepick.quant import Pt2eOptions, PtqMethods, QuantConfig, convert, methods, prepare, quantize_module_static
 from edgepick.quant.pt2e.adaround import adaround
 from edgepick.quant.pt2e.bias_correction import int8_convs
 from edgepick.quant.pt2e.graph import as_input
@@ -96,8 +96,18 @@ def test_a_pass_records_it(inputs, tmp_path):
     assert quant["adaround"] and quant["equalize"] and quant["adaround_convs"] >= 1 and quant["equalized_pairs"] == 2
     assert quant["measured_images"] == len(inputs)
     assert result.int8_convs == 3
-    with pytest.raises(ParameterError, match="adaround_budget_s"):
-        PtqMethods(adaround_budget_s=0)
+    for seconds in (0, -1.0, float("nan")):
+        with pytest.raises(ParameterError, match="adaround_budget_s"):
+            PtqMethods(adaround_budget_s=seconds)
     with pytest.raises(ValueError, match="at least one"):
         reference, converted = _graphs(inputs)
         adaround(reference, converted, [], seconds=1.0)
+
+
+def test_without_a_time_budget_every_conv_takes_the_steps_planned_from_the_models_size(inputs, monkeypatch):
+    monkeypatch.setattr(methods, "WORK", 50 * 3 * methods.STEP_OVERHEAD)  # ~50 steps here: a short test
+    reference, converted = _graphs(inputs)
+    report = adaround(reference, converted, inputs, seconds=None)
+    model = Small()
+    planned = methods.planned_steps(methods.STEP_OVERHEAD + c.weight.numel() for c in (model.a, model.dw, model.b))
+    assert {r["steps"] for r in report.values()} == {planned} and 20 < planned < 50

@@ -10,7 +10,7 @@ import numpy as np
 import onnx
 import pytest
 
-from edgepick.quant import PtqMethods, quantize_onnx_static
+from edgepick.quant import PtqMethods, methods, quantize_onnx_static
 from edgepick.quant.onnx import adaround as onnx_adaround
 from edgepick.quant.onnx import static as onnx_static
 from edgepick.quant.onnx.measure import Values, qdq_convs
@@ -72,3 +72,26 @@ def test_the_int8_file_follows_fp32_more_closely_and_records_it(tmp_path, monkey
         "edgepick.quant"])
     assert quant["adaround"] and quant["adaround_budget_s"] == 5.0 and quant["adaround_convs"] >= 1
     assert quant["measured_images"] == len(tensors)
+
+
+@pytest.mark.slow
+def test_without_a_time_budget_every_conv_takes_the_planned_steps_and_the_file_is_the_same_twice(tmp_path, monkeypatch):
+    # a plan of ~100 steps for this model, to keep the test short; the time budget would take MAX_STEPS here
+    monkeypatch.setattr(methods, "WORK", 100 * 3 * (methods.STEP_OVERHEAD + 300))
+    seen = []
+    original = onnx_adaround.adaround_onnx
+
+    def spy(*args, **kwargs):
+        seen.append(original(*args, **kwargs))
+        return seen[-1]
+
+    monkeypatch.setattr(onnx_static, "adaround_onnx", spy)
+    path, tensors = _export(tmp_path / "f.onnx"), _tensors()
+    files = [tmp_path / f"int8-{k}.onnx" for k in range(2)]
+    for out in files:
+        quantize_onnx_static(path, tensors, out, methods=PtqMethods(adaround=True), progress=False)
+    steps = {r["steps"] for report in seen for r in report.values()}
+    assert len(seen) == 2 and len(steps) == 1 and 20 < steps.pop() < 120, seen
+    assert files[0].read_bytes() == files[1].read_bytes()
+    quant = json.loads({p.key: p.value for p in onnx.load(str(files[0])).metadata_props}["edgepick.quant"])
+    assert quant["adaround_budget_s"] is None and quant["adaround_steps"] == seen[0][next(iter(seen[0]))]["steps"]

@@ -14,7 +14,7 @@ def test_a_checkpoints_static_file_records_the_torch_graphs_placement_and_every_
                          pt2e=Pt2eOptions(), ranges={"rule": "mse"}, measured={"measured_images": 16}).to_dict()
     assert record == {"mode": "static", "qat_fraction": None, "calib_method": "auto", "calib_images": 16,
                       "percentile": 99.99, "weight_bits": "7", "hardswish_gate": True, "bias_correction": "empirical",
-                      "equalize": False, "adaround": False, "adaround_budget_s": 120.0, "placement": "all",
+                      "equalize": False, "adaround": False, "adaround_budget_s": None, "placement": "all",
                       "target": "onnxruntime", "gelu": "float", "keep_float": ["classifier.4"], "skip": ["preprocess"],
                       "ranges": {"rule": "mse"}, "measured_images": 16}
     assert list(record) == list(json.loads(json.dumps(record)))

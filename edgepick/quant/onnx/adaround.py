@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from edgepick.onnx_graph import attr
-from edgepick.quant.methods import COLUMNS, STEP_OVERHEAD, conv_taps, round_conv
+from edgepick.quant.methods import COLUMNS, STEP_OVERHEAD, conv_taps, planned_steps, round_conv
 from edgepick.quant.onnx.lockstep import runner, segment_session, segments
 from edgepick.quant.onnx.measure import SEVEN_BIT, QdqConv, Values, qdq_convs
 
@@ -80,13 +80,14 @@ def _targets(float_model: Any, convs: dict[str, QdqConv], by_name: dict[str, Any
     return positions, {name: np.concatenate(rows, axis=1) for name, rows in outputs.items()}
 
 
-def adaround_onnx(float_model: Any, model: Any, tensors: list[np.ndarray], seconds: float, seven_bit: set[str],
-                  seed: int = 0, steps: int | None = None) -> dict[str, dict]:
+def adaround_onnx(float_model: Any, model: Any, tensors: list[np.ndarray], seconds: float | None,
+                  seven_bit: set[str], seed: int = 0, steps: int | None = None) -> dict[str, dict]:
     """Learn the weight rounding of the int8 convs of MODEL (QDQ) in place, against the same convs
-    of FLOAT_MODEL on TENSORS (model inputs), in about SECONDS (or STEPS per conv); SEVEN_BIT names
-    the convs on the 7-bit grid. Returns per conv its output error on the sampled positions with
-    nearest rounding and with the learnt one, and the steps it took."""
-    if seconds <= 0:
+    of FLOAT_MODEL on TENSORS (model inputs), in about SECONDS, or in STEPS per conv [default: the
+    model's `planned_steps`, the same on every machine]; SEVEN_BIT names the convs on the 7-bit grid.
+    Returns per conv its output error on the sampled positions with nearest rounding and with the
+    learnt one, and the steps it took."""
+    if seconds is not None and seconds <= 0:
         raise ValueError("adaround needs a positive time budget")
     if not tensors:
         raise ValueError("adaround needs at least one calibration input")
@@ -97,7 +98,9 @@ def adaround_onnx(float_model: Any, model: Any, tensors: list[np.ndarray], secon
     rng = np.random.default_rng(seed)
     positions, targets = _targets(float_model, convs, by_name, tensors, rng)
     cost = {name: math.prod(values[c.weight_codes].shape) + STEP_OVERHEAD for name, c in convs.items()}
-    budget = {"left": sum(cost.values()), "deadline": time.perf_counter() + seconds}
+    if seconds is None:
+        steps = steps or planned_steps(cost.values())
+    budget = {"left": sum(cost.values()), "deadline": time.perf_counter() + (seconds or 0.0)}
     report: dict[str, dict] = {}
     image = model.graph.input[0].name
     env = [{image: x} for x in tensors]

@@ -72,7 +72,7 @@ from edgepick.quant.config import (
     lockstep_images,
 )
 from edgepick.quant.fidelity import Task, check_task_names, output_tasks, worst_sqnr
-from edgepick.quant.methods import INT16
+from edgepick.quant.methods import INT16, adaround_done
 from edgepick.quant.onnx.accuracy import SQNR_FLOOR_DB, FidelityBudget, fidelity_first
 from edgepick.quant.onnx.adaround import adaround_onnx
 from edgepick.quant.onnx.calibrate import release_memory
@@ -357,8 +357,7 @@ def _measure(prepared: Any, int8: Any, cal: Calibrated, check: int, images: int,
         to_seven_bit_onnx(prepared, int8, done["seven_bit_convs"])
     if methods.adaround:
         seven = set(qdq_convs(int8)) if config.weight_bits == WeightBits.SEVEN else set(done.get("seven_bit_convs", []))
-        rounded = adaround_onnx(prepared, int8, fit, methods.adaround_budget_s, seven)
-        done["adaround_convs"] = sum(r["error_adaround"] < r["error_nearest"] for r in rounded.values())
+        done.update(adaround_done(adaround_onnx(prepared, int8, fit, methods.adaround_budget_s, seven)))
     if methods.adaround or methods.bias_correction == BiasCorrection.EMPIRICAL:
         done["measured_images"] = count
     if methods.bias_correction == BiasCorrection.EMPIRICAL:

@@ -14,8 +14,11 @@ numpy, shared with the ONNX pass (`edgepick.quant.methods.round_conv`). The weig
 every other conv stay as they are. A conv whose learnt rounding does not lower its output error
 on the sampled positions keeps round-to-nearest, so no conv ends worse on its own data.
 
-The time budget is shared out in proportion to each conv's weight count (its work per step), and
-what one conv leaves unspent or overspends is shared again among the convs after it.
+Without a time budget every conv takes the same number of steps, planned from the model's size
+(`methods.planned_steps`), so the same inputs give the same file on any machine. A time budget is
+shared out in proportion to each conv's weight count (its work per step), and what one conv leaves
+unspent or overspends is shared again among the convs after it; the file then depends on the
+machine's speed and load.
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ import torch
 import torch.nn.functional as F
 from torch.fx import GraphModule, Interpreter, Node
 
-from edgepick.quant.methods import COLUMNS, STEP_OVERHEAD, round_conv
+from edgepick.quant.methods import COLUMNS, STEP_OVERHEAD, planned_steps, round_conv
 from edgepick.quant.pt2e.bias_correction import Means, constant_value, conv_geometry, int8_convs
 from edgepick.quant.pt2e.overflow import float_weight
 
@@ -61,14 +64,14 @@ class _Targets:
         return torch.cat(picked, dim=1)
 
 
-def adaround(reference: GraphModule, converted: GraphModule, inputs: Iterable[torch.Tensor], seconds: float,
+def adaround(reference: GraphModule, converted: GraphModule, inputs: Iterable[torch.Tensor], seconds: float | None,
              seed: int = 0, steps: int | None = None) -> dict[str, dict]:
     """Learn the weight rounding of every int8 conv of CONVERTED in place (see the module doc), with
     REFERENCE (the observed graph copied before convert) as the float model run on INPUTS (model input
-    batches), in about SECONDS (or STEPS steps per conv, for a result that does not depend on the
-    machine's speed). Returns per conv node name its output error on the sampled positions with
-    nearest rounding and with the learnt rounding, and the steps it took."""
-    if seconds <= 0:
+    batches), in about SECONDS, or in STEPS per conv [default: the model's `planned_steps`, a result
+    that does not depend on the machine's speed]. Returns per conv node name its output error on the
+    sampled positions with nearest rounding and with the learnt rounding, and the steps it took."""
+    if seconds is not None and seconds <= 0:
         raise ValueError("adaround needs a positive time budget")
     inputs = list(inputs)
     if not inputs:
@@ -85,7 +88,9 @@ def adaround(reference: GraphModule, converted: GraphModule, inputs: Iterable[to
     # a step costs the conv's multiplies plus a fixed overhead, which dominates the smallest convs
     cost = {name: math.prod(attrgetter(q.args[1].args[0].target)(converted).shape) + STEP_OVERHEAD
             for name, q in convs.items()}
-    left, deadline = sum(cost.values()), time.perf_counter() + seconds
+    if seconds is None:
+        steps = steps or planned_steps(cost.values())
+    left, deadline = sum(cost.values()), time.perf_counter() + (seconds or 0.0)
     rng = np.random.default_rng(seed)
     report = {}
 

@@ -21,6 +21,7 @@ from edgepick.quant.config import (
     WeightBits,
     lockstep_images,
 )
+from edgepick.quant.methods import adaround_done
 from edgepick.quant.pt2e.adaround import adaround
 from edgepick.quant.pt2e.bias_correction import correct_biases
 from edgepick.quant.pt2e.equalize import EQUALIZED
@@ -76,8 +77,7 @@ def convert_static(prepared: GraphModule, inputs: Callable[[], list[torch.Tensor
         samples = within_lockstep(samples)
         done["measured_images"] = sum(x.shape[0] for x in samples)
     if methods.adaround:
-        rounded = adaround(reference, converted, samples, methods.adaround_budget_s)
-        done["adaround_convs"] = sum(r["error_adaround"] < r["error_nearest"] for r in rounded.values())
+        done.update(adaround_done(adaround(reference, converted, samples, methods.adaround_budget_s)))
     if methods.bias_correction != BiasCorrection.NONE:
         correct_biases(reference, converted, samples, methods.bias_correction)
     snap_conv_biases(converted)

@@ -1,0 +1,23 @@
+"""The shared math of static PTQ's methods (edgepick/quant/methods.py) not tested with a pass:
+AdaRound's step plan and what a pass records of it."""
+
+from __future__ import annotations
+
+from edgepick.quant.methods import MAX_STEPS, MIN_STEPS, STEP_OVERHEAD, WORK, adaround_done, planned_steps
+
+
+def test_adaround_plans_the_most_steps_where_the_model_affords_them_and_fewer_on_a_larger_one():
+    small = [10_000 + STEP_OVERHEAD] * 50
+    assert planned_steps(small) == MAX_STEPS
+    large = [int(WORK / MAX_STEPS)] * 4  # four times what MAX_STEPS affords
+    assert planned_steps(large) == MAX_STEPS // 4
+    assert planned_steps([int(WORK)]) == MIN_STEPS  # never fewer than the least that learns anything
+    assert planned_steps(large) == planned_steps(list(large))  # from the sizes alone
+
+
+def test_a_pass_records_how_many_convs_kept_a_learnt_rounding_and_the_steps_per_conv():
+    report = {"a": {"error_nearest": 2.0, "error_adaround": 1.0, "steps": 40},
+              "b": {"error_nearest": 1.0, "error_adaround": 1.0, "steps": 90},
+              "c": {"error_nearest": 3.0, "error_adaround": 0.5, "steps": 60}}
+    assert adaround_done(report) == {"adaround_convs": 2, "adaround_steps": 60}
+    assert adaround_done({}) == {"adaround_convs": 0, "adaround_steps": 0}
