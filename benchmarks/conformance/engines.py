@@ -187,8 +187,11 @@ def accuracy_note(record: dict) -> str:
     gains = {s["tensor"]: s["gain_db"] for s in record.get("scan", [])}
     kept = record.get("float_tensors", [])
     checked = f" on {record['check_tensors']} check tensors" if "check_tensors" in record else ""
+    closest = " (the graph closest to the budget by its own measure)" if record.get("closest_by_budget") else ""
     if not kept:
-        return "accuracy-aware: " + (f"budget met all-int8{checked}" if record.get("met") else "no float activation helped")
+        return "accuracy-aware: " + (f"budget met all-int8{checked}" if record.get("met") else
+                                     "no float activation brought the budget's measure closer" if closest else
+                                     "no float activation helped")
     listed = ", ".join(f"{t} (+{gains[t]:.1f} dB alone)" if t in gains else t for t in kept[:NOTE_TENSORS])
     if len(kept) > NOTE_TENSORS:
         listed += f" and {len(kept) - NOTE_TENSORS} more"
@@ -197,7 +200,8 @@ def accuracy_note(record: dict) -> str:
         listed += f" ({convs} convs with them float)"
     speed = record.get("speed", {})
     cost = f", {speed['slowdown']:.2f}x the all-int8 file's time" if "slowdown" in speed else ""
-    return f"accuracy-aware: {len(kept)} float: {listed}; budget {'met' if record.get('met') else 'not met'}{checked}{cost}"
+    verdict = "met" if record.get("met") else f"not met{closest}"
+    return f"accuracy-aware: {len(kept)} float: {listed}; budget {verdict}{checked}{cost}"
 
 
 FP32 = Quantizer("fp32", _fp32)

@@ -223,6 +223,11 @@ def test_the_accuracy_aware_note_names_the_float_activations_their_gain_the_budg
     assert accuracy_note({"float_tensors": [], "met": True, "check_tensors": 8}) == \
         "accuracy-aware: budget met all-int8 on 8 check tensors"
     assert accuracy_note({"float_tensors": [], "met": False}) == "accuracy-aware: no float activation helped"
+    assert accuracy_note({"float_tensors": [], "met": False, "closest_by_budget": True}) == \
+        "accuracy-aware: no float activation brought the budget's measure closer"
+    assert accuracy_note({**record, "met": False, "closest_by_budget": True}).endswith(
+        "budget not met (the graph closest to the budget by its own measure) on 32 check tensors, 1.15x the all-int8 "
+        "file's time")
 
 
 def test_quantize_times_are_given_against_onnxruntimes_best_settings_per_model():

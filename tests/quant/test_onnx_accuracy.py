@@ -128,6 +128,28 @@ def test_a_budget_not_met_is_said_in_one_line(faint, capsys):
                               "activations float)"), warning
 
 
+def test_where_the_budget_is_not_met_the_answer_is_the_graph_closest_by_its_own_measure(faint):
+    """A judge whose measure the outputs' error does not follow (the share of output values far from
+    fp32's, so closer outputs score lower): the search leaves the input float, closer by the error,
+    and the answer is the all-int8 graph, which the budget's own measure ranks first; with a judge
+    that follows the error the float input stays (and meets it)."""
+    path, calib, _, _, tmp = faint
+
+    def share_close(reference, got, far=False):
+        close = [float(np.mean(np.abs(r[0] - g[0]) <= 0.05 * np.abs(r[0]).max())) for r, g in zip(reference, got)]
+        return 1.0 - float(np.mean(close)) if far else float(np.mean(close))
+
+    for far in (True, False):
+        budget = FidelityBudget(min_agreement=1.0, judge=lambda r, g, far=far: share_close(r, g, far), max_float=1)
+        record = quantize_onnx_static(path, calib, tmp / f"judged-{far}.onnx", methods=PtqMethods(bias_correction="none"),
+                                      progress=False, budget=budget).quant["accuracy_aware"]
+        if far:
+            assert not record["met"] and record["closest_by_budget"] and record["float_tensors"] == []
+            assert "speed" not in record and record["after"]["judged"]["agreement"] > 0.0
+        else:
+            assert record["met"] and "closest_by_budget" not in record and record["float_tensors"] == ["input"]
+
+
 def test_the_search_stops_at_its_time_limit_with_what_it_found(faint, capsys):
     """A limit that passes at once: no activation is measured float, the record says where it
     stopped, the warning says why; without the limit the same budget leaves one float."""
@@ -186,21 +208,37 @@ def test_a_float_activation_is_kept_only_when_it_brings_both_halves_of_the_check
 
 
 @pytest.mark.slow
-def test_where_single_activations_are_not_enough_whole_regions_go_float_with_their_convs_weights(tmp_path):
+def test_where_single_activations_are_not_enough_whole_regions_go_float_with_their_convs_weights(tmp_path, capsys):
     """A budget past what any few activations give (the net's own int8 SQNR + 8 dB): the mode goes
-    on region by region, the convs that then read nothing on the uint8 grid get their float weights,
-    the file counts them as float convs, and its outputs are closer to fp32's than all-int8."""
+    on region by region, and the convs that then read nothing on the uint8 grid get their float
+    weights. Judged by the outputs' error (a judge of the caller's own), the regions are the answer
+    and the file counts their convs as float; judged by the SQNR, which the regions do not raise
+    over the single tensors' on this net, the single tensors are (the closest by the budget's own
+    measure)."""
+    from edgepick.quant.fidelity import balanced_error
     from tests.quant.onnx_models import calib_tensors, export_torch
 
     path, calib = export_torch(tmp_path / "net.onnx"), calib_tensors(16)
     plain = quantize_onnx_static(path, calib, tmp_path / "plain.onnx", progress=False)
-    budget = FidelityBudget(min_sqnr_db=plain.fidelity["logits"]["sqnr_db"] + 8, max_float=100)
+
+    def follows_the_error(reference, got):
+        return 1.0 / (1.0 + 1e3 * balanced_error([r[0] for r in reference], [g[0] for g in got]))
+
+    budget = FidelityBudget(min_agreement=1.0, judge=follows_the_error, max_float=100)
     wide = quantize_onnx_static(path, calib, tmp_path / "wide.onnx", progress=False, budget=budget)
     record = wide.quant["accuracy_aware"]
     singles = {s["tensor"] for s in record["scan"] if s["gain_db"] > 0}
     assert set(record["float_tensors"]) - singles  # tensors the scan never ranked alone: a region's
     assert record["float_weight_convs"] and wide.int8_convs == wide.convs - len(record["float_weight_convs"])
     assert wide.fidelity["logits"]["sqnr_db"] > plain.fidelity["logits"]["sqnr_db"]
+
+    capsys.readouterr()
+    budget = FidelityBudget(min_sqnr_db=plain.fidelity["logits"]["sqnr_db"] + 8, max_float=100)
+    record = quantize_onnx_static(path, calib, tmp_path / "sqnr.onnx", budget=budget).quant["accuracy_aware"]
+    tried = [float(line.split("worst SQNR ")[1].split(" dB")[0]) for line in capsys.readouterr().err.splitlines()
+             if "budget not met" in line and "worst SQNR" in line]  # the regions' steps
+    assert tried and record["closest_by_budget"] and set(record["float_tensors"]) <= singles
+    assert "float_weight_convs" not in record and record["after"]["logits"]["sqnr_db"] >= max(tried)
 
 
 def test_the_region_search_takes_the_region_that_meets_the_budget_then_its_shortest_half(tmp_path, monkeypatch):

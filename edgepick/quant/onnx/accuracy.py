@@ -11,7 +11,10 @@ tensors are not enough (an error spread over dozens of activations, as in a text
 whole regions of the graph go float, the one that brings the outputs closest first, with the
 weights of the ops that then read nothing on the uint8 grid: mixed tensor by tensor, float and
 int8 can end further from fp32 than either. Where no set of regions meets the budget, the
-shortest float start of the graph that does (errors that add up along a backbone).
+shortest float start of the graph that does (errors that add up along a backbone). Where nothing
+meets the budget, the answer is the graph tried that comes closest to it by its own measure (the
+task's agreement first, then the SQNR), of equals the one with the fewest float: the search steps
+by the outputs' error, which a judge's decisions need not follow.
 """
 
 from __future__ import annotations
@@ -111,14 +114,20 @@ class FidelityBudget:
                                  judge=None, min_agreement=None)
 
     def met(self, fidelity: dict[str, OutputFidelity]) -> bool:
+        return self.shortfall(fidelity) == (0.0, 0.0)
+
+    def shortfall(self, fidelity: dict[str, OutputFidelity]) -> tuple[float, float]:
+        """How far FIDELITY is from the budget by its own measures: the most an agreement falls under
+        min_agreement (a share) and the most an SQNR falls under min_sqnr_db (dB); (0, 0) where met.
+        Where no graph meets the budget, the mode's answer is the one with the least (agreement first)."""
         judged = JUDGED in fidelity  # the judge's agreement stands for the outputs' own
+        agreement = sqnr = 0.0
         for name, f in fidelity.items():
-            if self.min_sqnr_db is not None and f.sqnr_db < self.min_sqnr_db:
-                return False
-            if self.min_agreement is not None and f.agreement is not None and f.agreement < self.min_agreement \
-                    and judged == (name == JUDGED):
-                return False
-        return True
+            if self.min_sqnr_db is not None:
+                sqnr = max(sqnr, self.min_sqnr_db - f.sqnr_db)
+            if self.min_agreement is not None and f.agreement is not None and judged == (name == JUDGED):
+                agreement = max(agreement, self.min_agreement - f.agreement)
+        return agreement, sqnr
 
 
 def restore_fidelity(model: Any, evaluator: Evaluator, budget: FidelityBudget,
@@ -135,7 +144,7 @@ def restore_fidelity(model: Any, evaluator: Evaluator, budget: FidelityBudget,
     if budget.met(fidelity):
         return model, {**record, "met": True, "graphs_measured": evaluator.graphs,
                        "search_s": round(time.perf_counter() - started, 1)}
-    original = model
+    original, closest = model, _Closest(budget, model, [], fidelity)
     progress("scan which activations to leave float")
     ranked = rank_tensors(model, evaluator, quantized_activations(model), clock)
     record["scan"] = [{"tensor": t, "gain_db": round(g, 2)} for t, g in ranked[:20]]
@@ -151,6 +160,7 @@ def restore_fidelity(model: Any, evaluator: Evaluator, budget: FidelityBudget,
             continue  # leaving it float would not bring the outputs closer on both halves of the check tensors
         kept, best, model = [*kept, name], errors, trial
         fidelity = evaluator.fidelity(model)
+        closest.offer(model, kept, fidelity)
         progress(f"{len(kept)} float: {name}")
         if budget.met(fidelity):
             break
@@ -161,8 +171,14 @@ def restore_fidelity(model: Any, evaluator: Evaluator, budget: FidelityBudget,
             widened = _float_start(original, kept, rest, evaluator, budget, best, progress, clock) or widened
         if widened is not None:
             model, kept, fidelity = widened
-            before = set(float_weight_convs(original))
-            record["float_weight_convs"] = [n for n in float_weight_convs(model) if n not in before]
+            closest.offer(*widened)
+    if not budget.met(fidelity) and closest.kept != kept:
+        progress(f"budget not met: the closest graph by its own measure has {len(closest.kept)} float")
+        model, kept, fidelity = closest.model, closest.kept, closest.fidelity
+        record["closest_by_budget"] = True
+    before = set(float_weight_convs(original))
+    if weights := [n for n in float_weight_convs(model) if n not in before]:
+        record["float_weight_convs"] = weights
     record.update(float_tensors=kept, after={n: f.to_dict() for n, f in fidelity.items()}, met=budget.met(fidelity),
                   graphs_measured=evaluator.graphs, search_s=round(time.perf_counter() - started, 1))
     if clock.hit:
@@ -170,6 +186,20 @@ def restore_fidelity(model: Any, evaluator: Evaluator, budget: FidelityBudget,
     if kept:
         record["speed"] = speed_cost(original, model, evaluator.inputs[0])
     return model, record
+
+
+class _Closest:
+    """The graph closest to BUDGET by its own measure (`FidelityBudget.shortfall`) of those offered,
+    the first of equals (the fewest float): the accuracy-aware mode's answer where none meets it."""
+
+    def __init__(self, budget: FidelityBudget, model: Any, kept: list[str], fidelity: dict[str, OutputFidelity]):
+        self.budget, self.model, self.kept, self.fidelity = budget, model, kept, fidelity
+        self.shortfall = budget.shortfall(fidelity)
+
+    def offer(self, model: Any, kept: list[str], fidelity: dict[str, OutputFidelity]) -> None:
+        shortfall = self.budget.shortfall(fidelity)
+        if shortfall < self.shortfall:
+            self.model, self.kept, self.fidelity, self.shortfall = model, kept, fidelity, shortfall
 
 
 def _summary(fidelity: dict[str, OutputFidelity]) -> str:
