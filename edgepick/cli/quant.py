@@ -183,7 +183,8 @@ def quantize() -> None:
 @click.option("--max-seconds", default=None, type=float, metavar="SECONDS",
               help="With --min-agreement or --min-sqnr: stop the search for activations to leave float after "
                    "SECONDS and write the closest file found by then (said in a warning and in the file's "
-                   "accuracy_aware record) [default: no limit].")
+                   "accuracy_aware record; AdaRound, tried before the search, has its own: --adaround-budget) "
+                   "[default: no limit].")
 @with_options(common)
 @with_options(preprocessing_options)
 def quantize_static_cmd(checkpoint: str, out: str, **flags) -> None:

@@ -35,7 +35,8 @@ REGULARIZATION = 0.01  # AIMET's default weight of the rounding regulariser
 WARM_START = 0.2  # share of the steps without the regulariser
 BETA = (20.0, 2.0)
 STEP_OVERHEAD = 20_000  # weights' worth of per-step cost that does not grow with the conv
-# weight-steps a model's AdaRound may take without a time budget: MAX_STEPS per conv up to ~4M weights
+# weight-steps a model's AdaRound may take without a time budget: MAX_STEPS per conv while the convs' costs
+# (weights plus STEP_OVERHEAD each) sum to at most 4M
 WORK = 8e9
 ZETA, GAMMA = 1.1, -0.1  # the rectified sigmoid's stretch
 ADAM = (0.9, 0.999, 1e-8)  # Adam's betas and epsilon (torch.optim.Adam's defaults)

@@ -131,23 +131,25 @@ def test_a_budget_not_met_is_said_in_one_line(faint, capsys):
 def test_where_the_budget_is_not_met_the_answer_is_the_graph_closest_by_its_own_measure(faint):
     """A judge whose measure the outputs' error does not follow (the share of output values far from
     fp32's, so closer outputs score lower): the search leaves the input float, closer by the error,
-    and the answer is the all-int8 graph, which the budget's own measure ranks first; with a judge
-    that follows the error the float input stays (and meets it)."""
+    and the answer is the all-int8 graph, which the budget's own measure ranks first. With a judge
+    that follows the error the float input stays (and meets it); with one that ranks every graph
+    alike, the search's last graph stays, the closest by the error."""
     path, calib, _, _, tmp = faint
 
-    def share_close(reference, got, far=False):
+    def share_close(reference, got, kind):
         close = [float(np.mean(np.abs(r[0] - g[0]) <= 0.05 * np.abs(r[0]).max())) for r, g in zip(reference, got)]
-        return 1.0 - float(np.mean(close)) if far else float(np.mean(close))
+        return {"far": 1.0 - float(np.mean(close)), "close": float(np.mean(close)), "alike": 0.5}[kind]
 
-    for far in (True, False):
-        budget = FidelityBudget(min_agreement=1.0, judge=lambda r, g, far=far: share_close(r, g, far), max_float=1)
-        record = quantize_onnx_static(path, calib, tmp / f"judged-{far}.onnx", methods=PtqMethods(bias_correction="none"),
+    for kind in ("far", "close", "alike"):
+        budget = FidelityBudget(min_agreement=1.0, judge=lambda r, g, kind=kind: share_close(r, g, kind), max_float=1)
+        record = quantize_onnx_static(path, calib, tmp / f"judged-{kind}.onnx", methods=PtqMethods(bias_correction="none"),
                                       progress=False, budget=budget).quant["accuracy_aware"]
-        if far:
+        if kind == "far":
             assert not record["met"] and record["closest_by_budget"] and record["float_tensors"] == []
             assert "speed" not in record and record["after"]["judged"]["agreement"] > 0.0
         else:
-            assert record["met"] and "closest_by_budget" not in record and record["float_tensors"] == ["input"]
+            assert record["met"] == (kind == "close") and "closest_by_budget" not in record, (kind, record)
+            assert record["float_tensors"] == ["input"], (kind, record)
 
 
 def test_the_search_stops_at_its_time_limit_with_what_it_found(faint, capsys):
