@@ -193,12 +193,15 @@ def round_conv(w: np.ndarray, scale: np.ndarray, lo: int, hi: int, bias: np.ndar
     nearest_error = _error(_output(_grouped(nearest * s, groups), bias, x, groups), target)
     fixed = steps is not None
     start, planned, taken = time.perf_counter(), steps or MAX_STEPS, 0
+    # a step's batch gathered as rows of [P, K] and [P, M], not as strided columns of [K, P]: on a conv with
+    # many input rows K the column gather cost more than the step's products
+    x_rows, target_rows = np.ascontiguousarray(x.T), np.ascontiguousarray(target.T)
     while taken < planned:
         take = rng.integers(0, x.shape[1], min(BATCH, x.shape[1]))
         progress = taken / planned
         beta = None if progress < WARM_START else \
             BETA[1] + (BETA[0] - BETA[1]) * (1 - (progress - WARM_START) / (1 - WARM_START))
-        grad = _gradient(v, floor, s, lo, hi, bias, x[:, take], target[:, take], groups, beta)
+        grad = _gradient(v, floor, s, lo, hi, bias, x_rows[take].T, target_rows[take].T, groups, beta)
         v = adam.step(v, grad, LEARNING_RATE)
         taken += 1
         if taken == 5 and not fixed:  # plan the steps this conv's share of the budget affords
