@@ -104,10 +104,12 @@ def test_a_pass_records_it(inputs, tmp_path):
         adaround(reference, converted, [], seconds=1.0)
 
 
-def test_without_a_time_budget_every_conv_takes_the_steps_planned_from_the_models_size(inputs, monkeypatch):
+def test_without_a_time_budget_every_conv_takes_the_steps_planned_from_the_models_size(inputs, monkeypatch, capsys):
     monkeypatch.setattr(methods, "WORK", 50 * 3 * methods.STEP_OVERHEAD)  # ~50 steps here: a short test
+    monkeypatch.setenv("EDGEPICK_PROGRESS_S", "0")  # a progress line per conv
     reference, converted = _graphs(inputs)
-    report = adaround(reference, converted, inputs, seconds=None)
+    report = adaround(reference, converted, inputs, seconds=None, progress=True)
+    assert "AdaRound: 3/3 conv" in capsys.readouterr().err  # the bar counts the convs, n of N
     model = Small()
     planned = methods.planned_steps(methods.STEP_OVERHEAD + c.weight.numel() for c in (model.a, model.dw, model.b))
     assert {r["steps"] for r in report.values()} == {planned} and 20 < planned < 50

@@ -31,7 +31,7 @@ def test_adaround_lowers_each_convs_error_and_rounds_each_weight_down_or_up(tmp_
     seen = {}
     original = onnx_adaround.adaround_onnx
 
-    def spy(float_model, model, tensors, seconds, seven_bit):
+    def spy(float_model, model, tensors, seconds, seven_bit, progress=False):
         convs = qdq_convs(model)
         values, nodes = Values(model), {n.name: n for n in float_model.graph.node}
         seen["nearest"] = {name: values[c.weight_codes] for name, c in convs.items()}
@@ -75,9 +75,11 @@ def test_the_int8_file_follows_fp32_more_closely_and_records_it(tmp_path, monkey
 
 
 @pytest.mark.slow
-def test_without_a_time_budget_every_conv_takes_the_planned_steps_and_the_file_is_the_same_twice(tmp_path, monkeypatch):
+def test_without_a_time_budget_every_conv_takes_the_planned_steps_and_the_file_is_the_same_twice(tmp_path, monkeypatch,
+                                                                                                capsys):
     # a plan of ~100 steps for this model, to keep the test short; the time budget would take MAX_STEPS here
     monkeypatch.setattr(methods, "WORK", 100 * 3 * (methods.STEP_OVERHEAD + 300))
+    monkeypatch.setenv("EDGEPICK_PROGRESS_S", "0")  # a progress line per conv
     seen = []
     original = onnx_adaround.adaround_onnx
 
@@ -88,8 +90,9 @@ def test_without_a_time_budget_every_conv_takes_the_planned_steps_and_the_file_i
     monkeypatch.setattr(onnx_static, "adaround_onnx", spy)
     path, tensors = _export(tmp_path / "f.onnx"), _tensors()
     files = [tmp_path / f"int8-{k}.onnx" for k in range(2)]
-    for out in files:
-        quantize_onnx_static(path, tensors, out, methods=PtqMethods(adaround=True), progress=False)
+    for k, out in enumerate(files):
+        quantize_onnx_static(path, tensors, out, methods=PtqMethods(adaround=True), progress=k == 0)
+    assert "AdaRound: 3/3 conv" in capsys.readouterr().err  # the bar counts the convs, n of N
     steps = {r["steps"] for report in seen for r in report.values()}
     assert len(seen) == 2 and len(steps) == 1 and 20 < steps.pop() < 120, seen
     assert files[0].read_bytes() == files[1].read_bytes()

@@ -81,12 +81,14 @@ def _targets(float_model: Any, convs: dict[str, QdqConv], by_name: dict[str, Any
 
 
 def adaround_onnx(float_model: Any, model: Any, tensors: list[np.ndarray], seconds: float | None,
-                  seven_bit: set[str], seed: int = 0, steps: int | None = None) -> dict[str, dict]:
+                  seven_bit: set[str], seed: int = 0, steps: int | None = None, progress: bool = False) -> dict[str, dict]:
     """Learn the weight rounding of the int8 convs of MODEL (QDQ) in place, against the same convs
     of FLOAT_MODEL on TENSORS (model inputs), in about SECONDS, or in STEPS per conv [default: the
-    model's `planned_steps`, the same on every machine]; SEVEN_BIT names the convs on the 7-bit grid.
-    Returns per conv its output error on the sampled positions with nearest rounding and with the
-    learnt one, and the steps it took."""
+    model's `planned_steps`, the same on every machine]; SEVEN_BIT names the convs on the 7-bit grid;
+    PROGRESS: a bar over the convs. Returns per conv its output error on the sampled positions with
+    nearest rounding and with the learnt one, and the steps it took."""
+    from edgepick.progress import progress as progress_bar
+
     if seconds is not None and seconds <= 0:
         raise ValueError("adaround needs a positive time budget")
     if not tensors:
@@ -102,6 +104,7 @@ def adaround_onnx(float_model: Any, model: Any, tensors: list[np.ndarray], secon
         steps = steps or planned_steps(cost.values())
     budget = {"left": sum(cost.values()), "deadline": time.perf_counter() + (seconds or 0.0)}
     report: dict[str, dict] = {}
+    bar = progress_bar(desc="AdaRound", total=len(convs), unit="conv", enabled=progress)
     image = model.graph.input[0].name
     env = [{image: x} for x in tensors]
     for segment in segments(model, convs):
@@ -120,10 +123,12 @@ def adaround_onnx(float_model: Any, model: Any, tensors: list[np.ndarray], secon
             w = floats[by_name[name].input[1]].astype(np.float32)
             report[name] = _round(convs[name], w, values, env, positions[name], targets.pop(name),
                                   SEVEN_BIT if name in seven_bit else 127, share, rng, steps)
+            bar.update(1)
         for e in env:
             for name in inputs:
                 if name not in segment.outputs:
                     e.pop(name, None)
+    bar.close()
     return report
 
 

@@ -218,7 +218,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
                     rewrites["sigmoid_gelu"] = sigmoid_gelu(int8)
             with clock("corrections"):
                 return int8, _measure(prepared, int8, cal, check, measured or lockstep_images(*hw), config,
-                                      with_methods, checker)
+                                      with_methods, checker, progress)
 
         int8, done = build(methods)
         evaluator = checker()
@@ -340,7 +340,7 @@ def fitting_tensors(kept: list[np.ndarray], check: int, images: int) -> tuple[in
 
 
 def _measure(prepared: Any, int8: Any, cal: Calibrated, check: int, images: int, config: QuantConfig,
-             methods: PtqMethods, checker: Callable[[], Evaluator]) -> dict:
+             methods: PtqMethods, checker: Callable[[], Evaluator], progress: bool = False) -> dict:
     """first-7, AdaRound and empirical bias correction on the QDQ graph INT8 (in place), in that
     order; AdaRound and the correction fit on IMAGES calibration tensors CAL kept after the CHECK
     tensors (fitting_tensors; fp32's side of the correction from calibration where it counted it),
@@ -357,7 +357,8 @@ def _measure(prepared: Any, int8: Any, cal: Calibrated, check: int, images: int,
         to_seven_bit_onnx(prepared, int8, done["seven_bit_convs"])
     if methods.adaround:
         seven = set(qdq_convs(int8)) if config.weight_bits == WeightBits.SEVEN else set(done.get("seven_bit_convs", []))
-        done.update(adaround_done(adaround_onnx(prepared, int8, fit, methods.adaround_budget_s, seven)))
+        done.update(adaround_done(adaround_onnx(prepared, int8, fit, methods.adaround_budget_s, seven,
+                                                progress=progress)))
     if methods.adaround or methods.bias_correction == BiasCorrection.EMPIRICAL:
         done["measured_images"] = count
     if methods.bias_correction == BiasCorrection.EMPIRICAL:

@@ -65,12 +65,15 @@ class _Targets:
 
 
 def adaround(reference: GraphModule, converted: GraphModule, inputs: Iterable[torch.Tensor], seconds: float | None,
-             seed: int = 0, steps: int | None = None) -> dict[str, dict]:
+             seed: int = 0, steps: int | None = None, progress: bool = False) -> dict[str, dict]:
     """Learn the weight rounding of every int8 conv of CONVERTED in place (see the module doc), with
     REFERENCE (the observed graph copied before convert) as the float model run on INPUTS (model input
     batches), in about SECONDS, or in STEPS per conv [default: the model's `planned_steps`, a result
     that does not depend on the machine's speed]. Returns per conv node name its output error on the
-    sampled positions with nearest rounding and with the learnt rounding, and the steps it took."""
+    sampled positions with nearest rounding and with the learnt rounding, and the steps it took.
+    PROGRESS: a bar over the convs."""
+    from edgepick.progress import progress as progress_bar
+
     if seconds is not None and seconds <= 0:
         raise ValueError("adaround needs a positive time budget")
     inputs = list(inputs)
@@ -93,6 +96,7 @@ def adaround(reference: GraphModule, converted: GraphModule, inputs: Iterable[to
     left, deadline = sum(cost.values()), time.perf_counter() + (seconds or 0.0)
     rng = np.random.default_rng(seed)
     report = {}
+    bar = progress_bar(desc="AdaRound", total=len(convs), unit="conv", enabled=progress)
 
     def at_conv(q: Node, conv_inputs: list[torch.Tensor]) -> torch.Tensor:
         """Learn Q's rounding on the int8 model's own inputs to it; returns its new weight."""
@@ -111,9 +115,11 @@ def adaround(reference: GraphModule, converted: GraphModule, inputs: Iterable[to
                                                  target.numpy(), groups, share, rng, steps)
         codes_now.copy_(torch.from_numpy(codes).to(torch.int8))
         report[name] = {"error_nearest": before, "error_adaround": after, "steps": taken}
+        bar.update(1)
         return constant_value(converted, dq)
 
     _lockstep(converted, convs, inputs, at_conv)
+    bar.close()
     converted.recompile()
     return report
 

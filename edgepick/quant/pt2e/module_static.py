@@ -124,7 +124,7 @@ def quantize_module_static(module: torch.nn.Module, calib: Iterable[Any], out: s
     keep = max(check, BIAS_CORRECTION_IMAGES if measures(config, methods) else 0)
     kept, seen, ranges = _calibrate(prepared, first, batches, shape, config, keep,
                                     len(calib) if isinstance(calib, Sized) else None, progress)
-    converted, measured = convert_static(prepared, lambda: kept[:BIAS_CORRECTION_IMAGES], config, methods)
+    converted, measured = convert_static(prepared, lambda: kept[:BIAS_CORRECTION_IMAGES], config, methods, progress)
     calib_s = time.perf_counter() - t0
     quant = QuantRecord(RecordKind.MODULE, config, seen, methods, ranges=ranges, measured=measured).to_dict()
     path = export_module_onnx(converted, out, shape, {"edgepick.quant": json.dumps(quant)})

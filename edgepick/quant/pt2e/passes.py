@@ -108,7 +108,8 @@ def quantize_static(checkpoint: str | Path | Checkpoint, calib: Iterable[np.ndar
         stage(f"convert, then measure on up to {BIAS_CORRECTION_IMAGES} calibration images (weight bits "
               f"{config.weight_bits}, bias correction {methods.bias_correction})", progress)
     converted, measured = convert_static(prepared, lambda: [as_input(at_input_size(rgb, size))
-                                                            for rgb in kept[:BIAS_CORRECTION_IMAGES]], config, methods)
+                                                            for rgb in kept[:BIAS_CORRECTION_IMAGES]], config, methods,
+                                         progress)
     calib_s = time.perf_counter() - t0
     quant = QuantRecord(RecordKind.STATIC, config, seen, methods, pt2e=pt2e, ranges=ranges, measured=measured).to_dict()
     check = [at_input_size(rgb, size, "check_images")

@@ -52,11 +52,11 @@ def within_lockstep(samples: list[torch.Tensor]) -> list[torch.Tensor]:
 
 
 def convert_static(prepared: GraphModule, inputs: Callable[[], list[torch.Tensor]], config: QuantConfig,
-                   methods: PtqMethods) -> tuple[GraphModule, dict]:
+                   methods: PtqMethods, progress: bool = False) -> tuple[GraphModule, dict]:
     """`convert` PREPARED (calibrated); with config.weight_bits first-7, METHODS' AdaRound or a bias correction,
     measure on INPUTS() (model input batches, called only then) against a copy of PREPARED taken before
     convert, which rewrites the graph it is given. Returns the graph and what was done:
-    {"seven_bit_convs": [module paths]} for first-7, {"equalized_pairs": n} after CLE,
+    PROGRESS: a bar over AdaRound's convs. {"seven_bit_convs": [module paths]} for first-7, {"equalized_pairs": n} after CLE,
     {"adaround_convs": n} for the convs whose learnt rounding replaced round-to-nearest, {"measured_images": n}
     for the images AdaRound and bias correction used (`within_lockstep`)."""
     done: dict = {}
@@ -77,7 +77,7 @@ def convert_static(prepared: GraphModule, inputs: Callable[[], list[torch.Tensor
         samples = within_lockstep(samples)
         done["measured_images"] = sum(x.shape[0] for x in samples)
     if methods.adaround:
-        done.update(adaround_done(adaround(reference, converted, samples, methods.adaround_budget_s)))
+        done.update(adaround_done(adaround(reference, converted, samples, methods.adaround_budget_s, progress=progress)))
     if methods.bias_correction != BiasCorrection.NONE:
         correct_biases(reference, converted, samples, methods.bias_correction)
     snap_conv_biases(converted)
