@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from edgepick.onnx_graph import attr
+from edgepick.progress import progress as progress_bar
 from edgepick.quant.methods import COLUMNS, STEP_OVERHEAD, conv_taps, planned_steps, round_conv
 from edgepick.quant.onnx.lockstep import runner, segment_session, segments
 from edgepick.quant.onnx.measure import SEVEN_BIT, QdqConv, Values, qdq_convs
@@ -87,8 +88,6 @@ def adaround_onnx(float_model: Any, model: Any, tensors: list[np.ndarray], secon
     model's `planned_steps`, the same on every machine]; SEVEN_BIT names the convs on the 7-bit grid;
     PROGRESS: a bar over the convs. Returns per conv its output error on the sampled positions with
     nearest rounding and with the learnt one, and the steps it took."""
-    from edgepick.progress import progress as progress_bar
-
     if seconds is not None and seconds <= 0:
         raise ValueError("adaround needs a positive time budget")
     if not tensors:

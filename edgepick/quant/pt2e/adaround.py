@@ -15,10 +15,10 @@ every other conv stay as they are. A conv whose learnt rounding does not lower i
 on the sampled positions keeps round-to-nearest, so no conv ends worse on its own data.
 
 Without a time budget every conv takes the same number of steps, planned from the model's size
-(`methods.planned_steps`), so the same inputs give the same file on any machine. A time budget is
-shared out in proportion to each conv's weight count (its work per step), and what one conv leaves
-unspent or overspends is shared again among the convs after it; the file then depends on the
-machine's speed and load.
+(`methods.planned_steps`), so the same inputs give the same file whatever the machine's load. A
+time budget is shared out in proportion to each conv's weight count (its work per step), and what
+one conv leaves unspent or overspends is shared again among the convs after it; the file then
+depends on the machine's speed and load.
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ import torch
 import torch.nn.functional as F
 from torch.fx import GraphModule, Interpreter, Node
 
+from edgepick.progress import progress as progress_bar
 from edgepick.quant.methods import COLUMNS, STEP_OVERHEAD, planned_steps, round_conv
 from edgepick.quant.pt2e.bias_correction import Means, constant_value, conv_geometry, int8_convs
 from edgepick.quant.pt2e.overflow import float_weight
@@ -72,8 +73,6 @@ def adaround(reference: GraphModule, converted: GraphModule, inputs: Iterable[to
     that does not depend on the machine's speed]. Returns per conv node name its output error on the
     sampled positions with nearest rounding and with the learnt rounding, and the steps it took.
     PROGRESS: a bar over the convs."""
-    from edgepick.progress import progress as progress_bar
-
     if seconds is not None and seconds <= 0:
         raise ValueError("adaround needs a positive time budget")
     inputs = list(inputs)
