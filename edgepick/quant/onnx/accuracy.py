@@ -174,7 +174,7 @@ def restore_fidelity(model: Any, evaluator: Evaluator, budget: FidelityBudget,
         if widened is not None:
             model, kept, fidelity = widened
             closest.offer(*widened)
-    if budget.shortfall(closest.fidelity) < budget.shortfall(fidelity):
+    if closest.shortfall < budget.shortfall(fidelity):
         progress(f"budget not met: the closest graph by its own measure has {len(closest.kept)} float")
         model, kept, fidelity = closest.model, closest.kept, closest.fidelity
         record["closest_by_budget"] = True
