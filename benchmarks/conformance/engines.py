@@ -200,6 +200,8 @@ def accuracy_note(record: dict) -> str:
         listed += f" ({convs} convs with them float)"
     speed = record.get("speed", {})
     cost = f", {speed['slowdown']:.2f}x the all-int8 file's time" if "slowdown" in speed else ""
+    if "speedup_vs_fp32" in speed:
+        cost += f" ({speed['speedup_vs_fp32']:.2f}x fp32's speed{', slower than fp32' if speed['speedup_vs_fp32'] < 1 else ''})"
     verdict = "met" if record.get("met") else f"not met{closest}"
     return f"accuracy-aware: {len(kept)} float: {listed}; budget {verdict}{checked}{cost}"
 

@@ -228,6 +228,10 @@ def test_the_accuracy_aware_note_names_the_float_activations_their_gain_the_budg
     assert accuracy_note({**record, "met": False, "closest_by_budget": True}).endswith(
         "budget not met (the graph closest to the budget by its own measure) on 32 check tensors, 1.15x the all-int8 "
         "file's time")
+    timed = {**record, "speed": {**record["speed"], "fp32_ms": 2.2, "speedup_vs_fp32": 0.957}}
+    assert accuracy_note(timed).endswith("1.15x the all-int8 file's time (0.96x fp32's speed, slower than fp32)")
+    timed["speed"]["speedup_vs_fp32"] = 1.3
+    assert accuracy_note(timed).endswith("1.15x the all-int8 file's time (1.30x fp32's speed)")
 
 
 def test_quantize_times_are_given_against_onnxruntimes_best_settings_per_model():

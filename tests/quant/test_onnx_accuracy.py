@@ -9,7 +9,7 @@ import pytest
 
 from edgepick.errors import ParameterError
 from edgepick.quant.config import OnnxOptions, PtqMethods, QuantConfig
-from edgepick.quant.onnx.accuracy import FidelityBudget
+from edgepick.quant.onnx.accuracy import FidelityBudget, slower_than_fp32
 from edgepick.quant.onnx.static import quantize_onnx_static
 from tests.quant.onnx_models import faint_channel_inputs, faint_channel_model
 
@@ -55,6 +55,7 @@ def test_a_faint_channel_is_named_and_the_accuracy_aware_mode_leaves_it_float(fa
     speed = record["speed"]
     assert speed["all_int8_ms"] > 0 and speed["slowdown"] == pytest.approx(speed["kept_float_ms"] / speed["all_int8_ms"],
                                                                           abs=1e-3)
+    assert speed["speedup_vs_fp32"] == pytest.approx(speed["fp32_ms"] / speed["kept_float_ms"], abs=1e-3)
     for engine in ("onnxruntime", "openvino"):
         assert _sqnr(fixed.out, check, reference, engine) > _sqnr(plain.out, check, reference, engine) + 15, engine
 
@@ -123,9 +124,22 @@ def test_a_budget_not_met_is_said_in_one_line(faint, capsys):
     result = quantize_onnx_static(path, calib, tmp / "short.onnx", methods=PtqMethods(bias_correction="none"),
                                   progress=False, budget=FidelityBudget(min_sqnr_db=200.0, max_float=1))
     assert not result.quant["accuracy_aware"]["met"]
-    warning = capsys.readouterr().err.strip().splitlines()[-1]
-    assert warning.startswith("edgepick: warning: the budget is not met on the 8 check tensors (1 of at most 1 "
-                              "activations float)"), warning
+    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("edgepick: warning: the budget")]
+    assert warnings == [line for line in warnings if line.startswith(  # one line; a second may say the file is slower than fp32
+        "edgepick: warning: the budget is not met on the 8 check tensors (1 of at most 1 activations float)")], warnings
+    assert len(warnings) == 1
+
+
+def test_an_answer_slower_than_fp32_is_said_in_one_line():
+    """The accuracy-aware answer's timing against fp32 (`speed_cost`'s record): a warning only where
+    the float activations have cost all of int8's gain and more."""
+    speed = {"fp32_ms": 10.0, "all_int8_ms": 5.0, "kept_float_ms": 10.87, "slowdown": 2.174, "speedup_vs_fp32": 0.92,
+             "threads": 2}
+    assert slower_than_fp32(speed, 159) == (
+        "with 159 activations float the file runs at 0.92x fp32's speed on onnxruntime on this machine (10.87 ms "
+        "against 10 ms, 2 threads): a lower budget keeps fewer float, or the float model serves better")
+    assert slower_than_fp32({**speed, "kept_float_ms": 8.0, "speedup_vs_fp32": 1.25}, 159) is None
+    assert slower_than_fp32({}, 0) is None  # all int8: nothing was timed
 
 
 def test_where_the_budget_is_not_met_the_answer_is_the_graph_closest_by_its_own_measure(faint):

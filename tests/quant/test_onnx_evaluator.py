@@ -75,7 +75,7 @@ def test_the_budget_holds_the_judges_decisions_not_the_outputs_own(faint, capsys
     missed = quantize_onnx_static(path, calib, tmp / "never.onnx", methods=methods, progress=False,
                                   budget=FidelityBudget(min_agreement=0.5, judge=never, max_float=2))
     assert not missed.quant["accuracy_aware"]["met"]
-    assert capsys.readouterr().err.strip().splitlines()[-1].startswith("edgepick: warning: the budget is not met")
+    assert any(line.startswith("edgepick: warning: the budget is not met") for line in capsys.readouterr().err.splitlines())
 
 
 def test_adaround_meeting_the_budget_is_kept_where_it_is_not_closer(faint):

@@ -186,7 +186,7 @@ def restore_fidelity(model: Any, evaluator: Evaluator, budget: FidelityBudget,
     if clock.hit:
         record["stopped_at_max_seconds"] = budget.max_seconds
     if kept:
-        record["speed"] = speed_cost(original, model, evaluator.inputs[0])
+        record["speed"] = speed_cost(evaluator.float_model, original, model, evaluator.inputs[0])
     return model, record
 
 
@@ -316,9 +316,10 @@ def _float_start(original: Any, kept: list[str], rest: list[str], evaluator: Eva
     return found[0], [*kept, *rest[:long]], found[1]
 
 
-def speed_cost(int8: Any, kept_float: Any, x: np.ndarray, threads: int = 2) -> dict:
-    """onnxruntime's median ms of the all-int8 graph INT8 and of KEPT_FLOAT on X, timed in alternating
-    blocks on THREADS threads, and their ratio: what the float activations cost on this machine."""
+def speed_cost(fp32: Any, int8: Any, kept_float: Any, x: np.ndarray, threads: int = 2) -> dict:
+    """onnxruntime's median ms of the float graph FP32, the all-int8 graph INT8 and KEPT_FLOAT on X,
+    timed in alternating blocks on THREADS threads: what the float activations cost on this machine
+    (`slowdown` against the all-int8 file) and what is left of int8's gain (`speedup_vs_fp32`)."""
     import onnxruntime as ort
 
     from edgepick.runtime.session import median_ms
@@ -330,8 +331,19 @@ def speed_cost(int8: Any, kept_float: Any, x: np.ndarray, threads: int = 2) -> d
         name = session.get_inputs()[0].name
         return lambda image: session.run(None, {name: image})
 
-    ms = median_ms({"all_int8_ms": runner(int8), "kept_float_ms": runner(kept_float)}, x)
-    return {**ms, "slowdown": round(ms["kept_float_ms"] / ms["all_int8_ms"], 3), "threads": threads}
+    ms = median_ms({"fp32_ms": runner(fp32), "all_int8_ms": runner(int8), "kept_float_ms": runner(kept_float)}, x)
+    return {**ms, "slowdown": round(ms["kept_float_ms"] / ms["all_int8_ms"], 3),
+            "speedup_vs_fp32": round(ms["fp32_ms"] / ms["kept_float_ms"], 3), "threads": threads}
+
+
+def slower_than_fp32(speed: dict, floats: int) -> str | None:
+    """The one-line warning where the accuracy-aware answer, with FLOATS activations float, runs slower
+    than the float model on this machine (SPEED: `speed_cost`'s record); None where it is faster."""
+    if speed.get("speedup_vs_fp32", math.inf) >= 1.0:
+        return None
+    return (f"with {floats} activations float the file runs at {speed['speedup_vs_fp32']:.2f}x fp32's speed on "
+            f"onnxruntime on this machine ({speed['kept_float_ms']:g} ms against {speed['fp32_ms']:g} ms, "
+            f"{speed['threads']} threads): a lower budget keeps fewer float, or the float model serves better")
 
 
 def fidelity_first(int8: Any, evaluator: Evaluator, budget: FidelityBudget | None,
@@ -351,6 +363,8 @@ def fidelity_first(int8: Any, evaluator: Evaluator, budget: FidelityBudget | Non
             print(f"edgepick: warning: the budget is not met on the {len(evaluator.inputs)} check tensors "
                   f"({len(record['float_tensors'])} of at most {budget.max_float} activations float{stopped}); the file "
                   "is the closest found (accuracy_aware in its edgepick.quant)", file=sys.stderr, flush=True)
+        if slower := slower_than_fp32(record.get("speed", {}), len(record["float_tensors"])):
+            print(f"edgepick: warning: {slower}", file=sys.stderr, flush=True)
         return int8, {"accuracy_aware": record}
     worst = min(f.sqnr_db for f in evaluator.fidelity(int8).values())
     if worst >= SQNR_FLOOR_DB:
