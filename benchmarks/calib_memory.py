@@ -9,6 +9,7 @@ its peak is the kernel's maximum resident set size of that process (`ru_maxrss`)
 
     python benchmarks/calib_memory.py --save
     python benchmarks/calib_memory.py --size 2048x1024 --counts 8,64 --methods auto,percentile,minmax --peer-counts 2
+    python benchmarks/calib_memory.py --counts 64 --methods auto --peer-counts '' --adaround-counts 64
 """
 
 from __future__ import annotations
@@ -89,6 +90,8 @@ def main() -> None:
     ap.add_argument("--methods", default="auto,percentile,minmax,entropy,mse")
     ap.add_argument("--peer-counts", default="2", help="onnxruntime's quantize_static (MinMax and Percentile) on this "
                     "many tensors ('' for none): it keeps every intermediate output of every tensor")
+    ap.add_argument("--adaround-counts", default="", help="also with --adaround on this many tensors (as the default "
+                    "makes a file again where its outputs are far from fp32's; '' for none)")
     add_output(ap)
     args = ap.parse_args()
     width, height = (int(v) for v in args.size.split("x"))
@@ -96,7 +99,7 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="calib-memory-"))
     model, images = work / "float.onnx", work / "images"
     make_model(model, height, width)
-    make_images(images, max(counts), height, width)
+    make_images(images, max([*counts, *(int(c) for c in filter(None, args.adaround_counts.split(",")))]), height, width)
     edgepick = [sys.executable, "-m", "edgepick", "quantize", "static", str(model), "--calib", str(images)]
     infer_gb, infer_s, _ = measure([sys.executable, "-c", INFER, str(model), f"1,3,{height},{width}"])
     rows = [("the float model's own inference (onnxruntime, 1 input)", "-", "-", infer_gb, infer_s, "")]
@@ -105,6 +108,9 @@ def main() -> None:
             gb, s, error = measure([*edgepick, "--calib-images", str(count), "--calib-method", method,
                                     "--out", str(work / "int8.onnx")])
             rows.append(("edgepick quantize static", method, count, gb, s, error))
+    for count in filter(None, args.adaround_counts.split(",")):
+        gb, s, error = measure([*edgepick, "--calib-images", count, "--adaround", "--out", str(work / "int8.onnx")])
+        rows.append(("edgepick quantize static --adaround", "auto", int(count), gb, s, error))
     for count in filter(None, args.peer_counts.split(",")):
         for method in ("MinMax", "Percentile"):
             gb, s, error = measure([sys.executable, "-c", ORT_PEER, str(model), str(images), str(work / "ort.onnx"),

@@ -127,9 +127,15 @@ def _output(w: np.ndarray, bias: np.ndarray, x: np.ndarray, groups: int) -> np.n
     return np.matmul(w, x.reshape(groups, x.shape[0] // groups, -1)).reshape(-1, x.shape[1]) + bias[:, None]
 
 
-def _error(y: np.ndarray, target: np.ndarray) -> float:
-    """AIMET's reconstruction loss: squared error summed over channels, mean over positions."""
-    return float(np.square(y - target).sum(axis=0).mean())
+def _error(w: np.ndarray, bias: np.ndarray, x_rows: np.ndarray, target_rows: np.ndarray, groups: int) -> float:
+    """AIMET's reconstruction loss of the conv with weights W [g, M/g, K/g] on the rows X_ROWS [P, K]
+    against TARGET_ROWS [P, M]: squared error summed over channels, mean over positions. On the rows,
+    as the solver holds them: the columns' grouped view of a wide conv would be a copy of them all."""
+    if groups == 1:
+        y = x_rows @ w[0].T
+    else:
+        y = np.einsum("pgk,gmk->pgm", x_rows.reshape(len(x_rows), groups, -1), w).reshape(len(x_rows), -1)
+    return float(np.square(y + bias - target_rows).sum(axis=1).mean())
 
 
 def _soft(v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -182,7 +188,8 @@ def round_conv(w: np.ndarray, scale: np.ndarray, lo: int, hi: int, bias: np.ndar
     closest to TARGET [M, P], in the steps SECONDS afford (or exactly STEPS), with Adam on the
     rectified sigmoid h(V) and the annealed regulariser. Returns (codes, error with nearest
     rounding, error with the learnt one, steps taken); nearest rounding where it does no worse."""
-    w, x, target = w.astype(np.float32), x.astype(np.float32), target.astype(np.float32)
+    # X as given where it is float32 already (a caller holding rows passes their transposed view: no copy)
+    w, x, target = w.astype(np.float32), np.asarray(x, np.float32), target.astype(np.float32)
     bias = bias.astype(np.float32)
     s = np.broadcast_to(scale.astype(np.float32).reshape(-1, *[1] * (w.ndim - 1)), w.shape)
     floor = np.floor(w / s)
@@ -190,12 +197,12 @@ def round_conv(w: np.ndarray, scale: np.ndarray, lo: int, hi: int, bias: np.ndar
     rest = np.clip(w / s - floor, 1e-4, 1 - 1e-4)
     v = (-np.log(np.float32(ZETA - GAMMA) / (rest - np.float32(GAMMA)) - 1)).astype(np.float32)
     adam = _Adam(v.shape)
-    nearest_error = _error(_output(_grouped(nearest * s, groups), bias, x, groups), target)
-    fixed = steps is not None
-    start, planned, taken = time.perf_counter(), steps or MAX_STEPS, 0
     # a step's batch gathered as rows of [P, K] and [P, M], not as strided columns of [K, P]: on a conv with
     # many input rows K the column gather cost more than the step's products
     x_rows, target_rows = np.ascontiguousarray(x.T), np.ascontiguousarray(target.T)
+    nearest_error = _error(_grouped(nearest * s, groups), bias, x_rows, target_rows, groups)
+    fixed = steps is not None
+    start, planned, taken = time.perf_counter(), steps or MAX_STEPS, 0
     while taken < planned:
         take = rng.integers(0, x.shape[1], min(BATCH, x.shape[1]))
         progress = taken / planned
@@ -208,7 +215,7 @@ def round_conv(w: np.ndarray, scale: np.ndarray, lo: int, hi: int, bias: np.ndar
             per_step = (time.perf_counter() - start) / taken
             planned = int(min(MAX_STEPS, max(MIN_STEPS, seconds / per_step)))
     codes = np.clip(floor + (_soft(v)[0] >= 0.5), lo, hi)
-    learnt_error = _error(_output(_grouped(codes * s, groups), bias, x, groups), target)
+    learnt_error = _error(_grouped(codes * s, groups), bias, x_rows, target_rows, groups)
     if learnt_error >= nearest_error:
         return nearest, nearest_error, nearest_error, taken
     return codes, nearest_error, learnt_error, taken

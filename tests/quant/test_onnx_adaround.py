@@ -98,3 +98,16 @@ def test_without_a_time_budget_every_conv_takes_the_planned_steps_and_the_file_i
     assert files[0].read_bytes() == files[1].read_bytes()
     quant = json.loads({p.key: p.value for p in onnx.load(str(files[0])).metadata_props}["edgepick.quant"])
     assert quant["adaround_budget_s"] is None and quant["adaround_steps"] == seen[0][next(iter(seen[0]))]["steps"]
+
+
+def test_spilled_targets_come_back_as_added_side_by_side_and_leave_no_file(tmp_path):
+    targets = onnx_adaround.SpilledTargets(tmp_path)
+    rng = np.random.default_rng(0)
+    parts = {"conv_a": [rng.normal(size=(3, 5)), rng.normal(size=(3, 2))], "conv_b": [rng.normal(size=(4, 5))]}
+    for k in range(2):
+        for name, rows in parts.items():
+            if k < len(rows):
+                targets.add(name, rows[k])
+    np.testing.assert_array_equal(targets.pop("conv_b"), parts["conv_b"][0].astype(np.float32))
+    np.testing.assert_array_equal(targets.pop("conv_a"), np.concatenate(parts["conv_a"], axis=1).astype(np.float32))
+    assert list(tmp_path.iterdir()) == []

@@ -42,6 +42,7 @@ SCAN_KEEP = 4  # the best blocks (then sub-blocks) split again
 # an output's SQNR under this is int8 far from fp32 (segmentation logits and text maps measure 15-25 dB): the
 # file is written with a warning naming the activations to leave float
 SQNR_FLOOR_DB = 10.0
+TIMED_RUNS = 20  # per graph, where the answer's speed is timed against fp32 and the all-int8 file
 
 
 def _db(error: float) -> float:
@@ -331,7 +332,8 @@ def speed_cost(fp32: Any, int8: Any, kept_float: Any, x: np.ndarray, threads: in
         name = session.get_inputs()[0].name
         return lambda image: session.run(None, {name: image})
 
-    ms = median_ms({"fp32_ms": runner(fp32), "all_int8_ms": runner(int8), "kept_float_ms": runner(kept_float)}, x)
+    ms = median_ms({"fp32_ms": runner(fp32), "all_int8_ms": runner(int8), "kept_float_ms": runner(kept_float)}, x,
+                   timed=TIMED_RUNS)
     return {**ms, "slowdown": round(ms["kept_float_ms"] / ms["all_int8_ms"], 3),
             "speedup_vs_fp32": round(ms["fp32_ms"] / ms["kept_float_ms"], 3), "threads": threads}
 

@@ -1,6 +1,6 @@
 """Running an int8 QDQ graph (and its float model) the way static PTQ's measurements need it:
 `runner` fetches any tensors of one input's run, `channel_means` each image's per-channel means
-reduced in the graph, and `segments` cut the graph after each wave of convs, so that bias
+reduced in the graph, `position_sampler` feature maps' values at given positions taken in the graph, and `segments` cut the graph after each wave of convs, so that bias
 correction and AdaRound run every measured input together, segment by segment, correcting each
 wave's convs before the segments after it run (each image passes through the model once). Graphs
 run with onnxruntime's graph optimisations off, each Q/DQ pair computed as written.
@@ -43,7 +43,6 @@ def channel_means(model: Any, outputs: list[str]) -> Callable[[np.ndarray], list
     [images, channels] means: a ReduceMean in the graph, so that no whole feature map is held (a
     graph output lives until the run ends, fetched or not)."""
     import onnx
-    import onnxruntime as ort
 
     copy = copy_model(model)
     g = Graph(copy)
@@ -57,13 +56,63 @@ def channel_means(model: Any, outputs: list[str]) -> Callable[[np.ndarray], list
         copy.graph.output.append(onnx.ValueInfoProto(name=node.output[0]))
         means.append(node.output[0])
     g.insert_after_producers(after)
+    session = reducing_session(copy)
+    image = session.get_inputs()[0].name
+    return lambda x: [m.astype(np.float64) for m in session.run(means, {image: x})]
+
+
+def position_sampler(model: Any, outputs: list[str]) -> tuple[list[int | None], Callable[..., list[np.ndarray]]]:
+    """Per tensor of OUTPUTS of MODEL ([N, C, H, W] maps), its H*W where shape inference knows it, and
+    a function running a copy of MODEL on one input tensor and the positions to take per map (flat
+    indices into H*W), returning each map's values there, [N, C, P]: a Gather in the graph, so that
+    no whole map is held to the run's end, as a graph output would be. A map whose size is not
+    known is returned whole, [N, C, H*W]."""
+    import onnx
+
+    copy = onnx.shape_inference.infer_shapes(copy_model(model))
+    dims = {v.name: [d.dim_value if d.HasField("dim_value") else 0 for d in v.type.tensor_type.shape.dim]
+            for v in [*copy.graph.value_info, *copy.graph.output]}
+    sizes = [dims[n][2] * dims[n][3] if len(dims.get(n, [])) == 4 and dims[n][2] * dims[n][3] > 0 else None
+             for n in outputs]
+    g = Graph(copy)
+    del copy.graph.output[:]
+    flat = g.add_initializer("edgepick_flat_maps", [0, 0, -1], np.int64)
+    after: dict[str, list[Any]] = {}
+    fetched, takes = [], []
+    for k, (name, size) in enumerate(zip(outputs, sizes, strict=True)):
+        reshaped, out = f"{name}_flat", f"{name}_sampled"
+        nodes = [onnx.helper.make_node("Reshape", [name, flat], [reshaped], name=f"{reshaped}_node")]
+        if size is not None:
+            takes.append(f"edgepick_positions_{k}")
+            copy.graph.input.append(onnx.helper.make_tensor_value_info(takes[-1], onnx.TensorProto.INT64, [None]))
+            nodes.append(onnx.helper.make_node("Gather", [reshaped, takes[-1]], [out], axis=2, name=f"{out}_node"))
+        else:
+            out = reshaped
+        after.setdefault(name, []).extend(nodes)
+        copy.graph.output.append(onnx.ValueInfoProto(name=out))
+        fetched.append(out)
+    g.insert_after_producers(after)
+    session = reducing_session(copy)
+    image = model.graph.input[0].name
+
+    def run(x: np.ndarray, positions: list[np.ndarray | None]) -> list[np.ndarray]:
+        feed = {image: x, **{t: p for t, p in zip(takes, (p for p in positions if p is not None), strict=True)}}
+        return session.run(fetched, feed)
+
+    return sizes, run
+
+
+def reducing_session(model: Any) -> Any:
+    """An onnxruntime session of MODEL, whose nodes that reduce a feature map (a mean, a Gather of some
+    positions) stand right after the node making it: run in that order, with no arena and no graph
+    optimisation, so that each map is reduced as soon as it is made and freed as early as without them."""
+    import onnxruntime as ort
+
     opts = ort.SessionOptions()
     opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
     opts.log_severity_level, opts.enable_cpu_mem_arena = 3, False
-    opts.execution_order = ort.ExecutionOrder.PRIORITY_BASED  # each mean as soon as its map is made
-    session = ort.InferenceSession(copy.SerializeToString(), opts, providers=["CPUExecutionProvider"])
-    image = session.get_inputs()[0].name
-    return lambda x: [m.astype(np.float64) for m in session.run(means, {image: x})]
+    opts.execution_order = ort.ExecutionOrder.PRIORITY_BASED
+    return ort.InferenceSession(model.SerializeToString(), opts, providers=["CPUExecutionProvider"])
 
 
 def tensor_ranks(model: Any) -> dict[str, int]:
