@@ -1,9 +1,10 @@
 """Running an int8 QDQ graph (and its float model) the way static PTQ's measurements need it:
 `runner` fetches any tensors of one input's run, `channel_means` each image's per-channel means
-reduced in the graph, `position_sampler` feature maps' values at given positions taken in the graph, and `segments` cut the graph after each wave of convs, so that bias
-correction and AdaRound run every measured input together, segment by segment, correcting each
-wave's convs before the segments after it run (each image passes through the model once). Graphs
-run with onnxruntime's graph optimisations off, each Q/DQ pair computed as written.
+reduced in the graph, `position_sampler` feature maps' values at given positions taken in the
+graph, and `segments` cut the graph after each wave of convs, so that bias correction and AdaRound
+run every measured input together, segment by segment, correcting each wave's convs before the
+segments after it run (each image passes through the model once). Graphs run with onnxruntime's
+graph optimisations off, each Q/DQ pair computed as written.
 """
 
 from __future__ import annotations
