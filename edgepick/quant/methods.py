@@ -199,11 +199,13 @@ def _moments(bias: np.ndarray, x_rows: np.ndarray, target_rows: np.ndarray, grou
     cross = np.empty((groups, m // groups, kg), np.float32)
     xg = x_rows.reshape(p, groups, kg)
     tg = (target_rows - bias).reshape(p, groups, m // groups)
-    chunk = max(1, (1 << 22) // max(p * kg, 1))  # groups whose columns are copied at once: some 16 MB
+    # summed in float64, then rounded: a float32 sum over P depends on how the BLAS splits it among threads, and
+    # with it the file
+    chunk = max(1, (1 << 21) // max(p * kg, 1))  # groups whose columns are copied at once: some 16 MB
     for start in range(0, groups, chunk):
-        part = np.ascontiguousarray(xg[:, start:start + chunk].transpose(1, 2, 0))  # [c, K/g, P]
+        part = xg[:, start:start + chunk].transpose(1, 2, 0).astype(np.float64)  # [c, K/g, P]
         gram[start:start + chunk] = np.matmul(part, part.transpose(0, 2, 1)) / p
-        cross[start:start + chunk] = np.matmul(np.ascontiguousarray(tg[:, start:start + chunk].transpose(1, 2, 0)),
+        cross[start:start + chunk] = np.matmul(tg[:, start:start + chunk].transpose(1, 2, 0).astype(np.float64),
                                                part.transpose(0, 2, 1)) / p
     return lambda w: 2.0 * (np.matmul(w, gram) - cross)
 

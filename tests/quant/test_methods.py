@@ -53,3 +53,21 @@ def test_the_solver_rounds_each_weight_down_or_up_and_lowers_the_output_error(wi
     assert taken == 60 and learnt < nearest
     ratio = w / scale.reshape(-1, 1, 1, 1)
     assert np.all((codes == np.floor(ratio)) | (codes == np.floor(ratio) + 1))
+
+
+def test_the_second_moments_are_the_same_whatever_the_blas_threads():
+    """A float32 sum over the positions depends on how the BLAS splits it among threads, and with it
+    AdaRound's file: the moments are summed in float64 and rounded."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import hashlib, numpy as np; from edgepick.quant.methods import _moments; "
+            "rng = np.random.default_rng(0); x = rng.normal(size=(4096, 128)).astype(np.float32); "
+            "t = rng.normal(size=(4096, 16)).astype(np.float32); "
+            "print(hashlib.sha256(_moments(np.zeros(16, np.float32), x, t, 1)(np.ones((1, 16, 128), np.float32))"
+            ".tobytes()).hexdigest())")
+    digests = {subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                              env={**os.environ, "OMP_NUM_THREADS": str(n), "OPENBLAS_NUM_THREADS": str(n)}).stdout
+               for n in (1, 2)}
+    assert len(digests) == 1, digests

@@ -228,9 +228,10 @@ def test_where_single_activations_are_not_enough_whole_regions_go_float_with_the
     """A budget past what any few activations give (the net's own int8 SQNR + 8 dB): the mode goes
     on region by region, and the convs that then read nothing on the uint8 grid get their float
     weights. Judged by the outputs' error (a judge of the caller's own), the regions are the answer
-    and the file counts their convs as float; judged by the SQNR, which the regions do not raise
-    over the single tensors' on this net, the single tensors are (the closest by the budget's own
-    measure)."""
+    and the file counts their convs as float; judged by the SQNR, the answer is the graph tried
+    closest to the budget by it: the single tensors where the regions do not raise the SQNR over
+    theirs, else the regions (on this net a matter of tenths of a dB, which AdaRound's rounding,
+    tried first, and the thread count move)."""
     from edgepick.quant.fidelity import balanced_error
     from tests.quant.onnx_models import calib_tensors, export_torch
 
@@ -253,8 +254,11 @@ def test_where_single_activations_are_not_enough_whole_regions_go_float_with_the
     record = quantize_onnx_static(path, calib, tmp_path / "sqnr.onnx", budget=budget).quant["accuracy_aware"]
     tried = [float(line.split("worst SQNR ")[1].split(" dB")[0]) for line in capsys.readouterr().err.splitlines()
              if "budget not met" in line and "worst SQNR" in line]  # the regions' steps
-    assert tried and record["closest_by_budget"] and set(record["float_tensors"]) <= singles
-    assert "float_weight_convs" not in record and record["after"]["logits"]["sqnr_db"] >= max(tried)
+    assert tried and record["after"]["logits"]["sqnr_db"] >= max(tried)
+    if record.get("closest_by_budget"):  # the single tensors, an earlier graph of the search
+        assert set(record["float_tensors"]) <= singles and "float_weight_convs" not in record
+    else:  # the regions, the search's last graph
+        assert record["float_weight_convs"] and set(record["float_tensors"]) - singles
 
 
 def test_the_region_search_takes_the_region_that_meets_the_budget_then_its_shortest_half(tmp_path, monkeypatch):
