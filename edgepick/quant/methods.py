@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Iterable, Iterator
 
 import numpy as np
 
@@ -27,7 +27,7 @@ PAIRS_AT_ONCE = 32  # K pairs multiplied per step: memory is pairs x positions x
 
 # AdaRound
 COLUMNS = 4096  # input columns (positions) kept per conv, spread over the calibration images
-BATCH = 512  # columns per optimisation step where a conv's inputs per group are wider than this
+BATCH = 512  # columns per optimisation step
 MAX_STEPS = 2000
 MIN_STEPS = 20
 LEARNING_RATE = 1e-2
@@ -162,52 +162,22 @@ class _Adam:
         return (param - (lr / (1 - b1 ** self.t)) * self.m / denom).astype(np.float32)
 
 
-def _gradient(v: np.ndarray, floor: np.ndarray, s: np.ndarray, lo: int, hi: int, groups: int, beta: float | None,
-              output_gradient: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
-    """d loss / d V: the reconstruction error's gradient with respect to the soft-rounded weights
-    [g, M/g, K/g] (OUTPUT_GRADIENT of those weights), plus, with BETA, the regulariser pushing every
-    h(V) to 0 or 1."""
+def _gradient(v: np.ndarray, floor: np.ndarray, s: np.ndarray, lo: int, hi: int, bias: np.ndarray, x: np.ndarray,
+              target: np.ndarray, groups: int, beta: float | None) -> np.ndarray:
+    """d loss / d V on the columns X against TARGET: the reconstruction error of the soft-rounded
+    weights, plus, with BETA, the regulariser pushing every h(V) to 0 or 1."""
     h, sig, inside = _soft(v)
     pre = _grouped(floor + h, groups)
     sg = _grouped(s, groups)
-    dsoft = output_gradient(np.clip(pre, lo, hi) * sg)
+    y = _output(np.clip(pre, lo, hi) * sg, bias, x, groups)
+    dy = (2.0 / x.shape[1]) * (y - target)  # [M, B]
+    xg = x.reshape(groups, x.shape[0] // groups, -1)
+    dsoft = np.matmul(dy.reshape(groups, -1, x.shape[1]), xg.transpose(0, 2, 1))  # [g, M/g, K/g]
     dh = (dsoft * sg * ((pre >= lo) & (pre <= hi))).reshape(v.shape)
     if beta is not None:
         t = 2.0 * h - 1.0
         dh = dh - np.float32(REGULARIZATION * beta * 2.0) * np.abs(t) ** (beta - 1.0) * np.sign(t)
     return (dh * inside * sig * (1.0 - sig) * np.float32(ZETA - GAMMA)).astype(np.float32)
-
-
-def _batch_gradient(bias: np.ndarray, x: np.ndarray, target: np.ndarray, groups: int) -> Callable[[np.ndarray], np.ndarray]:
-    """The output error's gradient on the columns X [K, B] against TARGET [M, B]."""
-    def gradient(w: np.ndarray) -> np.ndarray:
-        y = _output(w, bias, x, groups)
-        dy = (2.0 / x.shape[1]) * (y - target)  # [M, B]
-        xg = x.reshape(groups, x.shape[0] // groups, -1)
-        return np.matmul(dy.reshape(groups, -1, x.shape[1]), xg.transpose(0, 2, 1))  # [g, M/g, K/g]
-    return gradient
-
-
-def _moments(bias: np.ndarray, x_rows: np.ndarray, target_rows: np.ndarray, groups: int
-             ) -> Callable[[np.ndarray], np.ndarray]:
-    """The output error's gradient over all rows X_ROWS [P, K] against TARGET_ROWS [P, M], from their
-    second moments: per group G = X^T X / P [K/g, K/g] and C = (T - bias)^T X / P [M/g, K/g], so that
-    a step costs M*K/g products instead of a batch's M*K*B."""
-    p, k = x_rows.shape
-    m, kg = target_rows.shape[1], k // groups
-    gram = np.empty((groups, kg, kg), np.float32)
-    cross = np.empty((groups, m // groups, kg), np.float32)
-    xg = x_rows.reshape(p, groups, kg)
-    tg = (target_rows - bias).reshape(p, groups, m // groups)
-    # summed in float64, then rounded: a float32 sum over P depends on how the BLAS splits it among threads, and
-    # with it the file
-    chunk = max(1, (1 << 21) // max(p * kg, 1))  # groups whose columns are copied at once: some 16 MB
-    for start in range(0, groups, chunk):
-        part = xg[:, start:start + chunk].transpose(1, 2, 0).astype(np.float64)  # [c, K/g, P]
-        gram[start:start + chunk] = np.matmul(part, part.transpose(0, 2, 1)) / p
-        cross[start:start + chunk] = np.matmul(tg[:, start:start + chunk].transpose(1, 2, 0).astype(np.float64),
-                                               part.transpose(0, 2, 1)) / p
-    return lambda w: 2.0 * (np.matmul(w, gram) - cross)
 
 
 def round_conv(w: np.ndarray, scale: np.ndarray, lo: int, hi: int, bias: np.ndarray, x: np.ndarray,
@@ -216,11 +186,8 @@ def round_conv(w: np.ndarray, scale: np.ndarray, lo: int, hi: int, bias: np.ndar
     """AdaRound's solver for one conv: learn the rounding of float weights W [M, C/g, kh, kw] (scales
     SCALE per output channel, codes LO..HI) so that its output on the columns X [C*kh*kw, P] stays
     closest to TARGET [M, P], in the steps SECONDS afford (or exactly STEPS), with Adam on the
-    rectified sigmoid h(V) and the annealed regulariser. Each step's gradient is over all P columns,
-    from their second moments, where a group's inputs are at most BATCH wide (every depthwise conv,
-    most 1x1 convs): cheaper than a batch's and without its noise; over BATCH random columns
-    elsewhere. Returns (codes, error with nearest rounding, error with the learnt one, steps taken);
-    nearest rounding where it does no worse."""
+    rectified sigmoid h(V) and the annealed regulariser. Returns (codes, error with nearest
+    rounding, error with the learnt one, steps taken); nearest rounding where it does no worse."""
     # X as given where it is float32 already (a caller holding rows passes their transposed view: no copy)
     w, x, target = w.astype(np.float32), np.asarray(x, np.float32), target.astype(np.float32)
     bias = bias.astype(np.float32)
@@ -234,19 +201,14 @@ def round_conv(w: np.ndarray, scale: np.ndarray, lo: int, hi: int, bias: np.ndar
     # many input rows K the column gather cost more than the step's products
     x_rows, target_rows = np.ascontiguousarray(x.T), np.ascontiguousarray(target.T)
     nearest_error = _error(_grouped(nearest * s, groups), bias, x_rows, target_rows, groups)
-    moments = _moments(bias, x_rows, target_rows, groups) if x.shape[0] // groups <= BATCH else None
     fixed = steps is not None
     start, planned, taken = time.perf_counter(), steps or MAX_STEPS, 0
     while taken < planned:
+        take = rng.integers(0, x.shape[1], min(BATCH, x.shape[1]))
         progress = taken / planned
         beta = None if progress < WARM_START else \
             BETA[1] + (BETA[0] - BETA[1]) * (1 - (progress - WARM_START) / (1 - WARM_START))
-        if moments is None:
-            take = rng.integers(0, x.shape[1], min(BATCH, x.shape[1]))
-            output_gradient = _batch_gradient(bias, x_rows[take].T, target_rows[take].T, groups)
-        else:
-            output_gradient = moments
-        grad = _gradient(v, floor, s, lo, hi, groups, beta, output_gradient)
+        grad = _gradient(v, floor, s, lo, hi, bias, x_rows[take].T, target_rows[take].T, groups, beta)
         v = adam.step(v, grad, LEARNING_RATE)
         taken += 1
         if taken == 5 and not fixed:  # plan the steps this conv's share of the budget affords

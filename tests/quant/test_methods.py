@@ -1,12 +1,11 @@
 """The shared math of static PTQ's methods (edgepick/quant/methods.py) not tested with a pass:
-AdaRound's step plan, what a pass records of it, and its solver's two gradients."""
+AdaRound's step plan, what a pass records of it, and its solver."""
 
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
-from edgepick.quant.methods import BATCH, MAX_STEPS, MIN_STEPS, STEP_OVERHEAD, WORK, adaround_done, planned_steps, round_conv
+from edgepick.quant.methods import MAX_STEPS, MIN_STEPS, STEP_OVERHEAD, WORK, adaround_done, planned_steps, round_conv
 
 
 def test_adaround_plans_the_most_steps_where_the_model_affords_them_and_fewer_on_a_larger_one():
@@ -26,23 +25,8 @@ def test_a_pass_records_how_many_convs_kept_a_learnt_rounding_and_the_steps_per_
     assert adaround_done({}) == {"adaround_convs": 0, "adaround_steps": 0}
 
 
-def test_the_solvers_gradient_from_second_moments_is_the_gradient_over_every_column():
-    """Where a group's inputs are at most BATCH wide, each step's gradient comes from the columns'
-    second moments: the same as the batch gradient taken over all of them."""
-    from edgepick.quant.methods import _batch_gradient, _moments
-
-    rng = np.random.default_rng(0)
-    for groups, m, kg in ((1, 8, 12), (4, 4, 9), (6, 12, 5)):
-        x = rng.normal(size=(kg * groups, 300)).astype(np.float32)
-        target, bias = rng.normal(size=(m, 300)).astype(np.float32), rng.normal(size=m).astype(np.float32)
-        w = rng.normal(size=(groups, m // groups, kg)).astype(np.float32)
-        every = _batch_gradient(bias, x, target, groups)(w)
-        np.testing.assert_allclose(_moments(bias, np.ascontiguousarray(x.T), np.ascontiguousarray(target.T), groups)(w),
-                                   every, atol=1e-4 * np.abs(every).max())
-
-
-@pytest.mark.parametrize("width", [BATCH, BATCH + 88])  # second moments; random batches
-def test_the_solver_rounds_each_weight_down_or_up_and_lowers_the_output_error(width):
+def test_the_solver_rounds_each_weight_down_or_up_and_lowers_the_output_error():
+    width = 600
     rng = np.random.default_rng(1)
     w = rng.normal(0, 0.1, size=(16, width, 1, 1)).astype(np.float32)
     scale = np.abs(w).reshape(16, -1).max(axis=1) / 127
@@ -54,20 +38,3 @@ def test_the_solver_rounds_each_weight_down_or_up_and_lowers_the_output_error(wi
     ratio = w / scale.reshape(-1, 1, 1, 1)
     assert np.all((codes == np.floor(ratio)) | (codes == np.floor(ratio) + 1))
 
-
-def test_the_second_moments_are_the_same_whatever_the_blas_threads():
-    """A float32 sum over the positions depends on how the BLAS splits it among threads, and with it
-    AdaRound's file: the moments are summed in float64 and rounded."""
-    import os
-    import subprocess
-    import sys
-
-    code = ("import hashlib, numpy as np; from edgepick.quant.methods import _moments; "
-            "rng = np.random.default_rng(0); x = rng.normal(size=(4096, 128)).astype(np.float32); "
-            "t = rng.normal(size=(4096, 16)).astype(np.float32); "
-            "print(hashlib.sha256(_moments(np.zeros(16, np.float32), x, t, 1)(np.ones((1, 16, 128), np.float32))"
-            ".tobytes()).hexdigest())")
-    digests = {subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                              env={**os.environ, "OMP_NUM_THREADS": str(n), "OPENBLAS_NUM_THREADS": str(n)}).stdout
-               for n in (1, 2)}
-    assert len(digests) == 1, digests
