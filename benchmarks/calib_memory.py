@@ -96,10 +96,11 @@ def main() -> None:
     args = ap.parse_args()
     width, height = (int(v) for v in args.size.split("x"))
     counts = [int(v) for v in args.counts.split(",")]
+    adaround_counts = [int(v) for v in args.adaround_counts.split(",") if v]
     work = Path(tempfile.mkdtemp(prefix="calib-memory-"))
     model, images = work / "float.onnx", work / "images"
     make_model(model, height, width)
-    make_images(images, max([*counts, *(int(c) for c in filter(None, args.adaround_counts.split(",")))]), height, width)
+    make_images(images, max([*counts, *adaround_counts]), height, width)
     edgepick = [sys.executable, "-m", "edgepick", "quantize", "static", str(model), "--calib", str(images)]
     infer_gb, infer_s, _ = measure([sys.executable, "-c", INFER, str(model), f"1,3,{height},{width}"])
     rows = [("the float model's own inference (onnxruntime, 1 input)", "-", "-", infer_gb, infer_s, "")]
@@ -108,9 +109,9 @@ def main() -> None:
             gb, s, error = measure([*edgepick, "--calib-images", str(count), "--calib-method", method,
                                     "--out", str(work / "int8.onnx")])
             rows.append(("edgepick quantize static", method, count, gb, s, error))
-    for count in filter(None, args.adaround_counts.split(",")):
-        gb, s, error = measure([*edgepick, "--calib-images", count, "--adaround", "--out", str(work / "int8.onnx")])
-        rows.append(("edgepick quantize static --adaround", "auto", int(count), gb, s, error))
+    for count in adaround_counts:
+        gb, s, error = measure([*edgepick, "--calib-images", str(count), "--adaround", "--out", str(work / "int8.onnx")])
+        rows.append(("edgepick quantize static --adaround", "auto", count, gb, s, error))
     for count in filter(None, args.peer_counts.split(",")):
         for method in ("MinMax", "Percentile"):
             gb, s, error = measure([sys.executable, "-c", ORT_PEER, str(model), str(images), str(work / "ort.onnx"),

@@ -1,8 +1,9 @@
 """AdaRound on an int8 QDQ ONNX graph written by onnxruntime's quantizer, as quant/pt2e/adaround.py
 does it on a torch graph: the float model gives each conv's output at sampled positions of the
-calibration images (taken in its graph, kept on disk until the conv's turn); the int8 model runs on all of them together, segment by segment
-(`lockstep.segments`), and each conv learns its up/down rounding (`methods.round_conv`) on the
-input the int8 model gives it there, the convs before it already rounded. Only the weight codes
+calibration images (taken in its graph, kept on disk until the conv's turn); the int8 model runs
+on all of them together, segment by segment (`lockstep.segments`), and each conv learns its
+up/down rounding (`methods.round_conv`) on the input the int8 model gives it there, the convs
+before it already rounded. Only the weight codes
 change: the scales, the activation ranges and the graph stay as onnxruntime wrote them. numpy only.
 """
 
