@@ -15,9 +15,10 @@ from edgepick.quant.onnx.calibrate import (
     Collector,
     calibrated_tensors,
     check_memory,
+    concat_spans,
     output_groups,
 )
-from edgepick.quant.onnx.static import quantize_onnx_static
+from edgepick.quant.onnx.static import OnnxOptions, quantize_onnx_static
 from edgepick.quant.ranges import RangeRule
 from tests.quant.onnx_models import conv_relu_model, helper_model, optimized_ops
 
@@ -197,6 +198,43 @@ def test_a_concats_range_spans_its_inputs_and_the_wider_one_shares_its_qparams(t
     shared = [_same_qparams(int8, dq[i].input[1:], after.input[1:]) for i in concat.input]
     assert shared == [False, True]
     assert optimized_ops(out)["QLinearConcat"] == 1
+
+
+def test_placement_joins_reads_every_concat_input_on_the_concats_own_grid(tmp_path):
+    """For OpenVINO (placement joins) each Concat input takes the span too, as NNCF's files have it:
+    OpenVINO would requantize an input on another grid in a pass of its own. A Concat of Concats
+    ends with one grid for all."""
+    model = _concat_model(tmp_path / "concat.onnx")
+    xs = _inputs(6)
+    proto = onnx.shape_inference.infer_shapes(onnx.load(str(model)))
+    collector = Collector(proto, calibrated_tensors(proto, ["Conv", "Relu", "Concat"]), shared_concat_inputs=True)
+    for x in xs:
+        collector.add(x)
+    ranges = collector.ranges(RangeRule(CalibMethod.PERCENTILE, 99.9))
+    assert ranges["relu_a"] == ranges["relu_b"] == ranges["joined"]
+    out = tmp_path / "int8.onnx"
+    quantize_onnx_static(model, xs, out, config=QuantConfig(calib_method=CalibMethod.PERCENTILE),
+                         options=OnnxOptions(placement="joins"), progress=False)
+    int8 = onnx.load(str(out))
+    dq = {n.output[0]: n for n in int8.graph.node if n.op_type == "DequantizeLinear"}
+    concat = next(n for n in int8.graph.node if n.op_type == "Concat")
+    after = next(n for n in int8.graph.node if n.op_type == "QuantizeLinear" and n.input[0] == concat.output[0])
+    assert [_same_qparams(int8, dq[i].input[1:], after.input[1:]) for i in concat.input] == [True, True]
+    assert "Relu" not in {n.op_type for n in int8.graph.node}  # each folded into its conv's grid
+
+
+def test_concats_of_concats_share_one_grid():
+    from onnx import helper
+
+    nodes = [helper.make_node("Concat", ["a", "b"], ["ab"], axis=1),
+             helper.make_node("Concat", ["ab", "c"], ["abc"], axis=1),
+             helper.make_node("Concat", ["a", "d"], ["ad"], axis=1)]
+    graph = helper.make_graph(nodes, "g", [], [])
+    ranges = {"a": (0.0, 1.0), "b": (-1.0, 2.0), "c": (0.0, 5.0), "d": (-3.0, 0.5), "ab": (0, 0), "abc": (0, 0), "ad": (0, 0)}
+    shared = concat_spans(helper.make_model(graph), ranges, shared_inputs=True)
+    assert len(set(shared.values())) == 1 and shared["a"] == (-3.0, 5.0)
+    alone = concat_spans(helper.make_model(graph), ranges)
+    assert alone["ab"] == (-1.0, 2.0) and alone["abc"] == (-1.0, 5.0) and alone["a"] == (0.0, 1.0)
 
 
 def _same_qparams(model, one, other) -> bool:

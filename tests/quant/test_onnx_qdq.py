@@ -153,18 +153,15 @@ def test_the_graph_the_rule_was_chosen_on_is_taken_again_where_it_is_what_the_wr
 
 
 def test_the_graph_taken_again_folds_a_relu_only_where_the_writer_quantizes_it(tmp_path):
-    """With placement convs the writer leaves the Relu float and does not give the conv's output the Relu's
-    range; the graph taken again must not either (it did: OpenVINO's files then changed)."""
-    from onnxruntime.quantization.registry import QDQRegistry, QLinearOpsRegistry
-
-    from edgepick.quant.config import Placement
+    """Where the writer quantizes convs alone it leaves the Relu float and does not give the conv's output
+    the Relu's range; the graph taken again must not either (it did: OpenVINO's files then changed)."""
+    from edgepick.export.onnx_io import CONV_OPS
     from edgepick.quant.onnx import qdq
-    from edgepick.quant.onnx.static import placement_ops
     from tests.quant.test_onnx_measure import _qparams
 
     path, _, _ = conv_relu_model(tmp_path / "m.onnx")
     float_model = onnx.load(str(path))
-    ops = placement_ops(Placement.CONVS, {*QDQRegistry, *QLinearOpsRegistry})
+    ops = sorted(CONV_OPS)
     first = {"input": (-1.0, 1.0), "conv_out": (-4.0, 4.0), "output": (0.0, 4.0)}
     second = {"input": (-2.0, 1.5), "conv_out": (-3.0, 6.0), "output": (0.0, 5.0)}
     written = qdq.qdq_model(path, first, ops, [], False)

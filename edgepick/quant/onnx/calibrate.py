@@ -189,8 +189,10 @@ class Collector:
     alive to its end, fetched or not."""
 
     def __init__(self, model: Any, sizes: dict[str, int], budget: int = OUTPUT_BUDGET, threads: int = 0,
-                 minmax_only: bool = False, means: Iterable[str] = (), mean_inputs: int = 0):
+                 minmax_only: bool = False, means: Iterable[str] = (), mean_inputs: int = 0,
+                 shared_concat_inputs: bool = False):
         self.names = list(sizes)
+        self.shared_concat_inputs = shared_concat_inputs  # every Concat input on its output's grid (`concat_spans`)
         # per-channel means of these tensors on the inputs numbered below MEAN_INPUTS (bias correction's fp32 side)
         self.mean_inputs = mean_inputs
         self.means: dict[str, dict[int, np.ndarray]] = {n: {} for n in means if n in sizes} if mean_inputs else {}
@@ -284,20 +286,28 @@ class Collector:
         exact = set(exact)
         plain = RangeRule(CalibMethod.MINMAX)
         read = {name: (plain if name in exact else rule).range(h) for name, h in self.histograms.items()}
-        return concat_spans(self.model, read)
+        return concat_spans(self.model, read, self.shared_concat_inputs)
 
 
-def concat_spans(model: Any, ranges: dict[str, tuple[float, float]]) -> dict[str, tuple[float, float]]:
+def concat_spans(model: Any, ranges: dict[str, tuple[float, float]],
+                 shared_inputs: bool = False) -> dict[str, tuple[float, float]]:
     """RANGES with each Concat's output given the span of its inputs' ranges (in graph order, so that
     a Concat of Concats spans the spans). Its values are its inputs' values, so the span is a range
     each input fits; an input whose own range is that span (the one with the largest values, and
     with the smallest: every Relu's input starts at 0) then gets the output's very qparams, and
     onnxruntime's QLinearConcat copies its bytes instead of requantizing them (what that is worth:
-    docs/quantization.md, the conformance suite's Concat spans)."""
+    docs/quantization.md, the conformance suite's Concat spans). SHARED_INPUTS: every input takes the
+    span too, as NNCF's files for OpenVINO have it (placement joins): OpenVINO requantizes an input on
+    another grid than the output's in an elementwise pass of its own, a full feature map each."""
     spans = dict(ranges)
-    for node in model.graph.node:
-        parts = [spans[name] for name in node.input if name in spans]
-        if node.op_type != "Concat" or node.output[0] not in spans or not parts or len(parts) != len(node.input):
-            continue
-        spans[node.output[0]] = (min(p[0] for p in parts), max(p[1] for p in parts))
+    concats = [n for n in model.graph.node if n.op_type == "Concat" and n.output[0] in spans
+               and all(name in spans for name in n.input) and len(n.input)]
+    for _ in range(len(concats) + 1 if shared_inputs else 1):  # shared: until every Concat's inputs agree
+        before = dict(spans)
+        for node in concats:
+            parts = [spans[name] for name in [*node.input, *([node.output[0]] if shared_inputs else [])]]
+            span = (min(p[0] for p in parts), max(p[1] for p in parts))
+            spans.update({name: span for name in [node.output[0], *(node.input if shared_inputs else [])]})
+        if spans == before:
+            break
     return spans

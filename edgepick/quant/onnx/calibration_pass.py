@@ -38,17 +38,18 @@ class Calibrated:
 def calibrated(prepared: Any, pre: Path, first: np.ndarray, tensors: Iterator[Any], input_shape: tuple[int, ...],
                config: QuantConfig, ops: list[str], exclude: list[str], keep: int, hold: int, total: int | None,
                evaluator: Callable[[list[np.ndarray]], Evaluator], mean_inputs: int, clock: StageClock,
-               progress: bool) -> Calibrated:
+               progress: bool, shared_concat_inputs: bool = False) -> Calibrated:
     """Stream every calibration tensor through PREPARED into a histogram per activation that OPS read
     or write (the first HOLD held out until the rule is chosen on them, EVALUATOR's check tensors),
     and read the ranges off; on the first MEAN_INPUTS, the convs' per-channel output means too.
-    CLOCK times the pass ("calibrate") apart from the rule's measurements ("choose_ranges")."""
+    CLOCK times the pass ("calibrate") apart from the rule's measurements ("choose_ranges").
+    SHARED_CONCAT_INPUTS: each Concat's inputs read on its output's grid (`calibrate.concat_spans`)."""
     with clock("calibrate"):
         sizes = calibrated_tensors(prepared, ops)
         check_memory(prepared, sizes, int(np.prod(input_shape)) * 4 * keep)
         convs = [n.output[0] for n in prepared.graph.node if n.op_type == "Conv"]
         collector = Collector(prepared, sizes, minmax_only=config.calib_method == CalibMethod.MINMAX, means=convs,
-                              mean_inputs=mean_inputs)
+                              mean_inputs=mean_inputs, shared_concat_inputs=shared_concat_inputs)
         kept, seen = _calibrate(collector, first, tensors, input_shape, keep, hold, total, progress)
         collector.close()  # choosing the rule needs the memory; the held-out tensors open it again
         held = kept[:hold]

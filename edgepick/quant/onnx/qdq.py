@@ -210,8 +210,7 @@ def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np
     float_outputs(written, tail, float_model)
     scores = []
     for rule in progress_bar(rules, desc="choose ranges", unit="rule", enabled=progress):
-        # every Relu and Clip folded as placement all writes them; with convs or joins, whose files leave the
-        # activations float and unfolded, the candidates are ranked on that slightly finer grid all the same
+        # every Relu and Clip read by a quantized op alone folded into its grid, as every placement's writer folds them
         requantize_activations(written, float_model, adjusted_ranges(float_model, collector.ranges(rule, exact)))
         scores.append(RuleScore(rule, check.error(written, None)))
     best = min(scores, key=lambda s: s.error)

@@ -79,7 +79,7 @@ from edgepick.quant.onnx.calibrate import release_memory
 from edgepick.quant.onnx.calibration_pass import Calibrated, calibrated
 from edgepick.quant.onnx.equalize import equalize_onnx
 from edgepick.quant.onnx.evaluator import Evaluator, Judge, evaluator_for
-from edgepick.quant.onnx.floating import float_tensors, node_tensors
+from edgepick.quant.onnx.floating import REMOVABLE_OPS, float_tensors, node_tensors
 from edgepick.quant.onnx.gelu import sigmoid_gelu
 from edgepick.quant.onnx.inputs import check_tensor
 from edgepick.quant.onnx.measure import correct_onnx_biases, qdq_convs, saturating_onnx_convs, to_seven_bit_onnx
@@ -183,8 +183,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
         raise ParameterError("{bias_correction}: fast is not available for ONNX models; use empirical",
                              bias_correction=methods.bias_correction)
     proto, constants = _read(model, config, task)
-    total = len(calib) if isinstance(calib, Sized) else None
-    tensors = iter(calib)
+    total, tensors = len(calib) if isinstance(calib, Sized) else None, iter(calib)
     first, input_shape = _first_tensor(proto, next(tensors, None), input_shape)
     t0, clock = time.perf_counter(), StageClock()
     opset_in = opset(proto)
@@ -205,7 +204,8 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
         checks = _CheckOutputs(pre, prepared, tasks, nhwc, budget.judge if budget is not None else None)
         cal = calibrated(prepared, pre, first, tensors, tuple(input_shape), config, ops, exclude, keep,
                          hold if config.calib_method == CalibMethod.AUTO else 0, total, checks,
-                         check + measured if methods.bias_correction == BiasCorrection.EMPIRICAL else 0, clock, progress)
+                         check + measured if methods.bias_correction == BiasCorrection.EMPIRICAL else 0, clock, progress,
+                         shared_concat_inputs=options.placement == Placement.JOINS)
         checks.release_if_large()
 
         def checker() -> Evaluator:
@@ -376,9 +376,13 @@ JOIN_OPS = ("MatMul", "Gemm", "Add", "Concat", "MaxPool", "AveragePool", "Global
 
 
 def placement_ops(placement: Placement, registry: set[str]) -> list[str]:
-    """The op types PLACEMENT quantizes, of onnxruntime's quantizer's REGISTRY."""
+    """The op types PLACEMENT quantizes, of onnxruntime's quantizer's REGISTRY. Every placement names
+    Relu and Clip: where one alone reads a quantized op's output the writer folds it into that
+    output's grid (as NNCF's files leave a conv's Relu for OpenVINO to fuse: quantized between the conv
+    and its Relu, OpenVINO ran the Relu and the requantization as a pass of their own), and leaves
+    it float elsewhere."""
     if placement == Placement.ALL:
         return sorted({*registry, "HardSigmoid"} - {"ArgMax"})
     if placement == Placement.JOINS:
-        return sorted({*CONV_OPS, *JOIN_OPS})
-    return sorted(CONV_OPS)
+        return sorted({*CONV_OPS, *JOIN_OPS, *REMOVABLE_OPS})
+    return sorted({*CONV_OPS, *REMOVABLE_OPS})
