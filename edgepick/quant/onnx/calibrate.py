@@ -286,11 +286,11 @@ class Collector:
         exact = set(exact)
         plain = RangeRule(CalibMethod.MINMAX)
         read = {name: (plain if name in exact else rule).range(h) for name, h in self.histograms.items()}
-        return concat_spans(self.model, read, self.shared_concat_inputs)
+        return concat_spans(self.model, read, self.shared_concat_inputs, exact)
 
 
-def concat_spans(model: Any, ranges: dict[str, tuple[float, float]],
-                 shared_inputs: bool = False) -> dict[str, tuple[float, float]]:
+def concat_spans(model: Any, ranges: dict[str, tuple[float, float]], shared_inputs: bool = False,
+                 exact: Container[str] = ()) -> dict[str, tuple[float, float]]:
     """RANGES with each Concat's output given the span of its inputs' ranges (in graph order, so that
     a Concat of Concats spans the spans). Its values are its inputs' values, so the span is a range
     each input fits; an input whose own range is that span (the one with the largest values, and
@@ -298,16 +298,20 @@ def concat_spans(model: Any, ranges: dict[str, tuple[float, float]],
     onnxruntime's QLinearConcat copies its bytes instead of requantizing them (what that is worth:
     docs/quantization.md, the conformance suite's Concat spans). SHARED_INPUTS: every input takes the
     span too, as NNCF's files for OpenVINO have it (placement joins): OpenVINO requantizes an input on
-    another grid than the output's in an elementwise pass of its own, a full feature map each."""
+    another grid than the output's in an elementwise pass of its own, a full feature map each. But
+    not where the Concat's output is EXACT (it reaches a graph output through no conv: a detector's
+    head joining box and class values), whose inputs' own grids decide what the output holds."""
     spans = dict(ranges)
     concats = [n for n in model.graph.node if n.op_type == "Concat" and n.output[0] in spans
                and all(name in spans for name in n.input) and len(n.input)]
+    shared = {n.output[0] for n in concats if shared_inputs and n.output[0] not in exact}
     for _ in range(len(concats) + 1 if shared_inputs else 1):  # shared: until every Concat's inputs agree
         before = dict(spans)
         for node in concats:
-            parts = [spans[name] for name in [*node.input, *([node.output[0]] if shared_inputs else [])]]
+            joined = node.output[0] in shared
+            parts = [spans[name] for name in [*node.input, *([node.output[0]] if joined else [])]]
             span = (min(p[0] for p in parts), max(p[1] for p in parts))
-            spans.update({name: span for name in [node.output[0], *(node.input if shared_inputs else [])]})
+            spans.update({name: span for name in [node.output[0], *(node.input if joined else [])]})
         if spans == before:
             break
     return spans

@@ -11,12 +11,12 @@ write the Q/DQ pairs for those ranges, and rewrites around it (docs/quantization
 - the recipe: U8S8, weights int8 per output channel and symmetric, 7-bit unless
   weight_bits 8 (or first-7: 7-bit only where 8-bit weights saturate, `measure`), uint8
   activations per tensor, HardSigmoid quantized as well (with placement convs: only the convs
-  and the tensors they read and write, the model's own activations left float as it writes them,
-  for OpenVINO, which fuses them into its int8 convs); with options.gelu sigmoid, each GELU written as
-  c * x * sigmoid(alpha * x) on integer kernels (`gelu`); with methods.equalize, conv pairs equalized
-  before calibration (`equalize`); with methods.adaround, each conv's weight rounding learnt
-  on the calibration tensors (`adaround`); with empirical bias correction, the conv biases
-  shifted back to fp32's means (`measure`);
+  and the tensors they read and write, a Relu after a conv folded into its grid, the model's other
+  activations left float as it writes them, for OpenVINO, which fuses them into its int8 convs);
+  with options.gelu sigmoid, each GELU written as c * x * sigmoid(alpha * x) on integer kernels
+  (`gelu`); with methods.equalize, conv pairs equalized before calibration (`equalize`); with
+  methods.adaround, each conv's weight rounding learnt on the calibration tensors (`adaround`); with
+  empirical bias correction, the conv biases shifted back to fp32's means (`measure`);
 - after: the ops between the last conv and the outputs (Resize, Sigmoid, ...) float, the outputs
   on the uint8 grid unless that costs fidelity (`qdq.outputs_on_grid`); export's integer
   activations and padding-tap crop; initializers no node reads dropped.
