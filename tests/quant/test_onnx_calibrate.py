@@ -223,7 +223,7 @@ def test_placement_joins_reads_every_concat_input_on_the_concats_own_grid(tmp_pa
     assert "Relu" not in {n.op_type for n in int8.graph.node}  # each folded into its conv's grid
 
 
-def test_concats_of_concats_share_one_grid():
+def test_concats_of_concats_share_one_grid_but_a_heads():
     from onnx import helper
 
     nodes = [helper.make_node("Concat", ["a", "b"], ["ab"], axis=1),
@@ -235,6 +235,10 @@ def test_concats_of_concats_share_one_grid():
     assert len(set(shared.values())) == 1 and shared["a"] == (-3.0, 5.0)
     alone = concat_spans(helper.make_model(graph), ranges)
     assert alone["ab"] == (-1.0, 2.0) and alone["abc"] == (-1.0, 5.0) and alone["a"] == (0.0, 1.0)
+    # a Concat reaching an output through no conv (a detector's head) keeps its inputs' own grids
+    head = concat_spans(helper.make_model(graph), ranges, shared_inputs=True, exact={"abc"})
+    assert head["c"] == (0.0, 5.0) and head["abc"] == (-3.0, 5.0)
+    assert head["a"] == head["b"] == head["ab"] == head["d"] == head["ad"] == (-3.0, 2.0)
 
 
 def _same_qparams(model, one, other) -> bool:
