@@ -1,12 +1,15 @@
 """The calibration pass of ONNX static PTQ: every calibration tensor streamed once through the
 float model into a histogram per activation (quant/onnx/calibrate.py), the range rule chosen on the
-held-out first tensors (quant/onnx/qdq.py `choose_rule`), the ranges read off."""
+held-out first tensors (quant/onnx/qdq.py `choose_rule`; where that measure ranks nothing, again on the
+bias-corrected files: `ranges_after_correction`), the ranges read off."""
 
 from __future__ import annotations
 
 import itertools
+import math
+import sys
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -14,11 +17,16 @@ import numpy as np
 
 from edgepick.progress import StageClock
 from edgepick.progress import progress as progress_bar
-from edgepick.quant.config import CalibMethod, QuantConfig
+from edgepick.quant.config import CalibMethod, PtqMethods, QuantConfig
 from edgepick.quant.onnx.calibrate import Collector, calibrated_tensors, check_memory, release_memory
 from edgepick.quant.onnx.evaluator import Evaluator
 from edgepick.quant.onnx.inputs import check_tensor
 from edgepick.quant.onnx.qdq import choose_rule, exact_tensors
+from edgepick.quant.ranges import candidate_rules
+
+# a rule measure under this (dB, before bias correction) ranks the candidates by an error the correction then
+# removes: on u2netp every candidate measured near 0 dB and the one chosen agreed least after the correction
+UNRANKED_DB = 10.0
 
 
 @dataclass(frozen=True)
@@ -33,6 +41,9 @@ class Calibrated:
     record: dict
     written: Any | None  # the QDQ graph the rule was chosen on (qdq.qdq_for), None when not chosen
     means: dict[str, list[np.ndarray]]  # fp32's per-channel conv output means on the first tensors, for bias correction
+    # every candidate rule's ranges where the rule's measure (before bias correction) left each candidate under
+    # UNRANKED_DB: the choice is then made again on the corrected files (static.ranges_after_correction)
+    candidates: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
 
 
 def calibrated(prepared: Any, pre: Path, first: np.ndarray, tensors: Iterator[Any], input_shape: tuple[int, ...],
@@ -65,9 +76,13 @@ def calibrated(prepared: Any, pre: Path, first: np.ndarray, tensors: Iterator[An
     with clock("choose_ranges"):
         exact = exact_tensors(prepared)
         ranges, means = collector.ranges(rule, exact), collector.channel_means(min(mean_inputs, seen))
+        scores = [c["balanced_sqnr_db"] for c in record.get("candidates", [])]
+        unranked = bool(scores) and mean_inputs > 0 and all(s is not None and s < UNRANKED_DB for s in scores)
+        candidates = {str(r): collector.ranges(r, exact) for r in candidate_rules(config)} if unranked else {}
         del collector  # its sessions, before the int8 graphs' are made
         release_memory()
-    return Calibrated(ranges, kept, seen, {**record, "exact_tensors": len(exact & set(sizes))}, written, means)
+    return Calibrated(ranges, kept, seen, {**record, "exact_tensors": len(exact & set(sizes))}, written, means,
+                      candidates)
 
 
 def _count_in(collector: Collector, held: list[np.ndarray]) -> None:
@@ -93,3 +108,28 @@ def _calibrate(collector: Collector, first: np.ndarray, rest: Iterator[Any], sha
         bar.update()
     bar.close()
     return kept, seen
+
+
+def ranges_after_correction(cal: Calibrated, build: Callable[..., tuple[Any, dict]], methods: PtqMethods,
+                            evaluator: Evaluator, progress: bool) -> tuple[Any, dict, Calibrated]:
+    """The graph BUILD makes with CAL's ranges and METHODS; where CAL holds every candidate rule's
+    ranges (their measure before bias correction ranked nothing: UNRANKED_DB), each
+    made with its correction, and the one whose outputs come closest to fp32's on the check tensors
+    kept, every rule's SQNR after correction in the ranges record (`after_correction`)."""
+    int8, done = build(methods)
+    if not cal.candidates:
+        return int8, done, cal
+    chosen = cal.record["rule"]
+    best, errors = (int8, done, cal.ranges, chosen), {chosen: evaluator.error(int8, None)}
+    for rule, ranges in cal.candidates.items():
+        if rule != chosen:
+            graph, made = build(methods, ranges)
+            errors[rule] = evaluator.error(graph, None)
+            best = (graph, made, ranges, rule) if errors[rule] < errors[best[3]] else best
+    int8, done, ranges, rule = best
+    if progress:
+        print(f"ranges: every rule far from fp32 before bias correction; after it {rule} comes closest",
+              file=sys.stderr, flush=True)
+    after = {r: round(-10.0 * math.log10(e), 2) if e > 0 else None for r, e in errors.items()}
+    record = {**cal.record, "rule": rule, "chosen_before_correction": chosen, "after_correction": after}
+    return int8, done, replace(cal, ranges=ranges, record=record, candidates={})

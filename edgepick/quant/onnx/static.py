@@ -76,7 +76,7 @@ from edgepick.quant.methods import INT16, adaround_done
 from edgepick.quant.onnx.accuracy import SQNR_FLOOR_DB, FidelityBudget, fidelity_first
 from edgepick.quant.onnx.adaround import adaround_onnx
 from edgepick.quant.onnx.calibrate import release_memory
-from edgepick.quant.onnx.calibration_pass import Calibrated, calibrated
+from edgepick.quant.onnx.calibration_pass import Calibrated, calibrated, ranges_after_correction
 from edgepick.quant.onnx.equalize import equalize_onnx
 from edgepick.quant.onnx.evaluator import Evaluator, Judge, evaluator_for
 from edgepick.quant.onnx.floating import REMOVABLE_OPS, float_tensors, node_tensors
@@ -211,17 +211,17 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
         def checker() -> Evaluator:
             return checks(cal.kept[:check])
 
-        def build(with_methods: PtqMethods) -> tuple[Any, dict]:
+        def build(with_methods: PtqMethods, ranges: dict | None = None) -> tuple[Any, dict]:
             with clock("write_qdq"):
-                int8 = qdq_for(cal.written, pre, prepared, cal.ranges, ops, exclude, config.reduce_range)
+                int8 = qdq_for(cal.written, pre, prepared, ranges or cal.ranges, ops, exclude, config.reduce_range)
                 if options.gelu == GeluForm.SIGMOID:  # before the bias correction, which then measures it
                     rewrites["sigmoid_gelu"] = sigmoid_gelu(int8)
             with clock("corrections"):
                 return int8, _measure(prepared, int8, cal, check, measured or lockstep_images(*hw), config,
                                       with_methods, checker, progress)
 
-        int8, done = build(methods)
         evaluator = checker()
+        int8, done, cal = ranges_after_correction(cal, build, methods, evaluator, progress)
         if not methods.adaround and (budget is not None or options.adaround_if_far):
             int8, done = adaround_first(int8, done, build, methods, evaluator, budget, progress)
         with clock("finish"):
