@@ -25,7 +25,7 @@ from edgepick.quant.onnx.qdq import choose_rule, exact_tensors
 from edgepick.quant.ranges import candidate_rules
 
 # a rule measure under this (dB, before bias correction) ranks the candidates by an error the correction then
-# removes: on u2netp every candidate measured near 0 dB and the one chosen agreed least after the correction
+# removes (u2netp: docs/quantization.md, Calibration methods)
 UNRANKED_DB = 10.0
 
 
@@ -42,7 +42,7 @@ class Calibrated:
     written: Any | None  # the QDQ graph the rule was chosen on (qdq.qdq_for), None when not chosen
     means: dict[str, list[np.ndarray]]  # fp32's per-channel conv output means on the first tensors, for bias correction
     # every candidate rule's ranges where the rule's measure (before bias correction) left each candidate under
-    # UNRANKED_DB: the choice is then made again on the corrected files (static.ranges_after_correction)
+    # UNRANKED_DB: the choice is then made again on the corrected files (`ranges_after_correction`)
     candidates: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
 
 
