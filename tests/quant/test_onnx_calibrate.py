@@ -202,8 +202,7 @@ def test_a_concats_range_spans_its_inputs_and_the_wider_one_shares_its_qparams(t
 
 def test_placement_joins_reads_every_concat_input_on_the_concats_own_grid(tmp_path):
     """For OpenVINO (placement joins) each Concat input takes the span too, as NNCF's files have it:
-    OpenVINO would requantize an input on another grid in a pass of its own. A Concat of Concats
-    ends with one grid for all."""
+    OpenVINO would requantize an input on another grid in a pass of its own."""
     model = _concat_model(tmp_path / "concat.onnx")
     xs = _inputs(6)
     proto = onnx.shape_inference.infer_shapes(onnx.load(str(model)))

@@ -48,6 +48,18 @@ def test_where_every_rule_is_far_before_bias_correction_the_rule_is_chosen_on_th
     assert min(f["sqnr_db"] for f in result.fidelity.values()) > UNRANKED_DB
 
 
+def test_where_no_rule_comes_near_fp32_even_after_correction_the_first_choice_stands(tmp_path):
+    """A level so large that every corrected file stays under UNRANKED_DB: that measure ranks nothing
+    either, so the rule chosen first is kept, not the corrected file that happens to measure closest."""
+    rng = np.random.default_rng(0)
+    model = _offset_model(tmp_path / "m.onnx", rng)
+    calib = [(2000.0 + rng.normal(size=(1, 1, 24, 24))).astype(np.float32) for _ in range(24)]
+    ranges = _record(quantize_onnx_static(model, calib, tmp_path / "int8.onnx", progress=False).out)["ranges"]
+    after = ranges["after_correction"]
+    assert all(s < UNRANKED_DB for s in after.values()), after
+    assert ranges["rule"] == ranges["chosen_before_correction"] != max(after, key=lambda r: after[r])
+
+
 def test_where_the_measure_ranks_the_rules_they_are_not_made_again(tmp_path):
     rng = np.random.default_rng(1)
     model = _offset_model(tmp_path / "m.onnx", rng)
