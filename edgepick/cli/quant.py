@@ -132,10 +132,10 @@ def quantize() -> None:
               help="For an .onnx MODEL with dynamic input dims [default: the first calibration tensor's shape].")
 @click.option("--placement", default=default_of(OnnxOptions, "placement"), show_default=True, type=choice(Placement),
               help="For an .onnx MODEL: all (every op onnxruntime runs in int8, with edgepick's activation "
-                   "rewrites: for onnxruntime), convs (only the convs and the tensors they read and write, a Relu "
-                   "after a conv folded into its grid; the model's other activations stay float as written, which "
-                   "OpenVINO fuses into its int8 convs), joins (convs, matmuls, and the adds, concats and pools that "
-                   "join branches, a Concat's inputs on its grid, as NNCF places them) or "
+                   "rewrites: for onnxruntime), convs (only the convs and the tensors they read; a conv's "
+                   "activation reads its float output and the model's activations stay float as written, which "
+                   "OpenVINO fuses into its int8 convs), joins (convs, matmuls, and the adds, concats, splits and "
+                   "pools that join branches, a Concat's inputs on its grid, as NNCF places them) or "
                    "auto (each made and timed on --target on this machine; the fastest whose outputs stay within "
                    "1 dB SQNR of the closest candidate's, or at 35 dB or more, is written, the times in its "
                    "metadata).")

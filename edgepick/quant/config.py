@@ -89,11 +89,11 @@ class Placement(enum.StrEnum):
     faster file depends on the engine and the model (benchmarks/results/peers-onnx/)."""
 
     ALL = "all"  # every op onnxruntime runs in int8, with edgepick's activation rewrites: made for onnxruntime
-    # only the convs (inputs, weights, outputs) and what a conv reads, a Relu after a conv folded into its grid; the
-    # model's other activation ops stay float, as written: OpenVINO fuses them into its int8 convs where it recognises them
+    # only the convs (inputs, weights) and what a conv reads; a conv's output on the grid only where a quantized op reads
+    # it, the model's activation ops float, as written: OpenVINO fuses them into its int8 convs where it recognises them
     CONVS = "convs"
-    # the convs, matmuls and the ops that join branches (Add, Concat; a Concat's inputs on its own grid) and pool, the
-    # model's other activations float as written: where NNCF places its fake-quants for OpenVINO
+    # the convs, matmuls and the ops that join branches (Add, Concat, Split; a Concat's inputs on its own grid) and pool,
+    # the model's other activations float as written: where NNCF places its fake-quants for OpenVINO
     JOINS = "joins"
     # each of the above made, timed on the target engine on this machine, and the fastest whose outputs stay as close
     # to fp32 as the closest's (quant/onnx/placement.py)

@@ -219,7 +219,61 @@ def test_placement_joins_reads_every_concat_input_on_the_concats_own_grid(tmp_pa
     concat = next(n for n in int8.graph.node if n.op_type == "Concat")
     after = next(n for n in int8.graph.node if n.op_type == "QuantizeLinear" and n.input[0] == concat.output[0])
     assert [_same_qparams(int8, dq[i].input[1:], after.input[1:]) for i in concat.input] == [True, True]
-    assert "Relu" not in {n.op_type for n in int8.graph.node}  # each folded into its conv's grid
+    # each Relu reads its conv's float output, nothing between them: OpenVINO fuses it into the conv
+    writer = {o: n for n in int8.graph.node for o in n.output}
+    assert [writer[n.input[0]].op_type for n in int8.graph.node if n.op_type == "Relu"] == ["Conv", "Conv"]
+
+
+def _split_model(path):
+    """A C2f-like block: a conv's Relu output split in two, one half through another conv and Relu,
+    both halves and that joined by a Concat that a 1x1 conv reads."""
+    from onnx import helper
+
+    rng = np.random.default_rng(4)
+    w1, w2, w3 = rng.normal(0, 1, (4, 2, 1, 1)), rng.normal(0, 3, (2, 2, 1, 1)), rng.normal(0, 0.3, (2, 6, 1, 1))
+    nodes = [helper.make_node("Conv", ["input", "w1"], ["a"], name="conv_a"),
+             helper.make_node("Relu", ["a"], ["relu_a"], name="relu_a"),
+             helper.make_node("Split", ["relu_a", "halves"], ["s0", "s1"], name="split", axis=1),
+             helper.make_node("Conv", ["s1", "w2"], ["b"], name="conv_b"),
+             helper.make_node("Relu", ["b"], ["relu_b"], name="relu_b"),
+             helper.make_node("Concat", ["s0", "s1", "relu_b"], ["joined"], name="concat", axis=1),
+             helper.make_node("Conv", ["joined", "w3"], ["output"], name="conv_out")]
+    return helper_model(nodes, [("input", [1, 2, 32, 32])], [("output", [1, 2, 32, 32])],
+                        {"w1": w1, "w2": w2, "w3": w3, "halves": np.array([2, 2], np.int64)}, path)
+
+
+def test_placement_joins_runs_a_split_on_the_grid_its_concat_reads(tmp_path):
+    """A Split's outputs are its input's bytes: under joins it runs on the int8 grid, and that grid is
+    the Concat's its halves join (NNCF's files for OpenVINO: one fake-quant before the Split)."""
+    model = _split_model(tmp_path / "split.onnx")
+    xs = _inputs(6)
+    out = tmp_path / "int8.onnx"
+    quantize_onnx_static(model, xs, out, config=QuantConfig(calib_method=CalibMethod.PERCENTILE),
+                         options=OnnxOptions(placement="joins"), progress=False)
+    int8 = onnx.load(str(out))
+    writer = {o: n for n in int8.graph.node for o in n.output}
+    split = next(n for n in int8.graph.node if n.op_type == "Split")
+    concat = next(n for n in int8.graph.node if n.op_type == "Concat")
+    after = next(n for n in int8.graph.node if n.op_type == "QuantizeLinear" and n.input[0] == concat.output[0])
+    assert writer[split.input[0]].op_type == "DequantizeLinear"
+    assert _same_qparams(int8, writer[split.input[0]].input[1:], after.input[1:])
+    assert all(writer[i].op_type == "DequantizeLinear" and _same_qparams(int8, writer[i].input[1:], after.input[1:])
+               for i in concat.input)
+
+
+def test_a_shared_grid_never_reaches_below_what_a_relu_writes():
+    """The writer drops a Relu after a quantized op and lets the grid clamp for it; a Concat whose
+    shared span would reach below 0 keeps its inputs' own grids, or the dropped Relu would not clamp."""
+    from onnx import helper
+
+    nodes = [helper.make_node("Add", ["x", "y"], ["sum"]), helper.make_node("Relu", ["sum"], ["r"]),
+             helper.make_node("Concat", ["r", "signed"], ["rs"], axis=1),
+             helper.make_node("Relu", ["x"], ["q"]), helper.make_node("Concat", ["r", "q"], ["rq"], axis=1)]
+    model = helper.make_model(helper.make_graph(nodes, "g", [], []))
+    ranges = {"r": (0.0, 4.0), "q": (0.0, 9.0), "signed": (-2.0, 1.0), "rs": (-2.0, 4.0), "rq": (0.0, 9.0)}
+    spans = concat_spans(model, ranges, shared_inputs=True)
+    assert spans["r"] == spans["q"] == spans["rq"] == (0.0, 9.0)
+    assert spans["signed"] == (-2.0, 1.0) and spans["rs"] == (-2.0, 9.0)
 
 
 def test_concats_of_concats_share_one_grid_but_a_heads():

@@ -297,21 +297,59 @@ def concat_spans(model: Any, ranges: dict[str, tuple[float, float]], shared_inpu
     with the smallest: every Relu's input starts at 0) then gets the output's very qparams, and
     onnxruntime's QLinearConcat copies its bytes instead of requantizing them (what that is worth:
     docs/quantization.md, the conformance suite's Concat spans). SHARED_INPUTS: every input takes the
-    span too, as NNCF's files for OpenVINO have it (placement joins): OpenVINO requantizes an input on
-    another grid than the output's in an elementwise pass of its own, a full feature map each. But
-    not where the Concat's output is EXACT (it reaches a graph output through no conv: a detector's
-    head joining box and class values), whose inputs' own grids decide what the output holds."""
+    span too, and a Split's outputs its input's, as NNCF's files for OpenVINO have them (placement
+    joins; `shared_grids`): OpenVINO requantizes an input on another grid than the output's in an
+    elementwise pass of its own, a full feature map each. But not where the Concat's output is EXACT
+    (it reaches a graph output through no conv: a detector's head joining box and class values),
+    whose inputs' own grids decide what the output holds."""
     spans = dict(ranges)
-    concats = [n for n in model.graph.node if n.op_type == "Concat" and n.output[0] in spans
-               and all(name in spans for name in n.input) and len(n.input)]
-    shared = {n.output[0] for n in concats if shared_inputs and n.output[0] not in exact}
-    for _ in range(len(concats) + 1 if shared_inputs else 1):  # shared: until every Concat's inputs agree
-        before = dict(spans)
-        for node in concats:
-            joined = node.output[0] in shared
-            parts = [spans[name] for name in [*node.input, *([node.output[0]] if joined else [])]]
-            span = (min(p[0] for p in parts), max(p[1] for p in parts))
-            spans.update({name: span for name in [node.output[0], *(node.input if joined else [])]})
-        if spans == before:
-            break
+    grouped: set[str] = set()
+    if shared_inputs:
+        for group in shared_grids(model, ranges, exact):
+            span = (min(ranges[name][0] for name in group), max(ranges[name][1] for name in group))
+            spans.update({name: span for name in group})
+            grouped.update(group)
+    for node in model.graph.node:
+        if (node.op_type == "Concat" and node.output[0] in spans and node.output[0] not in grouped and len(node.input)
+                and all(name in spans for name in node.input)):
+            spans[node.output[0]] = (min(spans[n][0] for n in node.input), max(spans[n][1] for n in node.input))
     return spans
+
+
+def shared_grids(model: Any, ranges: Mapping[str, tuple[float, float]], exact: Container[str] = ()) -> list[set[str]]:
+    """The sets of RANGES' tensors that placement joins reads on one grid: each Concat's inputs and
+    output (but an EXACT output's), each Split's input and outputs (onnxruntime's writer gives the
+    outputs the input's grid), joined where they share a tensor. A Concat is left out of them where
+    the shared span would reach past what a Relu or Clip writing one of its inputs can write: the
+    writer drops such an op after a quantized one and lets the grid clamp for it, which the wider
+    grid would not."""
+    writers = {o: n.op_type for n in model.graph.node for o in n.output}
+    ties = {k: (n.op_type, [*n.input[:1], *n.output] if n.op_type == "Split" else [n.output[0], *n.input])
+            for k, n in enumerate(model.graph.node)
+            if n.op_type in ("Concat", "Split") and len(n.input) and n.output[0] not in exact
+            and all(name in ranges for name in [*n.input[:1 if n.op_type == "Split" else None], *n.output])}
+    while True:
+        groups: list[tuple[set[str], set[int]]] = []  # the tensors, and the ties that joined them
+        for key, (_, names) in ties.items():
+            joined = [g for g in groups if g[0].intersection(names)]
+            groups = [g for g in groups if g not in joined]
+            groups.append((set(names).union(*(g[0] for g in joined)), {key}.union(*(g[1] for g in joined))))
+        unclamped = [keys for names, keys in groups if not _clamps(names, ranges, writers)]
+        if not unclamped:
+            return [names for names, _ in groups]
+        for keys in unclamped:  # the Concats that reach past such an op alone, else all of the set's, keep their own grids
+            concats = [k for k in keys if ties[k][0] == "Concat"]
+            alone = [k for k in concats if not _clamps(set(ties[k][1]), ranges, writers)]
+            for key in alone or concats or keys:
+                del ties[key]
+
+
+def _clamps(group: set[str], ranges: Mapping[str, tuple[float, float]], writers: Mapping[str, str]) -> bool:
+    """Whether GROUP's span stays within what every Relu or Clip writing one of its tensors writes."""
+    low, high = min(ranges[n][0] for n in group), max(ranges[n][1] for n in group)
+    for name in group:
+        if writers.get(name) == "Relu" and low < 0:
+            return False
+        if writers.get(name) == "Clip" and (low < min(ranges[name][0], 0.0) or high > max(ranges[name][1], 0.0)):
+            return False
+    return True

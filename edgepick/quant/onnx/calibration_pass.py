@@ -17,7 +17,7 @@ import numpy as np
 
 from edgepick.progress import StageClock
 from edgepick.progress import progress as progress_bar
-from edgepick.quant.config import CalibMethod, PtqMethods, QuantConfig
+from edgepick.quant.config import CalibMethod, Placement, PtqMethods, QuantConfig
 from edgepick.quant.onnx.calibrate import Collector, calibrated_tensors, check_memory, release_memory
 from edgepick.quant.onnx.evaluator import Evaluator
 from edgepick.quant.onnx.inputs import check_tensor
@@ -49,18 +49,18 @@ class Calibrated:
 def calibrated(prepared: Any, pre: Path, first: np.ndarray, tensors: Iterator[Any], input_shape: tuple[int, ...],
                config: QuantConfig, ops: list[str], exclude: list[str], keep: int, hold: int, total: int | None,
                evaluator: Callable[[list[np.ndarray]], Evaluator], mean_inputs: int, clock: StageClock,
-               progress: bool, shared_concat_inputs: bool = False) -> Calibrated:
+               progress: bool, placement: Placement = Placement.ALL) -> Calibrated:
     """Stream every calibration tensor through PREPARED into a histogram per activation that OPS read
     or write (the first HOLD held out until the rule is chosen on them, EVALUATOR's check tensors),
     and read the ranges off; on the first MEAN_INPUTS, the convs' per-channel output means too.
     CLOCK times the pass ("calibrate") apart from the rule's measurements ("choose_ranges").
-    SHARED_CONCAT_INPUTS: each Concat's inputs read on its output's grid (`calibrate.concat_spans`)."""
+    PLACEMENT joins reads each Concat's inputs on its output's grid (`calibrate.concat_spans`)."""
     with clock("calibrate"):
         sizes = calibrated_tensors(prepared, ops)
         check_memory(prepared, sizes, int(np.prod(input_shape)) * 4 * keep)
         convs = [n.output[0] for n in prepared.graph.node if n.op_type == "Conv"]
         collector = Collector(prepared, sizes, minmax_only=config.calib_method == CalibMethod.MINMAX, means=convs,
-                              mean_inputs=mean_inputs, shared_concat_inputs=shared_concat_inputs)
+                              mean_inputs=mean_inputs, shared_concat_inputs=placement == Placement.JOINS)
         kept, seen = _calibrate(collector, first, tensors, input_shape, keep, hold, total, progress)
         collector.close()  # choosing the rule needs the memory; the held-out tensors open it again
         held = kept[:hold]
@@ -69,7 +69,7 @@ def calibrated(prepared: Any, pre: Path, first: np.ndarray, tensors: Iterator[An
             _count_in(collector, held)
     with clock("choose_ranges"):
         rule, record, written = choose_rule(collector, pre, prepared, held, held_out, ops, exclude, config, evaluator,
-                                            progress)
+                                            progress, conv_outputs=placement == Placement.ALL)
     if held_out:
         with clock("calibrate"):
             _count_in(collector, held)

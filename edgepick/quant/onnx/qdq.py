@@ -44,10 +44,12 @@ COMPUTE_OPS = ("Conv", "ConvTranspose", "MatMul", "Gemm", "LSTM", "GRU", "RNN", 
 
 
 def qdq_model(prepared: Path, ranges: dict[str, tuple[float, float]], op_types: Sequence[str],
-              exclude: Sequence[str], reduce_range: bool) -> Any:
+              exclude: Sequence[str], reduce_range: bool, conv_outputs: bool = True) -> Any:
     """The QDQ ModelProto onnxruntime's quantizer writes from the float model PREPARED (shapes
     inferred) with RANGES for the activations: U8S8, weights per channel and symmetric (7-bit with
-    REDUCE_RANGE), activations asymmetric; nodes of OP_TYPES quantized but those in EXCLUDE."""
+    REDUCE_RANGE), activations asymmetric; nodes of OP_TYPES quantized but those in EXCLUDE. Without
+    CONV_OUTPUTS a conv's output is on the grid only where a quantized op reads it (placements convs
+    and joins, for OpenVINO: docs/quantization.md); onnxruntime needs it there to run an integer conv."""
     from onnxruntime.quantization.calibrate import CalibrationMethod, TensorsData
     from onnxruntime.quantization.qdq_quantizer import QDQQuantizer
     from onnxruntime.quantization.quant_utils import QuantType, load_model_with_shape_infer
@@ -56,7 +58,8 @@ def qdq_model(prepared: Path, ranges: dict[str, tuple[float, float]], op_types: 
     data = TensorsData(CalibrationMethod.MinMax,
                        {name: (np.array(lo, np.float32), np.array(hi, np.float32)) for name, (lo, hi) in ranges.items()})
     quantizer = QDQQuantizer(model, True, reduce_range, QuantType.QInt8, QuantType.QUInt8, data, [], list(exclude),
-                             list(op_types), {"ActivationSymmetric": False, "WeightSymmetric": True})
+                             list(op_types), {"ActivationSymmetric": False, "WeightSymmetric": True,
+                                                     "OpTypesToExcludeOutputQuantization": [] if conv_outputs else list(CONV_OPS)})
     quantizer.quantize_model()
     quantizer.model.topological_sort()  # as its save_model_to_file does: passes after it walk the nodes in order
     return quantizer.model.model
@@ -191,7 +194,7 @@ def _fidelity(evaluator: Evaluator, model: Any) -> tuple[dict, dict[str, float]]
 
 def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np.ndarray], held_out: bool, ops: list[str],
                 exclude: list[str], config: QuantConfig, evaluator: Callable[[list[np.ndarray]], Evaluator],
-                progress: bool) -> tuple[RangeRule, dict, Any | None]:
+                progress: bool, conv_outputs: bool = True) -> tuple[RangeRule, dict, Any | None]:
     """The range rule: config's own, or with auto the candidate whose int8 graph of the float file
     PRE gives outputs closest to fp32's on the HELD tensors (EVALUATOR gives fp32's outputs on them;
     HELD_OUT: COLLECTOR has not counted them yet, the caller does after). Returns the rule, what was
@@ -205,7 +208,7 @@ def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np
     check = evaluator(held)
     tail, exact = float_tail(float_model), exact_tensors(float_model)
     # one graph written, its qparams set for each rule in turn: the graph does not depend on the ranges
-    pristine = qdq_model(pre, collector.ranges(rules[0], exact), ops, exclude, config.reduce_range)
+    pristine = qdq_model(pre, collector.ranges(rules[0], exact), ops, exclude, config.reduce_range, conv_outputs)
     written = copy_model(pristine)
     float_outputs(written, tail, float_model)
     scores = []
@@ -219,7 +222,7 @@ def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np
 
 
 def qdq_for(written: Any | None, prepared: Path, float_model: Any, ranges: dict[str, tuple[float, float]],
-            op_types: Sequence[str], exclude: Sequence[str], reduce_range: bool) -> Any:
+            op_types: Sequence[str], exclude: Sequence[str], reduce_range: bool, conv_outputs: bool = True) -> Any:
     """`qdq_model` for RANGES: a copy of WRITTEN (the writer's graph of the same float model for
     other ranges) with the qparams of RANGES where that is what the writer writes
     (`requantize_activations` says so), else written afresh. onnxruntime's writer takes about as
@@ -228,4 +231,4 @@ def qdq_for(written: Any | None, prepared: Path, float_model: Any, ranges: dict[
         model = copy_model(written)
         if requantize_activations(model, float_model, adjusted_ranges(float_model, ranges, op_types, exclude)):
             return model
-    return qdq_model(prepared, ranges, op_types, exclude, reduce_range)
+    return qdq_model(prepared, ranges, op_types, exclude, reduce_range, conv_outputs)

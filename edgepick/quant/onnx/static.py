@@ -11,7 +11,7 @@ write the Q/DQ pairs for those ranges, and rewrites around it (docs/quantization
 - the recipe: U8S8, weights int8 per output channel and symmetric, 7-bit unless
   weight_bits 8 (or first-7: 7-bit only where 8-bit weights saturate, `measure`), uint8
   activations per tensor, HardSigmoid quantized as well (with placement convs: only the convs
-  and the tensors they read and write, a Relu after a conv folded into its grid, the model's other
+  and the tensors they read, a conv's own activation reading its float output, the model's other
   activations left float as it writes them, for OpenVINO, which fuses them into its int8 convs);
   with options.gelu sigmoid, each GELU written as c * x * sigmoid(alpha * x) on integer kernels
   (`gelu`); with methods.equalize, conv pairs equalized before calibration (`equalize`); with
@@ -204,8 +204,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
         checks = _CheckOutputs(pre, prepared, tasks, nhwc, budget.judge if budget is not None else None)
         cal = calibrated(prepared, pre, first, tensors, tuple(input_shape), config, ops, exclude, keep,
                          hold if config.calib_method == CalibMethod.AUTO else 0, total, checks,
-                         check + measured if methods.bias_correction == BiasCorrection.EMPIRICAL else 0, clock, progress,
-                         shared_concat_inputs=options.placement == Placement.JOINS)
+                         check + measured if methods.bias_correction == BiasCorrection.EMPIRICAL else 0, clock, progress, options.placement)
         checks.release_if_large()
 
         def checker() -> Evaluator:
@@ -213,7 +212,8 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
 
         def build(with_methods: PtqMethods, ranges: dict | None = None) -> tuple[Any, dict]:
             with clock("write_qdq"):
-                int8 = qdq_for(cal.written, pre, prepared, ranges or cal.ranges, ops, exclude, config.reduce_range)
+                int8 = qdq_for(cal.written, pre, prepared, ranges or cal.ranges, ops, exclude, config.reduce_range,
+                               options.placement == Placement.ALL)
                 if options.gelu == GeluForm.SIGMOID:  # before the bias correction, which then measures it
                     rewrites["sigmoid_gelu"] = sigmoid_gelu(int8)
             with clock("corrections"):
@@ -372,15 +372,14 @@ def _measure(prepared: Any, int8: Any, cal: Calibrated, check: int, images: int,
 
 
 # Placement.JOINS: what NNCF puts on the int8 grid for OpenVINO besides the convs
-JOIN_OPS = ("MatMul", "Gemm", "Add", "Concat", "MaxPool", "AveragePool", "GlobalAveragePool")
+JOIN_OPS = ("MatMul", "Gemm", "Add", "Concat", "Split", "MaxPool", "AveragePool", "GlobalAveragePool")
 
 
 def placement_ops(placement: Placement, registry: set[str]) -> list[str]:
     """The op types PLACEMENT quantizes, of onnxruntime's quantizer's REGISTRY. Every placement names
     Relu and Clip: where one alone reads a quantized op's output the writer folds it into that
-    output's grid (as NNCF's files leave a conv's Relu for OpenVINO to fuse: quantized between the conv
-    and its Relu, OpenVINO ran the Relu and the requantization as a pass of their own), and leaves
-    it float elsewhere."""
+    output's grid, and leaves it float elsewhere: under convs and joins a conv's output is float
+    (`qdq_model`), its Relu reads it as NNCF's files leave it for OpenVINO to fuse into the conv."""
     if placement == Placement.ALL:
         return sorted({*registry, "HardSigmoid"} - {"ArgMax"})
     if placement == Placement.JOINS:
