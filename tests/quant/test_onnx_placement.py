@@ -10,7 +10,12 @@ import pytest
 from edgepick.errors import ParameterError
 from edgepick.quant.config import OnnxOptions, PtqMethods
 from edgepick.quant.onnx.accuracy import FidelityBudget
-from edgepick.quant.onnx.placement import PLACEMENT_ENOUGH_DB, PLACEMENT_FIDELITY_DB, fidelity_threshold_db
+from edgepick.quant.onnx.placement import (
+    PLACEMENT_ENOUGH_DB,
+    PLACEMENT_FIDELITY_DB,
+    fidelity_threshold_db,
+    pick_placement,
+)
 from edgepick.quant.onnx.static import quantize_onnx_static
 from tests.quant.onnx_models import calib_tensors, export_torch, strided_projection_model
 
@@ -27,8 +32,7 @@ def test_placement_auto_times_each_candidate_on_the_target_and_records_the_choic
     times = {c["placement"]: c["p50_ms"] for c in choice["candidates"]}
     sqnr = {c["placement"]: c["worst_sqnr_db"] for c in choice["candidates"]}
     assert set(times) == {"all", "convs", "joins"} and min(times.values()) > 0
-    close = [p for p in times if sqnr[p] >= fidelity_threshold_db(sqnr.values())]
-    assert choice["chosen"] == min(close, key=times.get) == result.quant["placement"]
+    assert choice["chosen"] == pick_placement(times, sqnr) == result.quant["placement"]
     assert result.out == str(tmp_path / "auto.onnx") and sorted(p.name for p in tmp_path.iterdir()) == ["auto.onnx",
                                                                                                           "net.onnx"]
     recorded = json.loads({p.key: p.value for p in onnx.load(result.out).metadata_props}["edgepick.quant"])
@@ -100,3 +104,13 @@ def test_a_candidate_is_close_enough_within_a_db_of_the_best_or_at_the_enough_le
     assert fidelity_threshold_db([20.0, 18.0]) == 20.0 - PLACEMENT_FIDELITY_DB  # a low-SQNR model: the best's db
     assert fidelity_threshold_db([50.1, 39.8, 42.4]) == PLACEMENT_ENOUGH_DB  # all close enough to fp32
     assert fidelity_threshold_db([35.5, 30.0]) == 35.5 - PLACEMENT_FIDELITY_DB
+
+
+def test_a_candidate_a_few_db_further_is_taken_only_where_it_runs_much_faster():
+    # ddddocr's recogniser on OpenVINO: joins 2.3 dB further than convs, 1.4x as fast
+    assert pick_placement({"all": 3.11, "convs": 4.46, "joins": 3.19}, {"all": 25.96, "convs": 30.81, "joins": 28.5}) == "joins"
+    # PP-OCRv6's detector: convs 1.95 dB further than joins and only 5% faster: joins stays
+    assert pick_placement({"all": 31.67, "convs": 31.25, "joins": 32.92}, {"all": 17.85, "convs": 22.13, "joins": 24.08}) == "joins"
+    # within 1 dB the fastest is taken whatever its speed; past 3 dB never
+    assert pick_placement({"all": 2.0, "convs": 1.9}, {"all": 20.0, "convs": 19.2}) == "convs"
+    assert pick_placement({"all": 4.0, "convs": 1.0}, {"all": 20.0, "convs": 16.9}) == "all"
