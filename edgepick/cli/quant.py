@@ -137,8 +137,8 @@ def quantize() -> None:
                    "OpenVINO fuses into its int8 convs), joins (convs, matmuls, and the adds, concats, splits and "
                    "pools that join branches, a Concat's inputs on its grid, as NNCF places them) or "
                    "auto (each made and timed on --target on this machine; the fastest whose outputs stay within "
-                   "1 dB SQNR of the closest candidate's, or at 35 dB or more, is written, the times in its "
-                   "metadata).")
+                   "1 dB SQNR of the closest candidate's, or at 35 dB or more, is written, or one within 3 dB that "
+                   "runs 1.25x as fast; the times in its metadata).")
 @click.option("--target", default=default_of(OnnxOptions, "target"), show_default=True, type=choice(Target),
               help="For an .onnx MODEL with --placement auto: the engine the file is timed on (openvino needs the "
                    "[peers] extra).")
