@@ -54,7 +54,8 @@ def calibrated(prepared: Any, pre: Path, first: np.ndarray, tensors: Iterator[An
     or write (the first HOLD held out until the rule is chosen on them, EVALUATOR's check tensors),
     and read the ranges off; on the first MEAN_INPUTS, the convs' per-channel output means too.
     CLOCK times the pass ("calibrate") apart from the rule's measurements ("choose_ranges").
-    PLACEMENT joins reads each Concat's inputs on its output's grid (`calibrate.concat_spans`)."""
+    PLACEMENT joins reads each Concat's inputs on its output's grid (`calibrate.concat_spans`); convs
+    and joins leave a conv's output float where no quantized op reads it (`qdq.qdq_model`)."""
     with clock("calibrate"):
         sizes = calibrated_tensors(prepared, ops)
         check_memory(prepared, sizes, int(np.prod(input_shape)) * 4 * keep)

@@ -8,8 +8,8 @@ QuantizeLinear, while OpenVINO fuses the float activations it recognises into it
 is timed on the target engine in alternating blocks (p50, the engine's own threads), and the
 fastest whose worst output stays within PLACEMENT_FIDELITY_DB of the closest candidate's SQNR, or
 at PLACEMENT_ENOUGH_DB or more, is kept, unless another within PLACEMENT_TRADE_DB of the closest
-runs PLACEMENT_TRADE_SPEEDUP times as fast (`pick_placement`). The choice, every candidate's time and fidelity and the
-machine go into the file's metadata. For OpenVINO the candidates are made from the float model
+runs PLACEMENT_TRADE_SPEEDUP times as fast (`pick_placement`). The choice, every candidate's time
+and fidelity and the machine go into the file's metadata. For OpenVINO the candidates are made from the float model
 with the forms its CPU plugin needs to keep int8 kernels (`openvino_forms`), how many of each
 recorded with the choice.
 """
