@@ -192,7 +192,8 @@ class Collector:
                  minmax_only: bool = False, means: Iterable[str] = (), mean_inputs: int = 0,
                  shared_concat_inputs: bool = False):
         self.names = list(sizes)
-        self.shared_concat_inputs = shared_concat_inputs  # every Concat input on its output's grid (`concat_spans`)
+        # every Concat input on its output's grid, a Split's outputs on its input's (`concat_spans`, placement joins)
+        self.shared_concat_inputs = shared_concat_inputs
         # per-channel means of these tensors on the inputs numbered below MEAN_INPUTS (bias correction's fp32 side)
         self.mean_inputs = mean_inputs
         self.means: dict[str, dict[int, np.ndarray]] = {n: {} for n in means if n in sizes} if mean_inputs else {}
