@@ -152,6 +152,11 @@ def quantize() -> None:
               help="For an .onnx MODEL: where the file's worst output SQNR against fp32 is under 10 dB, make it "
                    "again with AdaRound (see --adaround-budget) and keep that file when its outputs "
                    "come closer to fp32's on the check tensors and on their worse half (recorded as adaround_first).")
+@click.option("--time-against-fp32/--no-time-against-fp32", default=default_of(OnnxOptions, "time_against_fp32"),
+              show_default=True,
+              help="For an .onnx MODEL: time the int8 file against the float model on onnxruntime on this machine "
+                   "(2 threads, 20 runs each), record both (speed in the file's edgepick.quant) and warn where int8 is "
+                   "the slower: on a CPU with AVX2 alone, without VNNI, it can be.")
 @with_options(calibration)
 @click.option("--percentile", default=default_of(QuantConfig, "percentile"), show_default=True,
               help="For --calib-method percentile (with auto: one of the percentiles tried).")
@@ -219,7 +224,7 @@ def quantize_static_cmd(checkpoint: str, out: str, **flags) -> None:
 _ONNX_ONLY = (("calib", "--calib"), ("input_shape", "--input-shape"), ("tasks", "--task"),
               ("min_agreement", "--min-agreement"), ("min_sqnr", "--min-sqnr"), ("max_seconds", "--max-seconds"),
               ("placement", "--placement {}"), ("target", "--target {}"), ("gelu", "--gelu {}"),
-              ("adaround_if_far", "--no-adaround-if-far"))
+              ("adaround_if_far", "--no-adaround-if-far"), ("time_against_fp32", "--no-time-against-fp32"))
 _RUN_ONLY = (("data_dir", "--data"), ("max_miou_drop", "--max-miou-drop"), ("seed", "--seed"))
 _CONFIGS = {"config": QuantConfig, "methods": PtqMethods, "options": OnnxOptions, "qat": QatOptions}
 _CONFIG_FIELDS = {f.name for kind in _CONFIGS.values() for f in fields(kind)}

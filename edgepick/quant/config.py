@@ -205,6 +205,9 @@ class OnnxOptions(_Config):
     # where the file's worst output SQNR is under the floor (10 dB), make it again with AdaRound, kept when closer:
     # on the conformance models under it, AdaRound moved the task metric most (docs/quantization.md)
     adaround_if_far: bool = True
+    # time the file against the float model on onnxruntime on this machine, record both and warn where int8 is the
+    # slower (quant/onnx/speed.py: on a CPU with AVX2 alone it can be)
+    time_against_fp32: bool = True
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "placement", member(Placement, "placement", self.placement))

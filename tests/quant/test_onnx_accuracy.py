@@ -39,7 +39,8 @@ def test_a_faint_channel_is_named_and_the_accuracy_aware_mode_leaves_it_float(fa
     path, calib, check, reference, tmp = faint
     plain = quantize_onnx_static(path, calib, tmp / "plain.onnx", methods=PtqMethods(bias_correction="none"))
     assert plain.fidelity["output"]["sqnr_db"] < 10  # the faint channel is lost on the input's uint8 grid
-    warning = capsys.readouterr().err.splitlines()[-1]
+    # one line (another may say the file runs slower than fp32 on this machine)
+    warning, = [line for line in capsys.readouterr().err.splitlines() if "far from fp32's" in line]
     assert warning.startswith("edgepick: warning: the int8 outputs are far from fp32's") and "input (+" in warning
     assert plain.quant["fidelity_warning"] in warning
     fixed = quantize_onnx_static(path, calib, tmp / "fixed.onnx", methods=PtqMethods(bias_correction="none"), progress=False,

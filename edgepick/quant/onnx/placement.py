@@ -34,6 +34,7 @@ from edgepick.progress import StageClock
 from edgepick.quant.config import GeluForm, OnnxOptions, Placement, Target
 from edgepick.quant.onnx.accuracy import SQNR_FLOOR_DB
 from edgepick.quant.onnx.inputs import check_tensor
+from edgepick.quant.onnx.speed import TIMING_THREADS
 
 PLACEMENT_CANDIDATES = (Placement.ALL, Placement.CONVS, Placement.JOINS)
 # a candidate whose worst output SQNR is this much under the closest candidate's is not taken for its speed ...
@@ -44,7 +45,6 @@ PLACEMENT_ENOUGH_DB = 35.0
 # ... and one up to PLACEMENT_TRADE_DB further is taken where it runs PLACEMENT_TRADE_SPEEDUP times as fast as that
 # choice: a few dB bought with a much slower file (ddddocr's recogniser on OpenVINO, docs/quantization.md)
 PLACEMENT_TRADE_DB, PLACEMENT_TRADE_SPEEDUP = 3.0, 1.25
-TIMING_THREADS = 2  # as the runtime and the benchmarks run a model on a laptop
 
 
 def engine_runner(path: Path, target: Target, threads: int = TIMING_THREADS) -> Callable[[np.ndarray], object]:
@@ -97,7 +97,7 @@ def choose_placement(quantize: Callable[..., Any], model: str | Path, calib: Ite
         for placement in PLACEMENT_CANDIDATES:  # AdaRound, where the file is far from fp32, for the chosen one only
             candidate = candidates[placement] = replace(options, placement=placement, target=Target.ONNXRUNTIME,
                                                         gelu=options.gelu if placement == Placement.ALL else GeluForm.FLOAT,
-                                                        adaround_if_far=False)
+                                                        adaround_if_far=False, time_against_fp32=False)
             if progress:
                 print(f"placement auto: make the {placement} file", file=sys.stderr, flush=True)
             try:

@@ -86,6 +86,7 @@ from edgepick.quant.onnx.measure import correct_onnx_biases, qdq_convs, saturati
 from edgepick.quant.onnx.preprocess import pre_process
 from edgepick.quant.onnx.qdq import float_tail, outputs_on_grid, qdq_for, writes_float_output
 from edgepick.quant.onnx.rewrite import fold_affine_into_convs, rewrite_activations
+from edgepick.quant.onnx.speed import slower_than_fp32_warning, speed_against_fp32
 from edgepick.quant.record import QuantRecord, RecordKind
 from edgepick.quant.results import OnnxPassResult
 
@@ -225,7 +226,7 @@ def quantize_onnx_static(model: str | Path, calib: Iterable[np.ndarray], out: st
         if not methods.adaround and (budget is not None or options.adaround_if_far):
             int8, done = adaround_first(int8, done, build, methods, evaluator, budget, progress)
         with clock("finish"):
-            int8, steps, accuracy = _finished(int8, prepared, rewrites, config, evaluator, budget, progress)
+            int8, steps, accuracy = _finished(int8, prepared, rewrites, config, evaluator, budget, progress, options)
         quant = QuantRecord(RecordKind.ONNX, config, cal.seen, methods, options, ranges=cal.record, measured={
             **done, **accuracy, **({"equalized_pairs": rewrites["equalized_pairs"]} if methods.equalize else {})}
                             ).to_dict()
@@ -274,10 +275,11 @@ def _quantizer_registry() -> set[str]:
 
 
 def _finished(int8: Any, prepared: Any, rewrites: dict[str, int], config: QuantConfig, evaluator: Evaluator,
-              budget: FidelityBudget | None, progress: bool) -> tuple[Any, dict[str, int], dict]:
+              budget: FidelityBudget | None, progress: bool, options: OnnxOptions) -> tuple[Any, dict[str, int], dict]:
     """INT8 with the float tail, the outputs on the grid or not, keep_float's tensors float, the accuracy-aware
-    mode or the low-fidelity warning, export's integer activations and padding-tap crop; returns it, every
-    rewrite made, and what the accuracy step records."""
+    mode or the low-fidelity warning, export's integer activations and padding-tap crop, then timed against
+    fp32 (options.time_against_fp32; the accuracy-aware mode times its answer itself); returns it, every
+    rewrite made, and what the accuracy and speed steps record."""
     int8, dropped, grid = outputs_on_grid(int8, float_tail(prepared), evaluator)
     steps = {**rewrites, "float_outputs": dropped}
     if config.keep_float:
@@ -286,6 +288,10 @@ def _finished(int8: Any, prepared: Any, rewrites: dict[str, int], config: QuantC
     accuracy.update({"outputs_on_grid": grid} if grid else {})
     steps.update(**integer_activations(int8), cropped_convs=crop_padded_convs(int8))
     steps["unused_initializers"] = drop_unused_initializers(int8)
+    if options.time_against_fp32 and budget is None:
+        accuracy["speed"] = speed_against_fp32(prepared, int8, evaluator.inputs[0])
+        if slower := slower_than_fp32_warning(accuracy["speed"]):
+            print(f"edgepick: warning: {slower}", file=sys.stderr, flush=True)
     return int8, steps, accuracy
 
 
