@@ -30,14 +30,25 @@ def test_without_it_nothing_is_timed(tmp_path):
     assert "speed" not in result.quant
 
 
-def test_the_two_graphs_timed_are_the_ones_given(tmp_path):
-    """A graph timed against itself runs at about its own speed; the record names the machine."""
+def test_a_graph_timed_against_itself_runs_at_about_its_own_speed(tmp_path):
+    """Both graphs given are timed (a ratio near 1 for one graph twice), and the record names the machine."""
     src = export_torch(tmp_path / "net.onnx")
     model = onnx.load(str(src))
     x = calib_tensors(1)[0]
     speed = speed_against_fp32(model, model, x)
     assert 0.5 < speed["speedup_vs_fp32"] < 2.0 and set(speed) == {"fp32_ms", "int8_ms", "speedup_vs_fp32", "threads",
                                                                   "machine"}
+
+
+def test_the_pass_says_so_where_the_int8_file_is_the_slower(tmp_path, monkeypatch, capsys):
+    import edgepick.quant.onnx.static as static
+
+    slow = {"fp32_ms": 1.0, "int8_ms": 2.0, "speedup_vs_fp32": 0.5, "threads": 2, "machine": "this CPU"}
+    monkeypatch.setattr(static, "speed_against_fp32", lambda *args: slow)
+    result = quantize_onnx_static(export_torch(tmp_path / "net.onnx"), calib_tensors(4), tmp_path / "int8.onnx",
+                                  progress=False)
+    warned = [line for line in capsys.readouterr().err.splitlines() if "fp32's speed" in line]
+    assert warned == [f"edgepick: warning: {slower_than_fp32_warning(slow)}"] and result.quant["speed"] == slow
 
 
 def test_a_slower_int8_file_is_said_in_one_line():

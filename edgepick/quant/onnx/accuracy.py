@@ -321,19 +321,11 @@ def speed_cost(fp32: Any, int8: Any, kept_float: Any, x: np.ndarray, threads: in
     """onnxruntime's median ms of the float graph FP32, the all-int8 graph INT8 and KEPT_FLOAT on X,
     timed in alternating blocks on THREADS threads: what the float activations cost on this machine
     (`slowdown` against the all-int8 file) and what is left of int8's gain (`speedup_vs_fp32`)."""
-    import onnxruntime as ort
-
+    from edgepick.quant.onnx.speed import ort_runner
     from edgepick.runtime.session import median_ms
 
-    def runner(model: Any):
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads, opts.log_severity_level = threads, 3
-        session = ort.InferenceSession(model.SerializeToString(), opts, providers=["CPUExecutionProvider"])
-        name = session.get_inputs()[0].name
-        return lambda image: session.run(None, {name: image})
-
-    ms = median_ms({"fp32_ms": runner(fp32), "all_int8_ms": runner(int8), "kept_float_ms": runner(kept_float)}, x,
-                   timed=TIMED_RUNS)
+    ms = median_ms({"fp32_ms": ort_runner(fp32, threads), "all_int8_ms": ort_runner(int8, threads),
+                    "kept_float_ms": ort_runner(kept_float, threads)}, x, timed=TIMED_RUNS)
     return {**ms, "slowdown": round(ms["kept_float_ms"] / ms["all_int8_ms"], 3),
             "speedup_vs_fp32": round(ms["fp32_ms"] / ms["kept_float_ms"], 3), "threads": threads}
 

@@ -12,6 +12,7 @@ OpenVINO (`--placement auto --target openvino`), can serve a user better.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -24,21 +25,24 @@ TIMING_THREADS = 2  # as the runtime and the benchmarks run a model on a laptop
 SLOWER_BELOW = 0.9
 
 
+def ort_runner(model: Any, threads: int = TIMING_THREADS) -> Callable[[np.ndarray], object]:
+    """A function running the ONNX graph MODEL (a ModelProto) on onnxruntime's CPU provider with THREADS threads."""
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads, opts.inter_op_num_threads, opts.log_severity_level = threads, 1, 3
+    session = ort.InferenceSession(model.SerializeToString(), opts, providers=["CPUExecutionProvider"])
+    name = session.get_inputs()[0].name
+    return lambda image: session.run(None, {name: image})
+
+
 def speed_against_fp32(float_model: Any, int8: Any, x: np.ndarray, threads: int = TIMING_THREADS) -> dict:
     """onnxruntime's median ms of FLOAT_MODEL and the QDQ graph INT8 on the input X, timed in
     alternating blocks on THREADS threads, their ratio (`speedup_vs_fp32`) and the machine."""
-    import onnxruntime as ort
-
     from edgepick.runtime.session import median_ms
 
-    def runner(model: Any):
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads, opts.inter_op_num_threads, opts.log_severity_level = threads, 1, 3
-        session = ort.InferenceSession(model.SerializeToString(), opts, providers=["CPUExecutionProvider"])
-        name = session.get_inputs()[0].name
-        return lambda image: session.run(None, {name: image})
-
-    ms = median_ms({"fp32_ms": runner(float_model), "int8_ms": runner(int8)}, x, timed=TIMED_RUNS)
+    ms = median_ms({"fp32_ms": ort_runner(float_model, threads), "int8_ms": ort_runner(int8, threads)}, x,
+                   timed=TIMED_RUNS)
     return {**ms, "speedup_vs_fp32": round(ms["fp32_ms"] / ms["int8_ms"], 3), "threads": threads,
             "machine": f"{cpu_model()} ({', '.join(cpu_flags()) or 'no int8 flags'})"}
 
