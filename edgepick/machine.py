@@ -44,6 +44,11 @@ def machine_slug(gpu: str | None = None) -> str:
     return "-".join([model, *flags, f"{os.cpu_count()}core"])
 
 
+def cpu_summary() -> str:
+    """The CPU model and its int8 flags, for a record kept with a file timed on this machine."""
+    return f"{cpu_model()} ({', '.join(cpu_flags()) or 'no int8 flags'})"
+
+
 def machine_line(gpu: str | None = None) -> str:
     """One Markdown line for a results file's header."""
     flags = ", ".join(cpu_flags()) or "none of " + ", ".join(INT8_FLAGS)

@@ -29,12 +29,12 @@ import numpy as np
 
 from edgepick.errors import EdgepickError, ParameterError
 from edgepick.files import atomic_path
-from edgepick.machine import cpu_flags, cpu_model
+from edgepick.machine import cpu_summary
 from edgepick.progress import StageClock
 from edgepick.quant.config import GeluForm, OnnxOptions, Placement, Target
 from edgepick.quant.onnx.accuracy import SQNR_FLOOR_DB
 from edgepick.quant.onnx.inputs import check_tensor
-from edgepick.quant.onnx.speed import TIMING_THREADS
+from edgepick.quant.onnx.speed import TIMING_THREADS, ort_runner
 
 PLACEMENT_CANDIDATES = (Placement.ALL, Placement.CONVS, Placement.JOINS)
 # a candidate whose worst output SQNR is this much under the closest candidate's is not taken for its speed ...
@@ -61,13 +61,7 @@ def engine_runner(path: Path, target: Target, threads: int = TIMING_THREADS) -> 
         compiled = ov.Core().compile_model(str(path), "CPU", openvino_config(threads))
         request = compiled.create_infer_request()
         return lambda x: request.infer({0: x})
-    import onnxruntime as ort
-
-    opts = ort.SessionOptions()
-    opts.intra_op_num_threads, opts.inter_op_num_threads, opts.log_severity_level = threads, 1, 3
-    session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
-    name = session.get_inputs()[0].name
-    return lambda x: session.run(None, {name: x})
+    return ort_runner(path, threads)
 
 
 def worst_sqnr(fidelity: Mapping[str, Mapping]) -> float:
@@ -116,7 +110,7 @@ def choose_placement(quantize: Callable[..., Any], model: str | Path, calib: Ite
         sqnr = {p.value: worst_sqnr(r.fidelity) for p, r in made.items()}
         chosen = Placement(pick_placement(ms, sqnr))
         record = {"target": options.target.value, "chosen": chosen.value, "threads": TIMING_THREADS,
-                  "machine": f"{cpu_model()} ({', '.join(cpu_flags()) or 'no int8 flags'})",
+                  "machine": cpu_summary(),
                   "candidates": [{"placement": p.value, "p50_ms": ms[p.value],
                                   "worst_sqnr_db": None if math.isinf(sqnr[p.value]) else round(sqnr[p.value], 2)}
                                  for p in made],

@@ -2,36 +2,39 @@
 
 Whether int8 pays depends on the CPU as much as on the model: onnxruntime's int8 convs gain most
 where the CPU adds int8 products in int32 (AVX-512 VNNI, AVX-VNNI, AMX); on a CPU with AVX2 alone
-its int8 and float convs take about as long, and the Q/DQ ops and the uint8 Resize, Mul and
-pools the int8 graph adds can leave the file slower than fp32 (benchmarks/results/conformance/,
-the AVX2 run). So the static pass times both files on onnxruntime on this machine (alternating
-blocks, p50, the runtime's two threads), records the times in the file's quant record, and says
-in one line where the int8 file is clearly the slower one: on such a CPU the float model, or
-OpenVINO (`--placement auto --target openvino`), can serve a user better.
+they add them in int16 pairs first, and four of the 16 conformance models' int8 files ran slower
+than fp32 there (benchmarks/results/conformance/, the AVX2 run). So the static pass times both files
+on onnxruntime on this machine (alternating blocks, p50, the runtime's two threads), records the
+times in the file's quant record, and says in one line where the int8 file is clearly the slower
+one: on such a CPU the float model, or OpenVINO (`--placement auto --target openvino`), can serve a
+user better.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from edgepick.machine import cpu_flags, cpu_model
+from edgepick.machine import cpu_summary
 
 TIMED_RUNS = 20  # per file, in alternating blocks
 TIMING_THREADS = 2  # as the runtime and the benchmarks run a model on a laptop
-# the warning's threshold: two files timed in one process on a shared machine move their ratio by up to 0.1
+# the warning's threshold: on a shared machine the ratio of two files' times moves by 0.1 or more from run to run
 SLOWER_BELOW = 0.9
 
 
 def ort_runner(model: Any, threads: int = TIMING_THREADS) -> Callable[[np.ndarray], object]:
-    """A function running the ONNX graph MODEL (a ModelProto) on onnxruntime's CPU provider with THREADS threads."""
+    """A function running MODEL (an ONNX ModelProto, or the path of a file) on onnxruntime's CPU
+    provider with THREADS threads."""
     import onnxruntime as ort
 
     opts = ort.SessionOptions()
     opts.intra_op_num_threads, opts.inter_op_num_threads, opts.log_severity_level = threads, 1, 3
-    session = ort.InferenceSession(model.SerializeToString(), opts, providers=["CPUExecutionProvider"])
+    source = str(model) if isinstance(model, (str, Path)) else model.SerializeToString()
+    session = ort.InferenceSession(source, opts, providers=["CPUExecutionProvider"])
     name = session.get_inputs()[0].name
     return lambda image: session.run(None, {name: image})
 
@@ -44,7 +47,7 @@ def speed_against_fp32(float_model: Any, int8: Any, x: np.ndarray, threads: int 
     ms = median_ms({"fp32_ms": ort_runner(float_model, threads), "int8_ms": ort_runner(int8, threads)}, x,
                    timed=TIMED_RUNS)
     return {**ms, "speedup_vs_fp32": round(ms["fp32_ms"] / ms["int8_ms"], 3), "threads": threads,
-            "machine": f"{cpu_model()} ({', '.join(cpu_flags()) or 'no int8 flags'})"}
+            "machine": cpu_summary()}
 
 
 def slower_than_fp32_warning(speed: dict) -> str | None:
