@@ -14,6 +14,7 @@ import numpy as np
 
 from .engines import BASELINES
 from .runner import EngineResult, ModelResult
+from .spec import cpu_class
 
 COLOURS = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189), (140, 86, 75),
            (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207))  # RGB
@@ -129,7 +130,8 @@ def markdown(results: list[ModelResult], header: Header, figure: str | None = No
     regressed = [(m.name, e) for m in results for e in m.regressions]
     unpinned = [m.name for m in results if not m.failure and all(e.minimum is None for e in m.engines)]
     lines += ["", "## Pinned references", "",
-              "Regressed (below the pinned value less its tolerance, benchmarks/conformance/models.py):", ""]
+              "Regressed (below the pinned value less its tolerance, benchmarks/conformance/models.py; the pins for "
+              f"this CPU's class, {cpu_class()}):", ""]
     lines += [f"- {n} / {e.engine}: {percent(e.metric) if e.metric is not None else 'failed'} < {percent(e.minimum)}"
               for n, e in regressed] or ["None."]
     if unpinned:

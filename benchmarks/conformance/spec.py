@@ -55,13 +55,28 @@ class Metric:
     score: Callable[[Sequence[Any], Sequence[Any]], float]  # (reference decisions, decisions) -> 0..1
 
 
+CPU_CLASSES = ("vnni", "avx2")  # int8 dot products in one instruction (AVX-512 VNNI, AVX-VNNI or AMX), or AVX2 alone
+
+
+def cpu_class(flags: Sequence[str] | None = None) -> str:
+    """This CPU's class for the pins (FLAGS: its int8 flags, as edgepick.machine.cpu_flags gives them)."""
+    from edgepick.machine import cpu_flags
+
+    given = cpu_flags() if flags is None else flags
+    return "vnni" if {"avx512_vnni", "avx_vnni", "amx_int8"} & set(given) else "avx2"
+
+
 @dataclass(frozen=True)
 class Reference:
-    """The task metric pinned for one engine: a run that scores below value - tolerance regressed."""
+    """The task metric pinned for one engine: a run that scores below value - tolerance regressed. With
+    a CPU class (`cpu_class`), it holds on CPUs of that class only, in place of the engine's pin
+    without one: an engine whose int8 kernels round otherwise on a CPU without VNNI (OpenVINO's with
+    8-bit weights) has a pin per class."""
 
     engine: str
     value: float
     tolerance: float
+    cpu: str | None = None  # one of CPU_CLASSES; None: every CPU
 
     @property
     def minimum(self) -> float:
@@ -94,12 +109,17 @@ class Entry:
     def __post_init__(self) -> None:
         if (self.source is None) == (self.local is None):
             raise ValueError(f"{self.name}: give exactly one of source and local")
-        engines = [r.engine for r in self.references]
-        if len(set(engines)) < len(engines):
-            raise ValueError(f"{self.name}: two references for one engine")
+        pinned = [(r.engine, r.cpu) for r in self.references]
+        if len(set(pinned)) < len(pinned):
+            raise ValueError(f"{self.name}: two references for one engine and CPU class")
+        if any(r.cpu not in (None, *CPU_CLASSES) for r in self.references):
+            raise ValueError(f"{self.name}: a reference's cpu is one of {', '.join(CPU_CLASSES)}")
 
-    def reference(self, engine: str) -> Reference | None:
-        return next((r for r in self.references if r.engine == engine), None)
+    def reference(self, engine: str, cpu: str | None = None) -> Reference | None:
+        """ENGINE's pin on a CPU of class CPU (by default this one's): the class's own, else the one for every CPU."""
+        cpu = cpu_class() if cpu is None else cpu
+        mine = [r for r in self.references if r.engine == engine and r.cpu in (cpu, None)]
+        return min(mine, key=lambda r: r.cpu is None, default=None)
 
     @property
     def origin(self) -> str:

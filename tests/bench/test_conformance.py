@@ -20,7 +20,7 @@ from conformance.detectors import Boxes  # noqa: E402
 from conformance.engines import EDGEPICK, FP32, ONNXRUNTIME, Engine, Quantizer, edgepick_quantizer  # noqa: E402
 from conformance.fetch import FetchError, fetch, sha256  # noqa: E402
 from conformance.metrics import PIXELS, TOP1, box_f1, char_accuracy  # noqa: E402
-from conformance.spec import Entry, Reference, Sample, Source  # noqa: E402
+from conformance.spec import Entry, Reference, Sample, Source, cpu_class  # noqa: E402
 
 from edgepick.quant.config import OnnxOptions  # noqa: E402
 from edgepick.quant.onnx.accuracy import FidelityBudget  # noqa: E402
@@ -142,6 +142,23 @@ def test_a_run_writes_its_report_records_failures_and_fails_on_a_regression(tmp_
     with pytest.raises(SystemExit) as refused:
         cli.main([*args, "--repeats", "0"], table=table(tmp_path, 1.0), engines=ENGINES)
     assert refused.value.code == 2 and "--repeats: 0" in capsys.readouterr().err
+
+
+def test_a_pin_for_a_cpu_class_holds_on_that_class_in_place_of_the_one_for_every_cpu(tmp_path):
+    entry = Entry("tiny", "classification", SHAPE, blobs, chw, decoders.top1(), TOP1, local=tmp_path / "m.onnx",
+                  references=(Reference("nncf", 1.0, 0.0625), Reference("nncf", 0.875, 0.125, cpu="avx2"),
+                              Reference("edgepick", 1.0, 0.0625)))
+    assert entry.reference("nncf", "avx2").minimum == 0.75 and entry.reference("nncf", "vnni").minimum == 0.9375
+    assert entry.reference("edgepick", "avx2").minimum == 0.9375 and entry.reference("ort-best", "avx2") is None
+    assert entry.reference("nncf") == entry.reference("nncf", cpu_class())  # this machine's class by default
+    assert cpu_class(["avx2", "avx512f"]) == "avx2" and cpu_class([]) == "avx2"
+    assert cpu_class(["avx2", "avx_vnni"]) == cpu_class(["avx512_vnni"]) == cpu_class(["amx_int8"]) == "vnni"
+    with pytest.raises(ValueError, match="one engine and CPU class"):
+        Entry("tiny", "classification", SHAPE, blobs, chw, decoders.top1(), TOP1, local=tmp_path / "m.onnx",
+              references=(Reference("nncf", 1.0, 0.1, cpu="avx2"), Reference("nncf", 0.9, 0.1, cpu="avx2")))
+    with pytest.raises(ValueError, match="cpu is one of vnni, avx2"):
+        Entry("tiny", "classification", SHAPE, blobs, chw, decoders.top1(), TOP1, local=tmp_path / "m.onnx",
+              references=(Reference("nncf", 1.0, 0.1, cpu="sse4"),))
 
 
 def test_the_metrics_floor_moves_every_pixel_by_at_most_one_grey_level():

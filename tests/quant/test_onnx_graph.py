@@ -8,7 +8,12 @@ import pytest
 from onnx import TensorProto, helper, numpy_helper
 
 from edgepick.export.onnx_io import fix_input_shape, input_dims, lift_opset, load_float_onnx, opset
-from edgepick.quant.onnx.rewrite import fold_affine_into_convs, rewrite_activations, subsample_before_strided_pointwise_convs
+from edgepick.quant.onnx.rewrite import (
+    fold_affine_into_convs,
+    rewrite_activations,
+    spell_float_hardswish,
+    subsample_before_strided_pointwise_convs,
+)
 from tests.quant.onnx_models import calib_tensors, export_torch, run, strided_projection_model
 
 
@@ -102,3 +107,20 @@ def test_a_strided_pointwise_conv_subsampled_first_computes_the_same(tmp_path):
     for x in calib_tensors(2):
         for a, b in zip(run(src, x), run(tmp_path / "subsampled.onnx", x)):
             np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5)
+
+
+def test_a_float_hardswish_spelt_back_out_computes_the_same(tmp_path):
+    """x * HardSigmoid(x) (hardswish as rewrite_activations writes it) back to x * Clip(x + 3, 0, 6) / 6;
+    the squeeze-excitation's x * HardSigmoid(y) is no hardswish and stays."""
+    src = export_torch(tmp_path / "net.onnx", opset=13)
+    model = load_float_onnx(src)
+    assert rewrite_activations(model)["hardswish"] == 1 and _ops(model).count("HardSigmoid") == 2
+    onnx.save(model, str(tmp_path / "gated.onnx"))
+    assert spell_float_hardswish(model) == 1
+    assert _ops(model).count("HardSigmoid") == 1 and _ops(model).count("Clip") == 1
+    onnx.checker.check_model(model, full_check=True)
+    onnx.save(model, str(tmp_path / "spelt.onnx"))
+    assert spell_float_hardswish(model) == 0  # nothing left to rewrite
+    for x in calib_tensors(2):
+        np.testing.assert_allclose(run(tmp_path / "spelt.onnx", x)[0], run(tmp_path / "gated.onnx", x)[0],
+                                   rtol=1e-5, atol=1e-5)

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
+import numpy as np
 import onnx
 import pytest
 
@@ -99,6 +101,39 @@ def test_for_openvino_a_strided_pointwise_conv_keeps_its_int8_kernel(tmp_path):
     assert conv_precisions(made["with"].out) == ["u8"] * 6
     assert "f32" in conv_precisions(made["without"].out)  # what the rewrite is for: this OpenVINO still does it
 
+
+@pytest.mark.slow
+def test_for_openvino_a_float_hardswish_goes_into_its_conv(tmp_path):
+    """torch writes hardswish as x * HardSigmoid(x) below opset 14 (onnxruntime's pre-processing does
+    so with a HardSwish op), which OpenVINO runs as two more passes over the map; spelt out as
+    x * Clip(x + 3, 0, 6) / 6 it fuses into the conv before it, the file's outputs the same."""
+    ov = pytest.importorskip("openvino")
+    from torch import nn
+
+    from edgepick.quant.config import Target
+    from edgepick.quant.onnx.placement import float_forms_for
+    from edgepick.runtime.session import openvino_config
+    from tests.quant.onnx_models import export_module, image_tensors, run
+
+    net = nn.Sequential(nn.Conv2d(3, 8, 3, padding=1), nn.Hardswish(), nn.Conv2d(8, 8, 3, padding=1, groups=8),
+                        nn.Hardswish(), nn.Conv2d(8, 4, 1))
+    made = quantize_onnx_static(export_module(net, tmp_path / "net.onnx"), image_tensors(4), tmp_path / "convs.onnx",
+                                options=OnnxOptions(placement="convs", time_against_fp32=False), progress=False)
+    path = Path(made.out)
+
+    def passes() -> list[str]:  # the layers OpenVINO runs, but constants, reshapes of constants and layout reorders
+        compiled = ov.Core().compile_model(str(path), "CPU", openvino_config(2))
+        types = [op.get_rt_info()["layerType"].astype(str) for op in compiled.get_runtime_model().get_ordered_ops()]
+        return [t for t in types if t not in ("Input", "Output", "Const", "Reshape", "Reorder")]
+
+    x = image_tensors(1)[0]
+    before = run(path, x)
+    assert passes().count("Convolution") == 3 and len(passes()) > 4  # each HardSigmoid, Mul and quantization a pass
+    assert float_forms_for(Target.ONNXRUNTIME, path) == 0
+    assert float_forms_for(Target.OPENVINO, path) == 2
+    assert passes() == ["Subgraph"] + ["Convolution"] * 3  # the input's quantization, then the convs, all fused
+    for a, b in zip(run(path, x), before):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-4)
 
 def test_a_candidate_is_close_enough_within_a_db_of_the_best_or_at_the_enough_level():
     assert fidelity_threshold_db([20.0, 18.0]) == 20.0 - PLACEMENT_FIDELITY_DB  # a low-SQNR model: the best's db

@@ -11,7 +11,8 @@ at PLACEMENT_ENOUGH_DB or more, is kept, unless another within PLACEMENT_TRADE_D
 runs PLACEMENT_TRADE_SPEEDUP times as fast (`pick_placement`). The choice, every candidate's time
 and fidelity and the machine go into the file's metadata. For OpenVINO the candidates are made from the float model
 with the forms its CPU plugin needs to keep int8 kernels (`openvino_forms`), how many of each
-recorded with the choice.
+recorded with the choice, and each candidate's hardswish left float is written in the form OpenVINO
+fuses into its conv (`float_forms_for`).
 """
 
 from __future__ import annotations
@@ -82,6 +83,7 @@ def choose_placement(quantize: Callable[..., Any], model: str | Path, calib: Ite
     tensors = calib if isinstance(calib, Sized) and iter(calib) is not calib else list(calib)
     first = next(iter(tensors), None)
     made: dict[Placement, Any] = {}
+    spelt: dict[Placement, int] = {}  # hardswish left float, in OpenVINO's form
     failed: dict[str, str] = {}
     clock = StageClock()
     with tempfile.TemporaryDirectory(prefix="edgepick-placement-") as tmp:
@@ -97,6 +99,7 @@ def choose_placement(quantize: Callable[..., Any], model: str | Path, calib: Ite
             try:
                 made[placement] = quantize(source, tensors, Path(tmp) / f"{placement}.onnx", options=candidate,
                                            progress=progress, **given)
+                spelt[placement] = float_forms_for(options.target, Path(made[placement].out))
             except EdgepickError as exc:
                 if not made and placement == PLACEMENT_CANDIDATES[-1]:
                     raise
@@ -114,7 +117,8 @@ def choose_placement(quantize: Callable[..., Any], model: str | Path, calib: Ite
                   "candidates": [{"placement": p.value, "p50_ms": ms[p.value],
                                   "worst_sqnr_db": None if math.isinf(sqnr[p.value]) else round(sqnr[p.value], 2)}
                                  for p in made],
-                  **({"failed": failed} if failed else {}), **forms}
+                  **({"failed": failed} if failed else {}), **forms,
+                  **({"float_hardswish_spelt_out": spelt[chosen]} if spelt.get(chosen) else {})}
         if progress:
             times = ", ".join(f"{p} {ms[p]:.1f} ms" for p in ms)
             print(f"placement auto: {chosen} on {options.target} ({times})", file=sys.stderr, flush=True)
@@ -126,6 +130,7 @@ def choose_placement(quantize: Callable[..., Any], model: str | Path, calib: Ite
             result = quantize(source, tensors, Path(tmp) / "chosen.onnx", progress=progress, **given,
                               options=replace(candidates[chosen], adaround_if_far=True))
             again.append(result)
+            float_forms_for(options.target, Path(result.out))
         quant = {**result.quant, "adaround_if_far": options.adaround_if_far, "placement_choice": record}
         with clock("write_check"):
             _write_with(Path(result.out), Path(out), quant)
@@ -168,6 +173,23 @@ def openvino_forms(model: str | Path, tmp: Path) -> tuple[str | Path, dict[str, 
     path.parent.mkdir()
     onnx.save(proto, str(path))
     return path, {"subsampled_pointwise_convs": count}
+
+
+def float_forms_for(target: Target, path: Path) -> int:
+    """Rewrite the int8 file at PATH, in place, into the float forms TARGET runs fastest: for OpenVINO
+    each hardswish left float spelt out as exporters write it (quant/onnx/rewrite.py
+    spell_float_hardswish). Returns how many were rewritten."""
+    if target != Target.OPENVINO:
+        return 0
+    import onnx
+
+    from edgepick.quant.onnx.rewrite import spell_float_hardswish
+
+    model = onnx.load(str(path))
+    count = spell_float_hardswish(model)
+    if count:
+        onnx.save(model, str(path))
+    return count
 
 
 def _write_with(source: Path, out: Path, quant: dict) -> None:

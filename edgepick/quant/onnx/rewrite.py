@@ -17,7 +17,8 @@ the result is exactly the same function (PP-LCNetV3's learnable affine blocks, C
 layers): each one folded is a full pass over a feature map that the int8 model no longer makes.
 
 `subsample_before_strided_pointwise_convs` writes a 1x1 conv's stride as a subsampling of its
-input, for the files made for OpenVINO (quant/onnx/placement.py).
+input, and `spell_float_hardswish` writes each hardswish left float back in the exporters' form, for
+the files made for OpenVINO (quant/onnx/placement.py).
 
 Each rewrite computes the same function in float; each function says how many it made.
 """
@@ -308,3 +309,34 @@ def subsample_before_strided_pointwise_convs(model: Any) -> int:
         next(x for x in conv.attribute if x.name == "strides").ints[:] = [1] * len(strides)
         done += 1
     return done
+
+
+def spell_float_hardswish(model: Any) -> int:
+    """Rewrite, in place, each x * HardSigmoid(x) (hardswish as `rewrite_activations` writes it) that
+    is left float, nothing quantized between its two halves, as x * Clip(x + 3, 0, 6) / 6: the same
+    function, in the form exporters write and OpenVINO's CPU plugin fuses into the conv before it as
+    one post-op (with the next QuantizeLinear). HardSigmoid and Mul it runs as two more passes over
+    the map, HardSigmoid on a reference kernel. Returns how many it rewrote."""
+    from onnx import helper
+
+    g = Graph(model)
+    pairs = []
+    for mul in g.nodes:
+        if mul.op_type != "Mul" or len(mul.input) != 2:
+            continue
+        for x, gate in (mul.input, reversed(mul.input)):
+            hsig = g.producer(gate)
+            if hsig is not None and hsig.op_type == "HardSigmoid" and hsig.input[0] == x \
+                    and len(g.consumers(gate)) == 1 and gate not in g.outputs \
+                    and abs(attrs(hsig).get("alpha", 0.2) - 1 / 6) < 1e-6 and abs(attrs(hsig).get("beta", 0.5) - 0.5) < 1e-6:
+                pairs.append((hsig, mul, x))
+                break
+    for hsig, mul, x in pairs:
+        tag = f"{mul.name or mul.output[0]}_hardswish"
+        three, zero, six = (g.add_initializer(f"{tag}_{v:g}", v, np.float32) for v in (3.0, 0.0, 6.0))
+        g.replace([hsig, mul], [helper.make_node("Add", [x, three], [f"{tag}_plus3"], name=f"{tag}_add"),
+                                helper.make_node("Clip", [f"{tag}_plus3", zero, six], [f"{tag}_clip"], name=f"{tag}_clip"),
+                                helper.make_node("Div", [f"{tag}_clip", six], [f"{tag}_gate"], name=f"{tag}_div"),
+                                helper.make_node("Mul", [x, f"{tag}_gate"], [mul.output[0]], name=f"{tag}_mul")],
+                  at=mul)
+    return len(pairs)
