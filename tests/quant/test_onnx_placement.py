@@ -128,12 +128,14 @@ def test_for_openvino_a_float_hardswish_goes_into_its_conv(tmp_path):
 
     x = image_tensors(1)[0]
     before = run(path, x)
-    assert passes().count("Convolution") == 3 and len(passes()) > 4  # each HardSigmoid, Mul and quantization a pass
+    unfused = passes()
+    assert unfused.count("Convolution") == 3 and len(unfused) > 4  # each HardSigmoid, Mul and quantization a pass
     assert float_forms_for(Target.ONNXRUNTIME, path) == 0
     assert float_forms_for(Target.OPENVINO, path) == 2
     assert passes() == ["Subgraph"] + ["Convolution"] * 3  # the input's quantization, then the convs, all fused
     for a, b in zip(run(path, x), before):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-4)
+
 
 def test_a_candidate_is_close_enough_within_a_db_of_the_best_or_at_the_enough_level():
     assert fidelity_threshold_db([20.0, 18.0]) == 20.0 - PLACEMENT_FIDELITY_DB  # a low-SQNR model: the best's db

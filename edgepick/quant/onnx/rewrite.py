@@ -312,11 +312,12 @@ def subsample_before_strided_pointwise_convs(model: Any) -> int:
 
 
 def spell_float_hardswish(model: Any) -> int:
-    """Rewrite, in place, each x * HardSigmoid(x) (hardswish as `rewrite_activations` writes it) that
-    is left float, nothing quantized between its two halves, as x * Clip(x + 3, 0, 6) / 6: the same
-    function, in the form exporters write and OpenVINO's CPU plugin fuses into the conv before it as
-    one post-op (with the next QuantizeLinear). HardSigmoid and Mul it runs as two more passes over
-    the map, HardSigmoid on a reference kernel. Returns how many it rewrote."""
+    """Rewrite, in place, each x * HardSigmoid(x) (hardswish as torch below opset 14, onnxruntime's
+    pre-processing and `rewrite_activations` write it) that is left float, nothing quantized between
+    its two halves, as x * Clip(x + 3, 0, 6) / 6: the same function, in the form exporters write and
+    OpenVINO's CPU plugin fuses into the conv before it as one post-op (with the next QuantizeLinear).
+    HardSigmoid and Mul it runs as two more passes over the map, HardSigmoid on a reference kernel.
+    Returns how many it rewrote."""
     from onnx import helper
 
     g = Graph(model)
