@@ -66,7 +66,8 @@ calibration = [
     click.option("--calib-method", default=default_of(QuantConfig, "calib_method"), show_default=True,
                  type=choice(CalibMethod),
                  help="Activation ranges: auto (each rule below measured on 8 held-out calibration inputs; the one "
-                      "whose int8 outputs stay closest to fp32's is kept), a percentile of each histogram, min/max, "
+                      "whose int8 outputs stay closest to fp32's is kept: for a RUN or checkpoint, the one that "
+                      "changes fewest of fp32's labels), a percentile of each histogram, min/max, "
                       "KL divergence (entropy) or L2 error (mse). Whatever the rule, a tensor that reaches an "
                       "output through no conv keeps its whole range."),
 ]

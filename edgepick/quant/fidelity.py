@@ -287,17 +287,28 @@ def balanced_error(ref: list[np.ndarray], test: list[np.ndarray], nhwc: bool = F
 
 @dataclass(frozen=True)
 class RuleScore:
-    """A candidate rule and how far its int8 outputs fell from fp32's on the held-out tensors."""
+    """A candidate rule and how far its int8 outputs fell from fp32's on the held-out tensors: by
+    their values and, where the output's task is known to be labels, by the labels it decides."""
 
     rule: RangeRule
     error: float  # the worst output's balanced relative squared error
+    label_changes: int | None = None  # pixels whose argmax over channels differs from fp32's (labels outputs)
+    pixels: int = 0
 
     @property
     def sqnr_db(self) -> float:
         return -10.0 * math.log10(self.error) if self.error > 0 else math.inf
 
+    @property
+    def rank(self) -> tuple[float, float]:
+        """What the best rule minimises: the labels changed where they are counted, then the error."""
+        return (self.label_changes if self.label_changes is not None else 0, self.error)
+
     def to_dict(self) -> dict:
-        return {"rule": str(self.rule), "balanced_sqnr_db": round(self.sqnr_db, 2) if self.error > 0 else None}
+        found = {"rule": str(self.rule), "balanced_sqnr_db": round(self.sqnr_db, 2) if self.error > 0 else None}
+        if self.label_changes is not None:
+            found["label_agreement"] = round(1 - self.label_changes / max(self.pixels, 1), 6)
+        return found
 
 
 def parse_tasks(values: Iterable[str]) -> Task | dict[str, Task] | None:

@@ -141,3 +141,19 @@ def test_quantize_with_a_box_task_reports_the_f1_of_the_boxes(tmp_path):
     result = quantize_onnx_static(path, xs, tmp_path / "int8.onnx", progress=False, task=Task.parse("boxes"))
     assert result.fidelity["table"]["task"] == "boxes:0.25"
     assert 0.9 <= result.agreement_vs_fp32["table"] <= 1.0, result.fidelity
+
+
+def test_a_rule_that_keeps_more_labels_ranks_first_whatever_its_error():
+    """A labels output: the range rule that clips the few high logits a label turns on can have the
+    smaller error over all logits; the labels decide, the error only breaks their ties."""
+    from edgepick.quant.fidelity import RuleScore
+    from edgepick.quant.ranges import RangeRule
+
+    tight = RuleScore(RangeRule.parse("percentile 99.99"), error=0.006, label_changes=900, pixels=100_000)
+    wide = RuleScore(RangeRule.parse("percentile 99.999"), error=0.008, label_changes=600, pixels=100_000)
+    assert min([tight, wide], key=lambda s: s.rank) is wide
+    assert wide.to_dict()["label_agreement"] == 0.994 and "label_agreement" not in RuleScore(wide.rule, 0.008).to_dict()
+    tie = RuleScore(RangeRule.parse("mse"), error=0.007, label_changes=600, pixels=100_000)
+    assert min([wide, tie], key=lambda s: s.rank) is tie
+    # without labels (a model whose outputs are not known to be labels) the error alone ranks
+    assert min([RuleScore(tight.rule, 0.006), RuleScore(wide.rule, 0.008)], key=lambda s: s.rank).rule == tight.rule

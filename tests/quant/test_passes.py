@@ -32,6 +32,10 @@ def test_static_int8_meets_the_contract(onnx_files):
     assert quant["mode"] == "static" and quant["calib_images"] == 16 and quant["calib_method"] == "auto"
     # the rule auto kept, among the candidates it measured on 8 held-out images
     assert quant["ranges"]["held_out"] == 8 and quant["ranges"]["rule"] in {c["rule"] for c in quant["ranges"]["candidates"]}
+    # an edgepick run's output is labels: the rule kept changes fewest of fp32's labels on the held-out images
+    candidates = quant["ranges"]["candidates"]
+    kept = next(c for c in candidates if c["rule"] == quant["ranges"]["rule"])
+    assert kept["label_agreement"] == max(c["label_agreement"] for c in candidates)
     assert len(seg.info.metadata["edgepick.source_sha256"]) == 64
     assert static["observers"] > 0
     assert static["convs"] == static["int8_convs"] == 70 and static["float_convs"] == []

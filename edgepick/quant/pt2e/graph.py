@@ -149,12 +149,16 @@ def convert(prepared: torch.fx.GraphModule, snap_biases: bool = True) -> torch.f
     return converted
 
 
-def choose_rule(prepared: torch.fx.GraphModule, held: list[torch.Tensor], config: QuantConfig, fitted: int) -> dict:
+def choose_rule(prepared: torch.fx.GraphModule, held: list[torch.Tensor], config: QuantConfig, fitted: int,
+                labels: bool = False) -> dict:
     """Set the range rule of PREPARED's activation observers (calibrated on FITTED other inputs than
     HELD) and count HELD in. With calib_method auto, PREPARED runs HELD with its activations on each
     candidate rule's uint8 grid (the weights float: they are the same for every rule), and the rule
     whose logits stay closest to fp32's is kept (each class weighted alike: the ONNX path's
-    measure). With fewer FITTED inputs than HELD, HELD are counted in first and the choice is made
+    measure). LABELS (a segmentation model's logits, as edgepick's own checkpoints have): the rule
+    that changes fewest of fp32's labels (argmax over channels) is kept, the logits' error breaking
+    ties; the logits' error alone can prefer a tighter range that clips the few high logits a label
+    turns on. With fewer FITTED inputs than HELD, HELD are counted in first and the choice is made
     on them. Returns what was chosen and measured."""
     observers = [m for m in prepared.modules() if isinstance(m, RuleObserver)]
     rules = candidate_rules(config)
@@ -176,8 +180,10 @@ def choose_rule(prepared: torch.fx.GraphModule, held: list[torch.Tensor], config
             outputs = [_arrays(prepared(x.to(device))) for x in held]
             worst = max(balanced_error([r[k] for r in reference], [o[k] for o in outputs])
                         for k in range(len(reference[0])))
-            scores.append(RuleScore(rule, worst))
-    best = min(scores, key=lambda s: s.error)
+            changed = sum(int((r[0].argmax(1) != o[0].argmax(1)).sum()) for r, o in zip(reference, outputs))
+            pixels = sum(r[0][:, 0].size for r in reference)
+            scores.append(RuleScore(rule, worst, changed, pixels) if labels else RuleScore(rule, worst))
+    best = min(scores, key=lambda s: s.rank)
     for o in observers:
         o.simulate(None)
         o.rule, o.observing = best.rule, True

@@ -76,7 +76,7 @@ def _calibrate(prepared: torch.fx.GraphModule, calib: Iterator[np.ndarray], size
     held = list(itertools.islice(images, HELD_OUT_INPUTS if config.calib_method == CalibMethod.AUTO else 0))
     rest = calibrate(prepared, images, size, progress, total=total - len(held) if total else None,
                      at_least_one=not held)
-    ranges = choose_rule(prepared, [as_input(at_input_size(rgb, size)) for rgb in held], config, rest)
+    ranges = choose_rule(prepared, [as_input(at_input_size(rgb, size)) for rgb in held], config, rest, labels=True)
     return kept, len(held) + rest, ranges
 
 
