@@ -69,7 +69,8 @@ def hand_line(hand: HandShape) -> str:
 def targets(rows: list[dict], equivalence: list[dict], margin: float) -> list[list[str]]:
     """Each target the rounds are held to, what was measured, and whether it holds."""
     out = []
-    shipped = next((r for r in rows if r["model"] == str(reference_model())), None)
+    found = reference_model()
+    shipped = next((r for r in rows if found is not None and Path(r["model"]).resolve() == found.resolve()), None)
     if shipped is not None:
         s = shipped["rounds"]
 

@@ -51,3 +51,11 @@ def test_targets_say_which_hold():
     assert held["fp32 CPU: clearance interval narrower than +-3 pp"] == "yes"
     assert held["static: clearance interval narrower than +-3 pp"] == "no"
     assert held["static minus fp32 CPU: grasp success within +-1 pp"] == "yes"
+
+
+def test_the_shipped_file_is_found_by_any_path_to_it(tmp_path, monkeypatch):
+    """--models may name the shipped file by a relative path: its targets are still reported."""
+    monkeypatch.chdir(REPO)
+    relative = str(reference_model().resolve().relative_to(REPO))
+    held = {target for target, _, _ in clutter_rounds.targets([_row("static", relative, 0.96, 0.96, [0.95, 0.97])], [], 1.0)}
+    assert "reference int8: grasp success >= 95%" in held
