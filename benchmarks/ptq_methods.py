@@ -147,6 +147,7 @@ def main() -> None:
         c: [] for c in cases}
     timed: dict[tuple[WeightBits, BiasCorrection, str], Path] = {}
     ov_agree: dict[tuple[WeightBits, BiasCorrection, str], list[float]] = {c: [] for c in cases}
+    rules: dict[tuple[WeightBits, BiasCorrection, str], list[str]] = {c: [] for c in cases}  # per seed
     try:
         fp32_path = Path(export_checkpoint(args.run, work / "fp32.onnx").out)
         fp32 = labels(fp32_path, frames)
@@ -167,9 +168,10 @@ def main() -> None:
                 results[(bits, method, extra)].append(
                     (agree, int8_miou - fp32_miou, r.agreement_vs_torch, r.calib_s, sevens))
                 timed.setdefault((bits, method, extra), out)
+                rules[(bits, method, extra)].append(r.quant.get("ranges", {}).get("rule", "-"))
                 print(f"   object agreement {100 * agree:.2f}%, mIoU {100 * (int8_miou - fp32_miou):+.2f} pp, "
                       f"onnxruntime-vs-torch {100 * r.agreement_vs_torch:.2f}%, "
-                      f"{sevens} 7-bit convs, calibration {r.calib_s:.1f} s, "
+                      f"{sevens} 7-bit convs, range rule {rules[(bits, method, extra)][-1]}, calibration {r.calib_s:.1f} s, "
                       f"pass {pass_s:.1f} s", file=sys.stderr, flush=True)
         print(f"-- timing seed {seeds[0]}'s files", file=sys.stderr, flush=True)
         engines = [Engine.ONNXRUNTIME, Engine.OPENVINO] if args.openvino else [Engine.ONNXRUNTIME]
@@ -195,14 +197,17 @@ def main() -> None:
              + (f"; OpenVINO {openvino_version()}, ONEDNN_MAX_CPU_ISA={os.environ.get('ONEDNN_MAX_CPU_ISA', 'unset')}"
                 if args.openvino else "") + ".", "",
              adaround_text(args.adaround_budget), "",
-             "| Weight bits | 7-bit convs | Bias correction | CLE / AdaRound / percentile | Object-pixel agreement with fp32 (%) | "
+             "Range rule: the one each seed's pass used (calib_method auto chooses it per pass).", "",
+             "| Weight bits | 7-bit convs | Bias correction | CLE / AdaRound / percentile | Range rule (per seed) | "
+             "Object-pixel agreement with fp32 (%) | "
              "mIoU - fp32's (pp) | onnxruntime-vs-torch (%) | Calibration (s) | p50 (ms) |"
              + (" OpenVINO: object-pixel agreement with its fp32 (%) | OpenVINO p50 (ms) |" if args.openvino else ""),
-             "|---|---|---|---|---|---|---|---|---|" + ("---|---|" if args.openvino else "")]
+             "|---|---|---|---|---|---|---|---|---|---|" + ("---|---|" if args.openvino else "")]
     for (bits, method, extra), rows in results.items():
         agree, drop, vs_torch, calib_s, sevens = zip(*rows)
         drops = [100 * d for d in drop]
         lines.append(f"| {bits} | {min(sevens)}-{max(sevens)} | {method} | {extra.replace('+', ' + ') or '-'} | "
+                     f"{', '.join(rules[(bits, method, extra)])} | "
                      f"{spread(list(agree))} | {statistics.mean(drops):+.2f} "
                      f"({min(drops):+.2f} to {max(drops):+.2f}) | {spread(list(vs_torch))} | "
                      f"{statistics.median(calib_s):.1f} | {p50[(bits, method, extra)][0]:.1f} |"
