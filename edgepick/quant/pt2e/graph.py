@@ -180,9 +180,11 @@ def choose_rule(prepared: torch.fx.GraphModule, held: list[torch.Tensor], config
             outputs = [_arrays(prepared(x.to(device))) for x in held]
             worst = max(balanced_error([r[k] for r in reference], [o[k] for o in outputs])
                         for k in range(len(reference[0])))
-            changed = sum(int((r[0].argmax(1) != o[0].argmax(1)).sum()) for r, o in zip(reference, outputs))
-            pixels = sum(r[0][:, 0].size for r in reference)
-            scores.append(RuleScore(rule, worst, changed, pixels) if labels else RuleScore(rule, worst))
+            if labels:  # counted only for logits known to be [N, classes, H, W]: another output may have no axis 1
+                changed = sum(int((r[0].argmax(1) != o[0].argmax(1)).sum()) for r, o in zip(reference, outputs))
+                scores.append(RuleScore(rule, worst, changed, sum(r[0][:, 0].size for r in reference)))
+            else:
+                scores.append(RuleScore(rule, worst))
     best = min(scores, key=lambda s: s.rank)
     for o in observers:
         o.simulate(None)
