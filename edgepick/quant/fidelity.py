@@ -288,27 +288,60 @@ def balanced_error(ref: list[np.ndarray], test: list[np.ndarray], nhwc: bool = F
 @dataclass(frozen=True)
 class RuleScore:
     """A candidate rule and how far its int8 outputs fell from fp32's on the held-out tensors: by
-    their values and, where the output's task is known to be labels, by the labels it decides."""
+    their values and, where an output decides something (its task: labels, a threshold, top-1,
+    boxes, strings), by the decisions it changes."""
 
     rule: RangeRule
     error: float  # the worst output's balanced relative squared error
-    label_changes: int | None = None  # pixels whose argmax over channels differs from fp32's (labels outputs)
-    pixels: int = 0
+    changed: int | None = None  # decisions that differ from fp32's (the output that changes the largest share)
+    decided: int = 0  # that output's decisions (each pixel's label for an edgepick run's logits)
+    decisions: str = "label"  # what they are: the record's key is f"{decisions}_agreement"
 
     @property
     def sqnr_db(self) -> float:
         return -10.0 * math.log10(self.error) if self.error > 0 else math.inf
 
     @property
+    def changed_share(self) -> float:
+        return self.changed / self.decided if self.changed and self.decided else 0.0
+
+    @property
     def rank(self) -> tuple[float, float]:
-        """What the best rule minimises: the labels changed where they are counted, then the error."""
-        return (self.label_changes if self.label_changes is not None else 0, self.error)
+        """What the best rule minimises: the share of decisions changed where they are counted, then the error."""
+        return (self.changed_share, self.error)
 
     def to_dict(self) -> dict:
         found = {"rule": str(self.rule), "balanced_sqnr_db": round(self.sqnr_db, 2) if self.error > 0 else None}
-        if self.label_changes is not None:
-            found["label_agreement"] = round(1 - self.label_changes / max(self.pixels, 1), 6)
+        if self.changed is not None:
+            found[f"{self.decisions}_agreement"] = round(1 - self.changed_share, 6)
         return found
+
+
+def beyond_chance(fewer: RuleScore, more: RuleScore, z: float = 2.0) -> bool:
+    """Whether FEWER changes a smaller share of fp32's decisions than MORE by more than chance: the
+    difference of the shares over its standard error (McNemar's bound for paired decisions: each
+    rule's changed decisions taken as discordant), above Z. A face map's few cells or a detector's
+    boxes on a few held-out images change by a handful between rules, which says nothing."""
+    if fewer.changed is None or more.changed is None or not fewer.decided or not more.decided:
+        return False
+    spread = math.sqrt((fewer.changed or 0) / fewer.decided ** 2 + (more.changed or 0) / more.decided ** 2)
+    return more.changed_share - fewer.changed_share > z * spread
+
+
+def ranked_rule(scores: list[RuleScore]) -> RuleScore:
+    """The rule kept among measured SCORES: the one with the closest outputs, unless a rule changes
+    fewer of fp32's decisions beyond chance (`beyond_chance`; the fewest such, the closest among equals)."""
+    closest, fewest = min(scores, key=lambda s: s.error), min(scores, key=lambda s: s.rank)
+    return fewest if beyond_chance(fewest, closest) else closest
+
+
+def most_changed(fidelity: dict[str, OutputFidelity]) -> tuple[int | None, int]:
+    """Over the outputs of FIDELITY that decide something, the decisions changed and made by the one
+    that changes the largest share of them; (None, 0) where none decides (raw outputs alone)."""
+    shares = [(f.decided - f.same, f.decided) for f in fidelity.values() if f.task.kind != TaskKind.RAW or f.judged]
+    if not shares:
+        return None, 0
+    return max(shares, key=lambda cd: cd[0] / cd[1] if cd[1] else 0.0)
 
 
 def parse_tasks(values: Iterable[str]) -> Task | dict[str, Task] | None:

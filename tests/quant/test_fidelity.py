@@ -149,11 +149,46 @@ def test_a_rule_that_keeps_more_labels_ranks_first_whatever_its_error():
     from edgepick.quant.fidelity import RuleScore
     from edgepick.quant.ranges import RangeRule
 
-    tight = RuleScore(RangeRule.parse("percentile 99.99"), error=0.006, label_changes=900, pixels=100_000)
-    wide = RuleScore(RangeRule.parse("percentile 99.999"), error=0.008, label_changes=600, pixels=100_000)
+    tight = RuleScore(RangeRule.parse("percentile 99.99"), error=0.006, changed=900, decided=100_000)
+    wide = RuleScore(RangeRule.parse("percentile 99.999"), error=0.008, changed=600, decided=100_000)
     assert min([tight, wide], key=lambda s: s.rank) is wide
     assert wide.to_dict()["label_agreement"] == 0.994 and "label_agreement" not in RuleScore(wide.rule, 0.008).to_dict()
-    tie = RuleScore(RangeRule.parse("mse"), error=0.007, label_changes=600, pixels=100_000)
+    tie = RuleScore(RangeRule.parse("mse"), error=0.007, changed=600, decided=100_000)
     assert min([wide, tie], key=lambda s: s.rank) is tie
     # without labels (a model whose outputs are not known to be labels) the error alone ranks
     assert min([RuleScore(tight.rule, 0.006), RuleScore(wide.rule, 0.008)], key=lambda s: s.rank).rule == tight.rule
+
+
+def test_the_output_that_changes_the_largest_share_of_its_decisions_ranks_a_rule():
+    """An ONNX model's outputs, each judged by its task: the one that changes the largest share of
+    fp32's decisions speaks for the rule (a raw output decides nothing); the record names them decisions."""
+    from edgepick.quant.fidelity import OutputFidelity, RuleScore, most_changed
+    from edgepick.quant.ranges import RangeRule
+
+    fidelity = {"mask": OutputFidelity(Task.parse("threshold:0.5"), same=990, decided=1000),
+                "top": OutputFidelity(Task.parse("top1"), same=7, decided=8),
+                "boxes": OutputFidelity(Task.parse("raw"), same=0, decided=0)}
+    assert most_changed(fidelity) == (1, 8)
+    assert most_changed({"boxes": fidelity["boxes"]}) == (None, 0)
+    assert most_changed({"mask": OutputFidelity(Task.parse("threshold:0.5"))}) == (0, 0)  # nothing above T in either
+    score = RuleScore(RangeRule.parse("mse"), 0.01, *most_changed(fidelity), decisions="decision")
+    assert score.to_dict()["decision_agreement"] == 0.875 and score.rank == (0.125, 0.01)
+
+
+def test_a_rule_that_changes_fewer_decisions_is_kept_over_the_closest_only_beyond_chance():
+    """A face map's few cells on 8 held-out images change by a handful between rules, which says
+    nothing: the closest outputs keep the choice; many decisions apart (a mask's pixels) the
+    decisions win (McNemar's bound: the difference over the square root of the changes, above 2)."""
+    from edgepick.quant.fidelity import RuleScore, beyond_chance, ranked_rule
+    from edgepick.quant.ranges import RangeRule
+
+    def score(rule: str, error: float, changed: int | None, decided: int) -> RuleScore:
+        return RuleScore(RangeRule.parse(rule), error, changed, decided, decisions="decision")
+
+    closest, fewer = score("percentile 99.99", 0.10, 9, 120), score("percentile 99.999", 0.12, 5, 120)
+    assert not beyond_chance(fewer, closest) and ranked_rule([closest, fewer]) is closest
+    closest, fewer = score("percentile 99.99", 0.10, 900, 100_000), score("mse", 0.12, 600, 100_000)
+    assert beyond_chance(fewer, closest) and ranked_rule([closest, fewer]) is fewer
+    raw = [score("minmax", 0.2, None, 0), score("entropy", 0.1, None, 0)]
+    assert ranked_rule(raw) is raw[1]  # nothing decided: the closest
+

@@ -11,6 +11,7 @@ import onnx
 import pytest
 
 from edgepick.quant.config import PtqMethods, QuantConfig
+from edgepick.quant.fidelity import Task
 from edgepick.quant.onnx.qdq import OUTPUT_GRID_DB, exact_tensors
 from edgepick.quant.onnx.static import quantize_onnx_static
 from tests.quant.onnx_models import calib_tensors, conv_relu_model, detector_head_model, export_torch, optimized_ops, run
@@ -65,18 +66,24 @@ def test_a_detectors_rare_high_scores_are_not_clipped(tmp_path):
     assert ours.quant["ranges"]["exact_tensors"] == 6  # box, obj_logit, obj, rows_nchw, rows_t, rows
 
 
-@pytest.mark.parametrize("count, held_out", [(20, 8), (10, 0)])
-def test_auto_measures_every_rule_on_held_out_tensors_and_keeps_the_closest(tmp_path, count, held_out):
+@pytest.mark.parametrize("count, held_out, task", [(20, 8, "labels"), (10, 0, "labels"), (20, 8, "raw")])
+def test_auto_measures_every_rule_on_held_out_tensors_and_keeps_the_closest(tmp_path, count, held_out, task):
+    """Each candidate rule measured on the held-out tensors: the closest outputs are kept, or a rule
+    that changes fewer of fp32's decisions (beyond chance: tests/quant/test_fidelity.py); where the
+    output decides nothing (raw), the closest outputs alone."""
     path, _, _ = conv_relu_model(tmp_path / "m.onnx")
     rng = np.random.default_rng(4)
     xs = [rng.standard_t(2, (1, 2, 32, 32)).astype(np.float32) for _ in range(count)]
-    result = quantize_onnx_static(path, xs, tmp_path / "int8.onnx", progress=False)
+    result = quantize_onnx_static(path, xs, tmp_path / "int8.onnx", progress=False, task=Task.parse(task))
     ranges = result.quant["ranges"]
     assert result.quant["calib_method"] == "auto" and result.calib_tensors == count
     assert ranges["held_out"] == held_out  # with fewer than twice the held-out tensors, all are used for both
-    scores = {c["rule"]: c["balanced_sqnr_db"] for c in ranges["candidates"]}
+    scores = {c["rule"]: (c.get("decision_agreement", 1.0), c["balanced_sqnr_db"]) for c in ranges["candidates"]}
     assert set(scores) == {"minmax", "percentile 99.99", "percentile 99.999", "percentile 99.9999", "entropy", "mse"}
-    assert scores[ranges["rule"]] == max(scores.values())
+    closest = max(scores, key=lambda rule: scores[rule][1])
+    kept = ranges["rule"]
+    assert kept == closest or scores[kept][0] > scores[closest][0]
+    assert all(("decision_agreement" in c) == (task != "raw") for c in ranges["candidates"])
     recorded = json.loads({p.key: p.value for p in onnx.load(result.out).metadata_props}["edgepick.quant"])
     assert recorded["ranges"] == ranges
 

@@ -6,7 +6,6 @@ bias-corrected files: `ranges_after_correction`), the ranges read off."""
 from __future__ import annotations
 
 import itertools
-import math
 import sys
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
@@ -18,11 +17,12 @@ import numpy as np
 from edgepick.progress import StageClock
 from edgepick.progress import progress as progress_bar
 from edgepick.quant.config import CalibMethod, Placement, PtqMethods, QuantConfig
+from edgepick.quant.fidelity import RuleScore, most_changed, ranked_rule
 from edgepick.quant.onnx.calibrate import Collector, calibrated_tensors, check_memory, release_memory
 from edgepick.quant.onnx.evaluator import Evaluator
 from edgepick.quant.onnx.inputs import check_tensor
 from edgepick.quant.onnx.qdq import choose_rule, exact_tensors
-from edgepick.quant.ranges import candidate_rules
+from edgepick.quant.ranges import RangeRule, candidate_rules
 
 # a rule measure under this (dB, before bias correction) ranks the candidates by an error the correction then
 # removes (u2netp: docs/quantization.md, Calibration methods)
@@ -116,25 +116,35 @@ def ranges_after_correction(cal: Calibrated, build: Callable[..., tuple[Any, dic
     """The graph BUILD makes with CAL's ranges and METHODS; where CAL holds every candidate rule's
     ranges (their measure before bias correction ranked nothing: UNRANKED_DB), each
     made with its correction, and the one whose outputs come closest to fp32's on the check tensors
-    kept where it comes within UNRANKED_DB of them (else that measure ranks nothing either, and the
+    kept where it comes within UNRANKED_DB of them (ranked as `choose_rule` ranks: the closest, unless one
+    changes fewer decisions beyond chance; else that measure ranks nothing either, and the
     first choice stands: on picodet, whose files stay under it, the closest after correction agreed
     less once AdaRound was applied), every rule's SQNR after correction in the ranges record."""
     int8, done = build(methods)
     if not cal.candidates:
         return int8, done, cal
     chosen = cal.record["rule"]
-    best, errors = (int8, done, cal.ranges, chosen), {chosen: evaluator.error(int8, None)}
+    made = {chosen: (int8, done, cal.ranges)}  # the graphs of the closest and of the fewest decisions changed so far
+    scores = {chosen: _score(evaluator, int8, chosen)}
     for rule, ranges in cal.candidates.items():
         if rule != chosen:
-            graph, made = build(methods, ranges)
-            errors[rule] = evaluator.error(graph, None)
-            best = (graph, made, ranges, rule) if errors[rule] < errors[best[3]] else best
-    if errors[best[3]] > 10.0 ** (-UNRANKED_DB / 10.0):
-        best = (int8, done, cal.ranges, chosen)
-    int8, done, ranges, rule = best
+            graph, built = build(methods, ranges)
+            made[rule], scores[rule] = (graph, built, ranges), _score(evaluator, graph, rule)
+            leaders = {str(min(scores.values(), key=key).rule) for key in (lambda s: s.error, lambda s: s.rank)}
+            made = {r: g for r, g in made.items() if r in leaders or r == chosen}
+    rule = str(ranked_rule(list(scores.values())).rule)
+    if scores[rule].error > 10.0 ** (-UNRANKED_DB / 10.0):
+        rule = chosen
+    int8, done, ranges = made[rule]
     if progress:
         print(f"ranges: every rule far from fp32 before bias correction; after it: {rule}",
               file=sys.stderr, flush=True)
-    after = {r: round(-10.0 * math.log10(e), 2) if e > 0 else None for r, e in errors.items()}
+    after = {r: round(s.sqnr_db, 2) if s.error > 0 else None for r, s in scores.items()}
     record = {**cal.record, "rule": rule, "chosen_before_correction": chosen, "after_correction": after}
     return int8, done, replace(cal, ranges=ranges, record=record, candidates={})
+
+
+def _score(evaluator: Evaluator, graph: Any, rule: str) -> RuleScore:
+    """RULE's GRAPH measured as `choose_rule` measures a candidate: the decisions it changes and its error."""
+    fidelity, error = evaluator.measure(graph)
+    return RuleScore(RangeRule.parse(rule), error, *most_changed(fidelity), decisions="decision")

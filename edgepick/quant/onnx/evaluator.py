@@ -83,15 +83,19 @@ class Evaluator:
         return compare_outputs(self.names, self.tasks, zip(self.reference, self.outputs(model)), self.nhwc)
 
     def measure(self, model: Any) -> tuple[dict[str, OutputFidelity], float]:
-        """`fidelity` and `error` of MODEL on every check tensor, from one run of each."""
-        outputs = list(self.outputs(model))
-        errors = [BalancedError(self.nhwc) for _ in self.names]
-        for ref, got in zip(self.reference, outputs):
-            for error, r, t in zip(errors, ref, got):
-                error.add(r, t)
-        fidelity = compare_outputs(self.names, self.tasks, zip(self.reference, outputs), self.nhwc)
+        """`fidelity` and `error` of MODEL on every check tensor, from one run of each (one tensor's
+        outputs held at a time where no judge needs them all)."""
+        outputs = self.outputs(model)
         if self.judge is not None:
-            fidelity[JUDGED] = judged(self.judge(self.reference, outputs))
+            outputs = iter(kept := list(outputs))
+        errors = [BalancedError(self.nhwc) for _ in self.names]
+        fidelity = compare_outputs(self.names, self.tasks, [], self.nhwc)
+        for ref, got in zip(self.reference, outputs):
+            for name, error, r, t in zip(self.names, errors, ref, got):
+                error.add(r, t)
+                fidelity[name].add(r, t, self.nhwc)
+        if self.judge is not None:
+            fidelity[JUDGED] = judged(self.judge(self.reference, kept))
         return fidelity, max(e.value for e in errors)
 
     def error(self, model: Any, count: int | None = SCAN_TENSORS) -> float:

@@ -25,7 +25,7 @@ import numpy as np
 from edgepick.export.onnx_io import CONV_OPS
 from edgepick.onnx_graph import Graph, copy_model
 from edgepick.quant.config import QuantConfig
-from edgepick.quant.fidelity import OutputFidelity, RuleScore, compare_outputs
+from edgepick.quant.fidelity import OutputFidelity, RuleScore, compare_outputs, most_changed, ranked_rule
 from edgepick.quant.onnx.calibrate import Collector
 from edgepick.quant.onnx.evaluator import Evaluator
 from edgepick.quant.onnx.floating import REMOVABLE_OPS, restore_activation
@@ -196,8 +196,11 @@ def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np
                 exclude: list[str], config: QuantConfig, evaluator: Callable[[list[np.ndarray]], Evaluator],
                 progress: bool, conv_outputs: bool = True) -> tuple[RangeRule, dict, Any | None]:
     """The range rule: config's own, or with auto the candidate whose int8 graph of the float file
-    PRE gives outputs closest to fp32's on the HELD tensors (EVALUATOR gives fp32's outputs on them;
-    HELD_OUT: COLLECTOR has not counted them yet, the caller does after). Returns the rule, what was
+    PRE gives outputs closest to fp32's on the HELD tensors, unless another changes fewer of fp32's
+    decisions beyond chance (`ranked_rule`: the output whose task decides something that changes
+    most; EVALUATOR gives fp32's outputs on them and each output's task): the error alone can prefer
+    a tighter range that clips the few high values a decision turns on.
+    HELD_OUT: COLLECTOR has not counted them yet, the caller does after. Returns the rule, what was
     measured, and the QDQ graph the candidates were measured on as the writer wrote it (None with one
     rule: nothing written), for `qdq_for`."""
     rules = candidate_rules(config)
@@ -215,8 +218,9 @@ def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np
     for rule in progress_bar(rules, desc="choose ranges", unit="rule", enabled=progress):
         # every Relu and Clip read by a quantized op alone folded into its grid, as every placement's writer folds them
         requantize_activations(written, float_model, adjusted_ranges(float_model, collector.ranges(rule, exact)))
-        scores.append(RuleScore(rule, check.error(written, None)))
-    best = min(scores, key=lambda s: s.error)
+        fidelity, error = check.measure(written)
+        scores.append(RuleScore(rule, error, *most_changed(fidelity), decisions="decision"))
+    best = ranked_rule(scores)
     return best.rule, {"rule": str(best.rule), "held_out": len(held) if held_out else 0,
                        "candidates": [s.to_dict() for s in scores]}, pristine
 
