@@ -146,5 +146,5 @@ def ranges_after_correction(cal: Calibrated, build: Callable[..., tuple[Any, dic
 
 def _score(evaluator: Evaluator, graph: Any, rule: str) -> RuleScore:
     """RULE's GRAPH measured as `choose_rule` measures a candidate: the decisions it changes and its error."""
-    fidelity, error = evaluator.measure(graph)
+    fidelity, error = evaluator.measure(graph, judge=False)
     return RuleScore(RangeRule.parse(rule), error, *most_changed(fidelity), decisions="decision")

@@ -82,11 +82,13 @@ class Evaluator:
             return self.measure(model)[0]
         return compare_outputs(self.names, self.tasks, zip(self.reference, self.outputs(model)), self.nhwc)
 
-    def measure(self, model: Any) -> tuple[dict[str, OutputFidelity], float]:
+    def measure(self, model: Any, judge: bool = True) -> tuple[dict[str, OutputFidelity], float]:
         """`fidelity` and `error` of MODEL on every check tensor, from one run of each (one tensor's
-        outputs held at a time where no judge needs them all)."""
+        outputs held at a time where no judge needs them all). JUDGE False: the outputs' tasks alone,
+        the caller's judge not asked (it answers for the budget, and may count its calls)."""
+        judge = judge and self.judge is not None
         outputs = self.outputs(model)
-        if self.judge is not None:
+        if judge:
             outputs = iter(kept := list(outputs))
         errors = [BalancedError(self.nhwc) for _ in self.names]
         fidelity = compare_outputs(self.names, self.tasks, [], self.nhwc)
@@ -94,7 +96,7 @@ class Evaluator:
             for name, error, r, t in zip(self.names, errors, ref, got):
                 error.add(r, t)
                 fidelity[name].add(r, t, self.nhwc)
-        if self.judge is not None:
+        if judge and self.judge is not None:
             fidelity[JUDGED] = judged(self.judge(self.reference, kept))
         return fidelity, max(e.value for e in errors)
 

@@ -218,7 +218,7 @@ def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np
     for rule in progress_bar(rules, desc="choose ranges", unit="rule", enabled=progress):
         # every Relu and Clip read by a quantized op alone folded into its grid, as every placement's writer folds them
         requantize_activations(written, float_model, adjusted_ranges(float_model, collector.ranges(rule, exact)))
-        fidelity, error = check.measure(written)
+        fidelity, error = check.measure(written, judge=False)
         scores.append(RuleScore(rule, error, *most_changed(fidelity), decisions="decision"))
     best = ranked_rule(scores)
     return best.rule, {"rule": str(best.rule), "held_out": len(held) if held_out else 0,
