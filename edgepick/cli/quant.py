@@ -66,9 +66,9 @@ calibration = [
     click.option("--calib-method", default=default_of(QuantConfig, "calib_method"), show_default=True,
                  type=choice(CalibMethod),
                  help="Activation ranges: auto (each rule below measured on 8 held-out calibration inputs; the one "
-                      "that changes fewest of fp32's decisions is kept, the outputs closest to fp32's breaking ties: "
-                      "labels for a RUN or checkpoint, each output's --task for an .onnx MODEL; the closest outputs "
-                      "alone where every output is raw), a percentile of each histogram, min/max, "
+                      "whose int8 outputs stay closest to fp32's is kept; for a RUN or checkpoint the one that "
+                      "changes fewest of fp32's labels; for an .onnx MODEL one that changes fewer of its outputs' "
+                      "decisions (--task) where the difference is beyond chance), a percentile of each histogram, min/max, "
                       "KL divergence (entropy) or L2 error (mse). Whatever the rule, a tensor that reaches an "
                       "output through no conv keeps its whole range."),
 ]

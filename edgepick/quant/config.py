@@ -67,8 +67,9 @@ MAX_FLOAT_LAYERS = 6  # accuracy-aware static PTQ: the most layers it keeps in f
 class CalibMethod(enum.StrEnum):
     """How static PTQ sets activation ranges (compared by benchmarks/calib_methods.py)."""
 
-    # every rule below, each tried on held-out calibration inputs; the one whose int8 outputs change fewest of
-    # fp32's decisions is kept, the closest outputs breaking ties (quant/onnx/qdq.py, quant/pt2e/graph.py)
+    # every rule below, each tried on held-out calibration inputs; the one whose int8 outputs stay closest to
+    # fp32's is kept, or one that changes fewer of fp32's decisions (labels on a run; on an .onnx model, beyond
+    # chance) (quant/onnx/qdq.py, quant/pt2e/graph.py, quant/fidelity.py ranked_rule)
     AUTO = "auto"
     MINMAX = "minmax"
     PERCENTILE = "percentile"  # a percentile of each histogram: clips rare outliers
