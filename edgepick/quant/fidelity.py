@@ -324,7 +324,7 @@ def beyond_chance(fewer: RuleScore, more: RuleScore, z: float = 2.0) -> bool:
     boxes on a few held-out images change by a handful between rules, which says nothing."""
     if fewer.changed is None or more.changed is None or not fewer.decided or not more.decided:
         return False
-    spread = math.sqrt((fewer.changed or 0) / fewer.decided ** 2 + (more.changed or 0) / more.decided ** 2)
+    spread = math.sqrt(fewer.changed / fewer.decided ** 2 + more.changed / more.decided ** 2)
     return more.changed_share - fewer.changed_share > z * spread
 
 
@@ -338,7 +338,7 @@ def ranked_rule(scores: list[RuleScore]) -> RuleScore:
 def most_changed(fidelity: dict[str, OutputFidelity]) -> tuple[int | None, int]:
     """Over the outputs of FIDELITY that decide something, the decisions changed and made by the one
     that changes the largest share of them; (None, 0) where none decides (raw outputs alone)."""
-    shares = [(f.decided - f.same, f.decided) for f in fidelity.values() if f.task.kind != TaskKind.RAW or f.judged]
+    shares = [(f.decided - f.same, f.decided) for f in fidelity.values() if f.task.kind != TaskKind.RAW]
     if not shares:
         return None, 0
     return max(shares, key=lambda cd: cd[0] / cd[1] if cd[1] else 0.0)

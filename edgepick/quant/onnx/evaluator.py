@@ -96,7 +96,7 @@ class Evaluator:
             for name, error, r, t in zip(self.names, errors, ref, got):
                 error.add(r, t)
                 fidelity[name].add(r, t, self.nhwc)
-        if judge and self.judge is not None:
+        if judge and self.judge is not None:  # (the second test for the type checker)
             fidelity[JUDGED] = judged(self.judge(self.reference, kept))
         return fidelity, max(e.value for e in errors)
 
