@@ -239,21 +239,15 @@ ENGINES: tuple[Engine, ...] = (
     # AdaRound on top of the defaults (`--adaround`), its budget halved to bound the run
     Engine("edgepick-ada", ONNXRUNTIME, edgepick_quantizer("edgepick-ada", OnnxOptions(),
                                                            methods=PtqMethods(adaround=True, adaround_budget_s=60.0))),
-    # 8-bit weights everywhere (`--weight-bits 8`: exact on CPUs with VNNI, which add in int32; also with the percentile
-    # rule pinned, beside edgepick-percentile: the weight bits alone), and 7-bit only where a conv's pair sums came near
-    # the int16 limit on the calibration inputs (`--weight-bits first-7`)
+    # 8-bit weights (`--weight-bits 8`: exact on CPUs with VNNI, which add in int32), with the defaults and with the
+    # percentile rule pinned (beside edgepick-percentile: the weight bits alone)
     Engine("edgepick-w8", ONNXRUNTIME, edgepick_quantizer("edgepick-w8", OnnxOptions(), config=QuantConfig(weight_bits="8"))),
     Engine("edgepick-percentile-w8", ONNXRUNTIME, edgepick_quantizer("edgepick-percentile-w8", OnnxOptions(),
                                                                      config=QuantConfig(calib_method="percentile",
                                                                                         weight_bits="8"))),
-    Engine("edgepick-first7", ONNXRUNTIME, edgepick_quantizer("edgepick-first7", OnnxOptions(),
-                                                              config=QuantConfig(weight_bits="first-7"))),
     # the file made for OpenVINO: placement auto, the candidates timed on OpenVINO
     Engine("edgepick-openvino", OPENVINO, edgepick_quantizer("edgepick-openvino",
                                                              OnnxOptions(placement="auto", target="openvino"))),
-    Engine("edgepick-openvino-w8", OPENVINO, edgepick_quantizer("edgepick-openvino-w8",
-                                                                OnnxOptions(placement="auto", target="openvino"),
-                                                                config=QuantConfig(weight_bits="8"))),
     # the candidates it chose among, each on its own: what the choice left
     *(Engine(f"edgepick-openvino-{p}", OPENVINO, openvino_placement_quantizer(p)) for p in ("all", "convs", "joins")),
 )
