@@ -31,9 +31,9 @@ def test_without_it_nothing_is_timed(tmp_path):
 
 
 def test_a_graph_timed_against_itself_runs_at_about_its_own_speed(tmp_path):
-    """Both graphs given are timed and the ratio is theirs, and the record names the machine. (The ratio of one
-    graph timed twice is near 1 on a quiet machine only: a timed unit test on a shared CPU would be flaky, so the
-    test checks the record, not the machine's noise; benchmarks measure speed.)"""
+    """Both graphs given are timed and the ratio is theirs, and the record names the machine. One graph timed
+    twice is near 1x on a quiet machine; on a loaded shared CPU (the test suite's own workers) it left 0.5-2x
+    once, so the bound is wide: it catches the two graphs timed differently (threads, inputs), not the noise."""
     src = export_torch(tmp_path / "net.onnx")
     model = onnx.load(str(src))
     x = calib_tensors(1)[0]
@@ -41,6 +41,7 @@ def test_a_graph_timed_against_itself_runs_at_about_its_own_speed(tmp_path):
     assert set(speed) == {"fp32_ms", "int8_ms", "speedup_vs_fp32", "threads", "machine"}
     assert speed["fp32_ms"] > 0 and speed["int8_ms"] > 0 and speed["machine"]
     assert speed["speedup_vs_fp32"] == round(speed["fp32_ms"] / speed["int8_ms"], 3)
+    assert 0.2 < speed["speedup_vs_fp32"] < 5.0
 
 
 def test_the_pass_says_so_where_the_int8_file_is_the_slower(tmp_path, monkeypatch, capsys):

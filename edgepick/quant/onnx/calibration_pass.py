@@ -17,11 +17,11 @@ import numpy as np
 from edgepick.progress import StageClock
 from edgepick.progress import progress as progress_bar
 from edgepick.quant.config import CalibMethod, Placement, PtqMethods, QuantConfig
-from edgepick.quant.fidelity import RuleScore, most_changed, ranked_rule
+from edgepick.quant.fidelity import ranked_rule
 from edgepick.quant.onnx.calibrate import Collector, calibrated_tensors, check_memory, release_memory
 from edgepick.quant.onnx.evaluator import Evaluator
 from edgepick.quant.onnx.inputs import check_tensor
-from edgepick.quant.onnx.qdq import choose_rule, exact_tensors
+from edgepick.quant.onnx.qdq import choose_rule, exact_tensors, rule_score
 from edgepick.quant.ranges import RangeRule, candidate_rules
 
 # a rule measure under this (dB, before bias correction) ranks the candidates by an error the correction then
@@ -125,11 +125,11 @@ def ranges_after_correction(cal: Calibrated, build: Callable[..., tuple[Any, dic
         return int8, done, cal
     chosen = cal.record["rule"]
     made = {chosen: (int8, done, cal.ranges)}  # the graphs of the closest and of the fewest decisions changed so far
-    scores = {chosen: _score(evaluator, int8, chosen)}
+    scores = {chosen: rule_score(evaluator, int8, RangeRule.parse(chosen))}
     for rule, ranges in cal.candidates.items():
         if rule != chosen:
             graph, built = build(methods, ranges)
-            made[rule], scores[rule] = (graph, built, ranges), _score(evaluator, graph, rule)
+            made[rule], scores[rule] = (graph, built, ranges), rule_score(evaluator, graph, RangeRule.parse(rule))
             leaders = {str(min(scores.values(), key=key).rule) for key in (lambda s: s.error, lambda s: s.rank)}
             made = {r: g for r, g in made.items() if r in leaders or r == chosen}
     rule = str(ranked_rule(list(scores.values())).rule)
@@ -143,8 +143,3 @@ def ranges_after_correction(cal: Calibrated, build: Callable[..., tuple[Any, dic
     record = {**cal.record, "rule": rule, "chosen_before_correction": chosen, "after_correction": after}
     return int8, done, replace(cal, ranges=ranges, record=record, candidates={})
 
-
-def _score(evaluator: Evaluator, graph: Any, rule: str) -> RuleScore:
-    """RULE's GRAPH measured as `choose_rule` measures a candidate: the decisions it changes and its error."""
-    fidelity, error = evaluator.measure(graph, judge=False)
-    return RuleScore(RangeRule.parse(rule), error, *most_changed(fidelity), decisions="decision")

@@ -218,11 +218,17 @@ def choose_rule(collector: Collector, pre: Path, float_model: Any, held: list[np
     for rule in progress_bar(rules, desc="choose ranges", unit="rule", enabled=progress):
         # every Relu and Clip read by a quantized op alone folded into its grid, as every placement's writer folds them
         requantize_activations(written, float_model, adjusted_ranges(float_model, collector.ranges(rule, exact)))
-        fidelity, error = check.measure(written, judge=False)
-        scores.append(RuleScore(rule, error, *most_changed(fidelity), decisions="decision"))
+        scores.append(rule_score(check, written, rule))
     best = ranked_rule(scores)
     return best.rule, {"rule": str(best.rule), "held_out": len(held) if held_out else 0,
                        "candidates": [s.to_dict() for s in scores]}, pristine
+
+
+def rule_score(evaluator: Evaluator, graph: Any, rule: RangeRule) -> RuleScore:
+    """RULE's int8 GRAPH measured on EVALUATOR's check tensors as every candidate rule is: its outputs'
+    error and the decisions it changes (the outputs' tasks alone, not a caller's judge)."""
+    fidelity, error = evaluator.measure(graph, judge=False)
+    return RuleScore(rule, error, *most_changed(fidelity), decisions="decision")
 
 
 def qdq_for(written: Any | None, prepared: Path, float_model: Any, ranges: dict[str, tuple[float, float]],
